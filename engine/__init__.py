@@ -1,0 +1,1 @@
+"""morphspace engine: pure computation on meshes and mesh sequences (no server imports)."""

@@ -1,0 +1,35 @@
+"""Per-tetrahedron deformation gradients."""
+
+from __future__ import annotations
+
+from ._validate import as_tets, as_vertices, edge_matrices, inverse_edge_matrices
+
+
+def deformation_gradients(V_rest, V_def, T):
+    """Affine deformation gradient of every tetrahedron from a rest to a deformed pose.
+
+    Parameters
+    ----------
+    V_rest : (k, 3) float array   rest tet-mesh vertex positions (no degenerate tets)
+    V_def : (k, 3) float array    deformed positions of the same vertices
+    T : (t, 4) int array          tetrahedra
+
+    Returns
+    -------
+    F : (t, 3, 3) float64 array
+        ``F[i] @ (x_j - x_0) == y_j - x_0'`` for the edges of tet ``i`` (rest ``x``, deformed
+        ``y``); translation-free. ``F[i].T`` is the (3, 3) block ``tet_gradient(V_rest, T) @
+        V_def`` at rows ``3*i .. 3*i + 2``.
+
+    Notes
+    -----
+    ``F = E_def E_rest^{-1}`` with ``E`` the edge matrices; the per-element quantity that the
+    non-linear blend of Casas et al. 2012, section 4.1, splits into rotation and stretch
+    (:func:`polar_decomposition`).
+    """
+    V_rest = as_vertices(V_rest, "V_rest")
+    V_def = as_vertices(V_def, "V_def")
+    if V_def.shape != V_rest.shape:
+        raise ValueError(f"V_def has shape {V_def.shape}, V_rest has {V_rest.shape}")
+    T = as_tets(T, len(V_rest))
+    return edge_matrices(V_def, T) @ inverse_edge_matrices(V_rest, T, "V_rest")

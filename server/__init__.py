@@ -1,0 +1,1 @@
+"""morphspace server: CLI, REST and WebSocket streaming on top of the engine."""

@@ -1,0 +1,46 @@
+"""The ``morphspace`` command line.
+
+Subcommands register themselves in ``COMMANDS``; each has an ``add_arguments(parser)`` and a
+``run(args) -> int``. Errors in user input end with a one-line message and exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from server.commands import synth
+
+COMMANDS = {
+    "synth": synth,
+}
+
+
+def build_parser():
+    parser = argparse.ArgumentParser(
+        prog="morphspace",
+        description="Parametric real-time animation of performance-captured mesh sequences.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, module in COMMANDS.items():
+        doc = (module.__doc__ or "").strip().splitlines()
+        p = sub.add_parser(name, help=doc[0] if doc else None, description=(module.__doc__ or "").strip(),
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.add_arguments(p)
+    return parser
+
+
+def main(argv=None):
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return COMMANDS[args.command].run(args)
+    except (ValueError, FileExistsError, FileNotFoundError) as exc:
+        print(f"morphspace {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"morphspace {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,68 @@
+"""Surface measurements, operators and closest-point queries."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from engine.surface import (
+    SurfaceQuery,
+    cotangent_laplacian,
+    enclosed_volume,
+    lumped_mass,
+    model_size,
+    volume_centroid,
+)
+
+
+@pytest.fixture(scope="module")
+def sphere():
+    m = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    return np.asarray(m.vertices), np.asarray(m.faces)
+
+
+def test_unit_cube_volume_centroid_and_size():
+    cube = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
+    V, F = np.asarray(cube.vertices) + [1.0, 2.0, 3.0], np.asarray(cube.faces)
+    assert enclosed_volume(V, F) == pytest.approx(6.0)
+    np.testing.assert_allclose(volume_centroid(V, F), [1.0, 2.0, 3.0], atol=1e-12)
+    assert model_size(V) == pytest.approx(3.0)
+
+
+def test_volume_centroid_is_vectorised_over_frames(sphere):
+    V, F = sphere
+    frames = np.stack([V, V + [0.0, 1.0, 0.0], 2.0 * V])
+    c = volume_centroid(frames, F)
+    np.testing.assert_allclose(c, [[0, 0, 0], [0, 1, 0], [0, 0, 0]], atol=1e-12)
+    np.testing.assert_allclose(enclosed_volume(frames, F)[2], 8 * enclosed_volume(V, F))
+
+
+def test_cotangent_laplacian_rows_sum_to_zero_and_is_symmetric_psd(sphere):
+    V, F = sphere
+    L = cotangent_laplacian(V, F)
+    np.testing.assert_allclose(np.asarray(L.sum(axis=1)).ravel(), 0.0, atol=1e-10)
+    assert abs(L - L.T).max() < 1e-12
+    x = np.random.default_rng(0).normal(size=len(V))
+    assert x @ (L @ x) > 0
+    assert lumped_mass(V, F).diagonal().sum() == pytest.approx(trimesh.Trimesh(V, F).area)
+
+
+def test_closest_points_match_brute_force(sphere):
+    V, F = sphere
+    rng = np.random.default_rng(1)
+    P = V[rng.integers(0, len(V), 200)] * rng.uniform(0.97, 1.03, (200, 1)) + rng.normal(0, 0.004, (200, 3))
+    points, faces, bary, distance = SurfaceQuery(V, F).closest(P)
+    reference, ref_distance, _ = trimesh.proximity.closest_point(trimesh.Trimesh(V, F, process=False), P)
+    np.testing.assert_allclose(distance, ref_distance, atol=1e-9)
+    np.testing.assert_allclose(points, np.einsum("qk,qkc->qc", bary, V[F[faces]]), atol=1e-12)
+    assert np.all(bary >= -1e-12) and np.allclose(bary.sum(axis=1), 1.0)
+
+
+def test_points_on_the_surface_are_their_own_closest_points(sphere):
+    V, F = sphere
+    rng = np.random.default_rng(2)
+    faces = rng.integers(0, len(F), 100)
+    w = rng.dirichlet(np.ones(3), 100)
+    P = np.einsum("qk,qkc->qc", w, V[F[faces]])
+    points, _, _, distance = SurfaceQuery(V, F).closest(P)
+    assert distance.max() < 1e-12
+    np.testing.assert_allclose(points, P, atol=1e-12)
