@@ -72,7 +72,8 @@ def render_meshes(meshes, *, azimuth=30.0, elevation=10.0, width=800, height=800
     shades = np.concatenate(shades)
     order = np.argsort(np.concatenate(depths))
     fig = _figure(width, height)
-    ax = fig.add_axes([0, 0, 1, 1] if colorbar is None else [0, 0, 0.86, 1])
+    top = 0.92 if title else 1.0
+    ax = fig.add_axes([0, 0, 1, top] if colorbar is None else [0, 0, 0.86, top])
     ax.set_facecolor(background)
     fig.patch.set_facecolor(background)
     points = np.concatenate(all_points)
@@ -84,13 +85,13 @@ def render_meshes(meshes, *, azimuth=30.0, elevation=10.0, width=800, height=800
     pad = 0.05 * max(hi - lo)
     span = max(hi - lo) / 2 + pad
     mid = (lo + hi) / 2
-    aspect = width / height if colorbar is None else 0.86 * width / height
+    aspect = (width if colorbar is None else 0.86 * width) / (top * height)
     ax.set_xlim(mid[0] - span * max(aspect, 1), mid[0] + span * max(aspect, 1))
     ax.set_ylim(mid[1] - span / min(aspect, 1), mid[1] + span / min(aspect, 1))
     ax.set_aspect("equal")
     ax.axis("off")
     if title:
-        ax.set_title(title, fontsize=11, y=0.97)
+        fig.text(0.5, 0.96, title, ha="center", va="center", fontsize=11)
     if colorbar is not None:
         import matplotlib as mpl
 

@@ -5,7 +5,7 @@ DATASET/
   manifest.json                 format, preset, body, fps, model size, sequence list + metadata
   template/body.obj             rest surface (A-pose) with vertex colours
   template/body.npz             skin weights, segments, hand vertex ids, skeleton rest pose
-  sequences/<name>/consistent/frame_0000.obj ...    template topology every frame
+  sequences/<name>/consistent/frame_0000.obj ...    template topology every frame (micrometres)
   sequences/<name>/unstructured/frame_0000.ply ...  independently re-meshed frames
   sequences/<name>/truth.npz    root trajectory, joints, template_positions (frames, n, 3)
   sequences/<name>/meta.json    requested and measured parameters, events
@@ -70,7 +70,8 @@ def write_capture_sequence(root, name, *, faces, vertices, colors, unstructured,
     """
     from engine.mesh_io import write_obj, write_ply
 
-    writers = {"obj": write_obj, "ply": write_ply}
+    writers = {"obj": lambda path, V, F, colors: write_obj(path, V, F, colors=colors, precision=6),
+               "ply": write_ply}
     for fmt in (consistent_format, unstructured_format):
         if fmt not in writers:
             raise ValueError(f"unsupported output format {fmt!r}; choose obj or ply")
@@ -78,7 +79,8 @@ def write_capture_sequence(root, name, *, faces, vertices, colors, unstructured,
     total = len(vertices) + (len(unstructured) if unstructured else 0)
     done = 0
     for k, V in enumerate(vertices):
-        writers[consistent_format](base / "consistent" / f"frame_{k:04d}.{consistent_format}", V, faces, colors=colors)
+        writers[consistent_format](base / "consistent" / f"frame_{k:04d}.{consistent_format}", V, faces,
+                                   colors=colors)
         done += 1
         if progress is not None:
             progress(done, total)

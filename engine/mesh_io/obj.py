@@ -180,7 +180,7 @@ def _raise_first_bad_number(lines, line_numbers, parse, what, source):
     raise MeshFormatError(f"{source}: could not parse the {what}s")  # pragma: no cover
 
 
-def write_obj(path, V, F, colors=None):
+def write_obj(path, V, F, colors=None, precision=None):
     """Write a triangle mesh as OBJ, atomically.
 
     Parameters
@@ -189,6 +189,8 @@ def write_obj(path, V, F, colors=None):
     V : (n, 3) float array      vertex positions
     F : (m, 3) int array        triangles, 0-based
     colors : (n, 3) float array in [0, 1], optional   written as ``v x y z r g b``
+    precision : int, optional   decimal places of coordinates (e.g. 6 = micrometres for metres);
+                                default: exact round trip
 
     Returns
     -------
@@ -196,18 +198,23 @@ def write_obj(path, V, F, colors=None):
 
     Notes
     -----
-    Coordinates are written with Python's shortest round-trip repr, so reading the file back
-    gives bit-identical float64 values; colours with 9 significant digits (exact for float32).
+    By default coordinates are written with Python's shortest round-trip repr, so reading the
+    file back gives bit-identical float64 values; colours with 9 significant digits (exact for
+    float32). With ``precision`` files are about half the size: coordinates are rounded to that
+    many decimals and colours to 4 significant digits.
     """
     source = str(path)
     V = check_vertices(V, source)
     F = check_faces(F, len(V), source)
     colors = check_colors(colors, len(V), source)
+    coordinate = "%r" if precision is None else f"%.{int(precision)}f"
+    channel = "%.9g" if precision is None else "%.4g"
     if colors is None:
-        vertex_text = ("v %r %r %r\n" * len(V)) % tuple(V.ravel().tolist())
+        vertex_text = (f"v {coordinate} {coordinate} {coordinate}\n" * len(V)) % tuple(V.ravel().tolist())
     else:
         rows = np.hstack([V, colors.astype(np.float64)])
-        vertex_text = ("v %r %r %r %.9g %.9g %.9g\n" * len(V)) % tuple(rows.ravel().tolist())
+        line = f"v {coordinate} {coordinate} {coordinate} {channel} {channel} {channel}\n"
+        vertex_text = (line * len(V)) % tuple(rows.ravel().tolist())
     face_text = ("f %d %d %d\n" * len(F)) % tuple((F + 1).ravel().tolist())
     with atomic_write(path) as file:
         file.write(f"# {len(V)} vertices, {len(F)} faces\n".encode())

@@ -89,9 +89,11 @@ def _write_preview(path, body, data):
 
     V = data["vertices"]
     picks = np.linspace(0, len(V) - 1, min(8, len(V))).astype(int)
-    kind = data["meta"]["kind"]
-    azimuth = 90.0 if kind in ("gait", "jump") else 35.0
-    strip = render_meshes([(V[k], body.F, body.colors) for k in picks], azimuth=azimuth, elevation=10,
+    meta = data["meta"]
+    turning = meta["kind"] == "gait" and abs(meta["requested"].get("turn_rate", 0.0)) > 0
+    azimuth = 90.0 if meta["kind"] in ("gait", "jump") and not turning else 35.0
+    elevation = 55.0 if turning else 10.0  # from above, to show the curved path
+    strip = render_meshes([(V[k], body.F, body.colors) for k in picks], azimuth=azimuth, elevation=elevation,
                           width=1400, height=520,
                           title=f"{data['meta']['name']}: frames {', '.join(str(k) for k in picks)}")
     images = [strip]
@@ -171,7 +173,7 @@ def _run_jobs(jobs, workers):
     """Run jobs in a process pool with one progress bar over all frames written."""
     context = multiprocessing.get_context("spawn")
     progress_queue = context.Queue()
-    bar = tqdm(total=0, unit="frame", desc="synth", dynamic_ncols=True)
+    bar = tqdm(total=0, unit="frame", desc="synth", dynamic_ncols=True, mininterval=0.5)
     seen = {}
     metas = {}
     with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker,

@@ -782,3 +782,14 @@ def test_reading_bytes_from_a_stream_object():
     buffer = io.BytesIO(polygon_off(V, F))
     mesh = read_mesh(buffer, name="stream.off")
     np.testing.assert_array_equal(mesh.faces, F)
+
+
+def test_obj_fixed_precision_rounds_coordinates(tmp_path):
+    V, F = tetrahedron()
+    V = V + 0.123456789
+    path = tmp_path / "rounded.obj"
+    write_obj(path, V, F, colors=np.full((len(V), 3), 0.5), precision=6)
+    mesh = read_mesh(path)
+    assert np.abs(mesh.vertices - V).max() <= 5e-7
+    assert "0.123457" in path.read_text()
+    np.testing.assert_allclose(mesh.colors, 0.5)
