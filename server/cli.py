@@ -9,10 +9,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-from server.commands import synth
+from server.commands import build, synth
 
 COMMANDS = {
     "synth": synth,
+    "build": build,
 }
 
 
@@ -34,7 +35,7 @@ def main(argv=None):
     args = parser.parse_args(argv)
     try:
         return COMMANDS[args.command].run(args)
-    except (ValueError, FileExistsError, FileNotFoundError) as exc:
+    except (ValueError, OSError) as exc:
         print(f"morphspace {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

@@ -1,0 +1,134 @@
+"""A loaded motion space: memory-mapped arrays and the blenders built on them."""
+
+from __future__ import annotations
+
+from functools import cached_property
+
+import numpy as np
+
+from engine.blend import (
+    Corrections,
+    HybridBlender,
+    LinearBlender,
+    NonlinearBlender,
+    PhasedNonlinearBlender,
+    SimplexTree,
+    VolumetricEmbedding,
+)
+from engine.motion_space.build import SPACE_FORMAT, SPACE_VERSION
+from engine.motion_space.container import Container, MotionSpaceError
+
+MODES = ("linear", "hybrid", "nonlinear")
+
+
+class MotionSpace:
+    """A motion space opened from its ``.mspace`` file.
+
+    ``space = MotionSpace.open(path)`` maps the file (no copies); ``space.blender(mode)`` builds
+    a blender once and caches it; ``space.blend(weights, phase, mode)`` is a convenience.
+
+    Attributes
+    ----------
+    name : str
+    metadata : dict
+    faces : (m, 3) int32 array
+    sources : (P, N, n, 3) float32 array   phase-major, root-local
+    n_sources, n_phases, n_vertices : int
+    cyclic : bool
+    model_size : float                     metres
+    """
+
+    def __init__(self, container):
+        self.container = container
+        meta = container.metadata
+        if meta.get("format") != SPACE_FORMAT:
+            raise MotionSpaceError(f"{container.path}: the file holds {meta.get('format')!r}, "
+                                   f"not a {SPACE_FORMAT}")
+        if meta.get("version", 0) > SPACE_VERSION:
+            raise MotionSpaceError(f"{container.path}: motion space version {meta['version']} is newer "
+                                   f"than this morphspace understands ({SPACE_VERSION})")
+        self.metadata = meta
+        self.name = meta["name"]
+        self.n_sources, self.n_phases = meta["n_sources"], meta["n_phases"]
+        self.n_vertices = meta["n_vertices"]
+        self.cyclic = meta["cyclic"]
+        self.model_size = meta["model_size"]
+        self.faces = container["faces"]
+        self.sources = container["sources"]
+        self._blenders = {}
+
+    @classmethod
+    def open(cls, path, *, verify=True):
+        """Open a motion space file (``verify`` checks every array's checksum)."""
+        return cls(Container.open(path, verify=verify))
+
+    def close(self):
+        self.container.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    @property
+    def source_names(self):
+        return [s["name"] for s in self.metadata["sources"]]
+
+    def durations(self):
+        """(N,) seconds per source (one cycle, or the whole clip)."""
+        return np.array([s["duration"] for s in self.metadata["sources"]])
+
+    @cached_property
+    def embedding(self):
+        c = self.container
+        return VolumetricEmbedding(V_tet=np.asarray(c["tet_vertices"]), T=np.asarray(c["tets"], dtype=np.int64),
+                                   surface_tet=np.asarray(c["surface_tet"], dtype=np.int64),
+                                   surface_bary=np.asarray(c["surface_bary"]))
+
+    @cached_property
+    def tree(self):
+        c = self.container
+        return SimplexTree.from_arrays(np.asarray(c["hybrid_references"]), np.asarray(c["hybrid_cells"]),
+                                       np.asarray(c["hybrid_children"]), np.asarray(c["hybrid_split"]))
+
+    @cached_property
+    def corrections(self):
+        c = self.container
+        return Corrections(n_phases=self.n_phases, pointer=c["corrections_pointer"],
+                           vertex=c["corrections_vertex"], value=c["corrections_value"],
+                           scale=c["corrections_scale"])
+
+    def blender(self, mode):
+        """The blender for ``mode`` ("linear", "hybrid" or "nonlinear"), built once."""
+        if mode not in MODES:
+            raise ValueError(f"unknown blend mode {mode!r}; choose one of {', '.join(MODES)}")
+        if mode not in self._blenders:
+            if mode == "linear":
+                blender = LinearBlender(self.sources, self.cyclic)
+            elif mode == "hybrid":
+                blender = HybridBlender(self.sources, self.tree, self.corrections, self.cyclic)
+            else:
+                c = self.container
+                inner = NonlinearBlender(self.embedding, c["nl_quaternions"], c["nl_stretch"], c["nl_detail"],
+                                         self.sources.reshape(-1, self.n_vertices, 3))
+                blender = PhasedNonlinearBlender(inner, self.n_phases, self.n_sources, self.cyclic)
+            self._blenders[mode] = blender
+        return self._blenders[mode]
+
+    def check_weights(self, weights):
+        """Validated (N,) float weights: finite, non-negative, not all zero."""
+        w = np.asarray(weights, dtype=np.float64)
+        if w.shape != (self.n_sources,):
+            raise ValueError(f"{self.name}: expected {self.n_sources} weights "
+                             f"({', '.join(self.source_names)}), got shape {w.shape}")
+        if not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+            raise ValueError(f"{self.name}: weights must be finite, non-negative and not all zero, got {w.tolist()}")
+        return w
+
+    def blend(self, weights, phase, mode="hybrid"):
+        """(n, 3) blended vertices at ``weights`` and ``phase`` in [0, 1]."""
+        phase = float(phase)
+        if not np.isfinite(phase):
+            raise ValueError(f"{self.name}: phase must be finite, got {phase}")
+        return self.blender(mode).blend(self.check_weights(weights), phase)
