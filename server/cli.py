@@ -9,11 +9,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-from server.commands import build, synth
+from server.commands import blend, build, synth
+from server.commands import eval as eval_command
 
 COMMANDS = {
     "synth": synth,
     "build": build,
+    "blend": blend,
+    "eval": eval_command,
 }
 
 

@@ -9,7 +9,7 @@ test points of every cell, over all phase samples.
 Storage is hierarchical and sparse. When a cell is split at the midpoint m of its edge (a, b),
 only the part of D_NL(m) that interpolating the edge does not predict is stored:
 delta_m = D_NL(m) - (D(a) + D(b)) / 2, per phase sample, only where |delta_m| exceeds a
-threshold, quantised to 16 bits. For a weight vector w the correction is then the sum over the
+threshold, quantised to 8 bits per component with one scale per reference and phase. For a weight vector w the correction is then the sum over the
 split nodes on w's path down the tree of phi_m(w) delta_m with phi_m = 2 min(lambda_a, lambda_b)
 (the hat function of m), which equals the nodal interpolation of eq. 3 in w's leaf.
 """
@@ -23,7 +23,7 @@ import numpy as np
 from engine.blend.phase import phase_samples
 from engine.blend.simplex import SimplexTree
 
-QUANT_LEVELS = 32767  # int16 range used by quantised corrections
+QUANT_LEVELS = 127  # int8 range used by quantised corrections
 
 
 @dataclass
@@ -35,8 +35,13 @@ class Corrections:
     n_phases : int
     pointer : (R * P + 1,) int64       entries of reference r at phase p: pointer[r*P+p] .. [r*P+p+1]
     vertex : (E,) uint16 or uint32     vertex of each entry
-    value : (E, 3) int16               quantised residual delta (multiply by ``scale[r]``)
-    scale : (R,) float32               metres per quantisation step, per reference
+    value : (E, 3) int8                quantised residual delta (multiply by ``scale[r*P+p]``)
+    scale : (R * P,) float32           metres per quantisation step, per reference and phase
+
+    Notes
+    -----
+    Quantisation error is at most half a step per component, max |delta| / 254 for that
+    reference and phase; the bisection measures errors with these stored values.
     """
 
     n_phases: int
@@ -47,15 +52,16 @@ class Corrections:
 
     @property
     def n_references(self):
-        return len(self.scale)
+        return len(self.scale) // self.n_phases
 
     def nbytes(self):
         """Storage of the corrections (what the motion-space file holds)."""
         return self.pointer.nbytes + self.vertex.nbytes + self.value.nbytes + self.scale.nbytes
 
     def entries(self, r, p):
-        s, e = self.pointer[r * self.n_phases + p], self.pointer[r * self.n_phases + p + 1]
-        return self.vertex[s:e], self.value[s:e], self.scale[r]
+        k = r * self.n_phases + p
+        s, e = self.pointer[k], self.pointer[k + 1]
+        return self.vertex[s:e], self.value[s:e], self.scale[k]
 
     def dense(self, r, n_vertices):
         """(P, n, 3) float32 residual delta of reference r (for analysis and tests)."""
@@ -76,32 +82,31 @@ class _CorrectionBuilder:
 
     def add(self, delta, threshold):
         """Store (P, n, 3) residual ``delta`` where |delta| > threshold; returns what is stored."""
-        magnitude = np.linalg.norm(delta, axis=2)
-        keep = magnitude > threshold
-        peak = float(np.abs(delta[keep]).max()) if np.any(keep) else 0.0
-        scale = peak / QUANT_LEVELS if peak > 0 else 1.0
+        keep = np.linalg.norm(delta, axis=2) > threshold
         stored = np.zeros_like(delta, dtype=np.float32)
         for p in range(self.n_phases):
             index = np.flatnonzero(keep[p])
-            q = np.clip(np.rint(delta[p, index] / scale), -QUANT_LEVELS, QUANT_LEVELS).astype(np.int16)
+            peak = float(np.abs(delta[p, index]).max()) if len(index) else 0.0
+            scale = np.float32(peak / QUANT_LEVELS if peak > 0 else 1.0)
+            q = np.clip(np.rint(delta[p, index] / scale), -QUANT_LEVELS, QUANT_LEVELS).astype(np.int8)
             self.counts.append(len(index))
             self.vertices.append(index.astype(self.vertex_dtype))
             self.values.append(q)
-            stored[p, index] = q * np.float32(scale)
-        self.scales.append(scale)
+            self.scales.append(scale)
+            stored[p, index] = q * scale
         return stored
 
     def add_empty(self):
         self.counts += [0] * self.n_phases
         self.vertices += [np.zeros(0, self.vertex_dtype)] * self.n_phases
-        self.values += [np.zeros((0, 3), np.int16)] * self.n_phases
-        self.scales.append(1.0)
+        self.values += [np.zeros((0, 3), np.int8)] * self.n_phases
+        self.scales += [np.float32(1.0)] * self.n_phases
 
     def finish(self):
         pointer = np.concatenate([[0], np.cumsum(self.counts)]).astype(np.int64)
         return Corrections(n_phases=self.n_phases, pointer=pointer,
                            vertex=np.concatenate(self.vertices).astype(self.vertex_dtype),
-                           value=np.concatenate(self.values).reshape(-1, 3).astype(np.int16),
+                           value=np.concatenate(self.values).reshape(-1, 3).astype(np.int8),
                            scale=np.asarray(self.scales, dtype=np.float32))
 
 
@@ -143,7 +148,7 @@ class HybridBlender:
         s, e = self._pointer[k], self._pointer[k + 1]
         if e > s:
             np.add.at(flat, self._flat_index[3 * s:3 * e],
-                      self._value[3 * s:3 * e] * np.float32(coefficient * self._scale[r]))
+                      self._value[3 * s:3 * e] * np.float32(coefficient * self._scale[k]))
 
     def blend(self, weights, phase, out=None):
         """Blended vertices (n, 3) float32 at ``weights`` (N,) and ``phase`` in [0, 1]."""

@@ -106,9 +106,10 @@ class FrameDecomposer:
 
     Notes
     -----
-    The fit minimises ||G X - G_target||_D^2 + w^2 ||B X - S||^2 (eq. 2), first with the rest
-    gradients as targets, then with the rotations of the previous fit (local/global ARAP
-    steps), so interior tets follow the surface rigidly where they can.
+    The fit minimises ||G X - G_target||_D^2 + w^2 ||B X - S||^2 (eq. 2), first with the
+    frame's best-fitting global rotation as every tet's target (so a rigid motion is fitted
+    exactly), then with the rotations of the previous fit (local/global ARAP steps), so
+    interior tets follow the surface rigidly where they can.
     """
 
     def __init__(self, embedding, *, fit_weight=30.0, iterations=2):
@@ -118,13 +119,13 @@ class FrameDecomposer:
         self.weight = float(np.sqrt(fit_weight * probe.L.diagonal().mean()))
         self.solver = DeformationSolver(embedding.V_tet, embedding.T, constraints=self.B,
                                         constraint_weight=self.weight)
-        self.rest_gradients = np.asarray(self.solver.G @ embedding.V_tet)
         self.iterations = int(iterations)
+        self.rest_surface = np.asarray(self.B @ embedding.V_tet)
 
     def fit(self, S):
         """Tet vertex positions (k, 3) fitted to surface frame S (n, 3)."""
         T, V_tet = self.embedding.T, self.embedding.V_tet
-        X = self.solver.solve(self.rest_gradients, S)
+        X = self.solver.solve(_stacked(np.broadcast_to(_best_rotation(self.rest_surface, S), (len(T), 3, 3))), S)
         for _ in range(self.iterations):
             R, _ = polar_decomposition(deformation_gradients(V_tet, X, T))
             X = self.solver.solve(_stacked(R @ _rest_frames(len(T))), S)
@@ -144,6 +145,14 @@ class FrameDecomposer:
         return FrameDecomposition(quaternions=q, stretch=_stretch_to_vector(Sy), detail=detail)
 
 
+def _best_rotation(P, Q):
+    """Rotation R minimising sum |R (p - mean p) - (q - mean q)|^2 (Kabsch)."""
+    H = (P - P.mean(axis=0)).T @ (Q - Q.mean(axis=0))
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    return Vt.T @ D @ U.T
+
+
 def _rest_frames(t):
     return np.broadcast_to(np.eye(3), (t, 3, 3))
 
@@ -152,17 +161,30 @@ def _stacked(F):
     return np.ascontiguousarray(np.swapaxes(F, 1, 2)).reshape(-1, 3)
 
 
-def robust_offset(delta, iterations=10):
-    """Geometric median of per-vertex offsets (n, 3) by Weiszfeld's iterations.
+def anchored_offset(delta, dispersion, floor=1e-3):
+    """Translation placing a non-linear blend relative to the linear blend of the same frames.
 
-    Used to place a non-linear blend relative to the linear one: the translation moves the
-    blend so the parts where the two agree coincide, and differences stay where they arise.
+    Parameters
+    ----------
+    delta : (n, 3) float array       per-vertex offsets, non-linear minus linear
+    dispersion : (n,) float array    how much the sources disagree on the rotation at each vertex
+                                     (weighted quaternion variance, 0 = all rotate alike)
+    floor : float                    dispersion below which vertices count as fully rigid
+
+    Returns
+    -------
+    t : (3,) float array   weighted mean of ``delta``, weights 1 / (floor + dispersion)
+
+    Notes
+    -----
+    The solve fixes the blend's shape up to a translation. Anchoring it where the sources agree
+    on the rotation (the torso of a walk and a jog) makes non-linear and linear blends coincide
+    there and leaves the difference in the parts that rotate (the limbs), so hybrid corrections
+    stay sparse. When every part rotates alike (a rigid rotation), the weights are uniform and
+    the centroids coincide, which places a rotation-interpolated rigid body exactly.
     """
-    t = delta.mean(axis=0)
-    for _ in range(iterations):
-        w = 1.0 / np.maximum(np.linalg.norm(delta - t, axis=1), 1e-6)
-        t = (w @ delta) / w.sum()
-    return t
+    weight = 1.0 / (floor + dispersion)
+    return (weight @ delta) / weight.sum()
 
 
 class NonlinearBlender:
@@ -184,10 +206,9 @@ class NonlinearBlender:
     Rotations are averaged as sign-aligned, weighted quaternion sums normalised per tet (the
     hemisphere of the heaviest contributor); stretches and detail blend linearly; one
     prefactored solve gives the tet vertices. The solve fixes the shape up to a translation,
-    chosen so the blend's offsets from the linear blend of the same frames have zero geometric
-    median (``robust_offset``): the body parts where linear blending is already right coincide
-    with it, and the non-linear difference stays in the parts that rotate (the limbs). With
-    weights e_i every choice gives back source i exactly.
+    chosen by ``anchored_offset``: the blend coincides with the linear blend where the sources
+    agree on the rotation, so the non-linear difference stays in the parts that rotate (the
+    limbs). With weights e_i every choice gives back source i exactly.
     """
 
     def __init__(self, embedding, quaternions, stretch, detail, surfaces):
@@ -216,21 +237,24 @@ class NonlinearBlender:
         coefficients, frames = coefficients[keep], frames[keep]
         if len(frames) == 0:
             raise ValueError("blend weights are all zero")
-        q = np.asarray(self.quaternions[frames], dtype=np.float64)  # (c, t, 4)
+        # Blend in the stored precision (float32) and convert only the per-tet results.
+        c32 = coefficients.astype(np.float32)
+        q = self.quaternions[frames]  # (c, t, 4)
         top = q[np.argmax(coefficients)]
-        signs = np.sign(np.einsum("ctk,tk->ct", q, top))
-        signs[signs == 0] = 1.0
-        qb = np.einsum("c,ct,ctk->tk", coefficients, signs, q)
-        qb /= np.linalg.norm(qb, axis=1, keepdims=True)
+        signs = np.where(np.einsum("ctk,tk->ct", q, top) < 0, np.float32(-1.0), np.float32(1.0))
+        qb = np.einsum("ct,ctk->tk", signs * c32[:, None], q).astype(np.float64)
+        qb /= np.sqrt(np.einsum("tk,tk->t", qb, qb))[:, None]
+        agreement = np.einsum("ctk,tk->ct", q, qb.astype(np.float32)) ** 2  # cos^2 of half the angle
+        dispersion = 1.0 - c32 @ agreement
         R = quaternions_to_rotations(qb)
-        s = np.einsum("c,ctk->tk", coefficients, np.asarray(self.stretch[frames], dtype=np.float64))
+        s = np.tensordot(c32, self.stretch[frames], axes=1).astype(np.float64)
         np.matmul(R, _vector_to_stretch(s), out=self._F)
         X = self.solver.solve(_stacked(self._F), out=self._X)
-        detail = np.einsum("c,cnk->nk", coefficients, np.asarray(self.detail[frames], dtype=np.float64))
+        detail = np.tensordot(c32, self.detail[frames], axes=1)
         surface = self.B @ X
         surface += np.einsum("nab,nb->na", R[self.surface_tet], detail)
-        linear = np.einsum("c,cnk->nk", coefficients, np.asarray(self.surfaces[frames], dtype=np.float64))
-        surface -= robust_offset(surface - linear)
+        linear = np.tensordot(c32, self.surfaces[frames], axes=1)
+        surface -= anchored_offset(surface - linear, dispersion[self.surface_tet])
         if out is not None:
             out[...] = surface
             return out
@@ -288,4 +312,4 @@ def decompose_frames(decomposer, frames, progress=None):
 
 
 __all__ = ["VolumetricEmbedding", "FrameDecomposer", "FrameDecomposition", "NonlinearBlender",
-           "decompose_frames", "robust_offset"]
+           "decompose_frames", "anchored_offset"]

@@ -1,0 +1,241 @@
+"""Measure a motion space's blending: accuracy and speed of each method, heatmaps, epsilon sweep.
+
+Prints a Table I analogue (Casas et al. 2012, section 4.2): maximum and mean per-vertex error
+against the non-linear blend over a grid of weights x all phase samples, for linear blending,
+hybrid blending with 1 and 3 references, the space's own hybrid (to its epsilon) and non-linear
+blending, with the time per frame of each. Writes DIR/heatmap.png (fig. 3) and DIR/results.json;
+--sweep rebuilds the hybrid for several epsilons (figs. 5-6, DIR/epsilon_sweep.png); --captures
+compares the blends with the synthetic generator's true motion at the in-between speeds.
+Example:
+
+    morphspace eval data/spaces/walk_jog.mspace --sweep --captures data/captures/demo
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from engine import evaluation
+from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest, sequence_dir
+from engine.mesh_io.errors import MeshFormatError
+from engine.motion_space import MotionSpace
+from engine.synthetic import build_body
+
+
+def add_arguments(parser):
+    parser.add_argument("space", type=Path, help="motion space file (.mspace)")
+    parser.add_argument("--out", type=Path, help="directory for the figures (default: <space stem>-eval/ "
+                        "next to the space)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object with every figure instead "
+                        "of the tables")
+    parser.add_argument("--sweep", action="store_true", help="also rebuild the hybrid for each --epsilons-mm")
+    parser.add_argument("--epsilons-mm", type=float, nargs="+", default=list(evaluation.EPSILONS_MM),
+                        metavar="MM", help="thresholds of the sweep (default 1 2 3 5 8 12 20)")
+    parser.add_argument("--captures", type=Path, metavar="DATASET_DIR",
+                        help="the capture dataset the sources came from: also compare with the true motion")
+    parser.add_argument("--weights", type=float, nargs="+", metavar="W",
+                        help="weights of the heatmap pose (default: where the 1-reference hybrid errs most)")
+    parser.add_argument("--phase", type=float, help="phase of the heatmap pose in [0, 1]")
+    parser.add_argument("--timing-calls", type=int, default=200, help="blend calls timed per method (default 200)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the timing's random weights and phases")
+
+
+class _Progress:
+    """tqdm bars on stderr, one per stage."""
+
+    def __init__(self):
+        self.bars = {}
+
+    def __call__(self, stage, done, total):
+        if stage not in self.bars:
+            self.close()
+            self.bars[stage] = tqdm(total=total or None, desc=stage, unit="step", dynamic_ncols=True,
+                                    mininterval=0.5, file=sys.stderr, leave=False)
+        bar = self.bars[stage]
+        bar.n = done
+        bar.refresh()
+
+    def close(self):
+        for bar in self.bars.values():
+            bar.close()
+        self.bars.clear()
+
+
+def _cycle_start(meta):
+    """First frame of the cycle the build used (``server.commands.build.load_source``)."""
+    strikes = meta.get("events", {}).get("left_heel_strikes") or [0]
+    start = int(strikes[0])
+    return 0 if start + meta["frames_per_cycle"] > meta["frames"] else start
+
+
+def capture_truth(space, dataset):
+    """The generator's body and true motion for a space built from a capture dataset's gaits.
+
+    Returns
+    -------
+    body : Body
+    true_motion : callable(weights) -> Motion
+    sources : list of dict   per source: name, speed, turn_rate, start_phase
+    """
+    dataset = Path(dataset)
+    manifest = read_capture_manifest(dataset)
+    speeds, turns, starts, fps, sources = [], [], [], set(), []
+    for name in space.source_names:
+        path = sequence_dir(dataset, name) / "meta.json"
+        if not path.is_file():
+            raise ValueError(f"{dataset}: no sequence {name!r} (the space's source) in this dataset")
+        meta = json.loads(path.read_text())
+        if meta.get("kind") != "gait" or not meta.get("cyclic"):
+            raise ValueError(f"{path}: ground truth is only compared for cyclic gaits, {name!r} is a "
+                             f"{meta.get('kind')}")
+        start = _cycle_start(meta)
+        period = meta["motion_params"]["period"]
+        try:
+            times = load_capture_truth(dataset, name)["times"]
+            phase = float(times[start] / period) % 1.0
+        except MeshFormatError:
+            phase = 0.0
+        speeds.append(meta["requested"]["speed"])
+        turns.append(meta["requested"].get("turn_rate", 0.0))
+        starts.append(phase)
+        fps.add(float(meta["fps"]))
+        sources.append({"name": name, "speed": speeds[-1], "turn_rate": turns[-1], "start_phase": phase,
+                        "cycle_start_frame": start})
+    if len(fps) != 1:
+        raise ValueError(f"{dataset}: the sources have different frame rates {sorted(fps)}")
+    body = build_body(int(manifest["body"]["vertices"]), float(manifest["body"]["height"]))
+    if len(body.V) != space.n_vertices:
+        raise ValueError(f"{dataset}: its body has {len(body.V)} vertices, the space {space.n_vertices}")
+    true_motion = evaluation.gait_truth(body, speeds, turn_rates=turns, fps=fps.pop(), start_phases=starts)
+    return body, true_motion, sources
+
+
+def _table(headers, rows):
+    widths = [max(len(str(h)), *(len(str(r[i])) for r in rows)) for i, h in enumerate(headers)]
+
+    def line(cells):  # first column left-aligned, numbers right-aligned
+        return "  ".join(str(c).rjust(w) if i else str(c).ljust(w) for i, (c, w) in enumerate(zip(cells, widths)))
+
+    return "\n".join([line(headers), line(["-" * w for w in widths])] + [line(r) for r in rows])
+
+
+def _print_report(result):
+    errors = result["errors"]
+    print(f"{errors['space']}: {errors['n_sources']} sources x {errors['n_phases']} phases, "
+          f"{errors['n_vertices']} vertices, model size {errors['model_size_m']:.3f} m")
+    print(f"error vs non-linear blending over {len(errors['weights'])} weight vectors x "
+          f"{len(errors['phases'])} phases; time per frame median of {errors['timing']['calls']} calls "
+          f"({errors['timing']['nonlinear_calls']} non-linear), "
+          f"{'single-threaded' if errors['timing']['single_threaded'] else 'threads not limited'}")
+    rows = []
+    for method, m in errors["methods"].items():
+        refs = "" if method in ("linear", "nonlinear") else str(m["references"])
+        rows.append([m["label"] if method != "hybrid" else f"Hybrid, epsilon {m['epsilon_mm']:g} mm", refs,
+                     f"{m['max_error_mm']:.2f}", f"{m['max_error_percent']:.3f}", f"{m['mean_error_mm']:.3f}",
+                     f"{m['correction_bytes'] / 1e6:.2f}" if refs else "",
+                     f"{m['time_per_frame_ms']:.3f}", f"{m['frames_per_second']:,.0f}"])
+    print(_table(["method", "refs", "max mm", "max %", "mean mm", "MB", "ms/frame", "frames/s"], rows))
+    print(f"heatmap: {result['heatmap']['path']}")
+    if "sweep" in result:
+        print("\nepsilon sweep (hybrid rebuilt per epsilon; corrected area at weights "
+              f"{result['sweep']['rows'][0]['test_weights']})")
+        rows = [[f"{r['epsilon_mm']:g}", f"{r['max_error_mm']:.2f}", f"{r['mean_error_mm']:.3f}", r["references"],
+                 r["depth"], f"{r['correction_mb']:.3f}", f"{r['correction_percent']:.1f}",
+                 f"{r['corrected_area_percent']:.1f}"] for r in result["sweep"]["rows"]]
+        print(_table(["epsilon mm", "max mm", "mean mm", "refs", "depth", "MB", "% sources", "area %"], rows))
+        rows = [[u["depth"], u["references"], f"{u['max_error_mm']:.2f}", f"{u['mean_error_mm']:.3f}",
+                 f"{u['correction_bytes'] / 1e6:.3f}"] for u in result["sweep"]["uniform"]]
+        print("uniform subdivision (every cell split to a depth, nothing dropped)")
+        print(_table(["depth", "refs", "max mm", "mean mm", "MB"], rows))
+        print(f"sweep figure: {result['sweep']['path']}")
+    if "ground_truth" in result:
+        gt = result["ground_truth"]
+        print("\nground truth: blends vs the generator's motion at the blended speed (mm, all phases)")
+        print("sources reproduced by their true motion: " + ", ".join(
+            f"{s['name']} max {s['max_mm']:.3f}" for s in gt["sources"]))
+        methods = [m for m in ("linear", "hybrid", "nonlinear") if m in gt["summary"]]
+        rows = []
+        for r in gt["rows"]:
+            rows.append([", ".join(f"{w:.2f}" for w in r["weights"]), f"{r['params']['speed']:.2f}"]
+                        + [f"{r[m]['mean_mm']:.2f} / {r[m]['max_mm']:.1f}" for m in methods]
+                        + [f"{r['ratio_mean']:.2f} / {r['ratio_max']:.2f}"])
+        s = gt["summary"]
+        rows.append(["all", ""] + [f"{s[m]['mean_mm']:.2f} / {s[m]['max_mm']:.1f}" for m in methods]
+                    + [f"{s['ratio_mean']:.2f} / {s['ratio_max']:.2f}"])
+        print(_table(["weights", "m/s"] + [f"{m} mean/max" for m in methods] + ["linear/nonlinear"], rows))
+
+
+def _write_png(path, image):
+    from PIL import Image
+
+    Image.fromarray(image).save(path)
+
+
+def run(args):
+    if not args.space.is_file():
+        raise FileNotFoundError(f"{args.space}: no such motion space file")
+    if args.timing_calls < 1:
+        raise ValueError(f"--timing-calls must be at least 1, got {args.timing_calls}")
+    if any(e <= 0 for e in args.epsilons_mm):
+        raise ValueError(f"--epsilons-mm must be positive, got {args.epsilons_mm}")
+    if args.phase is not None and not 0.0 <= args.phase <= 1.0:
+        raise ValueError(f"--phase must be in [0, 1], got {args.phase}")
+    out = args.out or args.space.with_name(f"{args.space.stem}-eval")
+    space = MotionSpace.open(args.space)
+    if args.weights is not None:
+        space.check_weights(args.weights)
+    truth = capture_truth(space, args.captures) if args.captures is not None else None
+    out.mkdir(parents=True, exist_ok=True)
+    progress = _Progress()
+    cache = evaluation.BlendCache(space, progress)
+    result = {"space": str(args.space)}
+    try:
+        errors = evaluation.blend_errors(space, cache=cache, timing_calls=args.timing_calls,
+                                         nonlinear_timing_calls=max(1, args.timing_calls // 5), seed=args.seed,
+                                         progress=progress)
+        result["errors"] = errors
+        worst = errors["methods"]["hybrid_1"]
+        weights = args.weights if args.weights is not None else worst["worst_weights"]
+        phase = args.phase if args.phase is not None else worst["worst_phase"]
+        path = out / "heatmap.png"
+        _write_png(path, evaluation.heatmap_figure(space, weights, phase, cache=cache))
+        poses = evaluation.pose_errors(space, weights, phase, cache=cache)
+        result["heatmap"] = {"path": str(path), "weights": list(map(float, weights)), "phase": float(phase),
+                             "max_error_mm": {m: 1000.0 * float(e.max()) for m, (_, e) in poses.items()}}
+        if args.sweep:
+            rows = evaluation.epsilon_sweep(space, args.epsilons_mm, cache=cache, progress=progress)
+            uniform = evaluation.uniform_subdivision(space, cache=cache)
+            path = out / "epsilon_sweep.png"
+            _write_png(path, evaluation.sweep_figure(rows, uniform=uniform, title=f"{space.name}: hybrid blending "
+                                                     "against its error threshold epsilon"))
+            result["sweep"] = {"path": str(path), "rows": rows, "uniform": uniform}
+        if truth is not None:
+            body, true_motion, sources = truth
+            gt = evaluation.ground_truth_comparison(space, body, true_motion, cache=cache, progress=progress)
+            for s, info in zip(gt["sources"], sources):
+                s.update(info)
+            result["ground_truth"] = gt
+    finally:
+        progress.close()
+        space.close()
+    result["results"] = str(out / "results.json")
+    (out / "results.json").write_text(json.dumps(result, indent=1, default=_json_default))
+    if args.json:
+        print(json.dumps(result, default=_json_default))
+    else:
+        _print_report(result)
+        print(f"results: {result['results']}")
+    return 0
+
+
+def _json_default(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
