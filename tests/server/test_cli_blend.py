@@ -1,0 +1,93 @@
+"""`morphspace blend` on meshes the project did not make, and its errors."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from engine.mesh_io import read_mesh, write_obj, write_ply
+from engine.surface import enclosed_volume
+from server.cli import main
+
+
+def _arm(angle):
+    """A subdivided box 'arm' bent at its middle by ``angle`` about +Z (same topology for all)."""
+    box = trimesh.creation.box(extents=(0.1, 0.6, 0.1))
+    V, F = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, max_edge=0.04)
+    V = np.asarray(V, dtype=float)
+    upper = np.clip(V[:, 1] / 0.1, 0.0, 1.0)[:, None]  # blend the rotation over y in [0, 0.1]
+    c, s = np.cos(angle * upper[:, 0]), np.sin(angle * upper[:, 0])
+    bent = V.copy()
+    bent[:, 0] = c * V[:, 0] - s * V[:, 1]
+    bent[:, 1] = s * V[:, 0] + c * V[:, 1]
+    return bent, np.asarray(F)
+
+
+@pytest.fixture(scope="module")
+def arms(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("arms")
+    V0, F = _arm(0.0)
+    V1, _ = _arm(np.radians(100))
+    write_obj(folder / "straight.obj", V0, F)
+    write_ply(folder / "bent.ply", V1, F)  # mixed formats on purpose
+    return folder, V0, V1, F
+
+
+def test_blend_modes_write_meshes_and_nonlinear_keeps_volume(arms, capsys):
+    folder, V0, V1, F = arms
+    volume = enclosed_volume(V0, F)
+    results = {}
+    for mode in ("linear", "nonlinear", "hybrid"):
+        out = folder / f"{mode}.obj"
+        assert main(["blend", str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "1", "1",
+                     "--mode", mode, "--out", str(out)]) == 0
+        mesh = read_mesh(out)
+        np.testing.assert_array_equal(mesh.faces, F)
+        results[mode] = mesh.vertices
+    assert enclosed_volume(results["nonlinear"], F) == pytest.approx(volume, rel=0.03)
+    assert enclosed_volume(results["linear"], F) < 0.97 * volume
+    assert np.abs(results["hybrid"] - results["nonlinear"]).max() <= 0.005 * 1.05
+
+
+def test_blend_weights_e0_give_back_the_first_mesh(arms):
+    folder, V0, _, F = arms
+    out = folder / "first.obj"
+    assert main(["blend", str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "1", "0",
+                 "--mode", "nonlinear", "--out", str(out)]) == 0
+    assert np.abs(read_mesh(out).vertices - V0).max() < 1e-4 * 0.6
+
+
+def test_blend_compare_reports_errors(arms, capsys):
+    folder, *_ = arms
+    assert main(["blend", str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "0.5", "0.5",
+                 "--mode", "hybrid", "--compare", "--out", str(folder / "cmp.obj")]) == 0
+    out = capsys.readouterr().out
+    assert "linear  vs non-linear: max" in out and "hybrid  vs non-linear: max" in out
+
+
+def test_blend_errors_are_clear(arms, tmp_path, capsys):
+    folder, V0, _, F = arms
+    other = tmp_path / "other.obj"
+    write_obj(other, V0[:-8], F[np.all(F < len(V0) - 8, axis=1)])
+    cases = [
+        ([str(folder / "straight.obj"), str(other), "--weights", "1", "1"], "vertices"),
+        ([str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "1"], "need 2 weights"),
+        ([str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "1", "-1"], "non-negative"),
+        ([str(folder / "straight.obj"), str(tmp_path / "missing.obj"), "--weights", "1", "1"], "missing.obj"),
+    ]
+    for args, message in cases:
+        assert main(["blend", *args, "--out", str(tmp_path / "x.obj")]) == 2
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "x.obj").exists()
+
+
+def test_open_surfaces_blend_linearly_and_explain_the_nonlinear_limit(tmp_path, capsys):
+    plane = trimesh.creation.box(extents=(1, 1, 1))
+    V, F = np.asarray(plane.vertices), np.asarray(plane.faces)[:-2]  # a box missing one side
+    write_obj(tmp_path / "a.obj", V, F)
+    write_obj(tmp_path / "b.obj", V * 1.1, F)
+    assert main(["blend", str(tmp_path / "a.obj"), str(tmp_path / "b.obj"), "--weights", "1", "1",
+                 "--mode", "linear", "--out", str(tmp_path / "lin.obj")]) == 0
+    np.testing.assert_allclose(read_mesh(tmp_path / "lin.obj").vertices, 1.05 * V, atol=1e-9)
+    assert main(["blend", str(tmp_path / "a.obj"), str(tmp_path / "b.obj"), "--weights", "1", "1",
+                 "--mode", "nonlinear", "--out", str(tmp_path / "nl.obj")]) == 2
+    assert "closed" in capsys.readouterr().err
