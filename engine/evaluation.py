@@ -28,7 +28,7 @@ import numpy as np
 from engine.blend import HybridBlender, build_hybrid, phase_of_sample, phase_samples
 from engine.motion_space import SourceClip, resample_clip
 from engine.render import error_colors, render_meshes
-from engine.surface import lumped_mass
+from engine.surface import enclosed_volume, lumped_mass
 from engine.synthetic import animate, gait
 
 METHODS = ("linear", "hybrid_1", "hybrid_3", "hybrid", "nonlinear")
@@ -556,7 +556,7 @@ def sweep_figure(rows, *, uniform=None, title=None):
         d.plot([u["references"] for u in uniform], [u["max_error_mm"] for u in uniform], "s--", color="tab:green",
                label="uniform subdivision (depth 1, 2, ...)")
     d.xaxis.get_major_locator().set_params(integer=True)
-    d.set_xlim(left=0)
+    d.set_xlim(left=-0.5)
     d.set_xlabel("references (non-linear reference meshes)")
     d.set_ylabel("max error vs non-linear (mm)")
     d.set_ylim(bottom=0)
@@ -615,9 +615,31 @@ def true_samples(body, motion, n_phases):
     return samples - origin
 
 
-def _error_stats(V, T):
+def _edges(F):
+    """(e, 2) unique undirected edges of a triangle mesh."""
+    E = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    return np.unique(np.sort(E, axis=1), axis=0)
+
+
+def _truth_errors(V, T, F, E):
+    """How (P, n, 3) frames V differ from true frames T: positions, edge lengths, volume."""
     e = np.linalg.norm(V - T, axis=2)
-    return {"mean_mm": 1000.0 * float(e.mean()), "max_mm": 1000.0 * float(e.max())}
+    length = np.linalg.norm(V[:, E[:, 0]] - V[:, E[:, 1]], axis=2)
+    true_length = np.linalg.norm(T[:, E[:, 0]] - T[:, E[:, 1]], axis=2)
+    volume, true_volume = enclosed_volume(V, F), enclosed_volume(T, F)
+    return {"mean_mm": 1000.0 * float(e.mean()), "max_mm": 1000.0 * float(e.max()),
+            "edge_error_percent": 100.0 * float(np.abs(length - true_length).sum() / true_length.sum()),
+            "volume_error_percent": 100.0 * float(np.mean(np.abs(volume - true_volume) / true_volume))}
+
+
+_RATIOS = {"ratio_mean": "mean_mm", "ratio_max": "max_mm", "ratio_edge": "edge_error_percent",
+           "ratio_volume": "volume_error_percent"}
+
+
+def _add_ratios(entry):
+    if "linear" in entry and "nonlinear" in entry:
+        for ratio, key in _RATIOS.items():
+            entry[ratio] = entry["linear"][key] / max(entry["nonlinear"][key], 1e-12)
 
 
 def ground_truth_comparison(space, body, true_motion_fn, weights_list=None, *,
@@ -638,10 +660,13 @@ def ground_truth_comparison(space, body, true_motion_fn, weights_list=None, *,
     Returns
     -------
     result : dict
-        sources: per source, the reproduction error of its true motion (a check: near zero) and
-        the root offset found; rows: per weight vector, mean/max error (mm) of each method over
-        all phase samples and vertices, and the ratios linear / non-linear; summary: the same
-        over all rows.
+        sources: per source, how well its true motion reproduces it (a check of the set-up:
+        near zero) and the root offset found. rows: per weight vector, for each method over all
+        phase samples: mean_mm and max_mm per-vertex distance, edge_error_percent (summed
+        |edge length - true edge length| over summed true lengths) and volume_error_percent
+        (mean |enclosed volume - true volume| / true volume); ratio_mean, ratio_max, ratio_edge,
+        ratio_volume = linear / non-linear of each. summary: means over the rows (max for
+        max_mm) and their ratios.
 
     Notes
     -----
@@ -650,8 +675,9 @@ def ground_truth_comparison(space, body, true_motion_fn, weights_list=None, *,
     measured against its true motion and the target of a blend is the true motion at the blended
     parameters moved by sum_i w_i c_i, the offset of every blend of the sources.
     The true motion may differ from every blend (cadence, duty factor and stride change with
-    speed in ways no blend of two gaits reproduces); the comparison says how much closer one
-    method gets than another, not that either can reach zero.
+    speed in ways no blend of two gaits reproduces): positions measure that as well, while edge
+    lengths and volume measure the shape alone, where linear blending's shrinking of rotating
+    limbs shows.
     """
     progress = progress or _noop
     cache = cache or BlendCache(space, progress)
@@ -661,6 +687,8 @@ def ground_truth_comparison(space, body, true_motion_fn, weights_list=None, *,
     if weights_list is None:
         weights_list = (np.array([[0.75, 0.25], [0.5, 0.5], [0.25, 0.75]]) if N == 2 else weight_grid(N, 2))
     W = np.asarray(weights_list, dtype=np.float64)
+    F = np.asarray(space.faces, dtype=np.int64)
+    E = _edges(F)
     sources = np.asarray(cache.sources, dtype=np.float64)
     offsets, report_sources = [], []
     for i in range(N):
@@ -669,7 +697,7 @@ def ground_truth_comparison(space, body, true_motion_fn, weights_list=None, *,
         offset[1] = 0.0
         offsets.append(offset)
         report_sources.append({"name": space.source_names[i], "offset_m": offset.tolist(),
-                               **_error_stats(sources[:, i], truth + offset)})
+                               **_truth_errors(sources[:, i], truth + offset, F, E)})
         progress("ground truth", i + 1, N + len(W))
     offsets = np.array(offsets)
     rows = []
@@ -677,20 +705,16 @@ def ground_truth_comparison(space, body, true_motion_fn, weights_list=None, *,
         w = w / w.sum()
         motion = true_motion_fn(w)
         target = true_samples(body, motion, P) + w @ offsets
-        row = {"weights": w.tolist(), "params": {key: motion.params[key] for key in ("speed", "turn_rate")
-                                                 if key in motion.params}}
+        row = {"weights": w.tolist(),
+               "params": {key: motion.params[key] for key in ("speed", "turn_rate") if key in motion.params}}
         for method in methods:
-            row[method] = _error_stats(cache.blend(method, w), target)
-        if "linear" in methods and "nonlinear" in methods:
-            row["ratio_mean"] = row["linear"]["mean_mm"] / row["nonlinear"]["mean_mm"]
-            row["ratio_max"] = row["linear"]["max_mm"] / row["nonlinear"]["max_mm"]
+            row[method] = _truth_errors(cache.blend(method, w), target, F, E)
+        _add_ratios(row)
         rows.append(row)
         progress("ground truth", N + k + 1, N + len(W))
-    summary = {m: {"mean_mm": float(np.mean([r[m]["mean_mm"] for r in rows])),
-                   "max_mm": float(np.max([r[m]["max_mm"] for r in rows]))} for m in methods}
-    if "linear" in methods and "nonlinear" in methods:
-        summary["ratio_mean"] = summary["linear"]["mean_mm"] / summary["nonlinear"]["mean_mm"]
-        summary["ratio_max"] = summary["linear"]["max_mm"] / summary["nonlinear"]["max_mm"]
+    summary = {m: {key: float(np.max([r[m][key] for r in rows]) if key == "max_mm" else
+                              np.mean([r[m][key] for r in rows])) for key in rows[0][m]} for m in methods}
+    _add_ratios(summary)
     return {"space": space.name, "sources": report_sources, "rows": rows, "summary": summary}
 
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from server.commands import blend, build, synth
+from server.commands import bench, blend, build, synth
 from server.commands import eval as eval_command
 
 COMMANDS = {
@@ -17,6 +17,7 @@ COMMANDS = {
     "build": build,
     "blend": blend,
     "eval": eval_command,
+    "bench": bench,
 }
 
 

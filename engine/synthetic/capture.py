@@ -47,10 +47,11 @@ def animate(body, motion):
     dt = 1.0 / motion.fps
     if motion.cyclic:
         N = motion.frames_per_cycle
-        t_cycle = motion.times[0] + np.arange(N) * dt
+        t_cycle = motion.times[0] + np.arange(-1, N + 1) * dt  # one cycle and its true neighbours
         R, P, _, heading_cycle = motion.pose_at(t_cycle)
-        local = secondary_motion(_skin(body, R, P), heading_cycle, motion.fps, amplitudes,
-                                 periodic=True, world=False)
+        skinned = _skin(body, R, P)
+        local = secondary_motion(skinned[1:-1], heading_cycle[1:-1], motion.fps, amplitudes, periodic=True,
+                                 before=skinned[0], after=skinned[-1], world=False)
         local = local[np.arange(len(V)) % N]
     else:
         ends = np.array([motion.times[0] - dt, motion.times[-1] + dt])

@@ -73,10 +73,12 @@ def secondary_motion(V, heading, fps, amplitudes, *, periodic, before=None, afte
     heading : (frames,) float array    root heading (radians about +Y)
     fps : float
     amplitudes : dict Material -> (n,) float array   per-vertex weight of each material
-    periodic : bool                    V is exactly one cycle (frame ``frames`` repeats frame 0)
+    periodic : bool                    V is exactly one cycle (frame ``frames`` repeats frame 0 in
+                                       the root frame): solve for the periodic steady state
     before, after : (n, 3) float arrays or None
-        positions one frame before the first and after the last (for the end accelerations of a
-        non-periodic clip); default: the clip is at rest at its ends
+        world positions one frame before the first and after the last, for the accelerations at
+        the ends; default: at rest there. A cycle must pass its true neighbours (the frame after
+        the last is the first moved by one cycle's root motion, not the first itself).
 
     world : bool                       return world displacements (else in the heading frame)
 
@@ -85,11 +87,8 @@ def secondary_motion(V, heading, fps, amplitudes, *, periodic, before=None, afte
     D : (frames, n, 3) float array   displacements to add to V
     """
     dt = 1.0 / fps
-    if periodic:
-        prev, nxt = np.roll(V, 1, axis=0), np.roll(V, -1, axis=0)
-    else:
-        prev = np.concatenate([(V[:1] if before is None else before[None]), V[:-1]])
-        nxt = np.concatenate([V[1:], (V[-1:] if after is None else after[None])])
+    prev = np.concatenate([(V[:1] if before is None else before[None]), V[:-1]])
+    nxt = np.concatenate([V[1:], (V[-1:] if after is None else after[None])])
     accel = (nxt - 2 * V + prev) / (dt * dt)
     R = rot_y(heading)  # heading frame -> world
     accel_local = np.einsum("fba,fnb->fna", R, accel)
