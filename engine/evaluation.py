@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 from engine.blend import HybridBlender, build_hybrid, phase_of_sample, phase_samples
-from engine.motion_space import SourceClip, resample_clip
+from engine.motion_space import SourceClip, warp_cycle_onto
 from engine.render import error_colors, render_meshes
 from engine.surface import enclosed_volume, lumped_mass
 from engine.synthetic import animate, gait
@@ -598,21 +598,20 @@ def gait_truth(body, speeds, *, turn_rates=None, fps=30.0, start_phases=None):
         w = np.asarray(weights, dtype=np.float64)
         w = w / w.sum()
         speed, turn, start = float(w @ speeds), float(w @ turns), float(w @ starts) % 1.0
-        N = gait(body.skeleton, speed, turn_rate=turn, fps=fps, cycles=1.0).frames_per_cycle
-        return gait(body.skeleton, speed, turn_rate=turn, fps=fps, cycles=1.0 + 2.0 / N, start_phase=start)
+        return gait(body.skeleton, speed, turn_rate=turn, fps=fps, cycles=2.0, start_phase=start)
 
     return true_motion
 
 
-def true_samples(body, motion, n_phases):
-    """(P, n, 3) a true cyclic motion on the phase grid, like the sources (``resample_clip``),
-    translated so its root starts at the origin of the ground plane."""
+def true_samples(space, body, motion):
+    """(P, n, 3) a true cyclic motion put on the space's phase grid exactly like its sources:
+    root-local, one cycle, key poses aligned to the space's first source (``warp_cycle_onto``)."""
     V = animate(body, motion)
     clip = SourceClip(name=motion.name, vertices=V, fps=motion.fps, cyclic=True,
-                      frames_per_cycle=motion.frames_per_cycle, cycle_start=0)
-    samples, _ = resample_clip(clip, n_phases)
-    origin = np.array([motion.root_position[0, 0], 0.0, motion.root_position[0, 2]])
-    return samples - origin
+                      frames_per_cycle=motion.frames_per_cycle)
+    rest = np.asarray(space.container["rest"])
+    return warp_cycle_onto(clip, np.asarray(space.faces, dtype=np.int64), rest,
+                           np.asarray(space.sources[:, 0], dtype=np.float64))
 
 
 def _edges(F):
@@ -692,7 +691,7 @@ def ground_truth_comparison(space, body, true_motion_fn, weights_list=None, *,
     sources = np.asarray(cache.sources, dtype=np.float64)
     offsets, report_sources = [], []
     for i in range(N):
-        truth = true_samples(body, true_motion_fn(np.eye(N)[i]), P)
+        truth = true_samples(space, body, true_motion_fn(np.eye(N)[i]))
         offset = (sources[:, i] - truth).reshape(-1, 3).mean(axis=0)
         offset[1] = 0.0
         offsets.append(offset)
@@ -704,7 +703,7 @@ def ground_truth_comparison(space, body, true_motion_fn, weights_list=None, *,
     for k, w in enumerate(W):
         w = w / w.sum()
         motion = true_motion_fn(w)
-        target = true_samples(body, motion, P) + w @ offsets
+        target = true_samples(space, body, motion) + w @ offsets
         row = {"weights": w.tolist(),
                "params": {key: motion.params[key] for key in ("speed", "turn_rate") if key in motion.params}}
         for method in methods:

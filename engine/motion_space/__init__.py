@@ -13,7 +13,7 @@ from .container import (
     inspect_container,
     write_container,
 )
-from .build import SourceClip, build_motion_space, resample_clip
+from .build import PreparedSources, SourceClip, build_motion_space, prepare_sources, warp_cycle_onto
 from .space import MODES, MotionSpace
 
 __all__ = [
@@ -25,7 +25,9 @@ __all__ = [
     "write_container",
     "SourceClip",
     "build_motion_space",
-    "resample_clip",
+    "PreparedSources",
+    "prepare_sources",
+    "warp_cycle_onto",
     "MODES",
     "MotionSpace",
 ]

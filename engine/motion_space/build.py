@@ -1,17 +1,17 @@
-"""Building a motion space: sources on a common phase grid, decomposition, hybrid precompute.
+"""Building a motion space: root motion, time-warp, decomposition, hybrid precompute.
 
-``build_motion_space(path, clips, faces, ...)`` runs the offline chain of DESIGN.md steps 7-8 on
+``build_motion_space(path, clips, faces, ...)`` runs the offline chain of DESIGN.md steps 5-8 on
 N consistent-topology clips and writes one ``.mspace`` file (``engine.motion_space.container``):
 
-1. each clip is cut to one cycle (cyclic clips, from ``cycle_start``) or taken whole, expressed
-   in its root frame (the horizontal drift of a cycle removed, so a cycle loops in place), and
-   resampled to P phase samples by linear interpolation between frames;
-2. the rest surface is tetrahedralised and embedded (``VolumetricEmbedding``);
-3. every source frame on the grid is decomposed into rotations, stretches and local detail;
-4. the hybrid references and sparse corrections are found by bisection to ``epsilon``.
-
-Time-warping of key poses is not done here yet: sources are assumed to be aligned in phase
-(equal-length synthetic cycles starting at the same key pose).
+1. every clip is split into root motion and root-local meshes (``engine.root_motion``);
+2. the clips are time-warped onto a common phase grid of P samples (``prepare_sources``):
+   cyclic clips are cut to one cycle and their key poses aligned to the first source's by
+   circular shift and DTW; one-shot clips are warped piecewise linearly between key events
+   (take-off and landing, or the peak); each keeps its real duration, and its root velocity
+   and turn rate are stored per phase for the player;
+3. the rest surface is tetrahedralised and embedded (``VolumetricEmbedding``);
+4. every source frame on the grid is decomposed into rotations, stretches and local detail;
+5. the hybrid references and sparse corrections are found by bisection to ``epsilon``.
 """
 
 from __future__ import annotations
@@ -31,10 +31,20 @@ from engine.blend import (
     decompose_frames,
 )
 from engine.motion_space.container import write_container
+from engine.root_motion import estimate_root_motion
 from engine.surface import model_size
+from engine.timewarp import (
+    align_cycle,
+    cycle_at,
+    detect_events,
+    estimate_period,
+    piecewise_warp,
+    refine_offset,
+    sample_frames,
+)
 
 SPACE_FORMAT = "morphspace-motion-space"
-SPACE_VERSION = 1
+SPACE_VERSION = 2  # 2: root-local time-warped sources, root rates, int8 hierarchical corrections
 
 
 @dataclass
@@ -44,60 +54,159 @@ class SourceClip:
     Attributes
     ----------
     name : str
-    vertices : (frames, n, 3) float array   consistent topology
+    vertices : (frames, n, 3) float array   consistent topology, world coordinates
     fps : float
     cyclic : bool
-    frames_per_cycle : int or None          required for cyclic clips
-    cycle_start : int                       first frame of the cycle used (cyclic clips)
+    frames_per_cycle : float or None        cycle length hint; estimated when None
     """
 
     name: str
     vertices: np.ndarray
     fps: float
     cyclic: bool
-    frames_per_cycle: int | None = None
-    cycle_start: int = 0
-
-    def duration(self):
-        """Seconds of the motion represented on the phase grid (one cycle, or the whole clip)."""
-        if self.cyclic:
-            return self.frames_per_cycle / self.fps
-        return (len(self.vertices) - 1) / self.fps
+    frames_per_cycle: float | None = None
 
 
-def resample_clip(clip, n_phases):
-    """Clip on the phase grid, in its root frame.
+@dataclass
+class PreparedSources:
+    """Sources on the common phase grid (the output of ``prepare_sources``).
+
+    Attributes
+    ----------
+    samples : (P, N, n, 3) float array   root-local frames at every phase sample
+    times : (P, N) float array           source frame time used for each sample
+    durations : (N,) float array         seconds of each source's cycle (or clip)
+    root_rate : (P, N, 3) float array    root displacement per unit phase, in the root frame (m)
+    turn_rate : (P, N) float array       heading change per unit phase (rad)
+    info : list of dict                  per source: period, events, warp
+    """
+
+    samples: np.ndarray
+    times: np.ndarray
+    durations: np.ndarray
+    root_rate: np.ndarray
+    turn_rate: np.ndarray
+    info: list
+
+
+def _align_to(reference, local, start, period, n_phases):
+    """Warp (in cycle samples) of the cycle of ``local`` starting at ``start`` onto ``reference``:
+    DTW on the sampled cycle, then a sub-sample offset fitted on the frames themselves."""
+    warp = align_cycle(reference, cycle_at(local, start, period, n_phases))
+
+    def sampler(positions):
+        return sample_frames(local, start + np.mod(positions * period / n_phases, period))
+
+    return refine_offset(reference, sampler, warp)
+
+
+def _root_rates(root, times, span_frames):
+    """Root displacement and heading change per unit phase at source frame ``times``.
+
+    ``span_frames`` is how many source frames one unit of phase covers locally: the velocity
+    (per second) times the seconds per unit phase.
+    """
+    velocity = sample_frames(root.velocity(), times)
+    turn = sample_frames(root.turn_rate()[:, None], times)[:, 0]
+    seconds = span_frames / root.fps
+    return velocity * seconds[:, None], turn * seconds
+
+
+def prepare_sources(clips, faces, rest, n_phases):
+    """Root motion and time-warp of every clip onto a common phase grid (steps 5-6)."""
+    size = model_size(rest)
+    cyclic = clips[0].cyclic
+    P = n_phases
+    roots, info = [], []
+    for clip in clips:
+        V = np.asarray(clip.vertices, dtype=np.float64)
+        if cyclic:
+            period = clip.frames_per_cycle
+            if period is None:
+                rough = estimate_root_motion(V, faces, clip.fps, smoothing=0.5, reference=rest)
+                period = estimate_period(rough.local, clip.fps)
+            if period + 1 > len(V):
+                raise ValueError(f"{clip.name}: {len(V)} frames do not hold a whole cycle of {period:.1f} frames")
+            root = estimate_root_motion(V, faces, clip.fps, period=period, reference=rest)
+            info.append({"name": clip.name, "period_frames": float(period)})
+        else:
+            root = estimate_root_motion(V, faces, clip.fps, reference=rest)
+            events = detect_events(root.local, model_size=size)
+            info.append({"name": clip.name, "events_kind": events.kind, "events_frames": list(events.times)})
+        roots.append(root)
+
+    N = len(clips)
+    samples = np.empty((P, N) + clips[0].vertices.shape[1:])
+    times = np.empty((P, N))
+    root_rate = np.empty((P, N, 3))
+    turn_rate = np.empty((P, N))
+    durations = np.empty(N)
+    if cyclic:
+        reference = None
+        for i, (clip, root) in enumerate(zip(clips, roots)):
+            period = info[i]["period_frames"]
+            start = 0.5 * (len(clip.vertices) - 1 - period)  # the middle cycle: farthest from the ends
+            cycle = cycle_at(root.local, start, period, P)
+            if reference is None:
+                reference, warp = cycle, np.arange(P, dtype=float)
+            else:
+                warp = _align_to(reference, root.local, start, period, P)
+            t = start + np.mod(warp * period / P, period)
+            samples[:, i] = sample_frames(root.local, t)
+            times[:, i] = t
+            slope = np.gradient(np.concatenate([warp, [warp[0] + P]]))[:P] * period / P  # frames per sample
+            root_rate[:, i], turn_rate[:, i] = _root_rates(root, t, slope * P)
+            durations[i] = period / clip.fps
+            info[i]["cycle_start_frame"] = float(start + np.mod(warp[0] * period / P, period))
+    else:
+        kinds = {entry["events_kind"] for entry in info}
+        counts = {len(entry["events_frames"]) for entry in info}
+        phases = np.linspace(0.0, 1.0, P)
+        if len(kinds) == 1 and len(counts) == 1:
+            normalised = np.array([np.asarray(e["events_frames"]) / (len(c.vertices) - 1) for e, c in zip(info, clips)])
+            common = normalised.mean(axis=0)
+        else:  # sources disagree on their events: warp uniformly
+            common = None
+        for i, (clip, root) in enumerate(zip(clips, roots)):
+            frames = len(clip.vertices)
+            if common is None:
+                t = phases * (frames - 1)
+            else:
+                t = piecewise_warp(info[i]["events_frames"], frames, common)(phases)
+            samples[:, i] = sample_frames(root.local, t)
+            times[:, i] = t
+            slope = np.gradient(t, phases)  # frames per unit phase
+            root_rate[:, i], turn_rate[:, i] = _root_rates(root, t, slope)
+            durations[i] = (frames - 1) / clip.fps
+            info[i]["common_event_phases"] = None if common is None else [float(c) for c in common]
+    return PreparedSources(samples=samples, times=times, durations=durations, root_rate=root_rate,
+                           turn_rate=turn_rate, info=info)
+
+
+def warp_cycle_onto(clip, faces, rest, reference):
+    """A cyclic clip put on an existing space's phase grid, exactly as its sources were.
+
+    Parameters
+    ----------
+    clip : SourceClip              cyclic
+    faces : (m, 3) int array
+    rest : (n, 3) float array      the space's rest surface (heading reference)
+    reference : (P, n, 3) array    the space's first source on its grid (``space.sources[:, 0]``)
 
     Returns
     -------
-    samples : (P, n, 3) float array
-    velocity : (3,) float array   mean root velocity removed (m/s; zero for non-cyclic clips)
+    samples : (P, n, 3) float array   root-local, key poses aligned to the reference
     """
+    P = len(reference)
     V = np.asarray(clip.vertices, dtype=np.float64)
-    if clip.cyclic:
-        N, s = int(clip.frames_per_cycle), int(clip.cycle_start)
-        if N < 2 or s < 0 or s + N > len(V):
-            raise ValueError(f"{clip.name}: a cycle of {N} frames from frame {s} needs {s + N} frames, "
-                             f"the clip has {len(V)}")
-        cycle = V[s:s + N + 1] if s + N < len(V) else None
-        if cycle is None:  # the closing frame is not in the clip: the cycle repeats its first frame
-            drift = np.zeros(3)
-            cycle = np.concatenate([V[s:s + N], V[s:s + 1]])
-        else:
-            drift = cycle[-1].mean(axis=0) - cycle[0].mean(axis=0)
-            drift[1] = 0.0
-        local = cycle - (np.arange(N + 1) / N)[:, None, None] * drift
-        x = np.arange(n_phases) / n_phases * N
-        velocity = drift / (N / clip.fps)
-    else:
-        if len(V) < 2:
-            raise ValueError(f"{clip.name}: a clip needs at least 2 frames, got {len(V)}")
-        local = V
-        x = np.linspace(0.0, len(V) - 1, n_phases)
-        velocity = np.zeros(3)
-    k0 = np.minimum(np.floor(x).astype(int), len(local) - 2)
-    a = (x - k0)[:, None, None]
-    return (1 - a) * local[k0] + a * local[k0 + 1], velocity
+    period = clip.frames_per_cycle
+    if period is None:
+        period = estimate_period(estimate_root_motion(V, faces, clip.fps, smoothing=0.5, reference=rest).local,
+                                 clip.fps)
+    root = estimate_root_motion(V, faces, clip.fps, period=period, reference=rest)
+    start = 0.5 * (len(V) - 1 - period)
+    warp = _align_to(np.asarray(reference, dtype=np.float64), root.local, start, period, P)
+    return sample_frames(root.local, start + np.mod(warp * period / P, period))
 
 
 def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005, rest=None,
@@ -110,9 +219,10 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
     clips : list of SourceClip    N >= 2 clips with the same topology, all cyclic or all not
     faces : (m, 3) int array
     name : str
-    n_phases : int or None        phase samples P (default: the longest source's frame count)
+    n_phases : int or None        phase samples P (default: the longest source's cycle or clip)
     epsilon : float               hybrid error bound in metres (default 5 mm)
-    rest : (n, 3) float array     rest surface to tetrahedralise (default: first source, phase 0)
+    rest : (n, 3) float array     rest surface: tetrahedralised, and its facing is heading 0 of
+                                  every source (default: the first source's first frame)
     embedding : VolumetricEmbedding or None   reuse a cached tetrahedralisation of ``rest``
     hybrid_options : dict         extra options for ``build_hybrid``
     progress : callable(stage: str, done: int, total: int) or None
@@ -137,20 +247,24 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
     if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= n:
         raise ValueError(f"faces must be (m, 3) indices into {n} vertices")
     if n_phases is None:
-        n_phases = max((c.frames_per_cycle if cyclic else len(c.vertices)) for c in clips)
+        n_phases = max(int(round(c.frames_per_cycle)) if (cyclic and c.frames_per_cycle) else len(c.vertices)
+                       for c in clips)
     n_phases = int(n_phases)
     if n_phases < 2:
         raise ValueError(f"n_phases must be at least 2, got {n_phases}")
     timings = {}
 
     started = time.perf_counter()
-    resampled = [resample_clip(c, n_phases) for c in clips]
-    sources = np.stack([r[0] for r in resampled], axis=1)  # (P, N, n, 3)
-    velocities = np.stack([r[1] for r in resampled])
+    rest = np.asarray(clips[0].vertices[0] if rest is None else rest, dtype=np.float64)
+    if rest.shape != (n, 3):
+        raise ValueError(f"rest must have shape ({n}, 3), got {rest.shape}")
+    report_progress("time-warp", 0, 1)
+    prepared = prepare_sources(clips, faces, rest, n_phases)
+    sources = prepared.samples  # (P, N, n, 3), root-local
     N = len(clips)
-    report_progress("resample", 1, 1)
+    report_progress("time-warp", 1, 1)
+    timings["timewarp_s"] = time.perf_counter() - started
 
-    rest = sources[0, 0] if rest is None else np.asarray(rest, dtype=np.float64)
     t0 = time.perf_counter()
     if embedding is None:
         report_progress("tetrahedralise", 0, 1)
@@ -191,8 +305,8 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
         "n_tet_vertices": int(len(embedding.V_tet)), "n_tets": int(len(embedding.T)),
         "model_size": size, "epsilon": float(epsilon), "units": "m", "up": "+Y", "forward": "+Z",
         "bounds": [lo.tolist(), hi.tolist()],
-        "sources": [{"name": c.name, "duration": c.duration(), "fps": c.fps, "frames": int(len(c.vertices)),
-                     "cyclic": c.cyclic, "root_velocity": velocities[i].tolist()}
+        "sources": [{"name": c.name, "duration": float(prepared.durations[i]), "fps": c.fps,
+                     "frames": int(len(c.vertices)), "cyclic": c.cyclic, **prepared.info[i]}
                     for i, c in enumerate(clips)],
         "hybrid": {"references": hybrid_report.references, "leaves": hybrid_report.leaves,
                    "max_depth": hybrid_report.max_depth, "max_test_error": hybrid_report.max_test_error,
@@ -203,7 +317,8 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
     }
     arrays = {
         "faces": faces.astype(np.int32), "sources": sources32, "rest": rest,
-        "root_velocity": velocities.astype(np.float64),
+        "durations": prepared.durations, "root_rate": prepared.root_rate, "turn_rate": prepared.turn_rate,
+        "warp_times": prepared.times,
         "tet_vertices": embedding.V_tet, "tets": embedding.T.astype(np.int32),
         "surface_tet": embedding.surface_tet.astype(np.int32), "surface_bary": embedding.surface_bary,
         "nl_quaternions": quaternions, "nl_stretch": stretch, "nl_detail": detail,

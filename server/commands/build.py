@@ -1,8 +1,9 @@
 """Build a motion space from N consistent-topology source sequences.
 
 Each --source is a sequence directory of a capture dataset (``sequences/<name>``: its meta.json
-gives the frame rate, whether it is cyclic, the cycle length and where the cycle starts) or any
-directory or zip of per-frame meshes (non-cyclic unless --cycle-frames is given). Example:
+gives the frame rate and whether it is cyclic) or any directory or zip of per-frame meshes
+(non-cyclic unless --cyclic is given). Cycle lengths, key poses and events are found on the
+meshes. Example:
 
     morphspace build --source data/captures/demo/sequences/walk_slow \\
                      --source data/captures/demo/sequences/jog --out walk_jog.mspace
@@ -31,30 +32,21 @@ def add_arguments(parser):
     parser.add_argument("--rest", type=Path, help="rest-pose mesh to tetrahedralise (default: the "
                         "capture dataset's template/body.obj, else the first source's first frame)")
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate of sources without meta.json")
-    parser.add_argument("--cycle-frames", type=int, help="cycle length of sources without meta.json "
-                        "(makes them cyclic, starting at frame 0)")
+    parser.add_argument("--cyclic", action="store_true", help="sources without meta.json are cyclic")
     parser.add_argument("--force", action="store_true", help="replace an existing output file")
 
 
-def load_source(directory, *, fps, cycle_frames):
+def load_source(directory, *, fps, cyclic):
     """SourceClip from a capture-dataset sequence directory or a directory/zip of frames."""
     directory = Path(directory)
     meta_path = directory / "meta.json"
     if meta_path.is_file():
         meta = json.loads(meta_path.read_text())
         sequence = read_sequence(directory / "consistent")
-        start = 0
-        if meta.get("cyclic"):
-            strikes = meta.get("events", {}).get("left_heel_strikes") or [0]
-            start = int(strikes[0])
-            if start + meta["frames_per_cycle"] > len(sequence.vertices):
-                start = 0
         return SourceClip(name=meta["name"], vertices=sequence.vertices, fps=float(meta["fps"]),
-                          cyclic=bool(meta["cyclic"]), frames_per_cycle=meta.get("frames_per_cycle"),
-                          cycle_start=start), sequence.faces
+                          cyclic=bool(meta["cyclic"])), sequence.faces
     sequence = read_sequence(directory)
-    return SourceClip(name=directory.stem, vertices=sequence.vertices, fps=fps, cyclic=cycle_frames is not None,
-                      frames_per_cycle=cycle_frames), sequence.faces
+    return SourceClip(name=directory.stem, vertices=sequence.vertices, fps=fps, cyclic=cyclic), sequence.faces
 
 
 def run(args):
@@ -66,7 +58,7 @@ def run(args):
         raise ValueError(f"--epsilon-mm must be > 0, got {args.epsilon_mm}")
     clips, faces = [], None
     for directory in args.source:
-        clip, F = load_source(directory, fps=args.fps, cycle_frames=args.cycle_frames)
+        clip, F = load_source(directory, fps=args.fps, cyclic=args.cyclic)
         if faces is not None and (F.shape != faces.shape or not np.array_equal(F, faces)):
             raise ValueError(f"{directory}: its faces differ from {args.source[0]}'s; "
                              "all sources need the same mesh structure")

@@ -21,8 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from engine import evaluation
-from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest, sequence_dir
-from engine.mesh_io.errors import MeshFormatError
+from engine.mesh_io.dataset import read_capture_manifest, sequence_dir
 from engine.motion_space import MotionSpace
 from engine.synthetic import build_body
 
@@ -66,13 +65,6 @@ class _Progress:
         self.bars.clear()
 
 
-def _cycle_start(meta):
-    """First frame of the cycle the build used (``server.commands.build.load_source``)."""
-    strikes = meta.get("events", {}).get("left_heel_strikes") or [0]
-    start = int(strikes[0])
-    return 0 if start + meta["frames_per_cycle"] > meta["frames"] else start
-
-
 def capture_truth(space, dataset):
     """The generator's body and true motion for a space built from a capture dataset's gaits.
 
@@ -80,11 +72,11 @@ def capture_truth(space, dataset):
     -------
     body : Body
     true_motion : callable(weights) -> Motion
-    sources : list of dict   per source: name, speed, turn_rate, start_phase
+    sources : list of dict   per source: name, speed, turn_rate
     """
     dataset = Path(dataset)
     manifest = read_capture_manifest(dataset)
-    speeds, turns, starts, fps, sources = [], [], [], set(), []
+    speeds, turns, fps, sources = [], [], set(), []
     for name in space.source_names:
         path = sequence_dir(dataset, name) / "meta.json"
         if not path.is_file():
@@ -93,25 +85,16 @@ def capture_truth(space, dataset):
         if meta.get("kind") != "gait" or not meta.get("cyclic"):
             raise ValueError(f"{path}: ground truth is only compared for cyclic gaits, {name!r} is a "
                              f"{meta.get('kind')}")
-        start = _cycle_start(meta)
-        period = meta["motion_params"]["period"]
-        try:
-            times = load_capture_truth(dataset, name)["times"]
-            phase = float(times[start] / period) % 1.0
-        except MeshFormatError:
-            phase = 0.0
         speeds.append(meta["requested"]["speed"])
         turns.append(meta["requested"].get("turn_rate", 0.0))
-        starts.append(phase)
         fps.add(float(meta["fps"]))
-        sources.append({"name": name, "speed": speeds[-1], "turn_rate": turns[-1], "start_phase": phase,
-                        "cycle_start_frame": start})
+        sources.append({"name": name, "speed": speeds[-1], "turn_rate": turns[-1]})
     if len(fps) != 1:
         raise ValueError(f"{dataset}: the sources have different frame rates {sorted(fps)}")
     body = build_body(int(manifest["body"]["vertices"]), float(manifest["body"]["height"]))
     if len(body.V) != space.n_vertices:
         raise ValueError(f"{dataset}: its body has {len(body.V)} vertices, the space {space.n_vertices}")
-    true_motion = evaluation.gait_truth(body, speeds, turn_rates=turns, fps=fps.pop(), start_phases=starts)
+    true_motion = evaluation.gait_truth(body, speeds, turn_rates=turns, fps=fps.pop())
     return body, true_motion, sources
 
 

@@ -16,7 +16,7 @@ from engine.blend import (
     decompose_frames,
     phase_of_sample,
 )
-from engine.motion_space import SourceClip, resample_clip
+from engine.motion_space import SourceClip, prepare_sources
 from engine.rotations import rot_y, rot_z
 from engine.surface import enclosed_volume, model_size
 from engine.synthetic import animate, build_body, gait
@@ -34,16 +34,14 @@ def embedding(body):
     return VolumetricEmbedding.from_surface(body.V, body.F)
 
 
-def _cycle(body, speed):
-    motion = gait(body.skeleton, speed, cycles=1.2, start_phase=0.0)
-    clip = SourceClip("g", animate(body, motion), motion.fps, True, motion.frames_per_cycle, 0)
-    return resample_clip(clip, P)[0]
-
-
 @pytest.fixture(scope="module")
 def space3(body, embedding):
     """Three gait sources on a phase grid with their blenders."""
-    sources = np.stack([_cycle(body, v) for v in (0.9, 1.8, 3.2)], axis=1).astype(np.float32)
+    clips = []
+    for speed in (0.9, 1.8, 3.2):
+        motion = gait(body.skeleton, speed, cycles=2.0, start_phase=0.0)
+        clips.append(SourceClip(f"g{speed}", animate(body, motion), motion.fps, True, motion.frames_per_cycle))
+    sources = prepare_sources(clips, body.F, body.V, P).samples.astype(np.float32)
     frames = sources.reshape(-1, sources.shape[2], 3)
     q, s, d = decompose_frames(FrameDecomposer(embedding), frames)
     nonlinear = PhasedNonlinearBlender(NonlinearBlender(embedding, q, s, d, frames), P, 3, cyclic=True)

@@ -13,11 +13,9 @@ N_PHASES = 8
 
 
 def gait_clip(body, name, speed):
-    """One cycle of a straight gait from the left heel strike, plus its closing frame."""
-    n = gait(body.skeleton, speed, cycles=1.0).frames_per_cycle
-    motion = gait(body.skeleton, speed, cycles=1.0 + 1.0 / n, start_phase=0.0)
-    return SourceClip(name=name, vertices=animate(body, motion), fps=motion.fps, cyclic=True,
-                      frames_per_cycle=n, cycle_start=0)
+    """Two cycles of a straight gait (the build finds and aligns one)."""
+    motion = gait(body.skeleton, speed, cycles=2.0, start_phase=0.0)
+    return SourceClip(name=name, vertices=animate(body, motion), fps=motion.fps, cyclic=True)
 
 
 @pytest.fixture(scope="module")
@@ -149,8 +147,8 @@ def test_ground_truth_nonlinear_is_closer_than_linear(space, body, cache):
     truth = evaluation.gait_truth(body, SPEEDS, fps=30.0)
     result = evaluation.ground_truth_comparison(space, body, truth, cache=cache)
     for source in result["sources"]:  # the truth at a source's own speed is that source
-        assert source["max_mm"] < 0.01
-        np.testing.assert_allclose(source["offset_m"], 0.0, atol=1e-9)
+        assert source["max_mm"] < 1.0  # re-warped onto the grid: sub-sample interpolation only
+        np.testing.assert_allclose(source["offset_m"], 0.0, atol=1e-4)
     rows = result["rows"]
     assert [r["params"]["speed"] for r in rows] == pytest.approx([1.35, 1.9, 2.45])
     for row in rows:

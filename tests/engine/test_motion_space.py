@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from engine.motion_space import MotionSpace, MotionSpaceError, SourceClip, build_motion_space, resample_clip
+from engine.motion_space import MotionSpace, MotionSpaceError, SourceClip, build_motion_space, prepare_sources
 from engine.synthetic import animate, build_body, gait, jump
 
 
@@ -15,31 +15,37 @@ def body():
 @pytest.fixture(scope="module")
 def space_path(body, tmp_path_factory):
     clips = []
-    for name, speed in (("slow", 0.9), ("fast", 2.6)):
-        motion = gait(body.skeleton, speed, cycles=1.5, start_phase=0.0, fps=15)
-        clips.append(SourceClip(name, animate(body, motion), motion.fps, True, motion.frames_per_cycle, 0))
+    for name, speed, phase in (("slow", 0.9, 0.0), ("fast", 2.6, 0.4)):
+        motion = gait(body.skeleton, speed, cycles=2.0, start_phase=phase, fps=15)
+        clips.append(SourceClip(name, animate(body, motion), motion.fps, True))
     path = tmp_path_factory.mktemp("spaces") / "gait.mspace"
     build_motion_space(path, clips, body.F, name="gait", n_phases=10, epsilon=0.006, rest=body.V)
     return path
 
 
-def test_cycle_resampling_removes_drift_and_loops(body):
-    motion = gait(body.skeleton, 1.4, cycles=2.0, start_phase=0.0)
-    V = animate(body, motion)
-    clip = SourceClip("walk", V, motion.fps, True, motion.frames_per_cycle, 0)
-    N = motion.frames_per_cycle
-    samples, velocity = resample_clip(clip, N)
-    np.testing.assert_allclose(samples[0], V[0], atol=1e-12)  # phase 0 is the cycle's first frame
-    assert velocity[2] == pytest.approx(1.4, rel=0.01) and abs(velocity[0]) < 1e-6
-    # In the root frame the cycle closes: the frame after the last sample is the first again.
-    local_next = V[N] - velocity * N / motion.fps
-    np.testing.assert_allclose(local_next, samples[0], atol=1e-9)
+def test_prepared_sources_are_root_local_aligned_cycles(body):
+    """Two walks captured from different start phases and places end up on the same poses."""
+    clips = []
+    for name, phase, offset in (("a", 0.0, (0.0, 0.0)), ("b", 0.55, (3.0, -2.0))):
+        motion = gait(body.skeleton, 1.4, cycles=2.0, start_phase=phase)
+        V = animate(body, motion) + np.array([offset[0], 0.0, offset[1]])
+        clips.append(SourceClip(name, V, motion.fps, True))
+    prepared = prepare_sources(clips, body.F, body.V, 24)
+    a, b = prepared.samples[:, 0], prepared.samples[:, 1]
+    assert np.abs(a - b).max() < 0.01  # same motion: same root-local cycle, phase aligned
+    np.testing.assert_allclose(prepared.durations, clips[0].vertices.shape[0] / 2 / 30.0, rtol=0.01)
+    # The root moves forward at the walking speed: displacement per unit phase / duration.
+    speed = prepared.root_rate[:, :, 2].mean(axis=0) / prepared.durations
+    np.testing.assert_allclose(speed, 1.4, rtol=0.01)
+    assert np.abs(prepared.root_rate[:, :, 0]).max() < 0.05 * 1.4 * prepared.durations[0]
+    assert np.abs(prepared.samples[..., [0, 2]].mean(axis=(0, 2))).max() < 0.1  # centred on the root
 
 
 def test_clip_too_short_for_its_cycle_is_refused(body):
-    V = np.zeros((10, len(body.V), 3))
-    with pytest.raises(ValueError, match="needs 25 frames"):
-        resample_clip(SourceClip("x", V, 30.0, True, frames_per_cycle=20, cycle_start=5), 8)
+    V = np.repeat(body.V[None], 10, axis=0)
+    with pytest.raises(ValueError, match="do not hold a whole cycle"):
+        prepare_sources([SourceClip("x", V, 30.0, True, frames_per_cycle=20),
+                         SourceClip("y", V, 30.0, True, frames_per_cycle=20)], body.F, body.V, 8)
 
 
 def test_space_round_trip_matches_the_sources(space_path):
@@ -82,8 +88,8 @@ def test_truncated_space_file_is_a_clear_error(space_path, tmp_path):
 def test_sources_must_agree(body, tmp_path):
     motion = jump(body.skeleton, 0.3, 0.5, fps=15)
     V = animate(body, motion)
-    walk = gait(body.skeleton, 1.0, cycles=1.2, fps=15)
-    cyclic = SourceClip("walk", animate(body, walk), 15.0, True, walk.frames_per_cycle, 0)
+    walk = gait(body.skeleton, 1.0, cycles=2.0, fps=15)
+    cyclic = SourceClip("walk", animate(body, walk), 15.0, True)
     one_shot = SourceClip("jump", V, 15.0, False)
     with pytest.raises(ValueError, match="all cyclic or all non-cyclic"):
         build_motion_space(tmp_path / "x.mspace", [cyclic, one_shot], body.F, name="x")
