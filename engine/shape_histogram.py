@@ -254,6 +254,40 @@ def histogram_norm2(H):
     return power[..., 0].sum(axis=(-1, -2)) + 2.0 * power[..., 1:].sum(axis=(-1, -2, -3))
 
 
+def refine_rotation(cross, degrees, *, iterations=3, max_step=None):
+    """Newton steps on the exact correlation from a sampled best rotation.
+
+    Parameters
+    ----------
+    cross : (..., harmonics + 1) complex array   ``sum_cells H1 conj(H2)`` per harmonic
+    degrees : (...) float array                   starting rotations (e.g. from :func:`best_rotation`)
+    iterations : int
+    max_step : float or None                      largest total change (degrees)
+
+    Returns
+    -------
+    degrees : (...) float array in (-180, 180]
+    peak : (...) float array    the correlation there, ``sum_{k=-K..K} cross_k exp(i k theta)``
+    """
+    cross = np.asarray(cross)
+    k = np.arange(cross.shape[-1], dtype=np.float64)
+    start = np.radians(np.asarray(degrees, dtype=np.float64))
+    theta = start.copy()
+    limit = np.inf if max_step is None else np.radians(max_step)
+    for _ in range(iterations):
+        z = cross * np.exp(1j * k * theta[..., None])
+        slope = -2.0 * np.sum(k * z.imag, axis=-1)
+        curvature = -2.0 * np.sum(k * k * z.real, axis=-1)
+        step = np.where(curvature < 0, -slope / np.where(curvature < 0, curvature, -1.0), 0.0)
+        theta = start + np.clip(theta + step - start, -limit, limit)
+    z = cross * np.exp(1j * k * theta[..., None])
+    peak = z[..., 0].real + 2.0 * np.sum(z[..., 1:].real, axis=-1)
+    degrees = np.degrees(theta)
+    degrees = (degrees + 180.0) % 360.0 - 180.0
+    degrees = np.where(degrees == -180.0, 180.0, degrees)
+    return degrees, peak
+
+
 def histogram_distance(H1, H2, *, steps=360):
     """L2 distance between two shape histograms at the best rotation about the vertical axis.
 
@@ -274,7 +308,9 @@ def histogram_distance(H1, H2, *, steps=360):
         raise ValueError(f"histograms must have equal (shells, elevations, harmonics + 1) shapes, "
                          f"got {H1.shape} and {H2.shape}")
     c = rotation_correlation(H1, H2, steps)
-    best, peak = best_rotation(c)
+    best, _ = best_rotation(c)
+    cross = np.sum(H1 * np.conj(H2), axis=(0, 1))
+    best, peak = refine_rotation(cross, best, max_step=360.0 / steps)
     squared = histogram_norm2(H1) + histogram_norm2(H2) - 2.0 * peak
     return float(np.sqrt(max(squared, 0.0))), float(best)
 
@@ -308,4 +344,4 @@ def best_rotation(c):
 
 __all__ = ["best_rotation", "correlation_over_rotations", "histogram_distance", "histogram_norm2",
            "histogram_sectors", "is_closed",
-           "rotation_correlation", "shape_centre", "shape_histogram"]
+           "refine_rotation", "rotation_correlation", "shape_centre", "shape_histogram"]

@@ -21,6 +21,7 @@ from engine.shape_histogram import (
     best_rotation,
     histogram_norm2,
     is_closed,
+    refine_rotation,
     shape_centre,
     shape_histogram,
 )
@@ -142,7 +143,8 @@ def _block(H_rows, H_cols, norm_rows, norm_cols, steps):
     B = H_cols.reshape(c, -1, K).transpose(2, 0, 1)
     cross = np.matmul(A, np.conj(B).transpose(0, 2, 1)).transpose(1, 2, 0)  # (r, c, K)
     correlation = correlation_over_rotations(cross, steps)
-    degrees, peak = best_rotation(correlation)
+    degrees, _ = best_rotation(correlation)
+    degrees, peak = refine_rotation(cross, degrees, max_step=360.0 / steps)
     squared = norm_rows[:, None] + norm_cols[None, :] - 2.0 * peak
     return np.sqrt(np.maximum(squared, 0.0)), degrees.astype(np.float32)
 

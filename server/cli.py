@@ -11,6 +11,7 @@ import sys
 
 from server.commands import bench, blend, build, synth
 from server.commands import eval as eval_command
+from server.commands import align, eval_align
 
 COMMANDS = {
     "synth": synth,
@@ -18,6 +19,8 @@ COMMANDS = {
     "blend": blend,
     "eval": eval_command,
     "bench": bench,
+    "align": align,
+    "eval-align": eval_align,
 }
 
 

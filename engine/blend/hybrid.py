@@ -194,7 +194,7 @@ class HybridReport:
 
 
 def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon, keep_threshold=None,
-                 margin=0.9, level=None, max_depth=8, uniform_depth=None, progress=None):
+                 margin=0.9, level=None, max_depth=8, uniform_depth=None, test_weights=None, progress=None):
     """Reference weights and hierarchical sparse corrections by bisection of the weight simplex.
 
     Parameters
@@ -210,6 +210,11 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
     uniform_depth : int or None
         Split every cell to this depth with nothing dropped, regardless of error (the paper's
         "hybrid with 1 / 3 references" rows are depths 1 and 2 for two sources).
+    test_weights : (M, N) float array or None
+        Where the bound must hold: the weights a player can reach (a parameter layout's sheet).
+        Each cell is tested at those of them inside it and only split if one fails; cells with
+        none are never split. Default: a barycentric grid of ``level`` in every cell (the whole
+        simplex).
     progress : callable(message) or None
 
     Returns
@@ -261,6 +266,17 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
                 H += g[k] * nodal[r]
         return float(np.linalg.norm(H - exact(w), axis=2).max())
 
+    def points_in(node):
+        if test_weights is None:
+            return tree.test_points(node, level)
+        W = tree.vertices(node)
+        g = np.linalg.lstsq(W.T, test_weights.T, rcond=None)[0].T
+        inside = np.all(g >= -1e-9, axis=1) & np.all(np.abs(g @ W - test_weights) < 1e-9, axis=1)
+        return test_weights[inside]
+
+    if test_weights is not None:
+        test_weights = np.asarray(test_weights, dtype=float)
+        test_weights = test_weights / test_weights.sum(axis=1, keepdims=True)
     queue = [0]
     leaf_errors = []
     while queue:
@@ -269,7 +285,8 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         if uniform_depth is not None:
             split, worst = depth < uniform_depth, float("nan")
         else:
-            worst = max(hybrid_error(node, w) for w in tree.test_points(node, level))
+            points = points_in(node)
+            worst = max((hybrid_error(node, w) for w in points), default=0.0)
             split = worst > margin * epsilon and depth < max_depth
         if split:
             cell = tree.cells[node]

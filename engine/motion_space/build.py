@@ -30,7 +30,9 @@ from engine.blend import (
     build_hybrid,
     decompose_frames,
 )
+from engine.blend import HybridBlender, phase_of_sample
 from engine.motion_space.container import write_container
+from engine.parameters import ParameterMap, RootTrack, measure_parameters
 from engine.root_motion import estimate_root_motion
 from engine.surface import model_size
 from engine.timewarp import (
@@ -112,11 +114,13 @@ def _root_rates(root, times, span_frames):
     return velocity * seconds[:, None], turn * seconds
 
 
-def prepare_sources(clips, faces, rest, n_phases):
-    """Root motion and time-warp of every clip onto a common phase grid (steps 5-6)."""
+def prepare_sources(clips, faces, rest, n_phases=None):
+    """Root motion and time-warp of every clip onto a common phase grid (steps 5-6).
+
+    ``n_phases`` defaults to the longest cycle (cyclic clips) or clip, in frames.
+    """
     size = model_size(rest)
     cyclic = clips[0].cyclic
-    P = n_phases
     roots, info = [], []
     for clip in clips:
         V = np.asarray(clip.vertices, dtype=np.float64)
@@ -135,6 +139,11 @@ def prepare_sources(clips, faces, rest, n_phases):
             info.append({"name": clip.name, "events_kind": events.kind, "events_frames": list(events.times)})
         roots.append(root)
 
+    if n_phases is None:
+        n_phases = max(int(round(e["period_frames"])) for e in info) if cyclic else max(len(c.vertices) for c in clips)
+    P = int(n_phases)
+    if P < 2:
+        raise ValueError(f"n_phases must be at least 2, got {P}")
     N = len(clips)
     samples = np.empty((P, N) + clips[0].vertices.shape[1:])
     times = np.empty((P, N))
@@ -209,8 +218,25 @@ def warp_cycle_onto(clip, faces, rest, reference):
     return sample_frames(root.local, start + np.mod(warp * period / P, period))
 
 
+def sheet_weights(layout, resolution=None):
+    """(M, N) blend weights covering a parameter layout's sheet: where the player can go."""
+    resolution = resolution or (33 if layout.dims == 1 else 17)
+    axis = np.linspace(0.0, 1.0, resolution)
+    if layout.dims == 1:
+        return np.array([layout.weights([a]) for a in axis])
+    return np.array([layout.weights([a, b]) for a in axis for b in axis])
+
+
+def effector_vertices(samples, fraction=0.015):
+    """Vertices that move most in the sources (a reach's hand): the top ``fraction`` by their
+    largest displacement from the first phase sample, over all sources."""
+    displacement = np.linalg.norm(samples - samples[:1], axis=3).max(axis=(0, 1))
+    count = max(1, int(round(fraction * samples.shape[2])))
+    return np.sort(np.argsort(displacement)[-count:]).astype(np.int32)
+
+
 def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005, rest=None,
-                       embedding=None, hybrid_options=None, progress=None):
+                       embedding=None, hybrid_options=None, parameters=None, progress=None):
     """Build and write a motion space.
 
     Parameters
@@ -225,6 +251,9 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
                                   every source (default: the first source's first frame)
     embedding : VolumetricEmbedding or None   reuse a cached tetrahedralisation of ``rest``
     hybrid_options : dict         extra options for ``build_hybrid``
+    parameters : dict or None     high-level parameters: ``layout`` (engine.parameters.Layout),
+                                  ``names`` (measures, e.g. ["speed", "turn_rate"]), optional
+                                  ``resolution`` (samples per axis)
     progress : callable(stage: str, done: int, total: int) or None
 
     Returns
@@ -246,12 +275,6 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
     faces = np.asarray(faces, dtype=np.int64)
     if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= n:
         raise ValueError(f"faces must be (m, 3) indices into {n} vertices")
-    if n_phases is None:
-        n_phases = max(int(round(c.frames_per_cycle)) if (cyclic and c.frames_per_cycle) else len(c.vertices)
-                       for c in clips)
-    n_phases = int(n_phases)
-    if n_phases < 2:
-        raise ValueError(f"n_phases must be at least 2, got {n_phases}")
     timings = {}
 
     started = time.perf_counter()
@@ -261,6 +284,7 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
     report_progress("time-warp", 0, 1)
     prepared = prepare_sources(clips, faces, rest, n_phases)
     sources = prepared.samples  # (P, N, n, 3), root-local
+    n_phases = sources.shape[0]
     N = len(clips)
     report_progress("time-warp", 1, 1)
     timings["timewarp_s"] = time.perf_counter() - started
@@ -291,10 +315,32 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
         steps[0] += 1
         report_progress("hybrid", steps[0], 0)
 
+    options = dict(hybrid_options or {})
+    if parameters is not None and "test_weights" not in options:
+        options["test_weights"] = sheet_weights(parameters["layout"])
     tree, corrections, hybrid_report = build_hybrid(
         linear.blend_all_phases, nonlinear.blend_all_phases, N, n_phases, n, epsilon=epsilon,
-        progress=hybrid_progress, **(hybrid_options or {}))
+        progress=hybrid_progress, **options)
     timings["hybrid_s"] = time.perf_counter() - t0
+
+    effector = effector_vertices(sources)
+    track = RootTrack(durations=prepared.durations, root_rate=prepared.root_rate, turn_rate=prepared.turn_rate,
+                      cyclic=cyclic)
+    parameter_map = None
+    if parameters is not None:
+        t0 = time.perf_counter()
+        hybrid = HybridBlender(sources32, tree, corrections, cyclic)
+
+        def blend_phases(w):
+            return np.stack([hybrid.blend(w, phase_of_sample(p, n_phases, cyclic)) for p in range(n_phases)])
+
+        names = list(parameters["names"])
+        parameter_map = ParameterMap.sample(
+            parameters["layout"], names,
+            lambda w: measure_parameters(names, w, track, blend_phases, faces=faces, effector=effector),
+            resolution=parameters.get("resolution"),
+            progress=lambda d, t: report_progress("parameters", d, t))
+        timings["parameters_s"] = time.perf_counter() - t0
 
     size = model_size(rest)
     lo = sources.reshape(-1, 3).min(axis=0)
@@ -314,11 +360,12 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
                    "stored_fraction": hybrid_report.stored_fraction,
                    "correction_bytes": int(corrections.nbytes()), "source_bytes": int(sources32.nbytes)},
         "timings": {k: round(v, 3) for k, v in timings.items()},
+        "parameters": None if parameter_map is None else parameter_map.to_metadata(),
     }
     arrays = {
         "faces": faces.astype(np.int32), "sources": sources32, "rest": rest,
         "durations": prepared.durations, "root_rate": prepared.root_rate, "turn_rate": prepared.turn_rate,
-        "warp_times": prepared.times,
+        "warp_times": prepared.times, "effector": effector,
         "tet_vertices": embedding.V_tet, "tets": embedding.T.astype(np.int32),
         "surface_tet": embedding.surface_tet.astype(np.int32), "surface_bary": embedding.surface_bary,
         "nl_quaternions": quaternions, "nl_stretch": stretch, "nl_detail": detail,
@@ -327,6 +374,8 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
         "corrections_pointer": corrections.pointer, "corrections_vertex": corrections.vertex,
         "corrections_value": corrections.value, "corrections_scale": corrections.scale,
     }
+    if parameter_map is not None:
+        arrays.update(parameter_map.to_arrays())
     timings["total_s"] = time.perf_counter() - started
     metadata["timings"]["total_s"] = round(timings["total_s"], 3)
     write_container(path, arrays, metadata)

@@ -17,6 +17,7 @@ from engine.blend import (
 )
 from engine.motion_space.build import SPACE_FORMAT, SPACE_VERSION
 from engine.motion_space.container import Container, MotionSpaceError
+from engine.parameters import ParameterMap, RootTrack
 
 MODES = ("linear", "hybrid", "nonlinear")
 
@@ -44,9 +45,12 @@ class MotionSpace:
         if meta.get("format") != SPACE_FORMAT:
             raise MotionSpaceError(f"{container.path}: the file holds {meta.get('format')!r}, "
                                    f"not a {SPACE_FORMAT}")
-        if meta.get("version", 0) > SPACE_VERSION:
-            raise MotionSpaceError(f"{container.path}: motion space version {meta['version']} is newer "
-                                   f"than this morphspace understands ({SPACE_VERSION})")
+        if meta.get("version", 0) != SPACE_VERSION:
+            newer = meta.get("version", 0) > SPACE_VERSION
+            raise MotionSpaceError(f"{container.path}: motion space version {meta.get('version')} "
+                                   + ("is newer than this morphspace understands" if newer else
+                                      "is from an older morphspace; rebuild the space")
+                                   + f" (this morphspace reads version {SPACE_VERSION})")
         self.metadata = meta
         self.name = meta["name"]
         self.n_sources, self.n_phases = meta["n_sources"], meta["n_phases"]
@@ -75,9 +79,30 @@ class MotionSpace:
     def source_names(self):
         return [s["name"] for s in self.metadata["sources"]]
 
+    @cached_property
+    def root_track(self):
+        """Blendable root motion (durations, root displacement and turn per unit phase)."""
+        c = self.container
+        return RootTrack(durations=np.asarray(c["durations"]), root_rate=np.asarray(c["root_rate"]),
+                         turn_rate=np.asarray(c["turn_rate"]), cyclic=self.cyclic)
+
+    @cached_property
+    def parameter_map(self):
+        """The ParameterMap of the space's high-level parameters, or None."""
+        meta = self.metadata.get("parameters")
+        if not meta:
+            return None
+        c = self.container
+        return ParameterMap.from_stored(meta, c["parameter_values"], c["parameter_axis"])
+
+    @property
+    def effector(self):
+        """(h,) vertices that move most in the sources (a reach's hand)."""
+        return np.asarray(self.container["effector"])
+
     def durations(self):
         """(N,) seconds per source (one cycle, or the whole clip)."""
-        return np.array([s["duration"] for s in self.metadata["sources"]])
+        return np.asarray(self.container["durations"])
 
     @cached_property
     def embedding(self):

@@ -1,38 +1,52 @@
-"""Build a motion space from N consistent-topology source sequences.
+"""Build a motion space from a spec (TOML) or from --source sequences.
 
-Each --source is a sequence directory of a capture dataset (``sequences/<name>``: its meta.json
-gives the frame rate and whether it is cyclic) or any directory or zip of per-frame meshes
-(non-cyclic unless --cyclic is given). Cycle lengths, key poses and events are found on the
-meshes. Example:
+The spec names the sources, the high-level parameters and the blend settings
+(docs/file-formats.md, "Motion space specs"); the build runs root motion, time-warp,
+tetrahedralisation, decomposition, hybrid precompute and the parameter map, with progress bars.
+Examples:
 
+    morphspace build specs/demo/locomotion.toml --out data/spaces/locomotion.mspace
     morphspace build --source data/captures/demo/sequences/walk_slow \\
                      --source data/captures/demo/sequences/jog --out walk_jog.mspace
+
+A --source is a capture-dataset sequence directory (its meta.json gives the frame rate and
+whether it is cyclic) or any directory or zip of per-frame meshes (non-cyclic unless --cyclic).
+Cycle lengths, key poses and events are found on the meshes.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import time
+import tomllib
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
+from engine.blend import VolumetricEmbedding
 from engine.mesh_io import read_mesh, read_sequence
 from engine.motion_space import SourceClip, build_motion_space
+from engine.parameters import MEASURES, Layout
+
+LAYOUT_KEYS = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}
 
 
 def add_arguments(parser):
-    parser.add_argument("--source", action="append", required=True, type=Path, metavar="DIR",
-                        help="a source sequence (repeat for each source; at least 2)")
-    parser.add_argument("--out", required=True, type=Path, help="output .mspace file")
-    parser.add_argument("--name", help="space name (default: the output file's stem)")
-    parser.add_argument("--epsilon-mm", type=float, default=5.0, help="hybrid error bound in mm (default 5)")
-    parser.add_argument("--phases", type=int, help="phase samples (default: longest source's frames)")
-    parser.add_argument("--rest", type=Path, help="rest-pose mesh to tetrahedralise (default: the "
-                        "capture dataset's template/body.obj, else the first source's first frame)")
+    parser.add_argument("spec", nargs="?", type=Path, help="a space spec (.toml)")
+    parser.add_argument("--source", action="append", type=Path, metavar="DIR",
+                        help="a source sequence, instead of a spec (repeat; at least 2)")
+    parser.add_argument("--out", type=Path, help="output .mspace file (default: the spec's name next to it)")
+    parser.add_argument("--name", help="space name (default: from the spec, or the output file's stem)")
+    parser.add_argument("--epsilon-mm", type=float, help="hybrid error bound in mm (default: spec, or 5)")
+    parser.add_argument("--phases", type=int, help="phase samples (default: spec, or the longest source)")
+    parser.add_argument("--rest", type=Path, help="rest-pose mesh (default: the capture dataset's "
+                        "template/body.obj, else the first source's first frame)")
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate of sources without meta.json")
     parser.add_argument("--cyclic", action="store_true", help="sources without meta.json are cyclic")
+    parser.add_argument("--cache", type=Path, help="directory caching tetrahedralisations "
+                        "(default: .tetcache next to the output)")
     parser.add_argument("--force", action="store_true", help="replace an existing output file")
 
 
@@ -49,56 +63,167 @@ def load_source(directory, *, fps, cyclic):
     return SourceClip(name=directory.stem, vertices=sequence.vertices, fps=fps, cyclic=cyclic), sequence.faces
 
 
+def read_spec(path):
+    """Parse and check a space spec; returns a dict with resolved source directories."""
+    path = Path(path)
+    try:
+        spec = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such spec file") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a valid TOML spec: {exc}") from None
+    base = path.parent
+    captures = base / spec["captures"] if "captures" in spec else None
+    sources = spec.get("sources")
+    if not isinstance(sources, list) or len(sources) < 2:
+        raise ValueError(f"{path}: 'sources' must list at least 2 sequences")
+    names, directories = [], []
+    for entry in sources:
+        if isinstance(entry, str):
+            entry = {"name": entry}
+        if not isinstance(entry, dict) or "name" not in entry:
+            raise ValueError(f"{path}: each source is a sequence name or a table with 'name' (and 'path')")
+        if "path" in entry:
+            directory = base / entry["path"]
+        elif captures is not None:
+            directory = captures / "sequences" / entry["name"]
+        else:
+            raise ValueError(f"{path}: source {entry['name']!r} has no 'path' and the spec no 'captures'")
+        if not directory.exists():
+            raise ValueError(f"{path}: source {entry['name']!r}: {directory} does not exist")
+        names.append(entry["name"])
+        directories.append(directory)
+    parameters = spec.get("parameters")
+    layout = None
+    if parameters is not None:
+        kind = parameters.get("layout")
+        if kind not in LAYOUT_KEYS:
+            raise ValueError(f"{path}: parameters.layout must be one of {', '.join(LAYOUT_KEYS)}, got {kind!r}")
+
+        def index(name):
+            if name not in names:
+                raise ValueError(f"{path}: parameters refer to {name!r}, which is not among the sources")
+            return names.index(name)
+
+        fields = {}
+        for key in LAYOUT_KEYS[kind]:
+            if key not in parameters:
+                raise ValueError(f"{path}: a {kind} layout needs parameters.{key}")
+            value = parameters[key]
+            fields[key] = tuple(index(v) for v in value) if isinstance(value, list) else index(value)
+        layout = Layout(kind=kind, n_sources=len(names), **fields)
+        measures = parameters.get("measures")
+        if not measures or any(m not in MEASURES for m in measures):
+            raise ValueError(f"{path}: parameters.measures must list some of {', '.join(MEASURES)}")
+        parameters = {"layout": layout, "names": list(measures), "resolution": parameters.get("resolution")}
+    rest = spec.get("rest")
+    return {"name": spec.get("name", path.stem), "directories": directories, "names": names,
+            "epsilon_mm": spec.get("epsilon_mm"), "phases": spec.get("phases"),
+            "rest": (captures / rest if captures is not None else base / rest) if rest else None,
+            "captures": captures, "parameters": parameters}
+
+
+def cached_embedding(cache_dir, rest, faces):
+    """Tetrahedralise the rest surface once: reuse a cached embedding keyed by its content."""
+    key = hashlib.blake2b(np.ascontiguousarray(rest, dtype=np.float64).tobytes()
+                          + np.ascontiguousarray(faces, dtype=np.int64).tobytes(), digest_size=12).hexdigest()
+    path = Path(cache_dir) / f"tets-{key}.npz"
+    if path.is_file():
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                return VolumetricEmbedding(V_tet=data["V_tet"], T=data["T"], surface_tet=data["surface_tet"],
+                                           surface_bary=data["surface_bary"])
+        except (OSError, ValueError, KeyError):
+            path.unlink(missing_ok=True)  # a broken cache entry is rebuilt
+    embedding = VolumetricEmbedding.from_surface(rest, faces)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npz")
+    np.savez(tmp, V_tet=embedding.V_tet, T=embedding.T, surface_tet=embedding.surface_tet,
+             surface_bary=embedding.surface_bary)
+    tmp.replace(path)
+    return embedding
+
+
+class _Bars:
+    """One tqdm bar per build stage."""
+
+    def __init__(self):
+        self.bar, self.stage = None, None
+
+    def __call__(self, stage, done, total):
+        if stage != self.stage:
+            self.close()
+            self.stage = stage
+            self.bar = tqdm(total=total or None, desc=stage, unit="step", dynamic_ncols=True, mininterval=0.5)
+        if total:
+            self.bar.total = total
+        self.bar.n = done
+        self.bar.refresh()
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
 def run(args):
-    if len(args.source) < 2:
-        raise ValueError("a motion space needs at least 2 --source sequences")
-    if args.out.exists() and not args.force:
-        raise FileExistsError(f"{args.out} already exists; pass --force to replace it")
-    if args.epsilon_mm <= 0:
-        raise ValueError(f"--epsilon-mm must be > 0, got {args.epsilon_mm}")
+    if args.spec is None and not args.source:
+        raise ValueError("give a spec file or at least two --source sequences")
+    if args.spec is not None and args.source:
+        raise ValueError("give either a spec or --source sequences, not both")
+    if args.spec is not None:
+        spec = read_spec(args.spec)
+        directories, name = spec["directories"], args.name or spec["name"]
+        out = args.out or args.spec.with_name(f"{spec['name']}.mspace")
+    else:
+        if len(args.source) < 2:
+            raise ValueError("a motion space needs at least 2 --source sequences")
+        if args.out is None:
+            raise ValueError("--out is required with --source")
+        spec = {"epsilon_mm": None, "phases": None, "rest": None, "parameters": None, "captures": None}
+        directories, out = args.source, args.out
+        name = args.name or out.stem
+    epsilon_mm = args.epsilon_mm or spec["epsilon_mm"] or 5.0
+    if epsilon_mm <= 0:
+        raise ValueError(f"epsilon must be > 0 mm, got {epsilon_mm}")
+    if out.exists() and not args.force:
+        raise FileExistsError(f"{out} already exists; pass --force to replace it")
+
     clips, faces = [], None
-    for directory in args.source:
+    for directory in directories:
         clip, F = load_source(directory, fps=args.fps, cyclic=args.cyclic)
         if faces is not None and (F.shape != faces.shape or not np.array_equal(F, faces)):
-            raise ValueError(f"{directory}: its faces differ from {args.source[0]}'s; "
+            raise ValueError(f"{directory}: its faces differ from {directories[0]}'s; "
                              "all sources need the same mesh structure")
         faces = F
         clips.append(clip)
-    rest = None
-    rest_path = args.rest
+    rest_path = args.rest or spec["rest"]
     if rest_path is None:
-        candidate = args.source[0].parent.parent / "template" / "body.obj"
+        candidate = Path(directories[0]).parent.parent / "template" / "body.obj"
         rest_path = candidate if candidate.is_file() else None
+    rest = clips[0].vertices[0]
     if rest_path is not None:
         mesh = read_mesh(rest_path)
         if mesh.vertices.shape != clips[0].vertices.shape[1:] or not np.array_equal(mesh.faces, faces):
             raise ValueError(f"{rest_path}: the rest mesh must have the sources' vertices and faces")
         rest = mesh.vertices
-
-    bars = {}
-
-    def progress(stage, done, total):
-        if stage not in bars:
-            for bar in bars.values():
-                bar.close()
-            bars.clear()
-            bars[stage] = tqdm(total=total or None, desc=stage, unit="step", dynamic_ncols=True, mininterval=0.5)
-        bar = bars[stage]
-        if total:
-            bar.total = total
-        bar.n = done
-        bar.refresh()
-
+    bars = _Bars()
     started = time.perf_counter()
-    report = build_motion_space(args.out, clips, faces, name=args.name or args.out.stem, n_phases=args.phases,
-                                epsilon=args.epsilon_mm / 1000.0, rest=rest, progress=progress)
-    for bar in bars.values():
-        bar.close()
+    bars("tetrahedralise", 0, 1)
+    embedding = cached_embedding(args.cache or out.parent / ".tetcache", rest, faces)
+    report = build_motion_space(out, clips, faces, name=name, n_phases=args.phases or spec["phases"],
+                                epsilon=epsilon_mm / 1000.0, rest=rest, embedding=embedding,
+                                parameters=spec["parameters"], progress=bars)
+    bars.close()
     hybrid = report["hybrid"]
-    print(f"wrote {args.out}: {report['n_sources']} sources x {report['n_phases']} phases, "
+    print(f"wrote {out}: {report['n_sources']} sources x {report['n_phases']} phases, "
           f"{report['n_vertices']} vertices, {report['n_tets']} tets, in {time.perf_counter() - started:.1f} s")
     print(f"  hybrid: {hybrid['references']} references, {hybrid['leaves']} cells, max test error "
-          f"{hybrid['max_test_error'] * 1000:.2f} mm (epsilon {args.epsilon_mm:g} mm), corrections "
+          f"{hybrid['max_test_error'] * 1000:.2f} mm (epsilon {epsilon_mm:g} mm), corrections "
           f"{hybrid['correction_bytes'] / 1e6:.2f} MB = {100 * hybrid['correction_bytes'] / hybrid['source_bytes']:.1f}% "
           f"of the sources")
+    if report.get("parameters"):
+        p = report["parameters"]
+        domain = ", ".join(f"{n} {lo:.3g}..{hi:.3g} {u}" for n, (lo, hi), u in zip(p["names"], p["domain"], p["units"]))
+        print(f"  parameters ({p['layout']['kind']}): {domain}")
     return 0

@@ -1,0 +1,165 @@
+"""Scoring aligned mesh sequences against ground truth, and pattern renders (paper fig. 2).
+
+Synthetic captures know where every template vertex is in every frame
+(``template_positions``). A root-mesh vertex is located on the template surface of the root
+frame (face and barycentric coordinates); its true position in any other frame is the same
+point of that frame's template surface. The correspondence error of an aligned vertex is its
+distance from there. Errors are reported in % of the model size (DESIGN.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine.surface import SurfaceQuery
+
+
+def surface_coordinates(P, V, F):
+    """Where points lie on a surface: closest face and barycentric coordinates.
+
+    Parameters
+    ----------
+    P : (n, 3) float array   points near the surface (e.g. the root mesh's vertices)
+    V : (m, 3) float array   the surface at the same instant (e.g. the template at the root frame)
+    F : (l, 3) int array
+
+    Returns
+    -------
+    faces : (n,) int array
+    bary : (n, 3) float array
+    distance : (n,) float array   how far each point was from the surface
+    """
+    points, faces, bary, distance = SurfaceQuery(V, F).closest(np.asarray(P, dtype=np.float64))
+    return faces, bary, distance
+
+
+def true_positions(template_positions, F, faces, bary):
+    """Positions (frames, n, 3) of surface points given by (faces, bary) in every frame.
+
+    Parameters
+    ----------
+    template_positions : (frames, m, 3) float array
+    F : (l, 3) int array       template faces
+    faces : (n,) int array, bary : (n, 3) float array
+    """
+    corners = np.asarray(template_positions)[:, F[faces]]  # (frames, n, 3, 3)
+    return np.einsum("nk,fnkc->fnc", bary, corners)
+
+
+def correspondence_errors(aligned, truth):
+    """Per-vertex distances (frames, n) between aligned and true positions."""
+    return np.linalg.norm(np.asarray(aligned, dtype=np.float64) - np.asarray(truth, dtype=np.float64), axis=-1)
+
+
+def error_summary(errors, model_size):
+    """Mean, 95th percentile and max of errors, in metres and in % of the model size.
+
+    Parameters
+    ----------
+    errors : array of distances (any shape)
+    model_size : float
+
+    Returns
+    -------
+    summary : dict  mean_mm, p95_mm, max_mm, mean_pct, p95_pct, max_pct
+    """
+    e = np.asarray(errors, dtype=np.float64).ravel()
+    if e.size == 0:
+        raise ValueError("no errors to summarise")
+    mean, p95, top = float(e.mean()), float(np.percentile(e, 95)), float(e.max())
+    scale = 100.0 / model_size
+    return {"mean_mm": 1000 * mean, "p95_mm": 1000 * p95, "max_mm": 1000 * top,
+            "mean_pct": scale * mean, "p95_pct": scale * p95, "max_pct": scale * top}
+
+
+def score_alignment(aligned, root, root_vertices, truth, template_faces, model_size):
+    """Correspondence errors of aligned frames against ground truth.
+
+    Parameters
+    ----------
+    aligned : (N, n, 3) float array        every frame in the root's topology (frames of all
+                                           sequences concatenated)
+    root : int                             index of the root frame
+    root_vertices : (n, 3) float array     the root mesh as captured
+    truth : (N, m, 3) float array          template vertex positions in every frame, same order
+    template_faces : (l, 3) int array
+    model_size : float                     metres (errors are also given in % of it)
+
+    Returns
+    -------
+    errors : (N, n) float array   per frame and root vertex, metres
+    summary : dict                error_summary over all frames but the root
+    """
+    aligned = np.asarray(aligned, dtype=np.float64)
+    truth = np.asarray(truth)
+    if aligned.shape[0] != truth.shape[0]:
+        raise ValueError(f"{aligned.shape[0]} aligned frames but ground truth for {truth.shape[0]}")
+    faces, bary, _ = surface_coordinates(root_vertices, truth[root], template_faces)
+    errors = np.empty(aligned.shape[:2])
+    for start in range(0, len(aligned), 64):  # bounded memory
+        stop = min(start + 64, len(aligned))
+        errors[start:stop] = correspondence_errors(aligned[start:stop],
+                                                   true_positions(truth[start:stop], template_faces, faces, bary))
+    others = np.ones(len(aligned), dtype=bool)
+    others[root] = False
+    return errors, error_summary(errors[others] if others.any() else errors, model_size)
+
+
+def pattern_colors(V, *, period=0.12):
+    """A checker pattern with rings, fixed on a mesh's rest positions (paper fig. 2 style).
+
+    Parameters
+    ----------
+    V : (n, 3) float array   rest (root) vertex positions
+    period : float           cell size in metres
+
+    Returns
+    -------
+    colors : (n, 3) float array in [0, 1]   a function of the rest positions only, so every
+                                            aligned frame shows where each root point went
+    """
+    V = np.asarray(V, dtype=np.float64)
+    cell = np.floor(V / period).astype(np.int64)
+    checker = cell.sum(axis=1) % 2
+    band = np.floor(V[:, 1] / (2 * period)).astype(np.int64) % 2
+    palette = np.array([[0.98, 0.80, 0.25], [0.20, 0.35, 0.80], [0.90, 0.30, 0.35], [0.25, 0.65, 0.45]])
+    colors = palette[2 * band + checker].copy()
+    local = V / period - cell - 0.5
+    ring = np.abs(np.linalg.norm(local, axis=1) - 0.32) < 0.1
+    colors[ring] = 0.97
+    return colors
+
+
+def pattern_render(frames, F, colors, *, columns=3, size=1100, title=None, azimuth=20.0):
+    """Render aligned frames on a grid with per-vertex colours fixed on the root mesh.
+
+    Parameters
+    ----------
+    frames : list of (n, 3) float arrays   aligned vertex positions (root topology), up to
+                                           2 * columns of them
+    F : (m, 3) int array
+    colors : (n, 3) float array            e.g. :func:`pattern_colors` of the root
+    columns : int                          frames per row (two rows)
+    size : int                             image width and height in pixels
+
+    Returns
+    -------
+    image : (size, size, 3) uint8 array
+    """
+    from engine.render import render_meshes
+
+    frames = [np.asarray(V, dtype=np.float64) for V in frames[:2 * columns]]
+    width = 1.05 * max(max(float(np.ptp(V[:, 0])) for V in frames), 0.55)
+    height = 1.15 * max(float(np.ptp(V[:, 1])) for V in frames)
+    meshes = []
+    for i, V in enumerate(frames):
+        row, column = divmod(i, columns)
+        centre = V.mean(axis=0)
+        offset = np.array([column * width - centre[0], -row * height - V[:, 1].min(), -centre[2]])
+        meshes.append((V + offset, F, colors))
+    return render_meshes(meshes, azimuth=azimuth, elevation=8.0, width=size, height=size, title=title,
+                         ground=False)
+
+
+__all__ = ["correspondence_errors", "score_alignment", "error_summary", "pattern_colors", "pattern_render",
+           "surface_coordinates", "true_positions"]

@@ -1,0 +1,345 @@
+"""High-level parameters of a motion space: measured on blends, inverted to blend weights.
+
+Paper section 4.3: w = h^-1(p) from a discrete sampling of the weight space and the parameters
+measured on each blend. Here the weights come from a *layout*, a low-dimensional sheet through
+the weight simplex with coordinates u in [0, 1]^d (d = 1 or 2):
+
+- ``chain``: sources ordered along one parameter (slow walk, walk, jog, run); u moves along
+  the chain, blending neighbours;
+- ``grid``: four corner sources of a 2-D parameter (jump height x distance); bilinear;
+- ``fan``: speed x direction (the paper's fig. 8): a speed chain of straight gaits blended with
+  a left and a right turn; u = (speed along the chain, direction from right (0) to left (1)).
+
+The parameters of the blend at each u on a grid are measured on the blended motion itself
+(``measure_parameters``); ``ParameterMap.solve(p)`` inverts by Gauss-Newton on the interpolated
+map starting from the nearest sample, and clamps an unreachable request to the nearest reachable
+parameters, saying so.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from engine import measures
+
+MEASURES = {
+    "speed": "m/s", "turn_rate": "deg/s", "jump_height": "m", "jump_distance": "m", "reach_height": "m",
+}
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A sheet of blend weights with coordinates u in [0, 1]^dims.
+
+    Attributes
+    ----------
+    kind : "chain", "grid" or "fan"
+    n_sources : int
+    chain : tuple of int     sources in parameter order (chain, and the fan's speed chain)
+    corners : tuple of int   grid: sources at u = (0, 0), (1, 0), (0, 1), (1, 1)
+    left, right : int        fan: the turning sources
+    """
+
+    kind: str
+    n_sources: int
+    chain: tuple = ()
+    corners: tuple = ()
+    left: int = -1
+    right: int = -1
+
+    def __post_init__(self):
+        used = {"chain": self.chain, "grid": self.corners, "fan": self.chain + (self.left, self.right)}
+        if self.kind not in used:
+            raise ValueError(f"unknown layout {self.kind!r}; choose chain, grid or fan")
+        sources = used[self.kind]
+        if self.kind == "chain" and len(self.chain) < 2:
+            raise ValueError("a chain layout needs at least 2 sources")
+        if self.kind == "grid" and len(self.corners) != 4:
+            raise ValueError("a grid layout needs exactly 4 corner sources")
+        if self.kind == "fan" and (len(self.chain) < 1 or self.left < 0 or self.right < 0):
+            raise ValueError("a fan layout needs a speed chain and a left and a right turn")
+        if len(set(sources)) != len(sources) or any(not 0 <= s < self.n_sources for s in sources):
+            raise ValueError(f"layout {self.kind}: sources must be distinct indices below {self.n_sources}")
+
+    @property
+    def dims(self):
+        return 1 if self.kind == "chain" else 2
+
+    def _chain_weights(self, u, chain):
+        w = np.zeros(self.n_sources)
+        if len(chain) == 1:
+            w[chain[0]] = 1.0
+            return w
+        x = float(np.clip(u, 0.0, 1.0)) * (len(chain) - 1)
+        i = min(int(x), len(chain) - 2)
+        a = x - i
+        w[chain[i]] += 1.0 - a
+        w[chain[i + 1]] += a
+        return w
+
+    def weights(self, u):
+        """(N,) blend weights (summing to 1) at sheet coordinates u (dims,)."""
+        u = np.clip(np.atleast_1d(np.asarray(u, dtype=float)), 0.0, 1.0)
+        if self.kind == "chain":
+            return self._chain_weights(u[0], self.chain)
+        if self.kind == "grid":
+            a, b = u
+            w = np.zeros(self.n_sources)
+            for corner, coefficient in zip(self.corners, ((1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b)):
+                w[corner] += coefficient
+            return w
+        d = 2.0 * u[1] - 1.0  # direction: -1 right, +1 left
+        w = (1.0 - abs(d)) * self._chain_weights(u[0], self.chain)
+        w[self.left] += max(d, 0.0)
+        w[self.right] += max(-d, 0.0)
+        return w
+
+    def to_dict(self):
+        return {"kind": self.kind, "n_sources": self.n_sources, "chain": list(self.chain),
+                "corners": list(self.corners), "left": self.left, "right": self.right}
+
+    @classmethod
+    def from_dict(cls, d):
+        return cls(kind=d["kind"], n_sources=d["n_sources"], chain=tuple(d.get("chain", ())),
+                   corners=tuple(d.get("corners", ())), left=d.get("left", -1), right=d.get("right", -1))
+
+
+@dataclass(frozen=True)
+class RootTrack:
+    """Blendable root motion of a space's sources on the phase grid.
+
+    durations : (N,) seconds; root_rate : (P, N, 3) displacement per unit phase in the root frame;
+    turn_rate : (P, N) heading change per unit phase (rad); cyclic : bool
+    """
+
+    durations: np.ndarray
+    root_rate: np.ndarray
+    turn_rate: np.ndarray
+    cyclic: bool
+
+    def duration(self, w):
+        """Seconds of the blend (weights normalised): sum_i w_i T_i."""
+        w = np.asarray(w, dtype=float)
+        return float(w @ self.durations / w.sum())
+
+    def rates(self, w):
+        """(P, 3) displacement and (P,) turn per unit phase of the blend."""
+        w = np.asarray(w, dtype=float) / np.sum(w)
+        return np.einsum("pnc,n->pc", self.root_rate, w), self.turn_rate @ w
+
+    def integrate(self, w, samples_per_step=4):
+        """Root path of one cycle (or clip) of the blend: positions (S, 3) and headings (S,) at
+        phases 0 .. 1, integrating the blended rates with the heading (midpoint rule)."""
+        step, turn = self.rates(w)
+        P = len(step)
+        phases = np.linspace(0.0, 1.0, P * samples_per_step + 1)
+        grid = np.arange(P + 1) / P if self.cyclic else np.linspace(0.0, 1.0, P)
+        closed_step = np.concatenate([step, step[:1]]) if self.cyclic else step
+        closed_turn = np.concatenate([turn, turn[:1]]) if self.cyclic else turn
+        d_phase = np.diff(phases)
+        middle = 0.5 * (phases[1:] + phases[:-1])
+        s = np.stack([np.interp(middle, grid, closed_step[:, c]) for c in range(3)], axis=1)
+        t = np.interp(middle, grid, closed_turn)
+        heading = np.concatenate([[0.0], np.cumsum(t * d_phase)])
+        h_mid = 0.5 * (heading[1:] + heading[:-1])
+        world = np.stack([s[:, 0] * np.cos(h_mid) + s[:, 2] * np.sin(h_mid), s[:, 1],
+                          -s[:, 0] * np.sin(h_mid) + s[:, 2] * np.cos(h_mid)], axis=1) * d_phase[:, None]
+        position = np.concatenate([np.zeros((1, 3)), np.cumsum(world, axis=0)])
+        return position, heading
+
+
+def measure_parameters(names, w, track, blend_phases, *, faces=None, effector=None):
+    """Parameters of the blend with weights ``w``, measured on the blended motion itself.
+
+    Parameters
+    ----------
+    names : sequence of str          among MEASURES
+    w : (N,) float array
+    track : RootTrack
+    blend_phases : callable(w) -> (P, n, 3)   the blended root-local frames on the phase grid
+    faces : (m, 3) int array         for the centre of mass (jump height)
+    effector : (h,) int array        hand vertices (reach height)
+
+    Returns
+    -------
+    (len(names),) float array in MEASURES units
+
+    Notes
+    -----
+    Speed and turn rate: the root's path length and heading change per cycle over the blended
+    duration; jump distance: the horizontal root displacement over the clip; jump height: the
+    centre of mass's peak rise (vertical motion stays in the meshes); reach height: the
+    effector's height at its farthest from its start (``engine.measures``).
+    """
+    out = []
+    frames = None
+    T = track.duration(w)
+    for name in names:
+        if name in ("speed", "turn_rate", "jump_distance"):
+            step, turn = track.rates(w)
+            if name == "speed":
+                out.append(float(np.linalg.norm(step.mean(axis=0)[[0, 2]]) / T))
+            elif name == "turn_rate":
+                out.append(float(np.degrees(turn.mean() / T)))
+            else:
+                position, _ = track.integrate(w)
+                out.append(float(np.linalg.norm(position[-1, [0, 2]] - position[0, [0, 2]])))
+        elif name in ("jump_height", "reach_height"):
+            if frames is None:
+                frames = np.asarray(blend_phases(w), dtype=np.float64)
+            if name == "jump_height":
+                out.append(measures.jump_height(measures.centre_of_mass(frames, faces)))
+            else:
+                out.append(measures.reach_height(frames, effector))
+        else:
+            raise ValueError(f"unknown parameter measure {name!r}; choose one of {', '.join(MEASURES)}")
+    return np.array(out)
+
+
+@dataclass
+class Solution:
+    """A parameter request turned into blend weights."""
+
+    weights: np.ndarray      # (N,)
+    u: np.ndarray            # (dims,) sheet coordinates
+    requested: np.ndarray    # (k,) what was asked
+    realised: np.ndarray     # (k,) what the blend at u does (interpolated from the measurements)
+    clamped: bool            # the request was outside the reachable domain
+    message: str = ""
+
+
+@dataclass
+class ParameterMap:
+    """Blend weights for high-level parameters, and back.
+
+    Attributes
+    ----------
+    layout : Layout
+    names, units : list of str
+    grid : (G,) or (G, G) sample coordinates per axis: ``axes`` list of (G,) arrays
+    values : (G, k) or (G, G, k) measured parameters at the grid samples
+    """
+
+    layout: Layout
+    names: list
+    units: list
+    axes: list
+    values: np.ndarray
+    ranges: np.ndarray = field(init=False)
+
+    def __post_init__(self):
+        flat = self.values.reshape(-1, len(self.names))
+        self.ranges = np.maximum(flat.max(axis=0) - flat.min(axis=0), 1e-9)
+        self._dense_u, self._dense_p = self._dense()
+
+    @classmethod
+    def sample(cls, layout, names, measure_at, resolution=None, progress=None):
+        """Measure ``measure_at(w) -> (k,)`` on a regular grid of the layout's coordinates."""
+        resolution = resolution or (21 if layout.dims == 1 else 11)
+        axis = np.linspace(0.0, 1.0, resolution)
+        if layout.dims == 1:
+            values = np.array([measure_at(layout.weights([a])) for a in axis])
+            if progress:
+                progress(resolution, resolution)
+        else:
+            values = np.empty((resolution, resolution, len(names)))
+            for i, a in enumerate(axis):
+                for j, b in enumerate(axis):
+                    values[i, j] = measure_at(layout.weights([a, b]))
+                if progress:
+                    progress((i + 1) * resolution, resolution * resolution)
+        units = [MEASURES[n] for n in names]
+        return cls(layout=layout, names=list(names), units=units, axes=[axis] * layout.dims, values=values)
+
+    def at(self, u):
+        """(k,) parameters at sheet coordinates u by (bi)linear interpolation of the samples."""
+        u = np.clip(np.atleast_1d(np.asarray(u, dtype=float)), 0.0, 1.0)
+        if self.layout.dims == 1:
+            axis = self.axes[0]
+            return np.array([np.interp(u[0], axis, self.values[:, c]) for c in range(len(self.names))])
+        axis = self.axes[0]
+        G = len(axis)
+        x = u * (G - 1)
+        i = np.minimum(np.floor(x).astype(int), G - 2)
+        a = x - i
+        v = self.values
+        return ((1 - a[0]) * (1 - a[1]) * v[i[0], i[1]] + a[0] * (1 - a[1]) * v[i[0] + 1, i[1]]
+                + (1 - a[0]) * a[1] * v[i[0], i[1] + 1] + a[0] * a[1] * v[i[0] + 1, i[1] + 1])
+
+    def _jacobian(self, u, h=1e-4):
+        """(k, dims) derivative of ``at`` by central differences (one-sided at the edges)."""
+        columns = []
+        for k in range(len(u)):
+            lo, hi = u.copy(), u.copy()
+            lo[k], hi[k] = max(u[k] - h, 0.0), min(u[k] + h, 1.0)
+            columns.append((self.at(hi) - self.at(lo)) / (hi[k] - lo[k]))
+        return np.stack(columns, axis=1)
+
+    def _dense(self):
+        steps = 401 if self.layout.dims == 1 else 81
+        line = np.linspace(0.0, 1.0, steps)
+        if self.layout.dims == 1:
+            U = line[:, None]
+        else:
+            U = np.stack(np.meshgrid(line, line, indexing="ij"), axis=-1).reshape(-1, 2)
+        return U, np.array([self.at(u) for u in U])
+
+    def domain(self):
+        """Per parameter (min, max) over the sampled sheet."""
+        flat = self.values.reshape(-1, len(self.names))
+        return [(float(lo), float(hi)) for lo, hi in zip(flat.min(axis=0), flat.max(axis=0))]
+
+    def solve(self, requested, tolerance=0.005):
+        """Blend weights realising the requested parameters, clamped to the reachable domain.
+
+        Parameters
+        ----------
+        requested : (k,) float array   in the map's units, in ``names`` order
+        tolerance : float              relative (to each parameter's range) error accepted as reached
+
+        Returns
+        -------
+        Solution
+        """
+        p = np.asarray(requested, dtype=float)
+        if p.shape != (len(self.names),):
+            raise ValueError(f"expected {len(self.names)} parameters ({', '.join(self.names)}), got {p.shape}")
+        if not np.all(np.isfinite(p)):
+            raise ValueError(f"parameters must be finite, got {p.tolist()}")
+        scale = self.ranges
+        distance = np.linalg.norm((self._dense_p - p) / scale, axis=1)
+        u = self._dense_u[int(np.argmin(distance))].astype(float)
+        # Gauss-Newton on the interpolated map, projected onto the unit square.
+        for _ in range(20):
+            r = (self.at(u) - p) / scale
+            if np.linalg.norm(r) < 1e-9:
+                break
+            step = np.linalg.lstsq(self._jacobian(u) / scale[:, None], -r, rcond=None)[0]
+            u_next = np.clip(u + step, 0.0, 1.0)
+            if np.linalg.norm((self.at(u_next) - p) / scale) >= np.linalg.norm(r):
+                break
+            u = u_next
+        realised = self.at(u)
+        error = np.abs(realised - p) / scale
+        clamped = bool(np.any(error > tolerance))
+        message = ""
+        if clamped:
+            parts = [f"{n} {q:g} {unit} -> {r:.3g}" for n, q, r, unit in zip(self.names, p, realised, self.units)]
+            message = "outside the reachable domain, clamped: " + ", ".join(parts)
+        return Solution(weights=self.layout.weights(u), u=u, requested=p, realised=realised, clamped=clamped,
+                        message=message)
+
+    def to_arrays(self):
+        return {"parameter_values": self.values, "parameter_axis": self.axes[0]}
+
+    def to_metadata(self):
+        return {"layout": self.layout.to_dict(), "names": self.names, "units": self.units,
+                "domain": self.domain()}
+
+    @classmethod
+    def from_stored(cls, metadata, values, axis):
+        layout = Layout.from_dict(metadata["layout"])
+        return cls(layout=layout, names=list(metadata["names"]), units=list(metadata["units"]),
+                   axes=[np.asarray(axis)] * layout.dims, values=np.asarray(values))

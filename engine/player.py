@@ -1,0 +1,195 @@
+"""The real-time player: a motion space driven by high-level parameters on a continuous clock.
+
+``player = Player(space)``; ``player.set_params({"speed": 2.0, "turn_rate": 30})``;
+``frame = player.step(dt)`` per display frame. Each step
+
+1. moves the current parameters towards the requested ones with a critically damped spring
+   (time constant ``smoothing`` seconds; no overshoot, no jumps),
+2. turns them into blend weights with the space's parameter map,
+3. advances the phase by dt / duration(w), the blended duration of a cycle (or clip),
+4. integrates the blended root velocity and turn rate over the step, so the character travels
+   the path it is steered along (paper fig. 8),
+5. blends the root-local mesh (linear, hybrid or non-linear) and places it at the root.
+
+Cyclic spaces loop; one-shot spaces (jumps, reaches) stop at the end of the clip unless looping.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.blend.phase import phase_samples
+from engine.rotations import rot_y
+
+MODES = ("linear", "hybrid", "nonlinear")
+
+
+@dataclass
+class PlayerFrame:
+    """One played frame.
+
+    time : float (s); phase : float in [0, 1]; weights : (N,) float
+    requested, realised : (k,) parameters asked for (after smoothing) and reached
+    clamped : bool   the request lies outside what the space can do
+    root_position : (3,) float; heading : float (rad about +Y)
+    vertices : (n, 3) float32 world positions
+    finished : bool  a one-shot clip has reached its end
+    """
+
+    time: float
+    phase: float
+    weights: np.ndarray
+    requested: np.ndarray
+    realised: np.ndarray
+    clamped: bool
+    root_position: np.ndarray
+    heading: float
+    vertices: np.ndarray
+    finished: bool
+
+
+def _critically_damped(x, v, target, dt, tau):
+    """Exact step of x'' = -2 w x' - w^2 (x - target), w = 1 / tau: no overshoot."""
+    if tau <= 0:
+        return target.copy(), np.zeros_like(v)
+    w = 1.0 / tau
+    y = x - target
+    decay = np.exp(-w * dt)
+    c = v + w * y
+    return target + (y + c * dt) * decay, (v - w * c * dt) * decay
+
+
+class Player:
+    """Plays a motion space under high-level parameters.
+
+    Parameters
+    ----------
+    space : MotionSpace   with a parameter map
+    mode : str            "linear", "hybrid" (default) or "nonlinear"
+    smoothing : float     time constant (s) of the parameter spring; 0 follows requests at once
+    loop : bool or None   one-shot spaces: restart at the end (default: cyclic spaces loop, others not)
+    params : mapping or sequence or None   initial request (default: the middle of the domain)
+    """
+
+    def __init__(self, space, *, mode="hybrid", smoothing=0.25, loop=None, params=None):
+        if space.parameter_map is None:
+            raise ValueError(f"{space.name}: the space has no parameter map (build it from a spec)")
+        self.space = space
+        self.map = space.parameter_map
+        self.track = space.root_track
+        self.names = list(self.map.names)
+        self.set_mode(mode)
+        if not (np.isfinite(smoothing) and smoothing >= 0):
+            raise ValueError(f"smoothing must be a non-negative number of seconds, got {smoothing}")
+        self.smoothing = float(smoothing)
+        self.loop = space.cyclic if loop is None else bool(loop)
+        middle = np.array([(lo + hi) / 2 for lo, hi in self.map.domain()])
+        self._target = middle
+        self._current = middle.copy()
+        self._velocity = np.zeros_like(middle)
+        self.reset()
+        if params is not None:
+            self.set_params(params, immediate=True)
+
+    def reset(self):
+        """Back to phase 0 at the origin, facing +Z."""
+        self.time = 0.0
+        self.phase = 0.0
+        self.position = np.zeros(3)
+        self.heading = 0.0
+        self.finished = False
+        self._solution = self.map.solve(self._current)
+        self._last_request = self._solution
+
+    def set_mode(self, mode):
+        if mode not in MODES:
+            raise ValueError(f"unknown blend mode {mode!r}; choose one of {', '.join(MODES)}")
+        self.mode = mode
+
+    def _as_vector(self, params):
+        if isinstance(params, dict):
+            unknown = sorted(set(params) - set(self.names))
+            if unknown:
+                raise ValueError(f"unknown parameter(s) {', '.join(unknown)}; this space has {', '.join(self.names)}")
+            values = self._target.copy()
+            for name, value in params.items():
+                values[self.names.index(name)] = value
+        else:
+            values = np.asarray(params, dtype=float)
+            if values.shape != (len(self.names),):
+                raise ValueError(f"expected {len(self.names)} parameters ({', '.join(self.names)}), got {values.shape}")
+        values = np.asarray(values, dtype=float)
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"parameters must be finite numbers, got {values.tolist()}")
+        return values
+
+    def set_params(self, params, *, immediate=False):
+        """Request parameters (a {name: value} mapping or a vector in ``names`` order).
+
+        Returns the map's Solution for the request: ``clamped`` and ``message`` say whether it is
+        reachable. Unreachable requests are clamped to the nearest reachable parameters.
+        """
+        target = self._as_vector(params)
+        solution = self.map.solve(target)
+        self._target = solution.realised.copy()  # steer towards what can be reached
+        if immediate:
+            self._current = self._target.copy()
+            self._velocity[:] = 0.0
+            self._solution = self.map.solve(self._current)
+        self._last_request = solution
+        return solution
+
+    def seek(self, phase):
+        """Jump to ``phase`` in [0, 1] (the root stays where it is)."""
+        phase = float(phase)
+        if not np.isfinite(phase):
+            raise ValueError(f"phase must be finite, got {phase}")
+        self.phase = phase % 1.0 if self.space.cyclic else min(max(phase, 0.0), 1.0)
+        self.finished = False
+
+    def _rates_at(self, w, phase):
+        step, turn = self.track.rates(w)
+        p0, p1, a = phase_samples(phase, len(step), self.space.cyclic)
+        return (1 - a) * step[p0] + a * step[p1], (1 - a) * turn[p0] + a * turn[p1]
+
+    def step(self, dt):
+        """Advance the clock by ``dt`` seconds and return the frame there."""
+        dt = float(dt)
+        if not (np.isfinite(dt) and dt >= 0):
+            raise ValueError(f"dt must be a non-negative number of seconds, got {dt}")
+        self._current, self._velocity = _critically_damped(self._current, self._velocity, self._target, dt,
+                                                           self.smoothing)
+        self._solution = self.map.solve(self._current)
+        w = self._solution.weights
+        if not self.finished and dt > 0:
+            d_phase = dt / self.track.duration(w)
+            if not self.space.cyclic and not self.loop:
+                d_phase = min(d_phase, 1.0 - self.phase)
+            middle = self.phase + 0.5 * d_phase
+            step, turn = self._rates_at(w, middle % 1.0 if self.space.cyclic or self.loop else middle)
+            heading_middle = self.heading + 0.5 * turn * d_phase
+            self.position += rot_y(heading_middle) @ step * d_phase
+            self.position[1] = 0.0
+            self.heading += turn * d_phase
+            self.phase += d_phase
+            if self.space.cyclic or self.loop:
+                self.phase %= 1.0
+            elif self.phase >= 1.0 - 1e-12:
+                self.phase, self.finished = 1.0, True
+        self.time += dt
+        return self.frame()
+
+    def frame(self, out=None):
+        """The frame at the current state (nothing advances)."""
+        w = self._solution.weights
+        local = self.space.blender(self.mode).blend(w, self.phase)
+        R = rot_y(self.heading).astype(np.float32)
+        vertices = np.empty((len(local), 3), dtype=np.float32) if out is None else out
+        np.matmul(np.asarray(local, dtype=np.float32), R.T, out=vertices)
+        vertices += self.position.astype(np.float32)
+        return PlayerFrame(time=self.time, phase=self.phase, weights=w.copy(), requested=self._current.copy(),
+                           realised=self._solution.realised.copy(), clamped=self._last_request.clamped,
+                           root_position=self.position.copy(), heading=float(self.heading), vertices=vertices,
+                           finished=self.finished)

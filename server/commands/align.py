@@ -1,0 +1,295 @@
+"""Align unstructured captures into one mesh structure (shape similarity tree + non-rigid alignment).
+
+Each DIR is a capture dataset (its sequences/*/unstructured frames are used), one sequence
+directory of a dataset (sequences/<name>, its unstructured/ frames), or any directory or zip of
+per-frame meshes. All frames of all sequences are compared by volumetric shape histograms, a
+shape similarity tree is built over them, and every frame is deformed into the root frame's
+mesh along the tree (Casas et al. 2012, section 3). Output, readable by `morphspace build
+--source OUT/sequences/<name>`:
+
+    OUT/sequences/<name>/consistent/frame_0000.obj ...   every frame in the root's mesh
+    OUT/sequences/<name>/meta.json                        input meta.json + alignment fields
+    OUT/template/body.obj                                 the root mesh (the rest shape)
+    OUT/alignment.npz                                     dissimilarities, tree, root, residuals
+    OUT/similarity.png, OUT/tree.png                      the matrix and the tree (fig. 1c, 1d)
+    OUT/manifest.json
+
+Example:
+
+    morphspace align data/captures/demo --out data/aligned/demo
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from engine.alignment import AlignmentOptions, align_captures
+from engine.mesh_io import read_frames, write_obj, write_sequence
+from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
+from engine.mesh_io.errors import MeshFormatError
+from engine.surface import model_size
+
+ALIGNMENT_FORMAT = "morphspace-alignment"
+ALIGNMENT_VERSION = 1
+
+
+def add_arguments(parser):
+    parser.add_argument("inputs", nargs="+", type=Path, metavar="DIR",
+                        help="capture dataset, sequence directory, or directory/zip of frames (one per sequence)")
+    parser.add_argument("--out", required=True, type=Path, help="output directory")
+    parser.add_argument("--only", nargs="+", metavar="NAME", help="with a capture dataset: only these sequences")
+    parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global frame index "
+                        "(default: the most central frame of the tree)")
+    parser.add_argument("--sequential", action="store_true",
+                        help="frame-to-frame tracking from the root instead of the tree (the baseline)")
+    parser.add_argument("--window", type=int, default=2, help="temporal filter half-width in frames (default 2)")
+    parser.add_argument("--patches", type=int, default=30, help="patches at the coarsest level (default 30)")
+    parser.add_argument("--levels", type=int, default=4, help="coarse-to-fine levels, patches doubling (default 4)")
+    parser.add_argument("--retries", type=int, default=3,
+                        help="other parents tried for a frame whose alignment scores poorly (default 3)")
+    parser.add_argument("--colors", action="store_true",
+                        help="use vertex colours as matching cues when every frame has them")
+    parser.add_argument("--fps", type=float, default=30.0, help="frame rate of inputs without meta.json (default 30)")
+    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                        help="worker processes for the dissimilarity matrix (default: up to 2)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (patch sampling; default 0)")
+    parser.add_argument("--force", action="store_true", help="replace an existing output directory")
+
+
+class Progress:
+    """tqdm bars on stderr, one per stage."""
+
+    LABELS = {"read": "read frames", "histograms": "shape histograms", "dissimilarity": "dissimilarity",
+              "align": "align", "write": "write"}
+
+    def __init__(self):
+        self.bars = {}
+
+    def __call__(self, stage, done, total):
+        if stage not in self.bars:
+            self.close()
+            self.bars[stage] = tqdm(total=total or None, desc=self.LABELS.get(stage, stage), unit="frame",
+                                    dynamic_ncols=True, mininterval=0.5, file=sys.stderr)
+        bar = self.bars[stage]
+        if total:
+            bar.total = total
+        bar.n = done
+        bar.refresh()
+
+    def close(self):
+        for bar in self.bars.values():
+            bar.close()
+        self.bars.clear()
+
+
+def resolve_inputs(inputs, only=None):
+    """Sequences to align from the command-line DIRs.
+
+    Returns
+    -------
+    sequences : list of dict   name, frames (path of the frame directory or zip), meta (dict or None)
+    """
+    sequences = []
+    for path in inputs:
+        path = Path(path)
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no such file or directory")
+        if (path / "manifest.json").is_file() and (path / "sequences").is_dir():
+            manifest = read_capture_manifest(path)
+            names = [s["name"] for s in manifest.get("sequences", [])] or sorted(
+                p.name for p in (path / "sequences").iterdir() if p.is_dir())
+            if only:
+                unknown = sorted(set(only) - set(names))
+                if unknown:
+                    raise ValueError(f"{path}: no sequence(s) {', '.join(unknown)}; it has {', '.join(names)}")
+                names = [n for n in names if n in only]
+            for name in names:
+                sequences.append(_sequence_entry(path / "sequences" / name))
+        else:
+            if only:
+                raise ValueError("--only selects sequences of a capture dataset; "
+                                 f"{path} is not one (no manifest.json and sequences/)")
+            sequences.append(_sequence_entry(path))
+    names = [s["name"] for s in sequences]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise ValueError(f"two inputs have the same sequence name {duplicates[0]!r}; rename one directory")
+    return sequences
+
+
+def _sequence_entry(path):
+    meta = None
+    if (path / "meta.json").is_file():
+        try:
+            meta = json.loads((path / "meta.json").read_text())
+        except (OSError, json.JSONDecodeError) as exc:
+            raise MeshFormatError(f"{path / 'meta.json'}: unreadable: {exc}") from None
+    frames = path / "unstructured" if (path / "unstructured").is_dir() else path
+    name = (meta or {}).get("name") or (path.stem if path.suffix.lower() == ".zip" else path.name)
+    return {"name": str(name), "frames": frames, "meta": meta}
+
+
+def parse_root(text, sequences, lengths):
+    """Global frame index from "SEQUENCE:FRAME" or an integer."""
+    if text is None:
+        return None
+    total = int(np.sum(lengths))
+    if ":" in text:
+        name, _, frame = text.rpartition(":")
+        names = [s["name"] for s in sequences]
+        if name not in names:
+            raise ValueError(f"--root {text}: no sequence {name!r}; sequences are {', '.join(names)}")
+        k = names.index(name)
+        try:
+            frame = int(frame)
+        except ValueError:
+            raise ValueError(f"--root {text}: frame must be an integer") from None
+        if not 0 <= frame < lengths[k]:
+            raise ValueError(f"--root {text}: sequence {name} has frames 0..{lengths[k] - 1}")
+        return int(np.sum(lengths[:k]) + frame)
+    try:
+        index = int(text)
+    except ValueError:
+        raise ValueError(f"--root {text}: expected SEQUENCE:FRAME or a frame index") from None
+    if not 0 <= index < total:
+        raise ValueError(f"--root {text}: there are {total} frames (0..{total - 1})")
+    return index
+
+
+def read_inputs(sequences, progress=None):
+    """All frames of all sequences (concatenated) and the frame count of each sequence."""
+    meshes, lengths = [], []
+    for s in sequences:
+        frames = read_frames(s["frames"], progress=(lambda d, t: progress("read", len(meshes) + d, None))
+                             if progress else None)
+        if len(frames) < 1:
+            raise MeshFormatError(f"{s['frames']}: no frames")
+        meshes.extend(frames)
+        lengths.append(len(frames))
+    return meshes, np.array(lengths, dtype=np.int64)
+
+
+def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_record, progress=None):
+    """Write the aligned frames, metadata, arrays and pictures (see the module docstring)."""
+    from PIL import Image
+
+    from engine.similarity import similarity_image
+    from engine.similarity_tree import tree_image
+
+    aligned = result.aligned
+    tree = result.tree
+    root = aligned.root
+    root_mesh = meshes[root]
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    sequence_of = np.repeat(np.arange(len(sequences)), lengths)
+    root_sequence = sequences[int(sequence_of[root])]["name"]
+    root_frame = int(root - starts[sequence_of[root]])
+    colors = root_mesh.colors
+    write_obj(out / "template" / "body.obj", root_mesh.vertices, root_mesh.faces, colors=colors)
+    metas = []
+    written = 0
+    for k, s in enumerate(sequences):
+        span = slice(starts[k], starts[k] + lengths[k])
+        base = out / "sequences" / s["name"]
+        frame_colors = None if colors is None else np.broadcast_to(colors, (lengths[k],) + colors.shape)
+        write_sequence(base / "consistent", aligned.vertices[span], aligned.faces, colors=frame_colors,
+                       progress=(lambda d, t: progress("write", written + d, int(lengths.sum()))) if progress else None)
+        written += int(lengths[k])
+        meta = dict(s["meta"]) if s["meta"] else {"name": s["name"], "fps": fps, "frames": int(lengths[k]),
+                                                   "duration": float(lengths[k] / fps), "cyclic": False,
+                                                   "frames_per_cycle": None}
+        meta["name"] = s["name"]
+        meta["alignment"] = {
+            "method": result.method, "root": f"{root_sequence}:{root_frame}",
+            "source": str(s["frames"]),
+            "residual_mean_mm": float(1000 * aligned.residual[span].mean()),
+            "residual_max_mm": float(1000 * aligned.residual_max[span].max()),
+            "retried_frames": int(aligned.retried[span].sum()),
+        }
+        (base / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
+        metas.append(meta)
+    np.savez_compressed(
+        out / "alignment.npz",
+        format=np.array(ALIGNMENT_FORMAT), version=np.array(ALIGNMENT_VERSION),
+        sequence_names=np.array([s["name"] for s in sequences]), lengths=lengths,
+        root=np.array(root), method=np.array(result.method),
+        dissimilarity=result.similarity.dissimilarity.astype(np.float32),
+        raw_dissimilarity=result.similarity.raw.astype(np.float32), yaw=result.similarity.yaw,
+        histogram_radius=np.array(result.similarity.radius), window=np.array(result.similarity.window),
+        tree_edges=tree.edges, tree_weights=tree.weights, tree_threshold=np.array(tree.threshold),
+        tree_components=np.array(tree.components), parent=aligned.parent,
+        residual=aligned.residual, residual_max=aligned.residual_max, distortion=aligned.distortion,
+        seconds=aligned.seconds, retried=aligned.retried,
+    )
+    names = [s["name"] for s in sequences]
+    Image.fromarray(similarity_image(result.similarity.dissimilarity, lengths, names)).save(out / "similarity.png")
+    Image.fromarray(tree_image(tree, lengths, names)).save(out / "tree.png")
+    write_capture_manifest(out, {
+        "aligned": True, "alignment": {"method": result.method, "root": f"{root_sequence}:{root_frame}",
+                                       "options": options_record, "timings_s": result.timings},
+        "body": {"vertices": int(len(root_mesh.vertices)), "faces": int(len(root_mesh.faces)),
+                 "model_size": model_size(root_mesh.vertices), "up": "+Y", "units": "m"},
+        "fps": fps, "sequences": metas,
+    })
+
+
+def run(args):
+    out = args.out
+    if out.exists() and not args.force:
+        raise FileExistsError(f"{out} already exists; pass --force to replace it")
+    for name, value, low in (("--window", args.window, 0), ("--patches", args.patches, 1),
+                             ("--levels", args.levels, 1), ("--retries", args.retries, 0),
+                             ("--workers", args.workers, 1)):
+        if value < low:
+            raise ValueError(f"{name} must be >= {low}, got {value}")
+    sequences = resolve_inputs(args.inputs, args.only)
+    progress = Progress()
+    started = time.perf_counter()
+    try:
+        meshes, lengths = read_inputs(sequences, progress)
+        root = parse_root(args.root, sequences, lengths)
+        options = AlignmentOptions(patches=args.patches, levels=args.levels,
+                                   colour_weight=AlignmentOptions().colour_weight if not args.colors else 0.5)
+        result = align_captures(meshes, lengths, method="sequential" if args.sequential else "tree", root=root,
+                                options=options, window=args.window, workers=args.workers, retries=args.retries,
+                                use_colors=args.colors, seed=args.seed, progress=progress)
+        staging = out.with_name(f".{out.name}.partial-{os.getpid()}")
+        if staging.exists():
+            shutil.rmtree(staging)
+        staging.mkdir(parents=True)
+        try:
+            write_alignment(staging, sequences, meshes, lengths, result, fps=args.fps,
+                            options_record={"patches": args.patches, "levels": args.levels, "window": args.window,
+                                            "retries": args.retries, "colors": bool(args.colors), "seed": args.seed},
+                            progress=progress)
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            raise
+    finally:
+        progress.close()
+    if out.exists():
+        shutil.rmtree(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(staging, out)
+    aligned = result.aligned
+    t = result.timings
+    frames = int(lengths.sum())
+    print(f"aligned {frames} frames of {len(sequences)} sequences to {out} in {time.perf_counter() - started:.1f} s "
+          f"({result.method}, root {aligned.root}, {len(meshes[aligned.root].vertices)} vertices)")
+    print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
+          f"{result.tree.components} components reconnected), tetrahedralise {t['tetrahedralize']:.1f} s, "
+          f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame")
+    print(f"  fit residual mean {1000 * aligned.residual.mean():.2f} mm, max {1000 * aligned.residual_max.max():.1f} mm; "
+          f"{int(aligned.retried.sum())} frames re-aligned from other parents")
+    return 0
+
+
+__all__ = ["add_arguments", "parse_root", "read_inputs", "resolve_inputs", "run", "write_alignment"]

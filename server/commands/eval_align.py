@@ -1,0 +1,233 @@
+"""Measure alignment accuracy on a capture dataset with ground truth: tree vs sequential tracking.
+
+Aligns the dataset's unstructured frames along the shape similarity tree and, for comparison,
+by frame-to-frame tracking from the same root, then scores both against the generator's ground
+truth: every root-mesh vertex is located on the true surface of the root frame and followed to
+every other frame. Reports mean, 95th percentile and max correspondence error (mm and % of the
+model size), the surface fit residual and seconds per frame, and writes DIR/results.json, a
+render of aligned frames textured with a pattern fixed on the root mesh (paper fig. 2,
+DIR/aligned_pattern.png), DIR/similarity.png and DIR/tree.png. With --aligned, scores the output
+of an earlier `morphspace align` instead. Example:
+
+    morphspace eval-align data/captures/demo --only walk jog jump_low_short --out eval-align
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from engine.align_evaluation import error_summary, pattern_colors, pattern_render, score_alignment
+from engine.alignment import AlignmentOptions, align_captures
+from engine.mesh_io import read_mesh, read_sequence
+from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
+from engine.mesh_io.errors import MeshFormatError
+from engine.surface import model_size
+from server.commands.align import Progress, parse_root, read_inputs, resolve_inputs
+
+
+def add_arguments(parser):
+    parser.add_argument("dataset", type=Path, help="capture dataset with ground truth (morphspace synth output)")
+    parser.add_argument("--only", nargs="+", metavar="NAME", help="only these sequences")
+    parser.add_argument("--max-frames", type=int, metavar="N", help="use at most the first N frames of each sequence")
+    parser.add_argument("--aligned", type=Path, metavar="DIR", help="score this `morphspace align` output "
+                        "instead of aligning here")
+    parser.add_argument("--no-sequential", action="store_true", help="skip the frame-to-frame baseline")
+    parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global index (default: the tree's)")
+    parser.add_argument("--colors", action="store_true", help="use vertex colours as matching cues")
+    parser.add_argument("--out", type=Path, help="directory for results.json and the pictures "
+                        "(default: <dataset>-align-eval next to the dataset)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
+    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                        help="worker processes for the dissimilarity matrix (default: up to 2)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+
+
+def _truth(dataset, sequences, lengths):
+    """Template positions of all frames (concatenated) and the template faces."""
+    template = read_mesh(dataset / "template" / "body.obj")
+    parts = []
+    for s, n in zip(sequences, lengths):
+        positions = load_capture_truth(dataset, s["name"])["template_positions"]
+        if len(positions) < n:
+            raise MeshFormatError(f"{dataset}/sequences/{s['name']}/truth.npz: ground truth for {len(positions)} "
+                                  f"frames, the sequence has {n}")
+        parts.append(np.asarray(positions[:n], dtype=np.float64))
+    return np.concatenate(parts), template.faces
+
+
+def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, lengths, names, *, residual=None,
+           residual_max=None, seconds=None, retried=None):
+    errors, summary = score_alignment(aligned_vertices, root, root_vertices, truth, faces, size)
+    frames = len(aligned_vertices)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    per_sequence = {}
+    for name, start, n in zip(names, starts, lengths):
+        per_sequence[name] = {k: round(v, 3) for k, v in error_summary(errors[start:start + n], size).items()}
+    record = {"method": method, "frames": int(frames), **{k: round(v, 4) for k, v in summary.items()},
+              "per_sequence": per_sequence}
+    if residual is not None:
+        record["residual_mean_mm"] = round(1000 * float(np.mean(residual)), 3)
+        record["residual_max_mm"] = round(1000 * float(np.max(residual_max)), 2)
+    if seconds is not None:
+        record["seconds_per_frame"] = round(float(np.sum(seconds)) / max(frames - 1, 1), 3)
+    if retried is not None:
+        record["retried_frames"] = int(np.sum(retried))
+    frame_mean = errors.mean(axis=1)
+    record["worst_frame_mean_mm"] = round(1000 * float(frame_mean.max()), 2)
+    return record, errors
+
+
+def _pattern_picture(vertices, faces, root_vertices, lengths, names, title):
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    picks = []
+    per = max(1, 6 // max(len(lengths), 1))
+    for start, n in zip(starts, lengths):
+        picks.extend(int(start + k) for k in np.linspace(0, n - 1, per + 2)[1:-1].round().astype(int))
+    picks = picks[:6] if len(picks) >= 6 else (picks + [int(k) for k in np.linspace(0, len(vertices) - 1, 6)
+                                                        .round().astype(int)])[:6]
+    colors = pattern_colors(root_vertices)
+    return pattern_render([vertices[k] for k in picks], faces, colors, title=title)
+
+
+def _load_aligned(directory, dataset_names):
+    """An earlier `morphspace align` output: vertices, faces, root, root vertices, names, lengths."""
+    path = directory / "alignment.npz"
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            names = [str(n) for n in data["sequence_names"]]
+            lengths = data["lengths"].astype(np.int64)
+            root = int(data["root"])
+            extra = {k: data[k] for k in ("residual", "residual_max", "seconds", "retried") if k in data.files}
+    except FileNotFoundError:
+        raise MeshFormatError(f"{path}: not found; is {directory} a `morphspace align` output?") from None
+    except (OSError, ValueError, KeyError) as exc:
+        raise MeshFormatError(f"{path}: unreadable alignment record: {exc}") from None
+    missing = [n for n in names if n not in dataset_names]
+    if missing:
+        raise ValueError(f"{directory}: sequence(s) {', '.join(missing)} are not in the dataset")
+    vertices, faces = [], None
+    for name, n in zip(names, lengths):
+        sequence = read_sequence(directory / "sequences" / name / "consistent")
+        if len(sequence.vertices) != n:
+            raise MeshFormatError(f"{directory}/sequences/{name}/consistent: {len(sequence.vertices)} frames, "
+                                  f"alignment.npz says {n}")
+        vertices.append(sequence.vertices)
+        faces = sequence.faces
+    root_mesh = read_mesh(directory / "template" / "body.obj")
+    return np.concatenate(vertices), faces, root, root_mesh.vertices, names, lengths, extra
+
+
+def run(args):
+    dataset = args.dataset
+    manifest = read_capture_manifest(dataset)
+    out = args.out or dataset.with_name(dataset.name + "-align-eval")
+    if args.max_frames is not None and args.max_frames < 2:
+        raise ValueError(f"--max-frames must be >= 2, got {args.max_frames}")
+    size = float(manifest.get("body", {}).get("model_size") or 0.0)
+    progress = Progress()
+    report = {"dataset": str(dataset)}
+    started = time.perf_counter()
+    try:
+        if args.aligned is not None:
+            dataset_names = [s["name"] for s in manifest.get("sequences", [])]
+            vertices, faces, root, root_vertices, names, lengths, extra = _load_aligned(args.aligned, dataset_names)
+            sequences = [{"name": n} for n in names]
+            truth, template_faces = _truth(dataset, sequences, lengths)
+            size = size or model_size(truth[0])
+            record, _ = _score("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths, names,
+                               residual=extra.get("residual"), residual_max=extra.get("residual_max"),
+                               seconds=extra.get("seconds"), retried=extra.get("retried"))
+            report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, aligned=record)
+            results = {"aligned": (vertices, faces, root_vertices)}
+        else:
+            sequences = resolve_inputs([dataset], args.only)
+            meshes, lengths = read_inputs(sequences, progress)
+            if args.max_frames is not None:
+                keep = np.concatenate([np.arange(s, s + min(n, args.max_frames))
+                                       for s, n in zip(np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths)])
+                meshes = [meshes[i] for i in keep]
+                lengths = np.minimum(lengths, args.max_frames)
+            names = [s["name"] for s in sequences]
+            truth, template_faces = _truth(dataset, sequences, lengths)
+            size = size or model_size(truth[0])
+            root = parse_root(args.root, sequences, lengths)
+            options = AlignmentOptions(colour_weight=0.5 if args.colors else AlignmentOptions().colour_weight)
+            report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names)
+            tree_run = align_captures(meshes, lengths, method="tree", root=root, options=options,
+                                      workers=args.workers, use_colors=args.colors, seed=args.seed,
+                                      progress=progress)
+            root = tree_run.aligned.root
+            report["root"] = int(root)
+            report["similarity_seconds"] = round(tree_run.timings["similarity"], 3)
+            report["tree_seconds"] = round(tree_run.timings["tree"], 4)
+            report["tree"] = {"depth_max": int(tree_run.tree.depth.max()),
+                              "depth_mean": round(float(tree_run.tree.depth.mean()), 2),
+                              "components_reconnected": int(tree_run.tree.components)}
+            runs = {"tree": tree_run}
+            if not args.no_sequential:
+                runs["sequential"] = align_captures(meshes, lengths, method="sequential", root=root, options=options,
+                                                    use_colors=args.colors, seed=args.seed,
+                                                    similarity=tree_run.similarity, tets=tree_run.tets,
+                                                    progress=progress)
+            results = {}
+            for method, result in runs.items():
+                a = result.aligned
+                record, _ = _score(method, a.vertices, root, meshes[root].vertices, truth, template_faces, size,
+                                   lengths, names, residual=a.residual, residual_max=a.residual_max,
+                                   seconds=a.seconds, retried=a.retried)
+                report[method] = {**report.get(method, {}), **record}
+                results[method] = (a.vertices, a.faces, meshes[root].vertices)
+            if "sequential" in report:
+                report["sequential_over_tree_mean"] = round(report["sequential"]["mean_mm"]
+                                                            / max(report["tree"]["mean_mm"], 1e-9), 2)
+    finally:
+        progress.close()
+    report["seconds"] = round(time.perf_counter() - started, 1)
+    out.mkdir(parents=True, exist_ok=True)
+    from PIL import Image
+
+    method = "tree" if "tree" in results else "aligned"
+    vertices, faces, root_vertices = results[method]
+    Image.fromarray(_pattern_picture(vertices, faces, root_vertices, lengths, names,
+                                     f"aligned frames ({method}), pattern fixed on the root mesh")).save(
+        out / "aligned_pattern.png")
+    if args.aligned is None:
+        from engine.similarity import similarity_image
+        from engine.similarity_tree import tree_image
+
+        Image.fromarray(similarity_image(runs["tree"].similarity.dissimilarity, lengths, names)).save(
+            out / "similarity.png")
+        Image.fromarray(tree_image(runs["tree"].tree, lengths, names)).save(out / "tree.png")
+    (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
+    if args.json:
+        print(json.dumps(report))
+    else:
+        _print_report(report, out)
+    return 0
+
+
+def _print_report(report, out):
+    print(f"{report['frames']} frames of {len(report['sequences'])} sequences, model size "
+          f"{report['model_size_m']:.3f} m")
+    if "similarity_seconds" in report:
+        print(f"similarity {report['similarity_seconds']:.1f} s, tree {report['tree_seconds']:.3f} s "
+              f"(depth max {report['tree']['depth_max']}, mean {report['tree']['depth_mean']})")
+    header = f"{'method':<12}{'mean %':>8}{'p95 %':>8}{'max %':>8}{'mean mm':>9}{'p95 mm':>8}{'max mm':>8}" \
+             f"{'resid mm':>10}{'s/frame':>9}"
+    print(header)
+    for method in ("tree", "sequential", "aligned"):
+        r = report.get(method)
+        if not r:
+            continue
+        print(f"{method:<12}{r['mean_pct']:>8.2f}{r['p95_pct']:>8.2f}{r['max_pct']:>8.1f}{r['mean_mm']:>9.1f}"
+              f"{r['p95_mm']:>8.1f}{r['max_mm']:>8.0f}{r.get('residual_mean_mm', float('nan')):>10.2f}"
+              f"{r.get('seconds_per_frame', float('nan')):>9.2f}")
+    if "sequential_over_tree_mean" in report:
+        print(f"sequential / tree mean error: {report['sequential_over_tree_mean']:.2f}x")
+    print(f"wrote {out / 'results.json'} and {out / 'aligned_pattern.png'}")

@@ -1,0 +1,77 @@
+"""Layouts, parameter maps (weights <-> high-level parameters) and blended root tracks."""
+
+import numpy as np
+import pytest
+
+from engine.parameters import Layout, ParameterMap, RootTrack
+
+
+def test_layout_weights_are_exact_at_the_sources():
+    chain = Layout("chain", 3, chain=(2, 0, 1))
+    np.testing.assert_allclose(chain.weights([0.0]), [0, 0, 1])
+    np.testing.assert_allclose(chain.weights([0.5]), [1, 0, 0])
+    np.testing.assert_allclose(chain.weights([0.75]), [0.5, 0.5, 0])
+    grid = Layout("grid", 4, corners=(0, 1, 2, 3))
+    np.testing.assert_allclose(grid.weights([1.0, 0.0]), [0, 1, 0, 0])
+    np.testing.assert_allclose(grid.weights([0.5, 0.5]), [0.25] * 4)
+    fan = Layout("fan", 4, chain=(0, 1), left=2, right=3)
+    np.testing.assert_allclose(fan.weights([0.3, 0.5]), [0.7, 0.3, 0, 0])  # straight ahead
+    np.testing.assert_allclose(fan.weights([0.3, 1.0]), [0, 0, 1, 0])  # full left
+    np.testing.assert_allclose(fan.weights([0.3, 0.25]), [0.35, 0.15, 0, 0.5])
+    for layout in (chain, grid, fan):
+        for u in np.random.default_rng(0).uniform(0, 1, (20, layout.dims)):
+            w = layout.weights(u)
+            assert w.sum() == pytest.approx(1.0) and np.all(w >= 0)
+
+
+@pytest.mark.parametrize("kwargs,match", [
+    (dict(kind="star", n_sources=2), "unknown layout"), (dict(kind="chain", n_sources=2, chain=(0,)), "at least 2"),
+    (dict(kind="grid", n_sources=4, corners=(0, 1, 2)), "exactly 4"), (dict(kind="chain", n_sources=2, chain=(0, 0)), "distinct")])
+def test_bad_layouts_are_refused(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        Layout(**kwargs)
+
+
+def _analytic_map():
+    """A 2-D map with a known, smooth, non-linear parameter function."""
+    layout = Layout("grid", 4, corners=(0, 1, 2, 3))
+
+    def measure(w):
+        u = np.array([w[1] + w[3], w[2] + w[3]])  # bilinear weights -> (u0, u1)
+        return np.array([0.3 + 0.25 * u[1] + 0.02 * u[0] * u[1], 0.3 + 0.9 * u[0] ** 1.2])
+
+    return ParameterMap.sample(layout, ["jump_height", "jump_distance"], measure, resolution=21), measure
+
+
+def test_parameter_map_inverts_reachable_requests():
+    pmap, measure = _analytic_map()
+    for target in ([0.4, 0.6], [0.33, 1.1], [0.55, 0.35]):
+        solution = pmap.solve(target)
+        assert not solution.clamped
+        np.testing.assert_allclose(measure(solution.weights), target, atol=2e-3)  # the true function
+
+
+def test_unreachable_requests_are_clamped_and_flagged():
+    pmap, measure = _analytic_map()
+    solution = pmap.solve([0.9, 0.8])  # higher than any jump
+    assert solution.clamped and "outside the reachable domain" in solution.message
+    assert solution.realised[0] == pytest.approx(pmap.domain()[0][1], abs=0.01)  # as high as it goes
+    with pytest.raises(ValueError, match="finite"):
+        pmap.solve([np.nan, 0.5])
+    with pytest.raises(ValueError, match="expected 2 parameters"):
+        pmap.solve([0.4])
+
+
+def test_root_track_integrates_straight_and_turning_paths():
+    P, T = 16, 1.2
+    forward = np.zeros((P, 2, 3))
+    forward[:, :, 2] = [1.5 * T, 1.5 * T]  # 1.5 m/s in both sources, per unit phase
+    turn = np.zeros((P, 2))
+    turn[:, 1] = np.radians(90)  # the second source turns 90 degrees per cycle
+    track = RootTrack(np.array([T, T]), forward, turn, cyclic=True)
+    position, heading = track.integrate([1.0, 0.0])
+    np.testing.assert_allclose(position[-1], [0, 0, 1.5 * T], atol=1e-12)
+    position, heading = track.integrate([0.0, 1.0])
+    assert heading[-1] == pytest.approx(np.radians(90))
+    radius = 1.5 * T / np.radians(90)  # arc length / angle
+    np.testing.assert_allclose(position[-1], [radius, 0, radius], rtol=1e-3)

@@ -1,0 +1,110 @@
+"""The shape similarity tree: threshold, pruning, reconnection, minimum spanning tree, root."""
+
+import numpy as np
+import pytest
+from scipy.sparse.csgraph import minimum_spanning_tree
+
+from engine.similarity_tree import (
+    chain_tree,
+    pruned_graph,
+    pruning_threshold,
+    reconnect_components,
+    similarity_tree,
+    tree_image,
+    tree_root,
+)
+
+
+def _symmetric(upper):
+    D = np.array(upper, dtype=float)
+    return D + D.T
+
+
+# 5 frames; the minimum spanning tree is 0-1 (1), 1-2 (2), 1-3 (3), 3-4 (1.5)
+HAND_MADE = _symmetric([[0, 1, 4, 6, 7],
+                        [0, 0, 2, 3, 8],
+                        [0, 0, 0, 5, 9],
+                        [0, 0, 0, 0, 1.5],
+                        [0, 0, 0, 0, 0]])
+
+
+def _undirected(edges):
+    return {tuple(sorted(map(int, e))) for e in edges}
+
+
+def test_minimum_spanning_tree_of_a_hand_made_matrix():
+    tree = similarity_tree(HAND_MADE)
+    assert _undirected(tree.edges) == {(0, 1), (1, 2), (1, 3), (3, 4)}
+    assert tree.weights.sum() == pytest.approx(7.5)
+    assert tree.root == 1  # smallest sum of path lengths: 1 + 2 + 3 + 4.5
+    assert tree.parent[tree.root] == -1
+    # every frame comes after its parent in the order; depths and costs add up
+    position = np.empty(5, dtype=int)
+    position[tree.order] = np.arange(5)
+    for child in range(5):
+        if child != tree.root:
+            assert position[tree.parent[child]] < position[child]
+            assert tree.depth[child] == tree.depth[tree.parent[child]] + 1
+            assert tree.cost[child] == pytest.approx(tree.cost[tree.parent[child]] + HAND_MADE[child, tree.parent[child]])
+
+
+def test_threshold_is_the_largest_best_match_and_every_frame_keeps_its_best_match():
+    rng = np.random.default_rng(3)
+    D = _symmetric(np.triu(rng.uniform(0.1, 1.0, (30, 30)), 1))
+    off = D + np.diag(np.full(30, np.inf))
+    threshold = pruning_threshold(D)
+    assert threshold == pytest.approx(off.min(axis=1).max())
+    graph = pruned_graph(D, threshold)
+    kept = graph + graph.T
+    for i in range(30):
+        assert kept[i, int(np.argmin(off[i]))] > 0
+
+
+def test_split_components_are_reconnected_by_their_cheapest_edges():
+    # two tight clusters {0,1,2} and {3,4}; cheapest cross edge 2-3 (5.0), then 1-4 (5.5)
+    D = _symmetric([[0, 1, 1.2, 9, 8],
+                    [0, 0, 1.1, 7, 5.5],
+                    [0, 0, 0, 5.0, 6],
+                    [0, 0, 0, 0, 1],
+                    [0, 0, 0, 0, 0]])
+    threshold = pruning_threshold(D)
+    assert threshold == pytest.approx(1.1)
+    graph, components = reconnect_components(D, pruned_graph(D, threshold))
+    assert components == 2
+    tree = similarity_tree(D)
+    assert tree.components == 2
+    assert (2, 3) in _undirected(tree.edges)
+    # the pruned + reconnected tree has the weight of the unpruned minimum spanning tree
+    assert tree.weights.sum() == pytest.approx(minimum_spanning_tree(D).sum())
+
+
+def test_pruned_tree_equals_the_full_minimum_spanning_tree_on_random_matrices():
+    rng = np.random.default_rng(0)
+    for n in (2, 7, 40):
+        points = rng.normal(size=(n, 3))
+        D = np.linalg.norm(points[:, None] - points[None], axis=2)
+        tree = similarity_tree(D)
+        assert len(tree.edges) == n - 1
+        assert tree.weights.sum() == pytest.approx(minimum_spanning_tree(D).sum())
+
+
+def test_root_choice_given_and_central():
+    path = np.array([[0, 1], [1, 2], [2, 3], [3, 4]])
+    assert tree_root(path, np.ones(4), 5) == 2
+    assert tree_root(path, np.ones(4), 5, criterion="center") == 2
+    assert tree_root(path, np.array([1.0, 1.0, 1.0, 10.0]), 5, criterion="center") == 3
+    tree = similarity_tree(HAND_MADE, root=4)
+    assert tree.root == 4 and tree.depth.max() == 3
+    with pytest.raises(ValueError, match="root"):
+        similarity_tree(HAND_MADE, root=9)
+
+
+def test_chain_tree_is_frame_to_frame_tracking_from_the_root():
+    tree = chain_tree([3, 4], root=2)
+    assert tree.parent.tolist() == [1, 2, -1, 2, 3, 4, 5]
+    assert tree.depth.tolist() == [2, 1, 0, 1, 2, 3, 4]
+
+
+def test_tree_image():
+    image = tree_image(similarity_tree(HAND_MADE), [2, 3], ["a", "b"], size=300)
+    assert image.shape == (300, 300, 3) and image.dtype == np.uint8
