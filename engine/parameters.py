@@ -343,3 +343,55 @@ class ParameterMap:
         layout = Layout.from_dict(metadata["layout"])
         return cls(layout=layout, names=list(metadata["names"]), units=list(metadata["units"]),
                    axes=[np.asarray(axis)] * layout.dims, values=np.asarray(values))
+
+
+def accuracy_report(space, blend_mode="hybrid", per_axis=None):
+    """Realised vs requested parameters over the reachable domain of a space's parameter map.
+
+    Requests on a regular grid of each parameter's domain (per_axis values per axis, default
+    41 for one parameter, 9 x 9 for two) that the map says are reachable are solved for blend
+    weights; the parameters are then measured again on the blend itself (``measure_parameters``
+    on ``blend_mode`` blends), not read back from the map.
+
+    Returns
+    -------
+    dict with, per parameter, max and mean |realised - requested| in units and in % of the
+    parameter's range, the number of requests and how many were unreachable.
+    """
+    from engine.blend.phase import phase_of_sample
+
+    pmap = space.parameter_map
+    if pmap is None:
+        raise ValueError(f"{space.name}: the space has no parameter map")
+    blender = space.blender(blend_mode)
+    P = space.n_phases
+
+    def blend_phases(w):
+        return np.stack([blender.blend(w, phase_of_sample(p, P, space.cyclic)) for p in range(P)])
+
+    faces = np.asarray(space.faces, dtype=np.int64)
+    per_axis = per_axis or (41 if len(pmap.names) == 1 else 9)
+    axes = [np.linspace(lo, hi, per_axis) for lo, hi in pmap.domain()]
+    requests = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, len(axes))
+    errors, unreachable = [], 0
+    for p in requests:
+        solution = pmap.solve(p)
+        if solution.clamped:
+            unreachable += 1
+            continue
+        realised = measure_parameters(pmap.names, solution.weights, space.root_track, blend_phases, faces=faces,
+                                      effector=space.effector)
+        errors.append(np.abs(realised - p))
+    errors = np.array(errors).reshape(-1, len(pmap.names))
+    result = {"space": space.name, "blend_mode": blend_mode, "requests": int(len(requests)),
+              "unreachable": unreachable, "parameters": {}}
+    for k, (name, unit) in enumerate(zip(pmap.names, pmap.units)):
+        lo, hi = pmap.domain()[k]
+        span = max(hi - lo, 1e-12)
+        result["parameters"][name] = {
+            "unit": unit, "domain": [lo, hi],
+            "max_error": float(errors[:, k].max()) if len(errors) else None,
+            "mean_error": float(errors[:, k].mean()) if len(errors) else None,
+            "max_error_percent_of_range": float(100 * errors[:, k].max() / span) if len(errors) else None,
+            "mean_error_percent_of_range": float(100 * errors[:, k].mean() / span) if len(errors) else None}
+    return result

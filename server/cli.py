@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from server.commands import bench, blend, build, synth
+from server.commands import bench, blend, build, eval_params, play, synth
 from server.commands import eval as eval_command
 from server.commands import align, eval_align
 
@@ -19,6 +19,8 @@ COMMANDS = {
     "blend": blend,
     "eval": eval_command,
     "bench": bench,
+    "play": play,
+    "eval-params": eval_params,
     "align": align,
     "eval-align": eval_align,
 }

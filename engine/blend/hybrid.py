@@ -194,7 +194,7 @@ class HybridReport:
 
 
 def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon, keep_threshold=None,
-                 margin=0.9, level=None, max_depth=8, uniform_depth=None, test_weights=None, progress=None):
+                 margin=0.9, level=None, max_depth=None, uniform_depth=None, test_weights=None, progress=None):
     """Reference weights and hierarchical sparse corrections by bisection of the weight simplex.
 
     Parameters
@@ -206,7 +206,9 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
     keep_threshold : float residuals smaller than this are dropped (default 0.8 epsilon)
     margin : float         cells are split until their test errors are below margin * epsilon
     level : int            barycentric grid level of the test points (default 4; 3 for N > 3)
-    max_depth : int        bisection depth limit
+    max_depth : int        bisection depth limit (default 8 + (N - 2): longest-edge bisection of
+                           an (N-1)-simplex needs about N - 1 levels to halve a cell's diameter;
+                           cells at the limit are kept even if they fail, and the report says so)
     uniform_depth : int or None
         Split every cell to this depth with nothing dropped, regardless of error (the paper's
         "hybrid with 1 / 3 references" rows are depths 1 and 2 for two sources).
@@ -229,6 +231,7 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
     so the bound holds for what the runtime computes. Non-linear blends are cached by weight.
     """
     tree = SimplexTree(n_sources)
+    max_depth = 8 + (n_sources - 2) if max_depth is None else max_depth
     keep = 0.8 * epsilon if keep_threshold is None else keep_threshold
     if uniform_depth is not None:
         keep = 0.0
