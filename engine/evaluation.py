@@ -680,7 +680,7 @@ def ground_truth_comparison(space, body, true_motion_fn, weights_list=None, *,
     """
     progress = progress or _noop
     cache = cache or BlendCache(space, progress)
-    N, P = space.n_sources, space.n_phases
+    N = space.n_sources
     if len(body.V) != space.n_vertices:
         raise ValueError(f"{space.name}: the body has {len(body.V)} vertices, the space {space.n_vertices}")
     if weights_list is None:

@@ -23,12 +23,12 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from engine.blend import VolumetricEmbedding
 from engine.mesh_io import read_mesh, read_sequence
 from engine.motion_space import SourceClip, build_motion_space
 from engine.parameters import MEASURES, Layout
+from server.progress import StageBars
 
 LAYOUT_KEYS = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}
 
@@ -144,28 +144,6 @@ def cached_embedding(cache_dir, rest, faces):
     return embedding
 
 
-class _Bars:
-    """One tqdm bar per build stage."""
-
-    def __init__(self):
-        self.bar, self.stage = None, None
-
-    def __call__(self, stage, done, total):
-        if stage != self.stage:
-            self.close()
-            self.stage = stage
-            self.bar = tqdm(total=total or None, desc=stage, unit="step", dynamic_ncols=True, mininterval=0.5)
-        if total:
-            self.bar.total = total
-        self.bar.n = done
-        self.bar.refresh()
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
-            self.bar = None
-
-
 def run(args):
     if args.spec is None and not args.source:
         raise ValueError("give a spec file or at least two --source sequences")
@@ -207,7 +185,7 @@ def run(args):
         if mesh.vertices.shape != clips[0].vertices.shape[1:] or not np.array_equal(mesh.faces, faces):
             raise ValueError(f"{rest_path}: the rest mesh must have the sources' vertices and faces")
         rest = mesh.vertices
-    bars = _Bars()
+    bars = StageBars()
     started = time.perf_counter()
     bars("tetrahedralise", 0, 1)
     embedding = cached_embedding(args.cache or out.parent / ".tetcache", rest, faces)

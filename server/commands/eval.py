@@ -14,13 +14,12 @@ Example:
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from engine import evaluation
+from server.progress import StageBars
 from engine.mesh_io.dataset import read_capture_manifest, sequence_dir
 from engine.motion_space import MotionSpace
 from engine.synthetic import build_body
@@ -42,27 +41,6 @@ def add_arguments(parser):
     parser.add_argument("--phase", type=float, help="phase of the heatmap pose in [0, 1]")
     parser.add_argument("--timing-calls", type=int, default=200, help="blend calls timed per method (default 200)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the timing's random weights and phases")
-
-
-class _Progress:
-    """tqdm bars on stderr, one per stage."""
-
-    def __init__(self):
-        self.bars = {}
-
-    def __call__(self, stage, done, total):
-        if stage not in self.bars:
-            self.close()
-            self.bars[stage] = tqdm(total=total or None, desc=stage, unit="step", dynamic_ncols=True,
-                                    mininterval=0.5, file=sys.stderr, leave=False)
-        bar = self.bars[stage]
-        bar.n = done
-        bar.refresh()
-
-    def close(self):
-        for bar in self.bars.values():
-            bar.close()
-        self.bars.clear()
 
 
 def capture_truth(space, dataset):
@@ -178,7 +156,7 @@ def run(args):
         raise ValueError(f"--phase must be in [0, 1], got {args.phase}")
     out = args.out or args.space.with_name(f"{args.space.stem}-eval")
     space = MotionSpace.open(args.space)
-    progress = _Progress()
+    progress = StageBars(leave=False)
     result = {"space": str(args.space)}
     try:
         if args.weights is not None:

@@ -17,7 +17,7 @@ from engine.blend import (
     phase_of_sample,
 )
 from engine.motion_space import SourceClip, prepare_sources
-from engine.rotations import rot_y, rot_z
+from engine.rotations import rot_y
 from engine.surface import enclosed_volume, model_size
 from engine.synthetic import animate, build_body, gait
 
