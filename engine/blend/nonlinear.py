@@ -25,6 +25,7 @@ from engine.tetmesh import (
     quaternions_to_rotations,
     rotations_to_quaternions,
     tet_barycentric,
+    tet_laplacian,
     tetrahedralize,
 )
 
@@ -115,8 +116,8 @@ class FrameDecomposer:
     def __init__(self, embedding, *, fit_weight=30.0, iterations=2):
         self.embedding = embedding
         self.B = embedding.B
-        probe = DeformationSolver(embedding.V_tet, embedding.T)
-        self.weight = float(np.sqrt(fit_weight * probe.L.diagonal().mean()))
+        L = tet_laplacian(embedding.V_tet, embedding.T)
+        self.weight = float(np.sqrt(fit_weight * L.diagonal().mean()))
         self.solver = DeformationSolver(embedding.V_tet, embedding.T, constraints=self.B,
                                         constraint_weight=self.weight)
         self.iterations = int(iterations)

@@ -91,6 +91,18 @@ class PreparedSources:
     info: list
 
 
+def _cyclic_root(clip, faces, rest):
+    """Root motion of a cyclic clip filtered over its period (estimated when not given)."""
+    V = np.asarray(clip.vertices, dtype=np.float64)
+    period = clip.frames_per_cycle
+    if period is None:
+        rough = estimate_root_motion(V, faces, clip.fps, smoothing=0.5, reference=rest)
+        period = estimate_period(rough.local, clip.fps)
+    if period + 1 > len(V):
+        raise ValueError(f"{clip.name}: {len(V)} frames do not hold a whole cycle of {period:.1f} frames")
+    return estimate_root_motion(V, faces, clip.fps, period=period, reference=rest), float(period)
+
+
 def _align_to(reference, local, start, period, n_phases):
     """Warp (in cycle samples) of the cycle of ``local`` starting at ``start`` onto ``reference``:
     DTW on the sampled cycle, then a sub-sample offset fitted on the frames themselves."""
@@ -125,13 +137,7 @@ def prepare_sources(clips, faces, rest, n_phases=None):
     for clip in clips:
         V = np.asarray(clip.vertices, dtype=np.float64)
         if cyclic:
-            period = clip.frames_per_cycle
-            if period is None:
-                rough = estimate_root_motion(V, faces, clip.fps, smoothing=0.5, reference=rest)
-                period = estimate_period(rough.local, clip.fps)
-            if period + 1 > len(V):
-                raise ValueError(f"{clip.name}: {len(V)} frames do not hold a whole cycle of {period:.1f} frames")
-            root = estimate_root_motion(V, faces, clip.fps, period=period, reference=rest)
+            root, period = _cyclic_root(clip, faces, rest)
             info.append({"name": clip.name, "period_frames": float(period)})
         else:
             root = estimate_root_motion(V, faces, clip.fps, reference=rest)
@@ -207,13 +213,8 @@ def warp_cycle_onto(clip, faces, rest, reference):
     samples : (P, n, 3) float array   root-local, key poses aligned to the reference
     """
     P = len(reference)
-    V = np.asarray(clip.vertices, dtype=np.float64)
-    period = clip.frames_per_cycle
-    if period is None:
-        period = estimate_period(estimate_root_motion(V, faces, clip.fps, smoothing=0.5, reference=rest).local,
-                                 clip.fps)
-    root = estimate_root_motion(V, faces, clip.fps, period=period, reference=rest)
-    start = 0.5 * (len(V) - 1 - period)
+    root, period = _cyclic_root(clip, faces, rest)
+    start = 0.5 * (len(clip.vertices) - 1 - period)
     warp = _align_to(np.asarray(reference, dtype=np.float64), root.local, start, period, P)
     return sample_frames(root.local, start + np.mod(warp * period / P, period))
 
