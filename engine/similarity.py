@@ -149,7 +149,7 @@ def _block(H_rows, H_cols, norm_rows, norm_cols, steps):
     return np.sqrt(np.maximum(squared, 0.0)), degrees.astype(np.float32)
 
 
-def dissimilarity_matrix(histograms, *, steps=48, chunk=64, workers=1, progress=None):
+def dissimilarity_matrix(histograms, *, steps=48, chunk=64, workers=1, parallel_from=3000, progress=None):
     """Histogram distance of every pair of frames at its best rotation about the vertical axis.
 
     Parameters
@@ -158,6 +158,10 @@ def dissimilarity_matrix(histograms, *, steps=48, chunk=64, workers=1, progress=
     steps : int      rotations sampled over the full turn, refined by a parabola at the best
     chunk : int      rows per task (the block of rows i against columns >= i)
     workers : int    worker processes (1: compute here)
+    parallel_from : int   use the workers only from this many frames on: below it, starting the
+                     processes and shipping the histograms costs more than it saves (the block
+                     products already use every core through BLAS; 1,500 frames take about 2.5 s
+                     here, 5,000 frames 29 s serially and 23 s with 2 processes)
     progress : callable(done, total) or None   in rows
 
     Returns
@@ -184,7 +188,7 @@ def dissimilarity_matrix(histograms, *, steps=48, chunk=64, workers=1, progress=
     bounds = _balanced_row_blocks(N, chunk)
     jobs = list(zip(bounds[:-1], bounds[1:]))
     sizes = [b - a for a, b in jobs]
-    if workers > 1 and len(jobs) > 1:
+    if workers > 1 and len(jobs) > 1 and N >= parallel_from:
         results = _run(_distance_block, jobs, workers, progress, sizes,
                        initializer=_init_shared, initargs=(H, norms, steps))
     else:

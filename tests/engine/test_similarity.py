@@ -55,7 +55,7 @@ def test_rotated_copies_have_zero_dissimilarity_and_the_right_yaw(frames):
 def test_chunked_parallel_matrix_equals_the_serial_one(frames):
     H, _ = frame_histograms(frames * 3)
     serial = dissimilarity_matrix(H, chunk=1)
-    parallel = dissimilarity_matrix(H, chunk=2, workers=2)
+    parallel = dissimilarity_matrix(H, chunk=2, workers=2, parallel_from=0)
     np.testing.assert_allclose(parallel[0], serial[0], atol=1e-7)
     np.testing.assert_allclose(parallel[1], serial[1], atol=1e-4)
     bounds = _balanced_row_blocks(50, 7)
