@@ -291,13 +291,15 @@ class ParameterMap:
         flat = self.values.reshape(-1, len(self.names))
         return [(float(lo), float(hi)) for lo, hi in zip(flat.min(axis=0), flat.max(axis=0))]
 
-    def solve(self, requested, tolerance=0.005):
+    def solve(self, requested, tolerance=0.005, start=None):
         """Blend weights realising the requested parameters, clamped to the reachable domain.
 
         Parameters
         ----------
         requested : (k,) float array   in the map's units, in ``names`` order
         tolerance : float              relative (to each parameter's range) error accepted as reached
+        start : (dims,) float array or None   sheet coordinates to start from (a previous
+                                       solution nearby); by default the nearest dense sample
 
         Returns
         -------
@@ -309,8 +311,11 @@ class ParameterMap:
         if not np.all(np.isfinite(p)):
             raise ValueError(f"parameters must be finite, got {p.tolist()}")
         scale = self.ranges
-        distance = np.linalg.norm((self._dense_p - p) / scale, axis=1)
-        u = self._dense_u[int(np.argmin(distance))].astype(float)
+        if start is None:
+            distance = np.linalg.norm((self._dense_p - p) / scale, axis=1)
+            u = self._dense_u[int(np.argmin(distance))].astype(float)
+        else:
+            u = np.clip(np.asarray(start, dtype=float).reshape(self.layout.dims), 0.0, 1.0)
         # Gauss-Newton on the interpolated map, projected onto the unit square.
         for _ in range(20):
             r = (self.at(u) - p) / scale

@@ -137,8 +137,16 @@ class Player:
         if immediate:
             self._current = self._target.copy()
             self._velocity[:] = 0.0
-            self._solution = self.map.solve(self._current)
+            self._solution = self._solve(self._current)
         self._last_request = solution
+        return solution
+
+    def _solve(self, params):
+        """The map's solution for ``params``, warm-started from the last one (parameters move
+        continuously between steps); a cold start where the warm one does not reach."""
+        solution = self.map.solve(params, start=self._solution.u)
+        if solution.clamped:
+            solution = self.map.solve(params)
         return solution
 
     def seek(self, phase):
@@ -154,14 +162,18 @@ class Player:
         p0, p1, a = phase_samples(phase, len(step), self.space.cyclic)
         return (1 - a) * step[p0] + a * step[p1], (1 - a) * turn[p0] + a * turn[p1]
 
-    def step(self, dt):
-        """Advance the clock by ``dt`` seconds and return the frame there."""
+    def step(self, dt, out=None, local=False):
+        """Advance the clock by ``dt`` seconds and return the frame there (``frame(out, local)``)."""
         dt = float(dt)
         if not (np.isfinite(dt) and dt >= 0):
             raise ValueError(f"dt must be a non-negative number of seconds, got {dt}")
-        self._current, self._velocity = _critically_damped(self._current, self._velocity, self._target, dt,
-                                                           self.smoothing)
-        self._solution = self.map.solve(self._current)
+        if not np.array_equal(self._current, self._target) or np.any(self._velocity):
+            self._current, self._velocity = _critically_damped(self._current, self._velocity, self._target, dt,
+                                                               self.smoothing)
+            settled = np.abs(self._current - self._target) <= 1e-7 * self.map.ranges
+            if np.all(settled) and np.all(np.abs(self._velocity) * dt <= 1e-7 * self.map.ranges):
+                self._current, self._velocity = self._target.copy(), np.zeros_like(self._velocity)
+            self._solution = self._solve(self._current)
         w = self._solution.weights
         if not self.finished and dt > 0:
             d_phase = dt / self.track.duration(w)
@@ -179,16 +191,24 @@ class Player:
             elif self.phase >= 1.0 - 1e-12:
                 self.phase, self.finished = 1.0, True
         self.time += dt
-        return self.frame()
+        return self.frame(out=out, local=local)
 
-    def frame(self, out=None):
-        """The frame at the current state (nothing advances)."""
+    def frame(self, out=None, local=False):
+        """The frame at the current state (nothing advances).
+
+        ``local`` leaves the vertices in the root's frame (the root transform is in the frame's
+        ``root_position`` and ``heading``): what a renderer that places the mesh itself wants.
+        """
         w = self._solution.weights
-        local = self.space.blender(self.mode).blend(w, self.phase)
-        R = rot_y(self.heading).astype(np.float32)
-        vertices = np.empty((len(local), 3), dtype=np.float32) if out is None else out
-        np.matmul(np.asarray(local, dtype=np.float32), R.T, out=vertices)
-        vertices += self.position.astype(np.float32)
+        mesh = self.space.blender(self.mode).blend(w, self.phase)
+        vertices = np.empty((len(mesh), 3), dtype=np.float32) if out is None else out
+        if local:
+            vertices[:] = mesh
+        else:
+            c, s = np.cos(self.heading), np.sin(self.heading)
+            R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=np.float32)  # rot_y
+            np.matmul(np.asarray(mesh, dtype=np.float32), R.T, out=vertices)
+            vertices += self.position.astype(np.float32)
         return PlayerFrame(time=self.time, phase=self.phase, weights=w.copy(), requested=self._current.copy(),
                            realised=self._solution.realised.copy(), clamped=self._last_request.clamped,
                            root_position=self.position.copy(), heading=float(self.heading), vertices=vertices,

@@ -11,7 +11,7 @@ import sys
 
 from server.commands import bench, blend, build, eval_params, play, synth
 from server.commands import eval as eval_command
-from server.commands import align, eval_align
+from server.commands import align, eval_align, serve
 
 COMMANDS = {
     "synth": synth,
@@ -23,6 +23,7 @@ COMMANDS = {
     "eval-params": eval_params,
     "align": align,
     "eval-align": eval_align,
+    "serve": serve,
 }
 
 

@@ -1,0 +1,396 @@
+"""``/v1/stream``: one WebSocket connection streaming a motion space under live parameters.
+
+A connection is two tasks: the receiver decodes, checks and applies client messages; the
+producer steps the connection's Player on its own clock and sends frames. Latest-wins: the
+producer computes a frame only when it is due *and* the previous one has been handed to the
+transport (uvicorn pauses the send while its buffer is above the high-water mark), and with a
+client ``window`` also only while fewer than ``window`` frames are unacknowledged. Ticks missed
+meanwhile are counted in ``dropped``, never queued, so a slow client gets fewer, fresh frames
+and never delays anyone else. A message that changes what the client sees (params, mode, seek,
+reset, resume) makes the next frame due at once, so it reflects the change within one blend.
+
+All blending runs on the event loop thread (the engine's blenders keep scratch buffers); only
+the slow one-off set-up (opening a space, building the non-linear solver) goes to a thread.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+
+import numpy as np
+from starlette.websockets import WebSocket, WebSocketDisconnect
+
+from engine.blend.phase import phase_samples
+from engine.player import Player
+from server import protocol as P
+from server.registry import BrokenSpace, UnknownSpace
+
+log = logging.getLogger("morphspace.stream")
+MAX_DT = 0.25  # a stalled connection does not jump the clock by more than this per frame
+
+
+class TokenBucket:
+    """``rate`` tokens per second, at most ``burst`` saved."""
+
+    def __init__(self, rate, burst):
+        self.rate, self.burst = float(rate), float(burst)
+        self.tokens, self.stamp = float(burst), time.monotonic()
+
+    def take(self, cost=1.0):
+        now = time.monotonic()
+        self.tokens = min(self.burst, self.tokens + (now - self.stamp) * self.rate)
+        self.stamp = now
+        if self.tokens < cost:
+            return False
+        self.tokens -= cost
+        return True
+
+
+class StreamStats:
+    """Server-wide counters (reported by /v1/health)."""
+
+    def __init__(self):
+        self.connections = 0
+        self.frames = 0
+        self.dropped = 0
+        self.errors = 0
+
+
+def root_after(track, w, seconds, cyclic):
+    """Root (position (3,), heading) after ``seconds`` at constant weights, from the origin."""
+    duration = track.duration(w)
+    position, heading = track.integrate(w)
+    grid = np.linspace(0.0, 1.0, len(heading))
+    cycles, phase = divmod(seconds / duration, 1.0) if cyclic else (0.0, min(seconds / duration, 1.0))
+    cycles = int(min(cycles, 100000))
+    p, h = np.zeros(3), 0.0
+    step, turn = position[-1], heading[-1]
+    for _ in range(cycles):
+        c, s = math.cos(h), math.sin(h)
+        p = p + np.array([c * step[0] + s * step[2], step[1], -s * step[0] + c * step[2]])
+        h += turn
+    partial = np.array([np.interp(phase, grid, position[:, k]) for k in range(3)])
+    c, s = math.cos(h), math.sin(h)
+    p = p + np.array([c * partial[0] + s * partial[2], partial[1], -s * partial[0] + c * partial[2]])
+    p[1] = 0.0
+    return p, h + float(np.interp(phase, grid, heading)), phase
+
+
+class StreamSession:
+    """One connection's state; ``await StreamSession(ws, registry, settings, stats).run()``."""
+
+    def __init__(self, websocket: WebSocket, registry, settings, stats: StreamStats):
+        self.ws, self.registry, self.settings, self.stats = websocket, registry, settings, stats
+        self.bucket = TokenBucket(settings.stream_max_rate, settings.stream_burst)
+        self.player = None
+        self.space_name = None
+        self.codec = "f32"
+        self.bounds = None
+        self.rate = 60.0
+        self.window = 0
+        self.heatmap = False
+        self.paused = False
+        self.ack = 0
+        self.seq = 0
+        self.acked_frame = 0
+        self.dropped = 0
+        self.urgent = False
+        self.closed = False
+        self.wake = asyncio.Event()
+        self._scratch = None
+        self._last_step = None
+        self._next_due = 0.0
+
+    # ------------------------------------------------------------ plumbing
+
+    async def _send(self, message):
+        if self.closed:
+            return
+        try:
+            await self.ws.send_bytes(P.to_wire(message))
+        except (WebSocketDisconnect, OSError, RuntimeError):
+            self._close()
+
+    def _close(self):
+        self.closed = True
+        self.wake.set()
+
+    async def error(self, code, message, ref=None, seq=None):
+        self.stats.errors += 1
+        await self._send(P.Error(code=code, message=message, ref=ref, seq=seq))
+
+    def _poke(self, seq=None):
+        if seq is not None:
+            self.ack = max(self.ack, seq) if seq else self.ack
+        self.urgent = True
+        self.wake.set()
+
+    # ------------------------------------------------------------ connection
+
+    async def run(self):
+        await self.ws.accept()
+        if self.stats.connections >= self.settings.stream_max_clients:
+            await self.error("server_busy", f"the server streams to at most {self.settings.stream_max_clients} "
+                                            "clients at once; try again later")
+            await self.ws.close(code=1013)
+            return
+        self.stats.connections += 1
+        receiver = asyncio.create_task(self._receive_loop())
+        try:
+            await self._produce_loop()
+        finally:
+            self.stats.connections -= 1
+            self.stats.dropped += self.dropped
+            receiver.cancel()
+            try:
+                await receiver
+            except (asyncio.CancelledError, Exception):  # the connection is gone either way
+                pass
+
+    async def _receive_loop(self):
+        try:
+            while not self.closed:
+                message = await self.ws.receive()
+                if message["type"] == "websocket.disconnect":
+                    break
+                data = message.get("bytes")
+                if data is None:
+                    data = message.get("text") or ""
+                await self._on_data(data)
+        except (WebSocketDisconnect, OSError, RuntimeError):
+            pass
+        finally:
+            self._close()
+
+    async def _on_data(self, data):
+        cost = 0.25 if len(data) < 32 and b"ack" in (data if isinstance(data, bytes) else data.encode()) else 1.0
+        if not self.bucket.take(cost):
+            await self.error("rate_limited", f"more than {self.settings.stream_max_rate:g} messages per second "
+                                             f"(burst {self.settings.stream_burst}); message dropped")
+            return
+        try:
+            message = P.decode_client(data, self.settings.stream_max_message)
+            await self._apply(message)
+        except P.ProtocolError as exc:
+            await self.error(exc.code, exc.message, exc.ref, exc.seq)
+        except ValueError as exc:  # the engine's checks on values (unknown parameters, ranges)
+            await self.error("invalid_field", str(exc), getattr(message, "type", None), getattr(message, "seq", None))
+        except Exception as exc:  # noqa: BLE001 - report, keep the connection and the server
+            log.exception("stream: failed to apply %r", data[:200])
+            await self.error("internal", f"the server failed on this message: {type(exc).__name__}: {exc}")
+
+    # ------------------------------------------------------------ client messages
+
+    async def _apply(self, m):
+        if isinstance(m, P.Hello):
+            return await self._hello(m)
+        if isinstance(m, P.Ack):
+            self.acked_frame = max(self.acked_frame, min(m.frame, self.seq))
+            self.wake.set()
+            return
+        if self.player is None:
+            raise P.ProtocolError("not_ready", f"send hello before {m.type}", ref=m.type, seq=getattr(m, "seq", None))
+        if isinstance(m, P.Params):
+            self._set_params(m.params, m.immediate, m.seq, m.type)
+        elif isinstance(m, P.Mode):
+            await self._prepare_mode(m.mode, m)
+            self.player.set_mode(m.mode)
+        elif isinstance(m, P.Rate):
+            self._set_rate(m.rate, m)
+            self._next_due = asyncio.get_running_loop().time()
+        elif isinstance(m, P.Pause):
+            self.paused = True
+        elif isinstance(m, P.Resume):
+            self.paused = False
+            self._last_step = None
+        elif isinstance(m, P.Seek):
+            if not 0.0 <= m.phase <= 1.0:
+                raise P.ProtocolError("invalid_field", f"seek.phase must be in [0, 1], got {m.phase}", "seek", m.seq)
+            self.player.seek(m.phase)
+        elif isinstance(m, P.Reset):
+            self.player.reset()
+        elif isinstance(m, P.Heatmap):
+            if m.on:
+                await self._prepare_mode("nonlinear", m)
+            self.heatmap = m.on
+        elif isinstance(m, P.Pull):
+            return await self._pull(m)
+        self._poke(m.seq)
+
+    def _set_rate(self, rate, m):
+        limit = self.settings.stream_max_fps
+        if not 0.0 <= rate <= limit:
+            raise P.ProtocolError("invalid_field", f"{m.type}.rate must be in [0, {limit:g}] frames per second, "
+                                                   f"got {rate:g}", m.type, m.seq)
+        self.rate = rate
+
+    async def _prepare_mode(self, mode, m):
+        if mode not in P.MODES:
+            raise P.ProtocolError("invalid_field", f"{m.type}.mode: unknown blend mode {mode!r}; choose one of "
+                                                   f"{', '.join(P.MODES)}", m.type, getattr(m, "seq", None))
+        space = self.player.space if self.player is not None else None
+        if space is not None:
+            await asyncio.to_thread(space.blender, mode)  # the non-linear solver factorises once
+
+    def _set_params(self, params, immediate, seq, ref):
+        names = self.player.names
+        unknown = sorted(set(params) - set(names))
+        if unknown:
+            raise P.ProtocolError("invalid_params", f"{ref}: unknown parameter(s) {', '.join(unknown)}; "
+                                                    f"{self.space_name} has {', '.join(names)}", ref, seq)
+        solution = self.player.set_params(params, immediate=immediate)
+        if solution.clamped:
+            asyncio.get_running_loop().create_task(
+                self._send(P.Notice(code="clamped", message=solution.message, seq=seq)))
+
+    async def _hello(self, m):
+        if m.codec not in P.CODECS:
+            raise P.ProtocolError("invalid_field", f"hello.codec: unknown codec {m.codec!r}; choose one of "
+                                                   f"{', '.join(P.CODECS)}", "hello", m.seq)
+        if m.mode not in P.MODES:
+            raise P.ProtocolError("invalid_field", f"hello.mode: unknown blend mode {m.mode!r}; choose one of "
+                                                   f"{', '.join(P.MODES)}", "hello", m.seq)
+        self._set_rate(m.rate, m)
+        if not 0.0 <= m.smoothing <= 10.0:
+            raise P.ProtocolError("invalid_field", f"hello.smoothing must be in [0, 10] seconds, got {m.smoothing}",
+                                  "hello", m.seq)
+        if not 0 <= m.window <= 64:
+            raise P.ProtocolError("invalid_field", f"hello.window must be in [0, 64], got {m.window}", "hello", m.seq)
+        try:
+            space = await asyncio.to_thread(self.registry.get, m.space)
+        except UnknownSpace as exc:
+            raise P.ProtocolError("unknown_space", str(exc), "hello", m.seq) from None
+        except BrokenSpace as exc:
+            raise P.ProtocolError("unknown_space", str(exc), "hello", m.seq) from None
+        if space.parameter_map is None:
+            raise P.ProtocolError("not_playable", f"{m.space} has no parameter map; rebuild it from a spec "
+                                                  "with a [parameters] section", "hello", m.seq)
+        await asyncio.to_thread(space.blender, m.mode)
+        if m.heatmap:
+            await asyncio.to_thread(space.blender, "nonlinear")
+        player = Player(space, mode=m.mode, smoothing=m.smoothing)
+        if m.params:
+            unknown = sorted(set(m.params) - set(player.names))
+            if unknown:
+                raise P.ProtocolError("invalid_params", f"hello: unknown parameter(s) {', '.join(unknown)}; "
+                                                        f"{m.space} has {', '.join(player.names)}", "hello", m.seq)
+            player.set_params(m.params, immediate=True)
+        self.player, self.space_name = player, m.space
+        self.codec, self.window, self.heatmap = m.codec, m.window, m.heatmap
+        self.bounds = self.registry.bounds(m.space)
+        self.paused, self._last_step = False, None
+        self._scratch = np.empty((space.n_vertices, 3), dtype=np.float32)
+        description = self.registry.describe(m.space)
+        current = dict(zip(player.names, player.frame().requested.tolist()))
+        parameters = [dict(p, value=current[p["name"]]) for p in description["parameters"]]
+        s = self.settings
+        await self._send(P.Topology(
+            protocol=P.PROTOCOL_VERSION, space=m.space, n_vertices=int(space.n_vertices),
+            n_faces=int(len(space.faces)), faces=np.ascontiguousarray(space.faces, dtype="<u4").tobytes(),
+            codec=m.codec, bounds_min=self.bounds[0].tolist(), bounds_max=self.bounds[1].tolist(),
+            quantisation_error=P.quantisation_error(self.bounds) if m.codec == "q16" else 0.0,
+            parameters=parameters, sources=space.source_names, durations=space.durations().tolist(),
+            cyclic=bool(space.cyclic), mode=m.mode, modes=list(P.MODES), rate=self.rate,
+            model_size=float(space.model_size),
+            limits={"max_message": s.stream_max_message, "max_rate": s.stream_max_rate,
+                    "burst": s.stream_burst, "max_fps": s.stream_max_fps}))
+        self.seq = self.acked_frame = 0
+        self._next_due = asyncio.get_running_loop().time()
+        self._poke(m.seq)
+
+    async def _pull(self, m):
+        if (m.time is None) == (m.phase is None):
+            raise P.ProtocolError("invalid_field", "pull: give exactly one of time (s) or phase", "pull", m.id)
+        if m.time is not None and not 0.0 <= m.time <= 86400.0:
+            raise P.ProtocolError("invalid_field", f"pull.time must be in [0, 86400] s, got {m.time}", "pull", m.id)
+        if m.phase is not None and not 0.0 <= m.phase <= 1.0:
+            raise P.ProtocolError("invalid_field", f"pull.phase must be in [0, 1], got {m.phase}", "pull", m.id)
+        mode = m.mode or self.player.mode
+        await self._prepare_mode(mode, m)
+        player = self.player
+        names = player.names
+        unknown = sorted(set(m.params or {}) - set(names))
+        if unknown:
+            raise P.ProtocolError("invalid_params", f"pull: unknown parameter(s) {', '.join(unknown)}; "
+                                                    f"{self.space_name} has {', '.join(names)}", "pull", m.id)
+        request = player._target.copy()
+        for name, value in (m.params or {}).items():
+            request[names.index(name)] = value
+        solution = player.map.solve(request)
+        w = solution.weights
+        space = player.space
+        if m.time is not None:
+            root, heading, phase = root_after(player.track, w, m.time, space.cyclic)
+            seconds = m.time
+        else:
+            phase = m.phase % 1.0 if space.cyclic and m.phase < 1.0 else m.phase
+            root, heading, _ = root_after(player.track, w, phase * player.track.duration(w), False)
+            seconds = phase * player.track.duration(w)
+        vertices = space.blender(mode).blend(w, phase)
+        await self._send_frame(time_=seconds, phase=phase, mode=mode, requested=request, realised=solution.realised,
+                               clamped=solution.clamped, weights=w, root=root, heading=heading,
+                               vertices=vertices, finished=False, pull_id=m.id, space=space)
+
+    # ------------------------------------------------------------ frames
+
+    async def _send_frame(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
+                          vertices, finished, pull_id, space):
+        error_um = error_max = None
+        if self.heatmap:
+            if mode == "nonlinear":
+                distance = np.zeros(len(vertices), dtype=np.float32)
+            else:
+                reference = space.blender("nonlinear").blend(weights, phase)
+                distance = np.linalg.norm(vertices - reference, axis=1)
+            error_max = float(distance.max())
+            error_um = np.minimum(np.rint(distance * 1e6), 65535).astype("<u2").tobytes()
+        self.seq += 1
+        frame = P.Frame(seq=self.seq, ack=self.ack, time=float(time_), phase=float(phase), mode=mode,
+                        requested=[float(x) for x in requested], realised=[float(x) for x in realised],
+                        clamped=bool(clamped), weights=[float(x) for x in weights],
+                        root=[float(x) for x in root], heading=float(heading),
+                        vertices=P.encode_vertices(vertices, self.codec, self.bounds, self._scratch),
+                        dropped=self.dropped, finished=bool(finished), sent_at=time.time(), pull_id=pull_id,
+                        error_um=error_um, error_max=error_max)
+        self.stats.frames += 1
+        await self._send(frame)
+
+    async def _produce_loop(self):
+        loop = asyncio.get_running_loop()
+        while not self.closed:
+            now = loop.time()
+            streaming = self.player is not None and not self.paused and self.rate > 0
+            period = 1.0 / self.rate if self.rate > 0 else math.inf
+            waiting_ack = self.window > 0 and self.seq - self.acked_frame >= self.window
+            due = streaming and now >= self._next_due
+            if self.player is not None and (self.urgent or due) and not (waiting_ack and not self.urgent):
+                urgent, self.urgent = self.urgent, False
+                if streaming:
+                    late = now - self._next_due
+                    if not urgent and late >= period:
+                        missed = int(late / period)
+                        self.dropped += missed
+                    dt = 0.0 if self._last_step is None else min(now - self._last_step, MAX_DT)
+                    self._last_step = now
+                    self._next_due = max(self._next_due + period, now + 0.5 * period) if not urgent else now + period
+                else:
+                    dt = 0.0
+                frame = self.player.step(dt, local=True)
+                await self._send_frame(time_=frame.time, phase=frame.phase, mode=self.player.mode,
+                                       requested=frame.requested, realised=frame.realised, clamped=frame.clamped,
+                                       weights=frame.weights, root=frame.root_position, heading=frame.heading,
+                                       vertices=frame.vertices, finished=frame.finished, pull_id=None,
+                                       space=self.player.space)
+                continue
+            if due and waiting_ack:
+                self.dropped += 1
+                self._next_due += period
+                continue
+            handle = loop.call_at(self._next_due, self.wake.set) if streaming and not waiting_ack else None
+            await self.wake.wait()
+            self.wake.clear()
+            if handle is not None:
+                handle.cancel()
