@@ -1,0 +1,312 @@
+"""/v1/stream against a real uvicorn server: round trips in both codecs, control messages,
+pulls, malformed and hostile messages, and a slow client beside a fast one."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+
+import msgpack
+import numpy as np
+import pytest
+import websockets
+
+from engine.motion_space import MotionSpace
+from server import protocol as P
+from server.client import StreamClient
+from server.stream import root_after
+
+
+def run(coroutine):
+    return asyncio.run(asyncio.wait_for(coroutine, 60))
+
+
+@pytest.fixture(scope="module")
+def speed_space(built_spaces):
+    with MotionSpace.open(built_spaces / "speed.mspace") as space:
+        yield space
+
+
+def expected_local(space, frame, mode="hybrid"):
+    return space.blend(frame.weights, frame.phase, mode)
+
+
+def test_f32_frames_are_the_engine_blend(server, speed_space):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", codec="f32", rate=30) as c:
+            assert c.topology.n_vertices == speed_space.n_vertices
+            np.testing.assert_array_equal(c.faces, speed_space.faces)
+            assert c.topology.quantisation_error == 0.0
+            frames = [await c.next_frame() for _ in range(5)]
+        return frames
+    frames = run(go())
+    for f in frames:
+        np.testing.assert_allclose(f.vertices, expected_local(speed_space, f), atol=1e-6)
+        c, s = math.cos(f.heading), math.sin(f.heading)
+        placed = f.vertices @ np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]).T + f.root
+        np.testing.assert_allclose(f.world_vertices(), placed, atol=1e-5)
+    assert [f.seq for f in frames] == sorted({f.seq for f in frames})
+    assert frames[-1].time > frames[0].time
+
+
+def test_q16_frames_are_within_the_reported_quantisation_error(server, speed_space):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", codec="q16", rate=30) as c:
+            return c.topology, [await c.next_frame() for _ in range(5)]
+    topology, frames = run(go())
+    bounds = np.array([topology.bounds_min, topology.bounds_max])
+    assert topology.quantisation_error == pytest.approx(P.quantisation_error(bounds))
+    assert 0 < topology.quantisation_error < 1e-4   # well under a tenth of a millimetre
+    for f in frames:
+        error = np.linalg.norm(f.vertices - expected_local(speed_space, f), axis=1)
+        assert error.max() <= topology.quantisation_error * 1.001 + 1e-6
+        assert error.max() > 0  # it really is quantised
+
+
+def test_params_update_is_acknowledged_and_reaches_the_target(server):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", rate=60, smoothing=0.0) as c:
+            lo, hi = c.topology.parameters[0]["min"], c.topology.parameters[0]["max"]
+            target = lo + 0.8 * (hi - lo)
+            seq = await c.set_params(speed=target)
+            frame = await c.next_frame(after=seq)
+            return target, frame
+    target, frame = run(go())
+    assert frame.ack >= 1
+    assert frame.requested["speed"] == pytest.approx(target)
+    assert frame.realised["speed"] == pytest.approx(target, rel=0.01)
+
+
+def test_smoothing_moves_towards_the_request_without_jumping(server):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", rate=60, smoothing=0.2) as c:
+            first = await c.next_frame()
+            hi = c.topology.parameters[0]["max"]
+            seq = await c.set_params(speed=hi)
+            seen = [await c.next_frame(after=seq) for _ in range(20)]
+            return first, hi, seen
+    first, hi, seen = run(go())
+    speeds = [f.requested["speed"] for f in seen]
+    assert all(b >= a - 1e-9 for a, b in zip(speeds, speeds[1:]))   # monotone, no overshoot
+    assert speeds[0] < hi and speeds[-1] > first.requested["speed"]
+
+
+def test_out_of_range_request_is_clamped_with_a_notice(server):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", rate=30, smoothing=0.0) as c:
+            seq = await c.set_params(speed=99.0)
+            frame = await c.next_frame(after=seq)
+            await asyncio.sleep(0.1)
+            return c.topology, frame, list(c.notices), list(c.errors)
+    topology, frame, notices, errors = run(go())
+    assert not errors
+    assert frame.clamped
+    assert frame.realised["speed"] <= topology.parameters[0]["max"] + 1e-9
+    assert any(n.code == "clamped" and "speed" in n.message for n in notices)
+
+
+def test_mode_switch_pause_seek_reset(server, speed_space):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", rate=60) as c:
+            await c.next_frame()
+            seq = await c.set_mode("nonlinear")
+            nl = await c.next_frame(after=seq)
+            seq = await c.set_mode("linear")
+            lin = await c.next_frame(after=seq)
+            seq = await c.pause()
+            paused = await c.next_frame(after=seq)
+            await asyncio.sleep(0.3)
+            c._latest = None
+            with pytest.raises(TimeoutError):
+                await c.next_frame(timeout=0.3)
+            seq = await c.seek(0.25)
+            sought = await c.next_frame(after=seq)
+            seq = await c.resume()
+            resumed = [await c.next_frame(after=seq) for _ in range(3)]
+            seq = await c.reset()
+            reset = await c.next_frame(after=seq)
+            return nl, lin, paused, sought, resumed, reset
+    nl, lin, paused, sought, resumed, reset = run(go())
+    assert nl.mode == "nonlinear" and lin.mode == "linear"
+    np.testing.assert_allclose(nl.vertices, expected_local(speed_space, nl, "nonlinear"), atol=2e-5)
+    np.testing.assert_allclose(lin.vertices, expected_local(speed_space, lin, "linear"), atol=1e-6)
+    assert sought.phase == pytest.approx(0.25)
+    assert resumed[-1].time > sought.time
+    # the clock runs on: the reset frame is a few milliseconds past the origin
+    assert reset.phase < 0.05 and np.linalg.norm(reset.root) < 0.05 and reset.time < 0.1
+
+
+def test_pull_is_the_frame_at_those_params_and_time(server, speed_space):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", rate=5) as c:
+            lo, hi = c.topology.parameters[0]["min"], c.topology.parameters[0]["max"]
+            speed = (lo + hi) / 2
+            frame = await c.pull({"speed": speed}, time=1.3)
+            by_phase = await c.pull({"speed": speed}, phase=0.5, mode="linear")
+            return speed, frame, by_phase
+    speed, frame, by_phase = run(go())
+    solution = speed_space.parameter_map.solve(np.array([speed]))
+    duration = speed_space.root_track.duration(solution.weights)
+    assert frame.pull_id == 1 and by_phase.pull_id == 2
+    assert frame.phase == pytest.approx((1.3 / duration) % 1.0)
+    np.testing.assert_allclose(frame.weights, solution.weights)
+    np.testing.assert_allclose(frame.vertices, speed_space.blend(solution.weights, frame.phase), atol=1e-6)
+    root, heading, _ = root_after(speed_space.root_track, solution.weights, 1.3, True)
+    np.testing.assert_allclose(frame.root, root, atol=1e-9)
+    # travelling at the realised speed (straight gait): distance ~ speed * time
+    assert np.linalg.norm(frame.root) == pytest.approx(solution.realised[0] * 1.3, rel=0.05)
+    assert by_phase.mode == "linear" and by_phase.phase == pytest.approx(0.5)
+
+
+async def raw_session(url, messages, *, hello=True, settle=0.3, pack=msgpack.packb):
+    """Send raw messages, collect every error/notice, then check the stream still answers."""
+    async with websockets.connect(url, max_size=2**26) as ws:
+        if hello:
+            await ws.send(msgpack.packb({"type": "hello", "space": "speed", "rate": 10}))
+        for m in messages:
+            await ws.send(m if isinstance(m, (bytes, str)) else pack(m))
+        await asyncio.sleep(settle)  # a flood has used up the rate budget; let it refill
+        await ws.send(msgpack.packb({"type": "params", "params": {"speed": 1.5}, "seq": 777}))
+        errors, alive = [], False
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            raw = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
+            if raw["type"] in ("error", "notice"):
+                errors.append(raw)
+            if raw["type"] == "frame" and raw["ack"] >= 777:
+                alive = True
+                break
+        return errors, alive
+
+
+@pytest.mark.parametrize("message, code", [
+    (b"\xc1\x00garbage", "malformed"),
+    (msgpack.packb([1, 2, 3]), "malformed"),
+    (msgpack.packb({"no": "type"}), "malformed"),
+    ({"type": "teleport"}, "unknown_type"),
+    ({"type": "params", "params": {"speed": float("nan")}, "seq": 5}, "invalid_params"),
+    ({"type": "params", "params": {"speed": float("inf")}, "seq": 5}, "invalid_params"),
+    ({"type": "params", "params": {"flying": 2.0}, "seq": 5}, "invalid_params"),
+    ({"type": "params", "params": {"speed": "fast"}}, "invalid_field"),
+    ({"type": "params"}, "invalid_field"),
+    ({"type": "params", "params": {"speed": 1.0}, "bogus": 1}, "invalid_field"),
+    ({"type": "seek", "phase": 1.5}, "invalid_field"),
+    ({"type": "rate", "rate": -3}, "invalid_field"),
+    ({"type": "rate", "rate": 1e9}, "invalid_field"),
+    ({"type": "mode", "mode": "cubic"}, "invalid_field"),
+    ({"type": "pull", "id": 1, "time": -1.0}, "invalid_field"),
+    ({"type": "pull", "id": 1}, "invalid_field"),
+    ({"type": "hello", "space": "../../etc/passwd"}, "unknown_space"),
+    ({"type": "hello", "space": "speed", "codec": "png"}, "invalid_field"),
+    (b"x" * (70 * 1024), "too_large"),
+])
+def test_bad_messages_get_an_error_and_the_stream_goes_on(server, message, code):
+    errors, alive = run(raw_session(server.ws_url, [message]))
+    assert [e["code"] for e in errors if e["type"] == "error"] == [code], errors
+    assert all(e["message"] for e in errors)
+    assert alive
+
+
+def test_json_text_messages_work_too(server):
+    errors, alive = run(raw_session(server.ws_url, ['{"type": "seek", "phase": 0.5}']))
+    assert errors == [] and alive
+
+
+def test_messages_before_hello_are_refused(server):
+    async def go():
+        async with websockets.connect(server.ws_url) as ws:
+            await ws.send(msgpack.packb({"type": "params", "params": {"speed": 1.0}, "seq": 3}))
+            return msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
+    reply = run(go())
+    assert reply["type"] == "error" and reply["code"] == "not_ready" and reply["seq"] == 3
+
+
+def test_a_message_flood_is_rate_limited_not_fatal(server):
+    flood = [{"type": "seek", "phase": 0.1}] * 400
+    errors, alive = run(raw_session(server.ws_url, flood))
+    codes = {e.get("code") for e in errors}
+    assert codes == {"rate_limited"}
+    assert alive
+
+
+async def fresh_backlog(ws, acks):
+    """Read until a frame sent within 0.1 s arrives: (stale frames read first, that frame)."""
+    stale = 0
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        raw = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
+        if raw["type"] != "frame":
+            continue
+        if acks:
+            await ws.send(msgpack.packb({"type": "ack", "frame": raw["seq"]}))
+        if time.time() - raw["sent_at"] < 0.1:
+            return stale, raw
+        stale += 1
+    raise TimeoutError("no fresh frame")
+
+
+@pytest.mark.parametrize("window", [0, 2])
+def test_a_slow_client_does_not_slow_a_fast_one(server, window):
+    async def go():
+        slow = await websockets.connect(server.ws_url, max_size=2**26, max_queue=1)
+        await slow.send(msgpack.packb({"type": "hello", "space": "speed", "rate": 60, "window": window}))
+        # the slow client reads nothing for 3 s while the fast one streams
+        async with StreamClient.connect(server.ws_url, "speed", rate=30) as fast:
+            start = time.monotonic()
+            await fast.next_frame()
+            count = 0
+            while time.monotonic() - start < 3.0:
+                frame = await fast.next_frame()
+                count += 1
+            fast_rate = count / (time.monotonic() - start)
+        stale, fresh = await fresh_backlog(slow, acks=window > 0)
+        await slow.close()
+        return fast_rate, frame.dropped, stale, fresh
+    fast_rate, fast_dropped, stale, fresh = run(go())
+    assert fast_rate >= 27.0            # >= 90% of 30 frames/s
+    assert fast_dropped <= 3
+    if window:
+        # with acks the server holds at most `window` frames for a stalled client, then skips
+        assert stale <= window + 1
+        assert fresh["dropped"] >= 120   # most of 3 s x 60 ticks were skipped, and said so
+    else:
+        # without acks only the sockets' buffers bound what is queued; the server never blocks
+        assert stale < 3.0 * 60 + 60
+
+
+def test_heatmap_frames_carry_the_distance_from_the_nonlinear_blend(server, speed_space):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", mode="linear", heatmap=True, rate=20) as c:
+            lo, hi = c.topology.parameters[0]["min"], c.topology.parameters[0]["max"]
+            seq = await c.set_params(speed=(lo + hi) / 2, immediate=True)
+            return await c.next_frame(after=seq)
+    frame = run(go())
+    reference = speed_space.blend(frame.weights, frame.phase, "nonlinear")
+    distance = np.linalg.norm(frame.vertices - reference, axis=1)
+    np.testing.assert_allclose(frame.error, distance, atol=2e-6)
+    assert frame.error.max() > 1e-4   # linear blending of two gaits really differs
+
+
+def test_unknown_space_fails_the_connect_with_a_clear_error(server):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "nowhere"):
+            pass
+    with pytest.raises(Exception, match="no motion space 'nowhere'"):
+        run(go())
+
+
+def test_a_space_written_while_serving_appears_without_restart(server, built_spaces):
+    import shutil
+    import httpx
+    target = server.data_dir / "spaces" / "late.mspace"
+    tmp = target.with_suffix(".partial")
+    shutil.copyfile(built_spaces / "speed.mspace", tmp)
+    tmp.rename(target)
+    names = [s["name"] for s in httpx.get(server.url + "/v1/spaces").json()["spaces"]]
+    assert "late" in names
+
+    async def go():
+        async with StreamClient.connect(server.ws_url, "late") as c:
+            return await c.next_frame()
+    assert run(go()).seq >= 1
