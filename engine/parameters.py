@@ -18,6 +18,8 @@ parameters, saying so.
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -232,6 +234,9 @@ class ParameterMap:
     def __post_init__(self):
         flat = self.values.reshape(-1, len(self.names))
         self.ranges = np.maximum(flat.max(axis=0) - flat.min(axis=0), 1e-9)
+        self._values_list = np.asarray(self.values, dtype=float).tolist()
+        self._ranges_list = self.ranges.tolist()
+        self._last = len(self.axes[0]) - 1
         self._dense_u, self._dense_p = self._dense()
 
     @classmethod
@@ -277,6 +282,69 @@ class ParameterMap:
             columns.append((self.at(hi) - self.at(lo)) / (hi[k] - lo[k]))
         return np.stack(columns, axis=1)
 
+    def _cell(self, u):
+        """Parameters (k,) and their derivatives (k rows of dims) at u, on u's grid cell.
+
+        Plain Python floats: the player solves every frame, and for one or two sheet
+        coordinates this is several times faster than numpy calls.
+        """
+        values, last = self._values_list, self._last
+        if len(u) == 1:
+            x = min(max(u[0], 0.0), 1.0) * last
+            i = min(int(x), last - 1)
+            a = x - i
+            v0, v1 = values[i], values[i + 1]
+            return ([p0 + a * (p1 - p0) for p0, p1 in zip(v0, v1)],
+                    [[last * (p1 - p0)] for p0, p1 in zip(v0, v1)])
+        x = min(max(u[0], 0.0), 1.0) * last
+        y = min(max(u[1], 0.0), 1.0) * last
+        i, j = min(int(x), last - 1), min(int(y), last - 1)
+        a, b = x - i, y - j
+        v00, v10, v01, v11 = values[i][j], values[i + 1][j], values[i][j + 1], values[i + 1][j + 1]
+        at, jac = [], []
+        for c00, c10, c01, c11 in zip(v00, v10, v01, v11):
+            at.append((1 - a) * (1 - b) * c00 + a * (1 - b) * c10 + (1 - a) * b * c01 + a * b * c11)
+            jac.append([last * ((1 - b) * (c10 - c00) + b * (c11 - c01)),
+                        last * ((1 - a) * (c01 - c00) + a * (c11 - c10))])
+        return at, jac
+
+    def _gauss_newton(self, p, u):
+        """Sheet coordinates u (list) minimising |(at(u) - p) / ranges|, from ``u``, projected
+        onto the unit square; stops when a step no longer reduces the residual."""
+        scale = self._ranges_list
+        at, jac = self._cell(u)
+        r = [(q - t) / s for q, t, s in zip(at, p, scale)]
+        norm = math.sqrt(sum(x * x for x in r))
+        for _ in range(20):
+            if norm < 1e-9:
+                break
+            J = [[d / s for d in row] for row, s in zip(jac, scale)]
+            if len(u) == 1:
+                jtj = sum(row[0] * row[0] for row in J)
+                if jtj <= 1e-30:
+                    break
+                step = [-sum(row[0] * x for row, x in zip(J, r)) / jtj]
+            else:
+                a = sum(row[0] * row[0] for row in J)
+                b = sum(row[0] * row[1] for row in J)
+                d = sum(row[1] * row[1] for row in J)
+                g0 = sum(row[0] * x for row, x in zip(J, r))
+                g1 = sum(row[1] * x for row, x in zip(J, r))
+                det = a * d - b * b
+                if abs(det) <= 1e-12 * max(a * d, 1e-30):
+                    # rank-deficient: the least-squares step of smallest norm
+                    step = np.linalg.lstsq(np.array(J), -np.array(r), rcond=None)[0].tolist()
+                else:
+                    step = [-(d * g0 - b * g1) / det, -(a * g1 - b * g0) / det]
+            u_next = [min(max(x + s, 0.0), 1.0) for x, s in zip(u, step)]
+            at, jac_next = self._cell(u_next)
+            r_next = [(q - t) / s for q, t, s in zip(at, p, scale)]
+            norm_next = math.sqrt(sum(x * x for x in r_next))
+            if norm_next >= norm:
+                break
+            u, r, norm, jac = u_next, r_next, norm_next, jac_next
+        return u
+
     def _dense(self):
         steps = 401 if self.layout.dims == 1 else 81
         line = np.linspace(0.0, 1.0, steps)
@@ -316,16 +384,7 @@ class ParameterMap:
             u = self._dense_u[int(np.argmin(distance))].astype(float)
         else:
             u = np.clip(np.asarray(start, dtype=float).reshape(self.layout.dims), 0.0, 1.0)
-        # Gauss-Newton on the interpolated map, projected onto the unit square.
-        for _ in range(20):
-            r = (self.at(u) - p) / scale
-            if np.linalg.norm(r) < 1e-9:
-                break
-            step = np.linalg.lstsq(self._jacobian(u) / scale[:, None], -r, rcond=None)[0]
-            u_next = np.clip(u + step, 0.0, 1.0)
-            if np.linalg.norm((self.at(u_next) - p) / scale) >= np.linalg.norm(r):
-                break
-            u = u_next
+        u = np.array(self._gauss_newton(p.tolist(), u.tolist()))
         realised = self.at(u)
         error = np.abs(realised - p) / scale
         clamped = bool(np.any(error > tolerance))

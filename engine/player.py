@@ -16,12 +16,12 @@ Cyclic spaces loop; one-shot spaces (jumps, reaches) stop at the end of the clip
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from engine.blend.phase import phase_samples
-from engine.rotations import rot_y
 
 MODES = ("linear", "hybrid", "nonlinear")
 
@@ -182,7 +182,8 @@ class Player:
             middle = self.phase + 0.5 * d_phase
             step, turn = self._rates_at(w, middle % 1.0 if self.space.cyclic or self.loop else middle)
             heading_middle = self.heading + 0.5 * turn * d_phase
-            self.position += rot_y(heading_middle) @ step * d_phase
+            c, s = math.cos(heading_middle), math.sin(heading_middle)  # rot_y(heading_middle) @ step
+            self.position += np.array([c * step[0] + s * step[2], step[1], c * step[2] - s * step[0]]) * d_phase
             self.position[1] = 0.0
             self.heading += turn * d_phase
             self.phase += d_phase
@@ -206,7 +207,7 @@ class Player:
             vertices[:] = mesh
         else:
             c, s = np.cos(self.heading), np.sin(self.heading)
-            R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=np.float32)  # rot_y
+            R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=np.float32)  # rotation about +Y
             np.matmul(np.asarray(mesh, dtype=np.float32), R.T, out=vertices)
             vertices += self.position.astype(np.float32)
         return PlayerFrame(time=self.time, phase=self.phase, weights=w.copy(), requested=self._current.copy(),

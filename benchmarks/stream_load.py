@@ -1,0 +1,278 @@
+"""Streaming load benchmark: many clients on one server process, latency, and a memory soak.
+
+    .venv/bin/python benchmarks/stream_load.py                       # 200 clients x 60 fps, 20 s
+    .venv/bin/python benchmarks/stream_load.py --soak 300            # + 5-minute connect/leave soak
+
+Starts ``morphspace serve`` (one process) on 127.0.0.1 over a data directory holding the space
+(default data/spaces/locomotion.mspace, 3,000 vertices), then runs the clients in separate
+processes (``--client-procs``), each an asyncio loop of plain websockets connections asking for
+``--fps`` frames per second in the q16 codec. It reports
+
+- frames delivered: received / (clients x fps x seconds) over the measuring window,
+- latency: a share of the clients request new parameters every ``--update-every`` seconds; the
+  time from sending to the first frame whose ``ack`` covers the request (median, p95, p99),
+- the server's CPU and resident memory; with ``--soak``, resident memory sampled while clients
+  connect and leave (start, end, max, and the slope of a line fitted to the second half).
+
+Results go to benchmarks/results/stream_load.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import multiprocessing as mp
+import os
+import random
+import signal
+import socket
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import msgpack
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def rss_mb(pid):
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    return float("nan")
+
+
+def cpu_seconds(pid):
+    with open(f"/proc/{pid}/stat") as f:
+        parts = f.read().rsplit(")", 1)[1].split()
+    return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
+
+
+async def one_client(url, space, fps, seconds, measure_from, measure_to, updates, update_every, params, rng, out):
+    import websockets
+    frames, latencies = 0, []
+    async with websockets.connect(url, max_size=2**26, compression=None) as ws:
+        await ws.send(msgpack.packb({"type": "hello", "space": space, "codec": "q16", "rate": fps, "seq": 0}))
+        pending = {}  # seq -> time sent
+        seq = 0
+        next_update = time.monotonic() + rng.uniform(0.5, 0.5 + update_every)
+        stop = time.monotonic() + seconds
+        while True:
+            now = time.monotonic()
+            if now >= stop:
+                break
+            if updates and now >= next_update:
+                seq += 1
+                name, (lo, hi) = rng.choice(params)
+                pending[seq] = time.monotonic()
+                await ws.send(msgpack.packb({"type": "params", "params": {name: rng.uniform(lo, hi)}, "seq": seq}))
+                next_update = now + update_every
+            try:
+                data = await asyncio.wait_for(ws.recv(), timeout=max(0.01, min(stop, next_update) - now))
+            except asyncio.TimeoutError:
+                continue
+            received = time.monotonic()
+            if isinstance(data, str):
+                continue
+            msg = msgpack.unpackb(data)
+            if msg.get("type") != "frame":
+                continue
+            if measure_from <= received < measure_to:
+                frames += 1
+            for s in [s for s in pending if s <= msg["ack"]]:
+                latencies.append(received - pending.pop(s))
+    out.append((frames, latencies))
+
+
+def client_process(url, space, n, fps, seconds, warmup, update_share, update_every, params, seed, queue):
+    rng = random.Random(seed)
+
+    async def main():
+        out = []
+        start = time.monotonic()
+        measure_from, measure_to = start + warmup, start + seconds - 1.0
+        tasks = []
+        for i in range(n):
+            tasks.append(asyncio.create_task(one_client(
+                url, space, fps, seconds, measure_from, measure_to, rng.random() < update_share, update_every,
+                params, random.Random(rng.random()), out)))
+            await asyncio.sleep(0.005)  # do not open every connection in the same instant
+        results = await asyncio.gather(*tasks, return_exceptions=True)
+        failures = [repr(r) for r in results if isinstance(r, BaseException)]
+        return out, failures, measure_to - measure_from
+
+    out, failures, window = asyncio.run(main())
+    queue.put({"frames": [f for f, _ in out], "latencies": [x for _, l in out for x in l],
+               "failures": failures, "window": window})
+
+
+async def soak_client(url, space, fps, hold, rng):
+    import websockets
+    async with websockets.connect(url, max_size=2**26, compression=None) as ws:
+        await ws.send(msgpack.packb({"type": "hello", "space": space, "codec": rng.choice(["q16", "f32"]),
+                                     "rate": fps, "mode": rng.choice(["hybrid", "linear"])}))
+        stop = time.monotonic() + hold
+        while time.monotonic() < stop:
+            try:
+                await asyncio.wait_for(ws.recv(), timeout=max(0.01, stop - time.monotonic()))
+            except asyncio.TimeoutError:
+                break
+
+
+def soak_process(url, space, clients, fps, seconds, seed):
+    rng = random.Random(seed)
+
+    async def main():
+        stop = time.monotonic() + seconds
+        running = set()
+        while time.monotonic() < stop:
+            while len(running) < clients:
+                running.add(asyncio.create_task(soak_client(url, space, fps, rng.uniform(1.0, 8.0), rng)))
+            done, running = await asyncio.wait(running, timeout=0.5, return_when=asyncio.FIRST_COMPLETED)
+        await asyncio.gather(*running, return_exceptions=True)
+
+    asyncio.run(main())
+
+
+def percentile(values, q):
+    values = sorted(values)
+    if not values:
+        return float("nan")
+    k = min(len(values) - 1, max(0, int(round(q / 100 * (len(values) - 1)))))
+    return values[k]
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--space", type=Path, default=ROOT / "data" / "spaces" / "locomotion.mspace")
+    parser.add_argument("--clients", type=int, default=200)
+    parser.add_argument("--fps", type=float, default=60.0)
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--warmup", type=float, default=4.0)
+    parser.add_argument("--client-procs", type=int, default=2)
+    parser.add_argument("--update-share", type=float, default=0.25, help="share of clients sending params")
+    parser.add_argument("--update-every", type=float, default=0.5, help="seconds between their updates")
+    parser.add_argument("--soak", type=float, default=0.0, help="seconds of connect/leave soak (0: none)")
+    parser.add_argument("--soak-clients", type=int, default=50)
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "stream_load.json")
+    args = parser.parse_args(argv)
+
+    import tempfile
+    sys.path.insert(0, str(ROOT))
+    from engine.motion_space import MotionSpace
+
+    with MotionSpace.open(args.space, verify=False) as space:
+        name, n_vertices = args.space.stem, space.n_vertices
+        pmap = space.parameter_map
+        params = list(zip(pmap.names, pmap.domain()))
+    data = Path(tempfile.mkdtemp(prefix="morphspace-bench-"))
+    (data / "spaces").mkdir()
+    (data / "spaces" / args.space.name).symlink_to(args.space.resolve())
+    port = free_port()
+    url = f"ws://127.0.0.1:{port}/v1/stream"
+    env = dict(os.environ, MORPHSPACE_STREAM_MAX_CLIENTS=str(max(1000, args.clients * 2)))
+    server = subprocess.Popen([sys.executable, "-m", "server.cli", "serve", "--data-dir", str(data), "--port",
+                               str(port), "--log-level", "warning"], cwd=ROOT, env=env, start_new_session=True)
+    result = {"space": name, "n_vertices": n_vertices, "clients": args.clients, "fps": args.fps,
+              "codec": "q16", "seconds": args.seconds, "cpus": os.cpu_count()}
+    try:
+        import httpx
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            try:
+                if httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=1).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                time.sleep(0.2)
+        httpx.get(f"http://127.0.0.1:{port}/v1/spaces/{name}", timeout=30)  # open (and verify) it once
+        rss_start = rss_mb(server.pid)
+        cpu_start, wall_start = cpu_seconds(server.pid), time.monotonic()
+        ctx = mp.get_context("spawn")
+        queue = ctx.Queue()
+        per = [args.clients // args.client_procs + (i < args.clients % args.client_procs)
+               for i in range(args.client_procs)]
+        procs = [ctx.Process(target=client_process, args=(url, name, n, args.fps, args.seconds, args.warmup,
+                                                           args.update_share, args.update_every, params, 17 + i,
+                                                           queue)) for i, n in enumerate(per)]
+        for p in procs:
+            p.start()
+        outputs = [queue.get(timeout=args.seconds + 120) for _ in procs]
+        for p in procs:
+            p.join(30)
+        cpu = (cpu_seconds(server.pid) - cpu_start) / (time.monotonic() - wall_start)
+        frames = [f for o in outputs for f in o["frames"]]
+        latencies = [x * 1e3 for o in outputs for x in o["latencies"]]
+        window = min(o["window"] for o in outputs)
+        expected = args.fps * window
+        delivered = [f / expected for f in frames]
+        result.update({
+            "failures": [f for o in outputs for f in o["failures"]][:10],
+            "connected": len(frames),
+            "delivered_mean": statistics.mean(delivered) if delivered else 0.0,
+            "delivered_min": min(delivered) if delivered else 0.0,
+            "delivered_p5": percentile(delivered, 5),
+            "frames_per_second_total": sum(frames) / window,
+            "latency_ms": {"count": len(latencies), "median": percentile(latencies, 50),
+                           "p95": percentile(latencies, 95), "p99": percentile(latencies, 99),
+                           "max": max(latencies) if latencies else float("nan")},
+            "server_cpu_cores": cpu,
+            "server_rss_mb": {"start": rss_start, "after_load": rss_mb(server.pid)},
+        })
+        print(f"{args.clients} clients x {args.fps:g} fps, {name} ({n_vertices} vertices, q16), "
+              f"{window:.1f} s measured:")
+        print(f"  frames delivered: mean {100 * result['delivered_mean']:.1f}%, 5th percentile "
+              f"{100 * result['delivered_p5']:.1f}%, min {100 * result['delivered_min']:.1f}% "
+              f"({result['frames_per_second_total']:.0f} frames/s in total)")
+        lat = result["latency_ms"]
+        print(f"  params -> first frame reflecting them: median {lat['median']:.1f} ms, p95 {lat['p95']:.1f} ms, "
+              f"p99 {lat['p99']:.1f} ms, max {lat['max']:.1f} ms ({lat['count']} updates)")
+        print(f"  server: {cpu:.2f} cores, RSS {rss_start:.0f} -> {result['server_rss_mb']['after_load']:.0f} MB")
+        if result["failures"]:
+            print(f"  client failures: {result['failures']}")
+        if args.soak > 0:
+            per = [args.soak_clients // args.client_procs] * args.client_procs
+            procs = [ctx.Process(target=soak_process, args=(url, name, n, args.fps, args.soak, 99 + i))
+                     for i, n in enumerate(per)]
+            for p in procs:
+                p.start()
+            samples = []
+            start = time.monotonic()
+            while any(p.is_alive() for p in procs) and time.monotonic() - start < args.soak + 60:
+                samples.append((time.monotonic() - start, rss_mb(server.pid)))
+                time.sleep(5.0)
+            for p in procs:
+                p.join(30)
+            half = [s for s in samples if s[0] >= args.soak / 2]
+            slope = float("nan")
+            if len(half) >= 3:
+                import numpy as np
+                slope = float(np.polyfit([t for t, _ in half], [m for _, m in half], 1)[0] * 60.0)
+            values = [m for _, m in samples]
+            result["soak"] = {"seconds": args.soak, "clients": sum(per), "rss_mb_start": values[0],
+                              "rss_mb_end": values[-1], "rss_mb_max": max(values),
+                              "second_half_slope_mb_per_min": slope, "samples": samples}
+            print(f"  soak {args.soak:.0f} s, {sum(per)} clients connecting and leaving: RSS {values[0]:.0f} -> "
+                  f"{values[-1]:.0f} MB (max {max(values):.0f}), second-half slope {slope:+.2f} MB/min")
+    finally:
+        os.killpg(server.pid, signal.SIGTERM)
+        try:
+            server.wait(15)
+        except subprocess.TimeoutExpired:
+            os.killpg(server.pid, signal.SIGKILL)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
