@@ -3,7 +3,7 @@
 Every WebSocket message is a msgpack map with a ``type`` field. The messages are the frozen
 dataclasses below: ``CLIENT_MESSAGES`` (browser or engine -> server) and ``SERVER_MESSAGES``.
 Each field carries its wire kind and a one-line description in its metadata; docs/protocol.md
-and web_client/protocol.js are checked against these definitions by tests
+and web_client/static/protocol.js are checked against these definitions by tests
 (``python -m server.protocol --js`` writes the JavaScript table).
 
 Arrays travel as raw little-endian bytes (msgpack ``bin``): faces as uint32 triples, vertices as
@@ -388,6 +388,19 @@ def decode_vertices(data, codec, n_vertices, bounds_min=None, bounds_max=None):
     return lo + q * ((hi - lo) / np.float32(65535.0))
 
 
+# ---------------------------------------------------------------- documentation tables
+
+def markdown_table(message):
+    """The field table of one message as docs/protocol.md shows it (a test compares them)."""
+    defaults = {f.name: f.default for f in dataclasses.fields(message)}
+    rows = ["| field | kind | required | meaning |", "|---|---|---|---|"]
+    for name, kind, optional, doc in fields_of(message):
+        default = defaults.get(name)
+        required = "yes" if not optional else ("no" if default is None else f"no (default `{json.dumps(default)}`)")
+        rows.append(f"| `{name}` | {KINDS[kind]} | {required} | {doc.replace('|', '/')} |")
+    return "\n".join(rows)
+
+
 # ---------------------------------------------------------------- JavaScript table
 
 def javascript():
@@ -411,6 +424,10 @@ def javascript():
 if __name__ == "__main__":
     if sys.argv[1:] == ["--js"]:
         sys.stdout.write(javascript())
+    elif sys.argv[1:] == ["--markdown"]:
+        for table in (CLIENT_MESSAGES, SERVER_MESSAGES):
+            for kind, message in table.items():
+                print(f"### `{kind}`\n\n{markdown_table(message)}\n")
     else:
-        print("usage: python -m server.protocol --js > web_client/protocol.js", file=sys.stderr)
+        print("usage: python -m server.protocol --js | --markdown", file=sys.stderr)
         sys.exit(2)
