@@ -44,7 +44,10 @@ def _build_spaces(directory):
 @pytest.fixture(scope="session")
 def built_spaces(tmp_path_factory):
     """Directory with speed.mspace and jump.mspace (built once for all workers)."""
-    root = tmp_path_factory.getbasetemp().parent / "morphspace-test-spaces"
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # the run's directory, shared by its workers (not by other runs)
+    root = base / "morphspace-test-spaces"
     root.mkdir(exist_ok=True)
     with open(root / ".lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
