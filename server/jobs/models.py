@@ -1,0 +1,144 @@
+"""Job requests (one pydantic body per kind) and the job record the API returns.
+
+Everything a job gets is a JSON document validated here: names of datasets, sequences and
+spaces (never paths), numbers with bounds, a build spec mirroring the TOML specs of
+``morphspace build`` (docs/file-formats.md, "Motion space specs").
+"""
+
+from __future__ import annotations
+
+from enum import Enum
+from typing import Annotated, Any, Literal, Union
+
+from pydantic import BaseModel, ConfigDict, Field, StringConstraints, field_validator, model_validator
+
+from engine.parameters import MEASURES
+
+NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$"
+Name = Annotated[str, StringConstraints(pattern=NAME_PATTERN), Field(description="letters, digits, '_', '-', '.'; "
+                                                                                 "no leading '.' (max 128)")]
+
+
+def _no_dotdot(name):
+    if ".." in name:
+        raise ValueError(f"{name!r}: '..' is not allowed in names")
+    return name
+
+
+class _Body(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class ParameterSpec(_Body):
+    """The ``[parameters]`` table of a spec: how the sources span high-level parameters."""
+    layout: Literal["chain", "grid", "fan"]
+    chain: list[Name] | None = Field(None, description="chain and fan: sources in parameter order")
+    corners: list[Name] | None = Field(None, min_length=4, max_length=4,
+                                       description="grid: sources at u = (0,0), (1,0), (0,1), (1,1)")
+    left: Name | None = Field(None, description="fan: the left-turning source")
+    right: Name | None = Field(None, description="fan: the right-turning source")
+    measures: list[Literal[tuple(MEASURES)]] = Field(min_length=1, max_length=3,  # type: ignore[valid-type]
+                                                    description=f"measured parameters: {', '.join(MEASURES)}")
+    resolution: int | None = Field(None, ge=2, le=41, description="samples per axis of the parameter map")
+
+    @model_validator(mode="after")
+    def _layout_fields(self):
+        needed = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}[self.layout]
+        missing = [key for key in needed if getattr(self, key) is None]
+        if missing:
+            raise ValueError(f"a {self.layout} layout needs {', '.join(missing)}")
+        return self
+
+
+class BuildSpec(_Body):
+    """A motion-space spec as JSON: the TOML spec of ``morphspace build`` without paths."""
+    sources: list[Name] = Field(min_length=2, max_length=16, description="sequence names in the dataset")
+    parameters: ParameterSpec | None = Field(None, description="omit for a space without parameters")
+    epsilon_mm: float | None = Field(None, gt=0, le=100, description="hybrid error bound (default 5 mm)")
+    phases: int | None = Field(None, ge=4, le=512, description="phase samples (default: the longest source)")
+    rest: str | None = Field(None, max_length=300, pattern=r"^[A-Za-z0-9_][A-Za-z0-9_./-]*$",
+                             description="rest mesh inside the dataset, e.g. template/body.obj "
+                                         "(default: template/body.obj if present, else the first frame)")
+
+    @field_validator("rest")
+    @classmethod
+    def _relative(cls, value):
+        if value is not None and (".." in value.split("/") or value.startswith("/")):
+            raise ValueError("rest must be a path inside the dataset (no '..', not absolute)")
+        return value
+
+    @field_validator("sources")
+    @classmethod
+    def _unique(cls, value):
+        if len(set(value)) != len(value):
+            raise ValueError("sources must be different sequences")
+        return [_no_dotdot(v) for v in value]
+
+
+class BuildJob(_Body):
+    """Build a motion space from sequences of a dataset (``morphspace build``)."""
+    kind: Literal["build"]
+    dataset: Name = Field(description="an uploaded (or aligned) dataset")
+    space: Name = Field(description="name of the motion space to write (spaces/<space>.mspace)")
+    spec: BuildSpec
+    replace: bool = Field(False, description="replace an existing space of that name")
+
+
+class AlignJob(_Body):
+    """Align unstructured captures into one mesh structure (``morphspace align``); writes a dataset."""
+    kind: Literal["align"]
+    datasets: list[Name] = Field(min_length=1, max_length=16, description="input datasets")
+    output: Name = Field(description="name of the aligned dataset to write")
+    only: list[Name] | None = Field(None, max_length=256, description="only these sequences")
+    root: str | None = Field(None, max_length=200, description="root frame as SEQUENCE:FRAME or a global index")
+    sequential: bool = Field(False, description="frame-to-frame tracking instead of the tree")
+    window: int = Field(2, ge=0, le=10)
+    patches: int = Field(30, ge=1, le=500)
+    levels: int = Field(4, ge=1, le=8)
+    retries: int = Field(3, ge=0, le=10)
+    seed: int = Field(0, ge=0, le=2**31 - 1)
+    replace: bool = False
+
+
+class IngestJob(_Body):
+    """Validate every frame of a dataset and normalise it (frame names, OBJ, meta.json, manifest)."""
+    kind: Literal["ingest"]
+    dataset: Name
+    output: Name | None = Field(None, description="write a new dataset (default: replace the input)")
+    replace: bool = Field(False, description="with output: replace an existing dataset of that name")
+
+
+JobRequest = Annotated[Union[BuildJob, AlignJob, IngestJob], Field(discriminator="kind")]
+
+
+class JobStatus(str, Enum):
+    queued = "queued"
+    running = "running"
+    succeeded = "succeeded"
+    failed = "failed"
+    cancelled = "cancelled"
+
+
+class JobRecord(BaseModel):
+    id: str
+    kind: Literal["build", "align", "ingest"]
+    status: JobStatus
+    stage: str = Field(description="what it is doing: queued, starting, read, tetrahedralise, ... publish")
+    progress: float = Field(ge=0, le=1, description="0..1, never decreasing within an attempt")
+    params: dict[str, Any] = Field(description="the request")
+    result: dict[str, Any] | None = Field(description="what a succeeded job produced")
+    error: str | None = Field(description="why it failed or was cancelled")
+    log: list[str] = Field(description="the last lines of the job's log")
+    attempts: int = Field(description="times it has been started (an interrupted job is started again once)")
+    max_attempts: int
+    cancel_requested: bool
+    executor: str | None = Field(description="local or dask")
+    worker: dict[str, Any] | None = Field(description="where it runs: local {pid}, or dask {key}")
+    created_at: float = Field(description="Unix seconds")
+    started_at: float | None
+    finished_at: float | None
+    updated_at: float
+
+
+class JobList(BaseModel):
+    jobs: list[JobRecord]

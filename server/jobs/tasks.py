@@ -1,0 +1,396 @@
+"""What a job does: ingest, align and build, as functions of a JSON payload.
+
+The same functions run in a local worker process (server/jobs/worker.py) and on a Dask worker
+(``dask_entry``). A payload is plain JSON::
+
+    {"id": ..., "kind": "build", "attempt": 1, "params": {... the validated request ...},
+     "data_dir": "/srv/data", "staging": "/srv/data/work/jobs/<id>/attempt-1",
+     "tetcache": "/srv/data/work/tetcache"}
+
+A task writes only inside ``staging`` and returns a result whose ``output`` names what the
+server then renames into ``spaces/`` or ``datasets/`` (``publish``): a cancelled or failed job
+never leaves a partial space or dataset. Progress goes through a ``Reporter``
+(``progress(stage, done, total)``, ``log(line)``), which also notices a cancellation (the file
+``staging/CANCEL``) at the next progress call.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+
+# Share of the whole job per stage, in the order the stages run; unknown stages keep the level.
+STAGES = {
+    "build": [("read", 0.05), ("tetrahedralise", 0.25), ("time-warp", 0.05), ("decompose", 0.3), ("hybrid", 0.15),
+              ("parameters", 0.17), ("write", 0.03)],
+    "align": [("read", 0.05), ("histograms", 0.15), ("dissimilarity", 0.05), ("align", 0.65), ("write", 0.1)],
+    "ingest": [("validate", 0.75), ("write", 0.25)],
+}
+
+
+class JobCancelled(Exception):
+    """The job was asked to stop."""
+
+
+class JobError(Exception):
+    """A job failed for a reason its user can act on (the message says which)."""
+
+
+class Reporter:
+    """Turns ``(stage, done, total)`` into the job's overall progress and sends it with ``emit``.
+
+    ``emit(message)`` gets dicts: ``{"t": "progress", "stage", "progress"}`` (at most every
+    ``interval`` seconds, and at every stage change) and ``{"t": "log", "line"}``.
+    """
+
+    def __init__(self, kind, emit, cancel_file=None, interval=0.2):
+        self.emit, self.cancel_file, self.interval = emit, cancel_file, interval
+        self.bases, base = {}, 0.0
+        for stage, weight in STAGES[kind]:
+            self.bases[stage] = (base, weight)
+            base += weight
+        self.stage, self.level, self.sent_at, self.checked_at = None, 0.0, 0.0, 0.0
+        self.seen = set()
+
+    def check(self):
+        now = time.monotonic()
+        if self.cancel_file is not None and now - self.checked_at > 0.25:
+            self.checked_at = now
+            if os.path.exists(self.cancel_file):
+                raise JobCancelled("cancelled by request")
+
+    def progress(self, stage, done=0, total=None):
+        self.check()
+        if stage in self.bases:
+            base, weight = self.bases[stage]
+            if total:
+                fraction = min(max(done / total, 0.0), 1.0)
+            else:  # unknown length (e.g. the hybrid's bisection): approach the end of the stage
+                fraction = 1.0 - 0.85 ** max(done or 0, 0)
+            self.level = max(self.level, base + weight * fraction)
+        now = time.monotonic()
+        if stage != self.stage or now - self.sent_at >= self.interval:
+            if stage not in self.seen:
+                self.seen.add(stage)
+                self.log(f"stage {stage}")
+            self.stage, self.sent_at = stage, now
+            self.emit({"t": "progress", "stage": stage, "progress": round(min(self.level, 0.999), 4)})
+
+    def log(self, line):
+        self.emit({"t": "log", "line": str(line)})
+
+
+def _relative(text, data_dir):
+    """Messages name files relative to the data directory (the API never shows server paths)."""
+    prefix = str(Path(data_dir)) + os.sep
+    return str(text).replace(prefix, "")
+
+
+def run_task(payload, reporter):
+    """Run the job ``payload`` describes; returns its JSON result. Raises JobError, JobCancelled."""
+    kind = payload["kind"]
+    staging = Path(payload["staging"])
+    staging.mkdir(parents=True, exist_ok=True)
+    runner = {"build": run_build, "align": run_align, "ingest": run_ingest}[kind]
+    try:
+        return runner(payload, reporter)
+    except (JobCancelled, JobError):
+        raise
+    except (ValueError, OSError, KeyError) as exc:
+        from engine.mesh_io import MeshError
+
+        if isinstance(exc, KeyError) and not isinstance(exc, MeshError):
+            raise JobError(f"missing field {exc} in an input file") from exc
+        raise JobError(_relative(exc, payload["data_dir"])) from exc
+
+
+# --- build ----------------------------------------------------------------------------------------
+def _toml(value):
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=True)
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} to a spec")
+
+
+def spec_toml(spec, captures, name):
+    """The TOML spec ``morphspace build`` reads, for a JSON spec (models.BuildSpec) over a dataset."""
+    lines = [f"name = {_toml(name)}", f"captures = {_toml(str(captures))}"]
+    for key in ("epsilon_mm", "phases", "rest"):
+        if spec.get(key) is not None:
+            lines.append(f"{key} = {_toml(spec[key])}")
+    lines.append(f"sources = {_toml(list(spec['sources']))}")
+    if spec.get("parameters"):
+        lines.append("[parameters]")
+        for key, value in spec["parameters"].items():
+            if value is not None:
+                lines.append(f"{key} = {_toml(value)}")
+    return "\n".join(lines) + "\n"
+
+
+def check_build_sources(dataset_dir, spec):
+    """Each source must be a sequence of the dataset with consistent frames (else align first)."""
+    for source in spec["sources"]:
+        base = Path(dataset_dir) / "sequences" / source
+        if not base.is_dir():
+            have = sorted(p.name for p in (Path(dataset_dir) / "sequences").iterdir()) \
+                if (Path(dataset_dir) / "sequences").is_dir() else []
+            raise JobError(f"dataset {Path(dataset_dir).name!r} has no sequence {source!r} "
+                           f"(it has {', '.join(have) or 'none'})")
+        if not (base / "consistent").is_dir():
+            raise JobError(f"sequence {source!r} of dataset {Path(dataset_dir).name!r} has no consistent-topology "
+                           "frames (its frames are unstructured): run an align job on the dataset first")
+        if not (base / "meta.json").is_file():
+            raise JobError(f"sequence {source!r} of dataset {Path(dataset_dir).name!r} has no meta.json")
+
+
+def run_build(payload, reporter):
+    from engine.mesh_io import read_mesh
+    from engine.motion_space import build_motion_space
+    from server.commands.build import cached_embedding, load_source, read_spec
+
+    params, staging = payload["params"], Path(payload["staging"])
+    dataset_dir = Path(payload["data_dir"]) / "datasets" / params["dataset"]
+    if not dataset_dir.is_dir():
+        raise JobError(f"no dataset {params['dataset']!r}")
+    check_build_sources(dataset_dir, params["spec"])
+    spec_path = staging / "spec.toml"
+    spec_path.write_text(spec_toml(params["spec"], dataset_dir, params["space"]))
+    spec = read_spec(spec_path)
+    started = time.perf_counter()
+    clips, faces = [], None
+    for k, directory in enumerate(spec["directories"]):
+        reporter.progress("read", k, len(spec["directories"]))
+        clip, F = load_source(directory, fps=30.0, cyclic=False)
+        if faces is not None and (F.shape != faces.shape or not np.array_equal(F, faces)):
+            raise JobError(f"sequence {spec['names'][k]!r} has a different mesh structure from "
+                           f"{spec['names'][0]!r}; all sources need the same vertices and faces")
+        faces = F
+        clips.append(clip)
+        reporter.log(f"read {clip.name}: {len(clip.vertices)} frames at {clip.fps:g} fps"
+                     f"{' (cyclic)' if clip.cyclic else ''}")
+    reporter.progress("read", len(clips), len(clips))
+    rest_path = spec["rest"]
+    if rest_path is None and (dataset_dir / "template" / "body.obj").is_file():
+        rest_path = dataset_dir / "template" / "body.obj"
+    rest = clips[0].vertices[0]
+    if rest_path is not None:
+        mesh = read_mesh(rest_path)
+        if mesh.vertices.shape != clips[0].vertices.shape[1:] or not np.array_equal(mesh.faces, faces):
+            if spec["rest"] is not None:
+                raise JobError(f"{params['spec']['rest']}: the rest mesh must have the sources' vertices and faces")
+            reporter.log("template/body.obj does not match the sources' mesh; resting on the first frame")
+        else:
+            rest = mesh.vertices
+    reporter.progress("tetrahedralise", 0, 1)
+    embedding = cached_embedding(payload["tetcache"], rest, faces)
+    reporter.progress("tetrahedralise", 1, 1)
+    out = staging / f"{params['space']}.mspace"
+    epsilon_mm = spec["epsilon_mm"] or 5.0
+    report = build_motion_space(out, clips, faces, name=params["space"], n_phases=spec["phases"],
+                                epsilon=epsilon_mm / 1000.0, rest=rest, embedding=embedding,
+                                parameters=spec["parameters"], progress=reporter.progress)
+    reporter.progress("write", 1, 1)
+    hybrid = report["hybrid"]
+    reporter.log(f"built {params['space']}: {report['n_sources']} sources x {report['n_phases']} phases, "
+                 f"{report['n_vertices']} vertices, {report['n_tets']} tets in {time.perf_counter() - started:.1f} s")
+    summary = {"space": params["space"], "n_sources": report["n_sources"], "n_phases": report["n_phases"],
+               "n_vertices": report["n_vertices"], "n_tets": report["n_tets"], "epsilon_mm": epsilon_mm,
+               "hybrid_references": hybrid["references"], "hybrid_max_test_error_mm": 1000 * hybrid["max_test_error"],
+               "seconds": round(time.perf_counter() - started, 2)}
+    if report.get("parameters"):
+        p = report["parameters"]
+        summary["parameters"] = [{"name": n, "unit": u, "min": lo, "max": hi}
+                                 for n, u, (lo, hi) in zip(p["names"], p["units"], p["domain"])]
+    return {"output": {"type": "space", "name": params["space"], "path": out.name}, "summary": summary}
+
+
+# --- align ----------------------------------------------------------------------------------------
+def run_align(payload, reporter):
+    from engine.alignment import AlignmentOptions, align_captures
+    from server.commands.align import parse_root, read_inputs, resolve_inputs, write_alignment
+
+    params, staging = payload["params"], Path(payload["staging"])
+    datasets = Path(payload["data_dir"]) / "datasets"
+    inputs = []
+    for name in params["datasets"]:
+        if not (datasets / name).is_dir():
+            raise JobError(f"no dataset {name!r}")
+        inputs.append(datasets / name)
+    sequences = resolve_inputs(inputs, params.get("only"))
+    for entry in sequences:  # uploaded sequences may only have consistent/ frames
+        frames = Path(entry["frames"])
+        if frames.name != "unstructured" and (frames / "consistent").is_dir():
+            entry["frames"] = frames / "consistent"
+    started = time.perf_counter()
+    meshes, lengths = read_inputs(sequences, reporter.progress)
+    reporter.log(f"read {int(lengths.sum())} frames of {len(sequences)} sequences")
+    root = parse_root(params.get("root"), sequences, lengths)
+    options = AlignmentOptions(patches=params["patches"], levels=params["levels"])
+    result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree", root=root,
+                            options=options, window=params["window"], workers=1, retries=params["retries"],
+                            use_colors=False, seed=params["seed"], progress=reporter.progress)
+    out = staging / "dataset"
+    out.mkdir()
+    fps = float((sequences[0].get("meta") or {}).get("fps", 30.0))
+    write_alignment(out, sequences, meshes, lengths, result, fps=fps,
+                    options_record={k: params[k] for k in ("patches", "levels", "window", "retries", "seed")},
+                    progress=reporter.progress)
+    aligned = result.aligned
+    reporter.log(f"aligned {int(lengths.sum())} frames in {time.perf_counter() - started:.1f} s")
+    return {"output": {"type": "dataset", "name": params["output"], "path": out.name},
+            "summary": {"dataset": params["output"], "frames": int(lengths.sum()),
+                        "sequences": [s["name"] for s in sequences], "root": int(aligned.root),
+                        "residual_mean_mm": float(1000 * aligned.residual.mean()),
+                        "residual_max_mm": float(1000 * aligned.residual_max.max()),
+                        "seconds": round(time.perf_counter() - started, 2)}}
+
+
+# --- ingest ---------------------------------------------------------------------------------------
+def run_ingest(payload, reporter):
+    """Read every frame (engine.mesh_io), rewrite each sequence as frame_0000.obj ... in natural
+    order, complete meta.json (frames, duration, topology, source frame names), add
+    template/body.obj from the first consistent frame when the dataset has none, new manifest."""
+    from engine.mesh_io import MeshError, list_frames, read_mesh, write_obj
+    from engine.mesh_io.dataset import write_capture_manifest
+    from engine.surface import model_size
+    from server.uploads import KINDS, FrameStats, sequence_meta
+
+    params, staging = payload["params"], Path(payload["staging"])
+    source = Path(payload["data_dir"]) / "datasets" / params["dataset"]
+    if not (source / "sequences").is_dir():
+        raise JobError(f"dataset {params['dataset']!r} has no sequences/ folder")
+    groups = []
+    for seq in sorted(p.name for p in (source / "sequences").iterdir() if p.is_dir()):
+        for kind in KINDS:
+            if (source / "sequences" / seq / kind).is_dir():
+                groups.append((seq, kind, list_frames(source / "sequences" / seq / kind)))
+    total = sum(len(frames) for _, _, frames in groups)
+    if total == 0:
+        raise JobError(f"dataset {params['dataset']!r} has no frames")
+    out = staging / "dataset"
+    done, metas, template, warnings = 0, {}, None, []
+    for seq, kind, frames in groups:
+        stats = FrameStats()
+        base = source / "sequences" / seq
+        for k, frame in enumerate(frames):
+            label = f"{params['dataset']}/sequences/{seq}/{kind}/{frame}"
+            try:
+                mesh = read_mesh(base / kind / frame, name=label)
+            except MeshError as exc:
+                raise JobError(str(exc)) from None
+            stats.add(mesh, label)
+            write_obj(out / "sequences" / seq / kind / f"frame_{k:04d}.obj", mesh.vertices, mesh.faces,
+                      colors=mesh.colors, precision=6)
+            done += 1
+            reporter.progress("validate", done, total)
+        if kind == "consistent" and not stats.consistent:
+            raise JobError(f"{stats.first_problem}; frames in consistent/ must share one mesh structure")
+        if kind == "consistent" and template is None:
+            template = read_mesh(out / "sequences" / seq / kind / "frame_0000.obj")
+        try:
+            meta = json.loads((base / "meta.json").read_text())
+        except (OSError, ValueError):
+            meta = {}
+            warnings.append(f"sequence {seq}: no readable meta.json; assumed 30 fps, not cyclic")
+        meta.setdefault("fps", 30.0)
+        meta.setdefault("cyclic", False)
+        record = sequence_meta(seq, meta, kind, stats)
+        record["source_frames"] = frames
+        if seq in metas:  # both kinds: keep the consistent record, note the other
+            metas[seq][f"{kind}_frames"] = stats.frames
+        else:
+            metas[seq] = record
+    reporter.progress("write", 0, 1)
+    for seq, record in metas.items():
+        (out / "sequences" / seq / "meta.json").write_text(json.dumps(record, indent=2) + "\n")
+    if (source / "template").is_dir():
+        for path in sorted((source / "template").iterdir()):
+            try:
+                mesh = read_mesh(path, name=f"{params['dataset']}/template/{path.name}")
+            except MeshError as exc:
+                raise JobError(str(exc)) from None
+            write_obj(out / "template" / f"{path.stem}.obj", mesh.vertices, mesh.faces, colors=mesh.colors,
+                      precision=6)
+    if not (out / "template" / "body.obj").exists() and template is not None:
+        write_obj(out / "template" / "body.obj", template.vertices, template.faces, colors=template.colors,
+                  precision=6)
+        reporter.log("template/body.obj: the first consistent frame (the rest shape builds use)")
+    body = {}
+    if template is not None:
+        body = {"vertices": int(len(template.vertices)), "faces": int(len(template.faces)),
+                "model_size": float(model_size(template.vertices)), "up": "+Y", "units": "m"}
+    write_capture_manifest(out, {"uploaded": True, "ingested": True, "created": time.time(), "body": body,
+                                 "sequences": list(metas.values()), "warnings": warnings})
+    reporter.progress("write", 1, 1)
+    for line in warnings:
+        reporter.log(line)
+    name = params.get("output") or params["dataset"]
+    return {"output": {"type": "dataset", "name": name, "path": out.name},
+            "summary": {"dataset": name, "frames": total, "sequences": list(metas), "warnings": warnings}}
+
+
+# --- publishing (done by the server, after the task) ------------------------------------------------
+def publish(result, staging, data_dir, replace):
+    """Rename the task's output into ``spaces/`` or ``datasets/``; returns the job's public result."""
+    from server.uploads import UploadError, publish_dir
+
+    output = result["output"]
+    source = Path(staging) / output["path"]
+    if output["type"] == "space":
+        target = Path(data_dir) / "spaces" / f"{output['name']}.mspace"
+        if target.exists() and not replace:
+            raise JobError(f"space {output['name']!r} appeared while the job ran; pass replace=true to replace it")
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(source, target)
+        url = f"/v1/spaces/{output['name']}"
+    else:
+        target = Path(data_dir) / "datasets" / output["name"]
+        try:
+            publish_dir(source, target, replace=replace)
+        except UploadError as exc:
+            raise JobError(exc.message) from None
+        url = f"/v1/datasets/{output['name']}"
+    return {**result["summary"], "url": url}
+
+
+# --- Dask --------------------------------------------------------------------------------------------
+def dask_entry(payload_json, topic):
+    """Run a job on a Dask worker: JSON in, JSON out; progress and log as worker events on ``topic``.
+
+    Returns ``{"result": ...}``, ``{"cancelled": message}`` or ``{"error": message, "traceback": ...}``
+    as a JSON string (exceptions are not shipped back through Dask's pickling).
+    """
+    from distributed import get_worker
+
+    payload = json.loads(payload_json)
+    worker = get_worker()
+
+    def emit(message):
+        try:
+            worker.log_event(topic, message)
+        except Exception:  # noqa: BLE001 - progress is best effort; the job goes on
+            pass
+
+    reporter = Reporter(payload["kind"], emit, cancel_file=os.path.join(payload["staging"], "..", "CANCEL"))
+    emit({"t": "worker", "worker": {"address": worker.address, "pid": os.getpid()}})
+    try:
+        return json.dumps({"result": run_task(payload, reporter)})
+    except JobCancelled as exc:
+        shutil.rmtree(payload["staging"], ignore_errors=True)
+        return json.dumps({"cancelled": str(exc)})
+    except JobError as exc:
+        return json.dumps({"error": str(exc)})
+    except Exception as exc:  # noqa: BLE001 - reported to the job record, with the traceback in its log
+        return json.dumps({"error": f"{type(exc).__name__}: {_relative(exc, payload['data_dir'])}",
+                           "traceback": _relative(traceback.format_exc(), payload["data_dir"])})

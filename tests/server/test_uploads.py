@@ -1,0 +1,231 @@
+"""Dataset uploads against a live server: good zips and multipart, and hostile uploads.
+
+Every refused upload must answer a 4xx naming the problem and leave nothing behind: no
+dataset, no staging directory, no file outside the data directory.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import stat
+import struct
+import zipfile
+
+import httpx
+import pytest
+from conftest import LiveServer
+
+TOKEN = "test-token-uploads"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+LIMITS = {"MORPHSPACE_TOKEN": TOKEN, "MORPHSPACE_MAX_UPLOAD_BYTES": str(400_000),
+          "MORPHSPACE_MAX_UPLOAD_FILES": "40", "MORPHSPACE_MAX_UNPACKED_BYTES": str(3_000_000)}
+
+
+def tetra_obj(shift=0.0, extra=""):
+    """A tetrahedron as OBJ text (4 vertices, 4 faces)."""
+    return (f"v {shift} 0 0\nv {1 + shift} 0 0\nv {shift} 1 0\nv {shift} 0 1\n"
+            "f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n" + extra)
+
+
+def zip_bytes(files, *, compression=zipfile.ZIP_DEFLATED):
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", compression) as archive:
+        for name, data in files.items():
+            if isinstance(data, zipfile.ZipInfo):
+                continue
+            archive.writestr(name, data)
+    return buffer.getvalue()
+
+
+def good_files(prefix=""):
+    files = {f"{prefix}walk/frame_{k}.obj": tetra_obj(0.01 * k) for k in (1, 2, 10)}
+    files[f"{prefix}walk/meta.json"] = json.dumps({"fps": 25, "cyclic": True, "note": "kept"})
+    files.update({f"{prefix}jump/frame_{k:02d}.obj": tetra_obj(0.02 * k) for k in range(3)})
+    return files
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory):
+    with LiveServer(tmp_path_factory.mktemp("uploads-data"), env=LIMITS) as server:
+        yield server
+
+
+@pytest.fixture()
+def client(live):
+    with httpx.Client(base_url=live.url, timeout=30.0) as c:
+        yield c
+
+
+def datasets_state(live):
+    """Everything under datasets/ (hidden staging included) and next to the data directory."""
+    root = live.data_dir / "datasets"
+    return sorted(p.name for p in root.iterdir()), sorted(p.name for p in live.data_dir.parent.iterdir())
+
+
+def post_zip(client, name, data, **params):
+    return client.post("/v1/datasets", params={"name": name, **params}, content=data,
+                       headers={**AUTH, "Content-Type": "application/zip"})
+
+
+# --- accepted ----------------------------------------------------------------------------------------
+def test_zip_upload_becomes_a_dataset(client, live):
+    r = post_zip(client, "zipped", zip_bytes(good_files("capture/")))  # one wrapping folder is stripped
+    assert r.status_code == 201, r.text
+    assert r.headers["location"] == "/v1/datasets/zipped"
+    info = r.json()
+    seqs = {s["name"]: s for s in info["sequences"]}
+    assert set(seqs) == {"walk", "jump"}
+    assert seqs["walk"]["frames"] == 3 and seqs["walk"]["fps"] == 25 and seqs["walk"]["cyclic"] is True
+    assert seqs["jump"]["fps"] == 30 and seqs["jump"]["cyclic"] is False  # request defaults
+    assert seqs["walk"]["vertices"] == 4 and info["buildable"] == ["jump", "walk"]
+    root = live.data_dir / "datasets" / "zipped"
+    frames = sorted(p.name for p in (root / "sequences" / "walk" / "consistent").iterdir())
+    assert frames == ["frame_1.obj", "frame_10.obj", "frame_2.obj"]
+    meta = json.loads((root / "sequences" / "walk" / "meta.json").read_text())
+    assert meta["name"] == "walk" and meta["note"] == "kept" and meta["topology"] == "consistent"
+    assert json.loads((root / "manifest.json").read_text())["format"] == "morphspace-capture-dataset"
+    listed = client.get("/v1/datasets").json()
+    assert "zipped" in [d["name"] for d in listed["datasets"]]
+    assert client.get("/v1/datasets/zipped").json()["frames"] == 6
+
+
+def test_the_dataset_reads_with_the_engine(live, client):
+    from engine.mesh_io import read_sequence
+
+    post_zip(client, "engine-read", zip_bytes(good_files()))
+    sequence = read_sequence(live.data_dir / "datasets" / "engine-read" / "sequences" / "walk" / "consistent")
+    assert sequence.vertices.shape == (3, 4, 3)
+    assert sequence.vertices[2, 0, 0] == pytest.approx(0.10)  # natural order: frame_10 last
+
+
+def test_multipart_upload_with_paths_and_unstructured_frames(client):
+    files = [("files", ("run/f1.obj", tetra_obj(), "text/plain")),
+             ("files", ("run/f2.obj", tetra_obj(0.1, "v 5 5 5\nf 1 2 5\n"), "text/plain")),  # a different mesh
+             ("files", ("run/.DS_Store", b"junk", "application/octet-stream"))]  # hidden: skipped
+    r = client.post("/v1/datasets", params={"name": "multi", "fps": 12}, files=files, headers=AUTH)
+    assert r.status_code == 201, r.text
+    (seq,) = r.json()["sequences"]
+    assert seq["name"] == "run" and seq["unstructured_frames"] == 2 and seq["consistent_frames"] == 0
+    assert seq["fps"] == 12 and r.json()["buildable"] == []
+
+
+def test_duplicate_name_replace_and_delete(client, live):
+    assert post_zip(client, "dup", zip_bytes(good_files())).status_code == 201
+    r = post_zip(client, "dup", zip_bytes(good_files()))
+    assert r.status_code == 409 and "already exists" in r.json()["detail"]
+    r = post_zip(client, "dup", zip_bytes({"only/a.obj": tetra_obj()}), replace="true")
+    assert r.status_code == 201 and [s["name"] for s in r.json()["sequences"]] == ["only"]
+    assert client.delete("/v1/datasets/dup").status_code == 401
+    assert client.delete("/v1/datasets/dup", headers=AUTH).status_code == 204
+    assert client.get("/v1/datasets/dup").status_code == 404
+    assert not (live.data_dir / "datasets" / "dup").exists()
+    assert client.delete("/v1/datasets/dup", headers=AUTH).status_code == 404
+
+
+def test_token_is_required_to_upload(client, live):
+    before = datasets_state(live)
+    data = zip_bytes(good_files())
+    r = client.post("/v1/datasets", params={"name": "noauth"}, content=data,
+                    headers={"Content-Type": "application/zip"})
+    assert r.status_code == 401 and r.headers["www-authenticate"] == "Bearer"
+    r = client.post("/v1/datasets", params={"name": "noauth"}, content=data,
+                    headers={"Content-Type": "application/zip", "Authorization": "Bearer wrong"})
+    assert r.status_code == 401
+    assert datasets_state(live) == before
+    assert client.get("/v1/datasets").status_code == 200  # reading needs no token
+
+
+# --- refused ---------------------------------------------------------------------------------------------
+def symlink_zip():
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w") as archive:
+        archive.writestr("walk/frame_0.obj", tetra_obj())
+        link = zipfile.ZipInfo("walk/frame_1.obj")
+        link.external_attr = (stat.S_IFLNK | 0o777) << 16
+        archive.writestr(link, "/etc/passwd")
+    return buffer.getvalue()
+
+
+def lying_zip():
+    """A member whose headers declare 1,000 bytes but whose data inflates to 2 MB."""
+    data = bytearray(zip_bytes({"walk/frame_0.obj": b"v 0 0 0\n" * 262144}))
+    real = struct.pack("<I", 262144 * 8)
+    fake = struct.pack("<I", 1000)
+    assert data.count(real) == 2  # local header and central directory
+    return bytes(data.replace(real, fake))
+
+
+HOSTILE = {
+    "zip slip": (lambda: zip_bytes({"walk/a.obj": tetra_obj(), "../escaped.obj": tetra_obj()}), 400, "'..'"),
+    "zip slip deep": (lambda: zip_bytes({"walk/../../escaped.obj": tetra_obj()}), 400, "'..'"),
+    "absolute path": (lambda: zip_bytes({"/tmp/escaped.obj": tetra_obj()}), 400, "absolute"),
+    "symlink": (symlink_zip, 400, "symbolic link"),
+    "zip bomb ratio": (lambda: zip_bytes({"walk/frame_0.obj": b"\0" * (4 << 20)}), 413, "compression ratio"),
+    "zip bomb lying sizes": (lying_zip, 400, "frame_0.obj"),
+    "unpacked size": (lambda: zip_bytes({f"walk/f{k}.obj": tetra_obj() + "# " + "abcdefghij" * 80_000 + "\n"
+                                         for k in range(4)}), 413, "MORPHSPACE_MAX_UNPACKED_BYTES"),
+    "too many files": (lambda: zip_bytes({f"walk/f{k}.obj": tetra_obj() for k in range(41)}), 413,
+                       "MORPHSPACE_MAX_UPLOAD_FILES"),
+    "oversize body": (lambda: zip_bytes({"walk/f.obj": bytes(range(256)) * 2000}, compression=zipfile.ZIP_STORED),
+                      413, "MORPHSPACE_MAX_UPLOAD_BYTES"),
+    "not a zip": (lambda: b"this is not an archive at all", 400, "not a zip"),
+    "truncated zip": (lambda: zip_bytes(good_files())[:700], 400, "zip"),
+    "corrupt mesh": (lambda: zip_bytes({"walk/frame_0.obj": tetra_obj(), "walk/frame_1.obj": "v 0 0 0\nf 1 2 3\n"}),
+                     422, "walk/frame_1.obj"),
+    "non-finite vertex": (lambda: zip_bytes({"walk/frame_0.obj": tetra_obj().replace("v 0.0 0 0", "v nan 0 0")}),
+                          422, "walk/frame_0.obj"),
+    "unsupported file": (lambda: zip_bytes({"walk/frame_0.obj": tetra_obj(), "walk/run.sh": "rm -rf /"}), 422,
+                         "walk/run.sh"),
+    "bad meta": (lambda: zip_bytes({"walk/frame_0.obj": tetra_obj(), "walk/meta.json": '{"fps": -1}'}), 422,
+                 "walk/meta.json"),
+    "no frames": (lambda: zip_bytes({"walk/meta.json": "{}"}), 422, "no frames"),
+}
+
+
+@pytest.mark.parametrize("case", list(HOSTILE))
+def test_hostile_zip_is_refused_and_leaves_nothing(client, live, case):
+    make, status, words = HOSTILE[case]
+    before = datasets_state(live)
+    r = post_zip(client, "hostile", make())
+    assert r.status_code == status, (case, r.text)
+    assert words in r.json()["detail"], (case, r.json())
+    assert datasets_state(live) == before
+    assert not (live.data_dir.parent / "escaped.obj").exists()
+    assert client.get("/v1/datasets/hostile").status_code == 404
+
+
+def test_chunked_oversize_body_is_cut_off(client, live):
+    before = datasets_state(live)
+
+    def body():
+        for _ in range(40):
+            yield b"PK\x03\x04" + b"x" * 20_000
+
+    r = client.post("/v1/datasets", params={"name": "chunked"}, content=body(),
+                    headers={**AUTH, "Content-Type": "application/zip"})
+    assert r.status_code == 413 and "MORPHSPACE_MAX_UPLOAD_BYTES" in r.json()["detail"]
+    assert datasets_state(live) == before
+
+
+def test_hostile_multipart_names(client, live):
+    before = datasets_state(live)
+    for filename, status in (("../escaped.obj", 400), ("/etc/escaped.obj", 400), ("a\\b.obj", 400),
+                             ("walk/frame 0;rm.obj", 422)):
+        r = client.post("/v1/datasets", params={"name": "badpart"}, headers=AUTH,
+                        files=[("files", (filename, tetra_obj(), "text/plain"))])
+        assert r.status_code == status, (filename, r.text)
+        assert filename in r.json()["detail"], (filename, r.text)
+    r = client.post("/v1/datasets", params={"name": "badpart"}, headers=AUTH, data={"field": "value"},
+                    files=[("files", ("walk/a.obj", tetra_obj(), "text/plain"))])
+    assert r.status_code == 400 and "not a file" in r.json()["detail"]
+    assert datasets_state(live) == before
+
+
+def test_bad_names_and_content_types(client):
+    r = post_zip(client, "../up", zip_bytes(good_files()))
+    assert r.status_code == 422
+    r = client.post("/v1/datasets", params={"name": "textual"}, content=b"hello",
+                    headers={**AUTH, "Content-Type": "text/plain"})
+    assert r.status_code == 415 and "Content-Type" in r.json()["detail"]
+    assert client.get("/v1/datasets/..%2Fspaces").status_code == 404
