@@ -1,0 +1,228 @@
+"""Jobs against a live server: upload then build, progress, cancel, a killed worker, a crashed server.
+
+The dataset is two short synthetic gaits at 1,000 vertices (10 fps, one cycle each); a build at 8
+phases takes about 10-15 s here, most of it tetrahedralisation (cached per data directory).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import signal
+import time
+import zipfile
+
+import httpx
+import pytest
+from conftest import LiveServer
+
+TOKEN = "test-token-jobs"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+SEQUENCES = {"slow": 0.9, "fast": 2.6}
+FINAL = ("succeeded", "failed", "cancelled")
+
+
+def capture_zip(fps=10.0):
+    """A zip of two synthetic gait sequences (<seq>/frame_NNNN.obj + meta.json)."""
+    from engine.mesh_io import write_obj
+    from engine.synthetic import animate, build_body, gait
+
+    body = build_body(1000)
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+        import tempfile
+        from pathlib import Path
+
+        with tempfile.TemporaryDirectory() as tmp:
+            for name, speed in SEQUENCES.items():
+                V = animate(body, gait(body.skeleton, speed, cycles=1.0, fps=fps))
+                for k, frame in enumerate(V):
+                    path = Path(tmp) / f"{name}_{k}.obj"
+                    write_obj(path, frame, body.F, precision=6)
+                    archive.write(path, f"{name}/frame_{k:04d}.obj")
+                archive.writestr(f"{name}/meta.json", json.dumps({"fps": fps, "cyclic": True}))
+    return buffer.getvalue()
+
+
+def build_request(space, dataset="gaits", **extra):
+    return {"kind": "build", "dataset": dataset, "space": space,
+            "spec": {"sources": list(SEQUENCES), "phases": 8, "epsilon_mm": 10.0,
+                     "parameters": {"layout": "chain", "chain": list(SEQUENCES), "measures": ["speed"],
+                                    "resolution": 5}}, **extra}
+
+
+def wait_for(client, job_id, until, timeout=60.0, seen=None):
+    """Poll a job until ``until(record)``; every record goes to ``seen``. Fails after ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        if seen is not None:
+            seen.append(job)
+        if until(job):
+            return job
+        time.sleep(0.1)
+    raise AssertionError(f"job {job_id} did not get there in {timeout} s: {job}")
+
+
+def pid_alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie (exited, not yet reaped) is not alive
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def wait_dead(pid, timeout=10.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if not pid_alive(pid):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+@pytest.fixture(scope="module")
+def dataset_zip():
+    return capture_zip()
+
+
+@pytest.fixture(scope="module")
+def live(tmp_path_factory, dataset_zip):
+    with LiveServer(tmp_path_factory.mktemp("jobs-data"), env={"MORPHSPACE_TOKEN": TOKEN}) as server:
+        with httpx.Client(base_url=server.url, timeout=30.0) as client:
+            r = client.post("/v1/datasets", params={"name": "gaits"}, content=dataset_zip,
+                            headers={**AUTH, "Content-Type": "application/zip"})
+            assert r.status_code == 201, r.text
+        yield server
+
+
+@pytest.fixture()
+def client(live):
+    with httpx.Client(base_url=live.url, timeout=30.0) as c:
+        yield c
+
+
+def test_upload_build_and_the_space_appears(client, live):
+    assert client.post("/v1/jobs", json=build_request("gaitspace")).status_code == 401
+    r = client.post("/v1/jobs", json=build_request("gaitspace"), headers=AUTH)
+    assert r.status_code == 202, r.text
+    job = r.json()
+    assert job["status"] == "queued" and r.headers["location"] == f"/v1/jobs/{job['id']}"
+    seen = []
+    job = wait_for(client, job["id"], lambda j: j["status"] in FINAL, timeout=90, seen=seen)
+    assert job["status"] == "succeeded", job
+    progress = [j["progress"] for j in seen if j["status"] == "running"]
+    assert progress == sorted(progress), "progress went backwards"
+    assert len({p for p in progress if 0 < p < 1}) >= 3, progress
+    stages = {j["stage"] for j in seen}
+    assert {"tetrahedralise", "decompose"} <= stages or {"decompose", "parameters"} <= stages, stages
+    assert job["progress"] == 1 and job["attempts"] == 1 and job["error"] is None
+    assert job["result"]["url"] == "/v1/spaces/gaitspace" and job["result"]["n_sources"] == 2
+    assert any("published" in line for line in job["log"])
+    spaces = {s["name"]: s for s in client.get("/v1/spaces").json()["spaces"]}
+    assert spaces["gaitspace"]["n_vertices"] == 1000 and spaces["gaitspace"]["parameters"][0]["name"] == "speed"
+    assert client.get("/v1/spaces/gaitspace/frame", params={"format": "json", "params": "speed:1.5"}).status_code == 200
+    assert list((live.data_dir / "work" / "jobs").iterdir()) == []  # staging removed
+    listed = client.get("/v1/jobs", params={"status": "succeeded"}).json()["jobs"]
+    assert job["id"] in [j["id"] for j in listed]
+    assert client.get("/v1/jobs", params={"status": "running"}).json()["jobs"] == []
+    r = client.post("/v1/jobs", json=build_request("gaitspace"), headers=AUTH)
+    assert r.status_code == 409 and "already exists" in r.json()["detail"]
+
+
+def test_bad_job_requests_name_the_problem(client):
+    cases = [
+        (build_request("x", dataset="nope"), 404, "no dataset 'nope'"),
+        ({**build_request("x"), "spec": {**build_request("x")["spec"], "sources": ["slow", "walk"]}}, 422, "'walk'"),
+        ({**build_request("x"), "kind": "paint"}, 422, "kind"),
+        ({**build_request("../x")}, 422, "space"),
+        ({**build_request("x"), "spec": {"sources": ["slow", "fast"], "parameters": {"layout": "chain",
+                                                                                  "measures": ["speed"]}}},
+         422, "chain"),
+        ({**build_request("x"), "spec": {"sources": ["slow", "fast"], "rest": "../../etc/passwd"}}, 422, "rest"),
+    ]
+    for body, status, words in cases:
+        r = client.post("/v1/jobs", json=body, headers=AUTH)
+        assert r.status_code == status, (body, r.text)
+        assert words in r.text, (words, r.text)
+    assert client.get("/v1/jobs/doesnotexist").status_code == 404
+    assert client.post("/v1/jobs/doesnotexist/cancel", headers=AUTH).status_code == 404
+
+
+def test_cancel_a_running_and_a_queued_job(client, live):
+    running = client.post("/v1/jobs", json=build_request("cancelled_space"), headers=AUTH).json()
+    queued = client.post("/v1/jobs", json=build_request("never_space"), headers=AUTH).json()
+    job = wait_for(client, running["id"], lambda j: j["status"] == "running" and (j["worker"] or {}).get("pid"))
+    pid = job["worker"]["pid"]
+    assert client.get(f"/v1/jobs/{queued['id']}").json()["status"] == "queued"  # one local worker slot
+    r = client.post(f"/v1/jobs/{queued['id']}/cancel", headers=AUTH)
+    assert r.status_code == 200 and r.json()["status"] == "cancelled"
+    assert client.post(f"/v1/jobs/{running['id']}/cancel").status_code == 401
+    r = client.post(f"/v1/jobs/{running['id']}/cancel", headers=AUTH)
+    assert r.status_code == 200, r.text
+    assert r.json()["status"] == "cancelled" and r.json()["error"] == "cancelled by request"
+    assert wait_dead(pid), "the worker process outlived the cancel"
+    assert client.post(f"/v1/jobs/{running['id']}/cancel", headers=AUTH).status_code == 409
+    assert not (live.data_dir / "spaces" / "cancelled_space.mspace").exists()
+    assert not (live.data_dir / "work" / "jobs" / running["id"]).exists()
+    names = [s["name"] for s in client.get("/v1/spaces").json()["spaces"]]
+    assert "cancelled_space" not in names and "never_space" not in names
+
+
+def test_a_killed_worker_fails_the_job_and_the_server_goes_on(client, live):
+    job = client.post("/v1/jobs", json=build_request("killed_space"), headers=AUTH).json()
+    job = wait_for(client, job["id"], lambda j: j["status"] == "running" and (j["worker"] or {}).get("pid"))
+    os.kill(job["worker"]["pid"], signal.SIGKILL)
+    job = wait_for(client, job["id"], lambda j: j["status"] in FINAL, timeout=30)
+    assert job["status"] == "failed", job
+    assert "SIGKILL" in job["error"] and f"pid {job['worker']['pid']}" in job["error"], job["error"]
+    assert client.get("/v1/health").json()["status"] == "ok"
+    assert not (live.data_dir / "spaces" / "killed_space.mspace").exists()
+    assert not (live.data_dir / "work" / "jobs" / job["id"]).exists()
+
+
+def test_ingest_normalises_a_dataset(client, live):
+    r = client.post("/v1/jobs", json={"kind": "ingest", "dataset": "gaits", "output": "gaits_clean"}, headers=AUTH)
+    assert r.status_code == 202, r.text
+    job = wait_for(client, r.json()["id"], lambda j: j["status"] in FINAL, timeout=60)
+    assert job["status"] == "succeeded", job
+    assert job["result"]["frames"] == sum(s["frames"] for s in client.get("/v1/datasets/gaits").json()["sequences"])
+    info = client.get("/v1/datasets/gaits_clean").json()
+    assert info["templates"] == ["body.obj"] and info["buildable"] == sorted(SEQUENCES)
+    root = live.data_dir / "datasets" / "gaits_clean"
+    meta = json.loads((root / "sequences" / "slow" / "meta.json").read_text())
+    assert meta["cyclic"] is True and meta["fps"] == 10.0 and meta["source_frames"][0] == "frame_0000.obj"
+
+
+def test_a_job_left_running_by_a_crashed_server_is_run_again(tmp_path, dataset_zip):
+    data = tmp_path / "crash-data"
+    first = LiveServer(data, env={"MORPHSPACE_TOKEN": TOKEN}).start()
+    try:
+        with httpx.Client(base_url=first.url, timeout=30.0) as client:
+            client.post("/v1/datasets", params={"name": "gaits"}, content=dataset_zip,
+                        headers={**AUTH, "Content-Type": "application/zip"}).raise_for_status()
+            job = client.post("/v1/jobs", json=build_request("after_crash"), headers=AUTH).json()
+            # past tetrahedralisation (cached by then), so the second attempt is quick
+            job = wait_for(client, job["id"], lambda j: j["status"] == "running" and j["progress"] >= 0.3, 90)
+        worker = job["worker"]["pid"]
+        os.kill(first.process.pid, signal.SIGKILL)  # the server only: the worker must notice by itself
+        first.process.wait(10)
+        assert wait_dead(worker), "the worker outlived its server"
+    finally:
+        first.stop()
+    assert not (data / "spaces" / "after_crash.mspace").exists()
+    with LiveServer(data, env={"MORPHSPACE_TOKEN": TOKEN}) as second, \
+            httpx.Client(base_url=second.url, timeout=30.0) as client:
+        record = client.get(f"/v1/jobs/{job['id']}").json()
+        assert record["status"] != "running" or record["worker"]["pid"] != worker, record
+        seen = []
+        record = wait_for(client, job["id"], lambda j: j["status"] in FINAL, timeout=90, seen=seen)
+        assert record["status"] == "succeeded", record
+        assert record["attempts"] == 2
+        assert any("interrupted" in line and "exited" in line for line in record["log"]), record["log"]
+        assert "after_crash" in [s["name"] for s in client.get("/v1/spaces").json()["spaces"]]
