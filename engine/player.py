@@ -170,8 +170,10 @@ class Player:
         if not np.array_equal(self._current, self._target) or np.any(self._velocity):
             self._current, self._velocity = _critically_damped(self._current, self._velocity, self._target, dt,
                                                                self.smoothing)
-            settled = np.abs(self._current - self._target) <= 1e-7 * self.map.ranges
-            if np.all(settled) and np.all(np.abs(self._velocity) * dt <= 1e-7 * self.map.ranges):
+            # settled to a millionth of each range: stop moving (the weights then stay fixed,
+            # which lets the blender use its phase tables)
+            settled = np.abs(self._current - self._target) <= 1e-6 * self.map.ranges
+            if np.all(settled) and np.all(np.abs(self._velocity) * dt <= 1e-6 * self.map.ranges):
                 self._current, self._velocity = self._target.copy(), np.zeros_like(self._velocity)
             self._solution = self._solve(self._current)
         w = self._solution.weights
@@ -201,7 +203,7 @@ class Player:
         ``root_position`` and ``heading``): what a renderer that places the mesh itself wants.
         """
         w = self._solution.weights
-        mesh = self.space.blender(self.mode).blend(w, self.phase)
+        mesh = self.space.frame_blender(self.mode).blend(w, self.phase)
         vertices = np.empty((len(mesh), 3), dtype=np.float32) if out is None else out
         if local:
             vertices[:] = mesh

@@ -15,6 +15,7 @@ from engine.blend import (
     SimplexTree,
     VolumetricEmbedding,
 )
+from engine.blend.cache import PhaseTableBlender
 from engine.motion_space.build import SPACE_FORMAT, SPACE_VERSION
 from engine.motion_space.container import Container, MotionSpaceError
 from engine.parameters import ParameterMap, RootTrack
@@ -140,6 +141,17 @@ class MotionSpace:
                 blender = PhasedNonlinearBlender(inner, self.n_phases, self.n_sources, self.cyclic)
             self._blenders[mode] = blender
         return self._blenders[mode]
+
+    def frame_blender(self, mode):
+        """The blender a player uses: linear and hybrid with phase tables (exact; one
+        interpolation per frame at weights that recur), non-linear as it is. Built once."""
+        key = f"{mode}:tables"
+        if key not in self._blenders:
+            blender = self.blender(mode)
+            if mode != "nonlinear":
+                blender = PhaseTableBlender(blender, self.n_phases, self.cyclic)
+            self._blenders[key] = blender
+        return self._blenders[key]
 
     def check_weights(self, weights):
         """Validated (N,) float weights: finite, non-negative, not all zero."""
