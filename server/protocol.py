@@ -337,11 +337,18 @@ def decode_client(data, max_bytes=None):
     return cls(**values)
 
 
+_FIELD_NAMES = {}
+
+
 def to_wire(message):
     """The msgpack bytes of a server (or client) message object."""
+    cls = type(message)
+    names = _FIELD_NAMES.get(cls)
+    if names is None:
+        names = _FIELD_NAMES[cls] = tuple(f.name for f in dataclasses.fields(cls))
     body = {"type": message.type}
-    for f in dataclasses.fields(message):
-        body[f.name] = getattr(message, f.name)
+    for name in names:
+        body[name] = getattr(message, name)
     return msgpack.packb(body, use_bin_type=True)
 
 

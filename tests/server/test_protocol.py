@@ -61,7 +61,7 @@ def test_random_bytes_never_raise_anything_but_protocol_errors(data):
 
 @settings(max_examples=200, deadline=None)
 @given(st.dictionaries(st.sampled_from(["type", "space", "phase", "params", "seq", "rate", "id", "frame", "x"]),
-                       st.one_of(st.none(), st.booleans(), st.integers(), st.floats(), st.text(max_size=5),
+                       st.one_of(st.none(), st.booleans(), st.integers(-2**63, 2**64 - 1), st.floats(), st.text(max_size=5),
                                  st.sampled_from(list(P.CLIENT_MESSAGES)),
                                  st.dictionaries(st.text(max_size=3), st.floats(), max_size=3)),
                        max_size=5))
