@@ -72,7 +72,7 @@ class LocalExecutor:
             limit=1 << 20)
         job_id = job["id"]
         self.processes[job_id] = process
-        on_message({"t": "worker", "worker": {"host": socket.gethostname(), "pid": process.pid}})
+        on_message({"t": "worker", "info": {"host": socket.gethostname(), "pid": process.pid}})
         final = {}
         stage = ["starting"]
 
@@ -199,7 +199,7 @@ class DaskExecutor:
         client.subscribe_topic(topic, handler)
         future = client.submit(dask_entry, json.dumps(payload), topic, key=topic, pure=False, retries=0)
         self.futures[job_id] = future
-        on_message({"t": "worker", "worker": {"scheduler": self.address, "key": topic}})
+        on_message({"t": "worker", "info": {"scheduler": self.address, "key": topic}})
         try:
             answer = json.loads(await future)
         except asyncio.CancelledError:

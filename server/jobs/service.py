@@ -271,7 +271,7 @@ class JobService:
         elif kind == "log":
             state.log.append(_relative(message.get("line", ""), self.settings.data_dir))
         elif kind == "worker":
-            state.worker = {**(state.worker or {}), **message.get("worker", {})}
+            state.worker = {**(state.worker or {}), **message.get("info", {})}
         else:
             return
         state.dirty = True

@@ -383,7 +383,7 @@ def dask_entry(payload_json, topic):
             pass
 
     reporter = Reporter(payload["kind"], emit, cancel_file=os.path.join(payload["staging"], "..", "CANCEL"))
-    emit({"t": "worker", "worker": {"address": worker.address, "pid": os.getpid()}})
+    emit({"t": "worker", "info": {"address": worker.address, "pid": os.getpid()}})
     try:
         return json.dumps({"result": run_task(payload, reporter)})
     except JobCancelled as exc:

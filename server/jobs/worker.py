@@ -46,7 +46,7 @@ def main():
     from server.jobs.tasks import JobCancelled, JobError, Reporter, _relative, run_task
 
     reporter = Reporter(payload["kind"], emit, cancel_file=os.path.join(payload["staging"], "..", "CANCEL"))
-    emit({"t": "worker", "worker": {"pid": os.getpid()}})
+    emit({"t": "worker", "info": {"pid": os.getpid()}})
     try:
         emit({"t": "result", "result": run_task(payload, reporter)})
     except JobCancelled as exc:
