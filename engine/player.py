@@ -77,6 +77,7 @@ class Player:
         if space.parameter_map is None:
             raise ValueError(f"{space.name}: the space has no parameter map (build it from a spec)")
         self.space = space
+        self._track_cache = None
         self.map = space.parameter_map
         self.track = space.root_track
         self.names = list(self.map.names)
@@ -157,8 +158,16 @@ class Player:
         self.phase = phase % 1.0 if self.space.cyclic else min(max(phase, 0.0), 1.0)
         self.finished = False
 
+    def _track_at(self, w):
+        """(step (P, 3), turn (P,), duration) of the blend at weights w, kept while w is."""
+        key = w.tobytes()
+        if self._track_cache is None or self._track_cache[0] != key:
+            step, turn = self.track.rates(w)
+            self._track_cache = (key, step, turn, self.track.duration(w))
+        return self._track_cache[1:]
+
     def _rates_at(self, w, phase):
-        step, turn = self.track.rates(w)
+        step, turn, _ = self._track_at(w)
         p0, p1, a = phase_samples(phase, len(step), self.space.cyclic)
         return (1 - a) * step[p0] + a * step[p1], (1 - a) * turn[p0] + a * turn[p1]
 
@@ -178,7 +187,7 @@ class Player:
             self._solution = self._solve(self._current)
         w = self._solution.weights
         if not self.finished and dt > 0:
-            d_phase = dt / self.track.duration(w)
+            d_phase = dt / self._track_at(w)[2]
             if not self.space.cyclic and not self.loop:
                 d_phase = min(d_phase, 1.0 - self.phase)
             middle = self.phase + 0.5 * d_phase

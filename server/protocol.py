@@ -375,12 +375,11 @@ def encode_vertices(V, codec, bounds, scratch=None):
     """Raw little-endian bytes of (n, 3) vertices in ``codec``; q16 clamps to ``bounds``."""
     if codec == "f32":
         return np.ascontiguousarray(V, dtype="<f4").tobytes()
-    lo, hi = bounds
-    scale = 65535.0 / np.maximum(hi - lo, 1e-12)
+    lo, hi = np.asarray(bounds[0], dtype=np.float32), np.asarray(bounds[1], dtype=np.float32)
+    scale = np.float32(65535.0) / np.maximum(hi - lo, np.float32(1e-12))
     q = scratch if scratch is not None else np.empty(V.shape, dtype=np.float32)
-    np.subtract(V, lo, out=q)
-    q *= scale
-    q += 0.5
+    np.multiply(V, scale, out=q)
+    q += 0.5 - lo * scale          # (V - lo) * scale, rounded to nearest by the + 0.5
     np.clip(q, 0.0, 65535.0, out=q)
     return q.astype("<u2").tobytes()
 
