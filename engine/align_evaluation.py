@@ -161,5 +161,66 @@ def pattern_render(frames, F, colors, *, columns=3, size=1100, title=None, azimu
                          ground=False)
 
 
-__all__ = ["correspondence_errors", "score_alignment", "error_summary", "pattern_colors", "pattern_render",
+def pattern_frames(lengths, count=6):
+    """Indices of ``count`` frames spread over the sequences (for :func:`pattern_sheet`).
+
+    Frames are taken round-robin from the sequences, each sequence's picks spread evenly over
+    its interior, so a sheet shows as many different motions as it has room for.
+    """
+    lengths = np.asarray(lengths, dtype=np.int64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    total = int(lengths.sum())
+    count = min(int(count), total)
+    per = -(-count // max(len(lengths), 1))
+    lists = [[int(s + k) for k in np.linspace(0, n - 1, per + 2)[1:-1].round().astype(int)] if n > 2
+             else [int(s + k) for k in range(n)] for s, n in zip(starts, lengths)]
+    picks = []
+    for rank in range(per):
+        picks.extend(lst[rank] for lst in lists if rank < len(lst))
+    picks = list(dict.fromkeys(picks))[:count]
+    for extra in np.linspace(0, total - 1, count).round().astype(int):  # short sequences: top up
+        if len(picks) >= count:
+            break
+        if int(extra) not in picks:
+            picks.append(int(extra))
+    return picks
+
+
+def pattern_sheet(vertices, faces, root, lengths, names=None, *, count=6, title=None, size=1100):
+    """Paper fig. 2 analogue: the root mesh and aligned frames, all wearing one pattern.
+
+    The pattern (:func:`pattern_colors`) is a function of the root mesh's vertex positions; every
+    aligned frame shares the root's vertices and faces, so the colours travel with the
+    correspondence: a stripe or checker that stays on the same body part in every frame shows
+    the alignment holds, a smeared or jumping one shows where it slipped.
+
+    Parameters
+    ----------
+    vertices : (N, n, 3) float array   aligned frames (root topology, sequences concatenated)
+    faces : (m, 3) int array
+    root : int                         the root frame (shown first)
+    lengths : (S,) int array           frames per sequence
+    names : list of str or None        sequence names (for the title)
+    count : int                        frames shown besides the root (the grid has 3 columns)
+
+    Returns
+    -------
+    image : (size, size, 3) uint8 array
+    """
+    vertices = np.asarray(vertices)
+    colors = pattern_colors(vertices[root])
+    picks = [k for k in pattern_frames(lengths, count + 1) if k != root][:count]
+    frames = [vertices[root]] + [vertices[k] for k in picks]
+    if title is None:
+        sequence_of = np.repeat(np.arange(len(lengths)), lengths)
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+        label = (lambda k: f"{names[sequence_of[k]]}:{k - starts[sequence_of[k]]}") if names else str
+        title = "pattern fixed on the root mesh (" + label(root) + ", first), carried into " + \
+                ", ".join(label(k) for k in picks)
+    columns = max(1, -(-len(frames) // 2))
+    return pattern_render(frames, faces, colors, columns=columns, size=size, title=title)
+
+
+__all__ = ["correspondence_errors", "score_alignment", "error_summary", "pattern_colors", "pattern_frames",
+           "pattern_render", "pattern_sheet",
            "surface_coordinates", "true_positions"]

@@ -12,6 +12,8 @@ mesh along the tree (Casas et al. 2012, section 3). Output, readable by `morphsp
     OUT/template/body.obj                                 the root mesh (the rest shape)
     OUT/alignment.npz                                     dissimilarities, tree, root, residuals
     OUT/similarity.png, OUT/tree.png                      the matrix and the tree (fig. 1c, 1d)
+    OUT/aligned_pattern.png                               a pattern fixed on the root, carried
+                                                          into aligned frames (fig. 2)
     OUT/manifest.json
 
 Example:
@@ -68,7 +70,8 @@ class Progress:
     """tqdm bars on stderr, one per stage."""
 
     LABELS = {"read": "read frames", "histograms": "shape histograms", "dissimilarity": "dissimilarity",
-              "align": "align", "write": "write"}
+              "align": "align", "align sequential": "align (sequential)",
+              "write": "write"}
 
     def __init__(self):
         self.bars = {}
@@ -81,8 +84,11 @@ class Progress:
         bar = self.bars[stage]
         if total:
             bar.total = total
-        bar.n = done
-        bar.refresh()
+        if done >= bar.n:
+            bar.update(done - bar.n)  # redrawn at most every mininterval (logs stay short)
+        else:
+            bar.n = done
+            bar.refresh()
 
     def close(self):
         for bar in self.bars.values():
@@ -181,6 +187,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
     """Write the aligned frames, metadata, arrays and pictures (see the module docstring)."""
     from PIL import Image
 
+    from engine.align_evaluation import pattern_sheet
     from engine.similarity import similarity_image
     from engine.similarity_tree import tree_image
 
@@ -232,6 +239,8 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
     names = [s["name"] for s in sequences]
     Image.fromarray(similarity_image(result.similarity.dissimilarity, lengths, names)).save(out / "similarity.png")
     Image.fromarray(tree_image(tree, lengths, names)).save(out / "tree.png")
+    Image.fromarray(pattern_sheet(aligned.vertices, aligned.faces, root, lengths, names)).save(
+        out / "aligned_pattern.png")
     write_capture_manifest(out, {
         "aligned": True, "alignment": {"method": result.method, "root": f"{root_sequence}:{root_frame}",
                                        "options": options_record, "timings_s": result.timings},

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.align_evaluation import error_summary, pattern_colors, pattern_render, score_alignment
+from engine.align_evaluation import error_summary, pattern_sheet, score_alignment
 from engine.alignment import AlignmentOptions, align_captures
 from engine.mesh_io import read_mesh, read_sequence
 from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
@@ -81,18 +81,6 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
     frame_mean = errors.mean(axis=1)
     record["worst_frame_mean_mm"] = round(1000 * float(frame_mean.max()), 2)
     return record, errors
-
-
-def _pattern_picture(vertices, faces, root_vertices, lengths, names, title):
-    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    picks = []
-    per = max(1, 6 // max(len(lengths), 1))
-    for start, n in zip(starts, lengths):
-        picks.extend(int(start + k) for k in np.linspace(0, n - 1, per + 2)[1:-1].round().astype(int))
-    picks = picks[:6] if len(picks) >= 6 else (picks + [int(k) for k in np.linspace(0, len(vertices) - 1, 6)
-                                                        .round().astype(int)])[:6]
-    colors = pattern_colors(root_vertices)
-    return pattern_render([vertices[k] for k in picks], faces, colors, title=title)
 
 
 def _load_aligned(directory, dataset_names):
@@ -174,7 +162,9 @@ def run(args):
                 runs["sequential"] = align_captures(meshes, lengths, method="sequential", root=root, options=options,
                                                     use_colors=args.colors, seed=args.seed,
                                                     similarity=tree_run.similarity, tets=tree_run.tets,
-                                                    progress=progress)
+                                                    progress=lambda stage, done, total: progress(
+                                                        "align sequential" if stage == "align" else stage,
+                                                        done, total))
             results = {}
             for method, result in runs.items():
                 a = result.aligned
@@ -193,10 +183,13 @@ def run(args):
     from PIL import Image
 
     method = "tree" if "tree" in results else "aligned"
-    vertices, faces, root_vertices = results[method]
-    Image.fromarray(_pattern_picture(vertices, faces, root_vertices, lengths, names,
-                                     f"aligned frames ({method}), pattern fixed on the root mesh")).save(
-        out / "aligned_pattern.png")
+    vertices, faces, _ = results[method]
+    Image.fromarray(pattern_sheet(vertices, faces, root, lengths, names)).save(out / "aligned_pattern.png")
+    if "sequential" in results:  # the same frames, tracked frame to frame, for comparison
+        vertices, faces, _ = results["sequential"]
+        title = "sequential tracking: the same frames, pattern fixed on the root mesh"
+        Image.fromarray(pattern_sheet(vertices, faces, root, lengths, names, title=title)).save(
+            out / "aligned_pattern_sequential.png")
     if args.aligned is None:
         from engine.similarity import similarity_image
         from engine.similarity_tree import tree_image

@@ -1,6 +1,9 @@
 """`morphspace align` and `morphspace eval-align` on a few frames of a tiny capture dataset."""
 
+import contextlib
+import io
 import json
+import shutil
 
 import numpy as np
 import pytest
@@ -32,10 +35,46 @@ def dataset(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def aligned(dataset, tmp_path_factory):
+def aligned_run(dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("aligned") / "out"
-    assert main(["align", str(dataset), "--out", str(out), "--workers", "1", "--levels", "3"]) == 0
-    return out
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["align", str(dataset), "--out", str(out), "--workers", "1", "--levels", "3"]) == 0
+    return out, err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def aligned(aligned_run):
+    return aligned_run[0]
+
+
+def test_align_shows_progress_bars_up_to_every_frame(aligned_run):
+    _, err = aligned_run
+    for stage in ("shape histograms", "dissimilarity", "align", "write"):
+        assert f"{stage}: 100%" in err, f"no finished {stage!r} bar in:\n{err[-2000:]}"
+    assert "6/6" in err.split("align: 100%")[1].split("\n")[0]  # counted in frames
+
+
+def test_morphspace_build_reads_the_aligned_output(aligned, tmp_path):
+    # The tiny sequences are a fifth of a gait cycle, too short to find a cycle in: build them as
+    # one-shot clips (copies of the aligned output with "cyclic": false in their meta.json).
+    sources = []
+    for name in ("walk", "jog"):
+        copy = tmp_path / "aligned" / "sequences" / name
+        shutil.copytree(aligned / "sequences" / name, copy)
+        meta = json.loads((copy / "meta.json").read_text())
+        meta["cyclic"] = False
+        (copy / "meta.json").write_text(json.dumps(meta))
+        sources += ["--source", str(copy)]
+    shutil.copytree(aligned / "template", tmp_path / "aligned" / "template")
+    space = tmp_path / "aligned.mspace"
+    assert main(["build", *sources, "--out", str(space), "--phases", "3"]) == 0
+    from engine.motion_space import MotionSpace
+
+    template = read_mesh(aligned / "template" / "body.obj")
+    with MotionSpace.open(space) as loaded:
+        np.testing.assert_array_equal(loaded.faces, template.faces)
+        assert list(loaded.source_names) == ["walk", "jog"]
 
 
 def test_align_writes_a_dataset_that_build_and_read_sequence_accept(dataset, aligned):
@@ -57,7 +96,8 @@ def test_align_writes_a_dataset_that_build_and_read_sequence_accept(dataset, ali
         root = int(record["root"])
     # the root frame is the template: its aligned copy is the root mesh itself
     names = [str(s) for s in np.load(aligned / "alignment.npz")["sequence_names"]]
-    assert (aligned / "similarity.png").stat().st_size > 0 and (aligned / "tree.png").stat().st_size > 0
+    for picture in ("similarity.png", "tree.png", "aligned_pattern.png"):
+        assert (aligned / picture).stat().st_size > 0
     assert 0 <= root < n and names == ["walk", "jog"]
 
 
