@@ -226,3 +226,28 @@ def test_a_job_left_running_by_a_crashed_server_is_run_again(tmp_path, dataset_z
         assert record["attempts"] == 2
         assert any("interrupted" in line and "exited" in line for line in record["log"]), record["log"]
         assert "after_crash" in [s["name"] for s in client.get("/v1/spaces").json()["spaces"]]
+
+
+def test_align_job_writes_a_buildable_dataset(client, live, dataset_zip):
+    """Three frames of each sequence, uploaded as unstructured captures, aligned into one mesh."""
+    small = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(dataset_zip)) as source, zipfile.ZipFile(small, "w") as archive:
+        for name in source.namelist():
+            seq, leaf = name.split("/")
+            if leaf in ("frame_0000.obj", "frame_0001.obj", "frame_0002.obj"):
+                archive.writestr(f"{seq}/unstructured/{leaf}", source.read(name))
+    r = client.post("/v1/datasets", params={"name": "raw", "fps": 10}, content=small.getvalue(),
+                    headers={**AUTH, "Content-Type": "application/zip"})
+    assert r.status_code == 201 and r.json()["buildable"] == [], r.text
+    r = client.post("/v1/jobs", headers=AUTH, json={"kind": "align", "datasets": ["raw"], "output": "raw_aligned",
+                                                    "patches": 10, "levels": 2, "retries": 0})
+    assert r.status_code == 202, r.text
+    seen = []
+    job = wait_for(client, r.json()["id"], lambda j: j["status"] in FINAL, timeout=90, seen=seen)
+    assert job["status"] == "succeeded", job
+    assert {"histograms", "align"} <= {j["stage"] for j in seen} | {line[6:] for line in job["log"]
+                                                                   if line.startswith("stage ")}
+    info = client.get("/v1/datasets/raw_aligned").json()
+    assert info["kind"] == "aligned" and info["buildable"] == sorted(SEQUENCES) and info["frames"] == 6
+    assert info["templates"] == ["body.obj"]
+    assert job["result"]["url"] == "/v1/datasets/raw_aligned" and job["result"]["frames"] == 6
