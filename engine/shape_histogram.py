@@ -161,28 +161,30 @@ def shape_histogram(V, F, *, radius, shells=10, elevations=8, harmonics=12, cent
     band1 = np.clip(band_low.astype(np.int64) + 1, 0, elevations - 1)
     horizontal = np.hypot(direction[:, 0], direction[:, 2])
     unit = np.where(horizontal > 0, (direction[:, 2] - 1j * direction[:, 0]) / np.maximum(horizontal, 1e-300), 1.0)
-    phase = np.empty((len(r), harmonics + 1), dtype=np.complex128)
+    n = len(r)
+    phase = np.empty((n, harmonics + 1), dtype=np.complex128)
     phase[:, 0] = 1.0
-    if harmonics:
-        phase[:, 1:] = unit[:, None]
-        np.cumprod(phase[:, 1:], axis=1, out=phase[:, 1:])
+    for k in range(1, harmonics + 1):  # unit ** k, column by column (cheaper than a cumprod)
+        np.multiply(phase[:, k - 1], unit, out=phase[:, k])
     cells = shells * elevations
-    rows = np.concatenate([top * elevations + band0, top * elevations + band1])
-    cols = np.concatenate([np.arange(len(r))] * 2)
-    share = np.concatenate([1.0 - band_fraction, band_fraction])
-
-    def accumulate(mass):
-        spread = sp.csr_matrix((np.tile(mass, 2) * share, (rows, cols)), shape=(cells, len(r)))
-        return np.asarray(spread @ phase).reshape(shells, elevations, harmonics + 1)
-
-    H = accumulate(partial)
+    row0, row1 = top * elevations + band0, top * elevations + band1
+    # One sparse (cells x triangles) spread per mass, 2 entries per column (the two bands); both
+    # masses stacked into one CSC matrix (no index sorting needed), one product with the phases.
+    masses = [partial, whole] if volume else [partial]
+    data = np.stack([x for m in masses for x in (m * (1.0 - band_fraction), m * band_fraction)], axis=1)
+    index = np.stack([x for j in range(len(masses)) for x in (row0 + j * cells, row1 + j * cells)], axis=1)
+    per = 2 * len(masses)
+    spread = sp.csc_matrix((data.ravel(), index.ravel(), np.arange(0, per * n + 1, per)),
+                           shape=(len(masses) * cells, n))
+    binned = np.asarray(spread @ phase).reshape(len(masses), shells, elevations, harmonics + 1)
+    H = binned[0]
     if volume:
         # omega per (top shell, band); shell s gets the whole-shell volume of every cone whose
         # top shell lies above s.
-        by_top = accumulate(whole)
+        by_top = binned[1]
         above = np.cumsum(by_top[::-1], axis=0)[::-1]  # tops >= s
         above = np.concatenate([above[1:], np.zeros_like(above[:1])])  # tops > s
-        H += above * (np.diff(edges ** 3) / 3.0)[:, None, None]
+        H = H + above * (np.diff(edges ** 3) / 3.0)[:, None, None]
     total = H[..., 0].real.sum()
     if not total > 0:
         raise ValueError("the surface encloses no volume (is it inside out?)" if volume
