@@ -116,7 +116,7 @@ def describe_dataset(name: str, settings: SettingsDep):
 async def delete_dataset(name: str, settings: SettingsDep, jobs: JobsDep):
     try:
         path = uploads.dataset_path(settings, name)
-    except uploads.UploadError as exc:
+    except uploads.UploadError:
         raise HTTPException(404, f"no dataset {name!r}") from None
     if not path.is_dir():
         raise HTTPException(404, f"no dataset {name!r}")

@@ -29,7 +29,6 @@ import shutil
 import socket
 import time
 import uuid
-from pathlib import Path
 
 from server import uploads
 from server.jobs.executors import DaskExecutor, LocalExecutor, WorkerLost
@@ -112,7 +111,7 @@ class JobService:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._loop_task
         # queue our running jobs again (not counting this attempt), then stop their workers
-        for job_id, state in list(self.running.items()):
+        for job_id in list(self.running):
             job = self.store.get(job_id)
             if job and job["status"] == "running" and job["owner"] == self.owner:
                 self.store.recover(job, f"the server (pid {self.pid}) stopped", consume=False)

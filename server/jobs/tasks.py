@@ -211,7 +211,7 @@ def run_build(payload, reporter):
     if report.get("parameters"):
         p = report["parameters"]
         summary["parameters"] = [{"name": n, "unit": u, "min": lo, "max": hi}
-                                 for n, u, (lo, hi) in zip(p["names"], p["units"], p["domain"])]
+                                 for n, u, (lo, hi) in zip(p["names"], p["units"], p["domain"], strict=True)]
     return {"output": {"type": "space", "name": params["space"], "path": out.name}, "summary": summary}
 
 

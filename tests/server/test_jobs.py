@@ -10,8 +10,10 @@ import io
 import json
 import os
 import signal
+import tempfile
 import time
 import zipfile
+from pathlib import Path
 
 import httpx
 import pytest
@@ -31,9 +33,6 @@ def capture_zip(fps=10.0):
     body = build_body(1000)
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
-        import tempfile
-        from pathlib import Path
-
         with tempfile.TemporaryDirectory() as tmp:
             for name, speed in SEQUENCES.items():
                 V = animate(body, gait(body.skeleton, speed, cycles=1.0, fps=fps))
