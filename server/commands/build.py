@@ -144,6 +144,42 @@ def cached_embedding(cache_dir, rest, faces):
     return embedding
 
 
+def load_sources(directories, *, fps, cyclic, progress=None, log=None):
+    """SourceClips of ``directories`` and their shared faces; an error names a source whose
+    mesh structure differs from the first one's."""
+    clips, faces = [], None
+    for k, directory in enumerate(directories):
+        if progress:
+            progress("read", k, len(directories))
+        clip, F = load_source(directory, fps=fps, cyclic=cyclic)
+        if faces is not None and (F.shape != faces.shape or not np.array_equal(F, faces)):
+            raise ValueError(f"{directory}: its faces differ from {directories[0]}'s; "
+                             "all sources need the same mesh structure")
+        faces = F
+        clips.append(clip)
+        if log:
+            log(f"read {clip.name}: {len(clip.vertices)} frames at {clip.fps:g} fps{' (cyclic)' if clip.cyclic else ''}")
+    if progress:
+        progress("read", len(directories), len(directories))
+    return clips, faces
+
+
+def choose_rest(clips, faces, rest_path, template):
+    """(rest vertices, note): the given rest mesh (it must match the sources), else the dataset's
+    ``template`` when it matches, else the first source's first frame."""
+    rest = clips[0].vertices[0]
+    for path, strict in ((rest_path, True), (template, False)):
+        if path is None or (not strict and not Path(path).is_file()):
+            continue
+        mesh = read_mesh(path)
+        if mesh.vertices.shape == clips[0].vertices.shape[1:] and np.array_equal(mesh.faces, faces):
+            return mesh.vertices, f"resting on {path}"
+        if strict:
+            raise ValueError(f"{path}: the rest mesh must have the sources' vertices and faces")
+        return rest, f"{path} does not match the sources' mesh; resting on the first frame"
+    return rest, "resting on the first frame"
+
+
 def run(args):
     if args.spec is None and not args.source:
         raise ValueError("give a spec file or at least two --source sequences")
@@ -167,24 +203,9 @@ def run(args):
     if out.exists() and not args.force:
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
 
-    clips, faces = [], None
-    for directory in directories:
-        clip, F = load_source(directory, fps=args.fps, cyclic=args.cyclic)
-        if faces is not None and (F.shape != faces.shape or not np.array_equal(F, faces)):
-            raise ValueError(f"{directory}: its faces differ from {directories[0]}'s; "
-                             "all sources need the same mesh structure")
-        faces = F
-        clips.append(clip)
+    clips, faces = load_sources(directories, fps=args.fps, cyclic=args.cyclic)
     rest_path = args.rest or spec["rest"]
-    if rest_path is None:
-        candidate = Path(directories[0]).parent.parent / "template" / "body.obj"
-        rest_path = candidate if candidate.is_file() else None
-    rest = clips[0].vertices[0]
-    if rest_path is not None:
-        mesh = read_mesh(rest_path)
-        if mesh.vertices.shape != clips[0].vertices.shape[1:] or not np.array_equal(mesh.faces, faces):
-            raise ValueError(f"{rest_path}: the rest mesh must have the sources' vertices and faces")
-        rest = mesh.vertices
+    rest, _ = choose_rest(clips, faces, rest_path, Path(directories[0]).parent.parent / "template" / "body.obj")
     bars = StageBars()
     started = time.perf_counter()
     bars("tetrahedralise", 0, 1)

@@ -155,9 +155,8 @@ def check_build_sources(dataset_dir, spec):
 
 
 def run_build(payload, reporter):
-    from engine.mesh_io import read_mesh
     from engine.motion_space import build_motion_space
-    from server.commands.build import cached_embedding, load_source, read_spec
+    from server.commands.build import cached_embedding, choose_rest, load_sources, read_spec
 
     params, staging = payload["params"], Path(payload["staging"])
     dataset_dir = Path(payload["data_dir"]) / "datasets" / params["dataset"]
@@ -168,30 +167,13 @@ def run_build(payload, reporter):
     spec_path.write_text(spec_toml(params["spec"], dataset_dir, params["space"]))
     spec = read_spec(spec_path)
     started = time.perf_counter()
-    clips, faces = [], None
-    for k, directory in enumerate(spec["directories"]):
-        reporter.progress("read", k, len(spec["directories"]))
-        clip, F = load_source(directory, fps=30.0, cyclic=False)
-        if faces is not None and (F.shape != faces.shape or not np.array_equal(F, faces)):
-            raise JobError(f"sequence {spec['names'][k]!r} has a different mesh structure from "
-                           f"{spec['names'][0]!r}; all sources need the same vertices and faces")
-        faces = F
-        clips.append(clip)
-        reporter.log(f"read {clip.name}: {len(clip.vertices)} frames at {clip.fps:g} fps"
-                     f"{' (cyclic)' if clip.cyclic else ''}")
-    reporter.progress("read", len(clips), len(clips))
-    rest_path = spec["rest"]
-    if rest_path is None and (dataset_dir / "template" / "body.obj").is_file():
-        rest_path = dataset_dir / "template" / "body.obj"
-    rest = clips[0].vertices[0]
-    if rest_path is not None:
-        mesh = read_mesh(rest_path)
-        if mesh.vertices.shape != clips[0].vertices.shape[1:] or not np.array_equal(mesh.faces, faces):
-            if spec["rest"] is not None:
-                raise JobError(f"{params['spec']['rest']}: the rest mesh must have the sources' vertices and faces")
-            reporter.log("template/body.obj does not match the sources' mesh; resting on the first frame")
-        else:
-            rest = mesh.vertices
+    try:
+        clips, faces = load_sources(spec["directories"], fps=30.0, cyclic=False, progress=reporter.progress,
+                                    log=reporter.log)
+        rest, note = choose_rest(clips, faces, spec["rest"], dataset_dir / "template" / "body.obj")
+    except ValueError as exc:
+        raise JobError(str(exc).replace(str(dataset_dir) + "/", "")) from None
+    reporter.log(note.replace(str(dataset_dir) + "/", ""))
     reporter.progress("tetrahedralise", 0, 1)
     embedding = cached_embedding(payload["tetcache"], rest, faces)
     reporter.progress("tetrahedralise", 1, 1)
