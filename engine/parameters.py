@@ -384,10 +384,10 @@ class ParameterMap:
             u = self._dense_u[int(np.argmin(distance))].astype(float)
         else:
             u = np.clip(np.asarray(start, dtype=float).reshape(self.layout.dims), 0.0, 1.0)
-        u = np.array(self._gauss_newton(p.tolist(), u.tolist()))
-        realised = self.at(u)
-        error = np.abs(realised - p) / scale
-        clamped = bool(np.any(error > tolerance))
+        u_list = self._gauss_newton(p.tolist(), u.tolist())
+        u = np.array(u_list)
+        realised = np.array(self._cell(u_list)[0])
+        clamped = any(abs(r - q) > tolerance * s for r, q, s in zip(realised.tolist(), p.tolist(), self._ranges_list))
         message = ""
         if clamped:
             parts = [f"{n} {q:g} {unit} -> {r:.3g}" for n, q, r, unit in zip(self.names, p, realised, self.units)]
