@@ -1,0 +1,124 @@
+"""Browser tests: the page in Debian's headless Chromium, driven by Playwright, against a real server.
+
+The server fixtures (small real motion spaces built once per run, a ``morphspace serve``
+subprocess) come from tests/server/conftest.py, loaded by path so the two conftest modules do not
+shadow each other. Screenshots go to tests/browser/artifacts/ (kept after the run, gitignored).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+CHROMIUM = Path("/usr/bin/chromium")
+ARTIFACTS = Path(__file__).resolve().parent / "artifacts"
+VENDOR = Path(__file__).resolve().parents[2] / "web_client" / "static" / "vendor"
+VIEWPORT = {"width": 1100, "height": 700}
+
+_spec = importlib.util.spec_from_file_location(
+    "morphspace_server_fixtures", Path(__file__).resolve().parents[1] / "server" / "conftest.py")
+server_fixtures = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(server_fixtures)
+LiveServer = server_fixtures.LiveServer
+data_dir_with_spaces = server_fixtures.data_dir_with_spaces
+built_spaces = server_fixtures.built_spaces  # the session fixture, shared through its lock file
+
+
+@pytest.fixture(scope="session")
+def browser():
+    """One headless Chromium for the run (Debian's package; skipped with the reason if absent)."""
+    if not CHROMIUM.exists():
+        pytest.skip("browser tests need Debian's chromium at /usr/bin/chromium (apt-get install -y chromium; "
+                    "scripts/test installs it)")
+    if not (VENDOR / "three" / "three.module.js").exists():
+        pytest.fail("web_client/static/vendor/ is missing: run scripts/build-web (scripts/setup-env does)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=str(CHROMIUM), args=[
+            "--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+            "--disable-component-update"])
+        yield chromium
+        chromium.close()
+
+
+@pytest.fixture(scope="module")
+def web_server(built_spaces, tmp_path_factory):
+    """A live server with the 'speed' and 'jump' test spaces."""
+    data = data_dir_with_spaces(tmp_path_factory.mktemp("browser-data"), built_spaces)
+    with LiveServer(data) as live:
+        yield live
+
+
+class Page:
+    """A Playwright page plus what the browser reported: console messages and page errors."""
+
+    def __init__(self, page):
+        self.page = page
+        self.console = []
+        self.page_errors = []
+        page.on("console", lambda m: self.console.append((m.type, m.text)))
+        page.on("pageerror", lambda e: self.page_errors.append(str(e)))
+
+    def errors(self, ignore=()):
+        found = [text for kind, text in self.console if kind == "error"] + self.page_errors
+        return [e for e in found if not any(pattern in e for pattern in ignore)]
+
+    def status(self):
+        return self.page.evaluate("window.morphspace.status()")
+
+    def wait_status(self, predicate, timeout=15.0, what="the page state"):
+        """Poll window.morphspace.status() until ``predicate(status)``; fail with the last status."""
+        deadline = time.monotonic() + timeout
+        status = None
+        while time.monotonic() < deadline:
+            status = self.page.evaluate("window.morphspace ? window.morphspace.status() : null")
+            if status is not None and predicate(status):
+                return status
+            self.page.wait_for_timeout(100)
+        raise AssertionError(f"timed out after {timeout} s waiting for {what}; last status: {status}")
+
+    def wait_frames(self, count, timeout=15.0):
+        """Wait until ``count`` more frames have been received *and* drawn."""
+        start = self.status()
+        return self.wait_status(
+            lambda s: s["stats"]["framesTotal"] >= start["stats"]["framesTotal"] + count
+            and s["framesDrawn"] >= start["framesDrawn"] + min(count, 2),
+            timeout, f"{count} new frames")
+
+    def canvas_pixels(self, name=None):
+        """(h, w, 3) uint8 RGB of the 3D view (a screenshot of the canvas; saved under artifacts/)."""
+        from PIL import Image
+
+        png = self.page.locator("#view").screenshot(timeout=10000)
+        if name:
+            ARTIFACTS.mkdir(exist_ok=True)
+            (ARTIFACTS / f"{name}.png").write_bytes(png)
+        return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+
+    def screenshot(self, name):
+        ARTIFACTS.mkdir(exist_ok=True)
+        self.page.screenshot(path=str(ARTIFACTS / f"{name}.png"), timeout=10000)
+
+
+@pytest.fixture()
+def open_page(browser):
+    """``open_page(url)``: a fresh page at ``url`` (closed after the test)."""
+    pages = []
+
+    def make(url):
+        context = browser.new_context(viewport=VIEWPORT)
+        page = Page(context.new_page())
+        page.page.set_default_timeout(15000)
+        pages.append(context)
+        page.page.goto(url, wait_until="load")
+        return page
+
+    yield make
+    for context in pages:
+        context.close()

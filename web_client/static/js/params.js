@@ -1,0 +1,175 @@
+// Sliders generated from a space's parameter definitions, keyboard steering (arrows / WASD),
+// and a throttled sender: the page asks for targets, the server smooths and realises them.
+const SEND_INTERVAL_MS = 50;
+
+function decimals(def) {
+  const span = def.max - def.min;
+  return span >= 20 ? 1 : span >= 2 ? 2 : 3;
+}
+
+export function formatValue(def, value) {
+  return value === null || value === undefined || !Number.isFinite(value) ? "–" : value.toFixed(decimals(def));
+}
+
+/** Sliders for the parameters [{name, unit, min, max, value|default}] in `container`. */
+export class ParameterPanel {
+  constructor(container, onChange) {
+    this.container = container;
+    this.onChange = onChange;
+    this.defs = [];
+    this.inputs = new Map();
+  }
+
+  build(defs, targets) {
+    this.defs = defs;
+    this.inputs.clear();
+    this.container.replaceChildren();
+    for (const def of defs) {
+      const row = document.createElement("div");
+      row.className = "param";
+      row.dataset.name = def.name;
+      const value = targets[def.name];
+      const id = `param-${def.name}`;
+      row.innerHTML = `
+        <div class="head"><label class="name" for="${id}"></label>
+          <span><span class="value"></span> <span class="unit"></span></span></div>
+        <input type="range" id="${id}" name="${def.name}">
+        <div class="range"><span class="lo"></span><span class="hi"></span></div>`;
+      row.querySelector(".name").textContent = def.name.replace(/_/g, " ");
+      row.querySelector(".unit").textContent = def.unit;
+      row.querySelector(".lo").textContent = formatValue(def, def.min);
+      row.querySelector(".hi").textContent = formatValue(def, def.max);
+      const input = row.querySelector("input");
+      input.min = String(def.min);
+      input.max = String(def.max);
+      input.step = String((def.max - def.min) / 500);
+      input.value = String(value);
+      input.setAttribute("aria-valuetext", `${formatValue(def, value)} ${def.unit}`);
+      input.addEventListener("input", () => this.onChange(def.name, Number(input.value)));
+      this.inputs.set(def.name, { input, label: row.querySelector(".value"), def });
+      row.querySelector(".value").textContent = formatValue(def, value);
+      this.container.append(row);
+    }
+  }
+
+  /** Show a target set elsewhere (keyboard steering) on its slider. */
+  show(name, value) {
+    const entry = this.inputs.get(name);
+    if (!entry) return;
+    if (document.activeElement !== entry.input) entry.input.value = String(value);
+    entry.label.textContent = formatValue(entry.def, value);
+    entry.input.setAttribute("aria-valuetext", `${formatValue(entry.def, value)} ${entry.def.unit}`);
+  }
+}
+
+/** Sends Params messages at most every SEND_INTERVAL_MS, always with the newest targets. */
+export class ParamSender {
+  constructor(send) {
+    this.send = send;          // send(params) -> seq
+    this.pending = {};
+    this.timer = null;
+    this.lastSent = -Infinity;
+  }
+
+  queue(name, value) {
+    this.pending[name] = value;
+    if (this.timer !== null) return;
+    const wait = Math.max(0, this.lastSent + SEND_INTERVAL_MS - performance.now());
+    this.timer = setTimeout(() => this.flush(), wait);
+  }
+
+  flush() {
+    this.timer = null;
+    if (Object.keys(this.pending).length === 0) return;
+    const params = this.pending;
+    this.pending = {};
+    this.lastSent = performance.now();
+    this.send(params);
+  }
+
+  clear() {
+    clearTimeout(this.timer);
+    this.timer = null;
+    this.pending = {};
+  }
+}
+
+const KEYS = {
+  ArrowUp: "faster", KeyW: "faster", ArrowDown: "slower", KeyS: "slower",
+  ArrowLeft: "left", KeyA: "left", ArrowRight: "right", KeyD: "right",
+};
+
+function typingInto(target) {
+  if (!target || !target.tagName) return false;
+  if (target.tagName === "SELECT" || target.tagName === "TEXTAREA") return true;
+  return target.tagName === "INPUT" && target.type !== "checkbox" && target.type !== "radio";
+}
+
+/**
+ * Game-style steering. Up/W and Down/S move the speed parameter (or the first parameter);
+ * Left/A and Right/D move turn_rate (or the second parameter). turn_rate springs back to
+ * straight ahead when no turn key is held; positive turn rates turn left (heading about +Y).
+ */
+export class Steering {
+  constructor({ getTarget, setTarget }) {
+    this.getTarget = getTarget;
+    this.setTarget = setTarget;
+    this.held = new Set();
+    this.forward = null;
+    this.turn = null;
+    this.centre = false;
+  }
+
+  /** Choose the steered parameters from the definitions; returns a hint for the user. */
+  configure(defs) {
+    const byName = Object.fromEntries(defs.map((d) => [d.name, d]));
+    this.forward = byName.speed ?? defs[0] ?? null;
+    this.turn = byName.turn_rate ?? defs.find((d) => d !== this.forward) ?? null;
+    this.centre = this.turn !== null && this.turn.name === "turn_rate";
+    const parts = [];
+    if (this.forward) parts.push(`↑/W ↓/S: ${this.forward.name.replace(/_/g, " ")}`);
+    if (this.turn) parts.push(`←/A →/D: ${this.turn.name.replace(/_/g, " ")}${this.centre ? " (springs back)" : ""}`);
+    return parts.join(" · ");
+  }
+
+  attach(target, { onPause, onReset }) {
+    target.addEventListener("keydown", (event) => {
+      if (typingInto(event.target) || event.ctrlKey || event.metaKey || event.altKey) return;
+      if (event.code === "Space") {
+        onPause();
+        event.preventDefault();
+      } else if (event.code === "KeyR") {
+        onReset();
+      } else if (KEYS[event.code]) {
+        if (event.target?.type === "range") event.target.blur();
+        this.held.add(KEYS[event.code]);
+        event.preventDefault();
+      }
+    });
+    target.addEventListener("keyup", (event) => this.held.delete(KEYS[event.code]));
+    window.addEventListener("blur", () => this.held.clear());
+  }
+
+  /** Advance the steered targets by dt seconds of held keys. */
+  tick(dt) {
+    const move = (def, direction, perSecond) => {
+      if (!def) return;
+      const now = this.getTarget(def.name);
+      const next = Math.min(def.max, Math.max(def.min, now + direction * (def.max - def.min) * perSecond * dt));
+      if (next !== now) this.setTarget(def.name, next);
+    };
+    if (this.held.has("faster")) move(this.forward, +1, 0.5);
+    if (this.held.has("slower")) move(this.forward, -1, 0.5);
+    const left = this.held.has("left"), right = this.held.has("right");
+    if (left && !right) move(this.turn, +1, 0.8);
+    if (right && !left) move(this.turn, -1, 0.8);
+    if (!left && !right && this.centre && this.turn) {
+      const now = this.getTarget(this.turn.name);
+      const straight = Math.min(this.turn.max, Math.max(this.turn.min, 0));
+      const stepSize = (this.turn.max - this.turn.min) * 1.2 * dt;
+      if (Math.abs(now - straight) > 1e-9) {
+        this.setTarget(this.turn.name, Math.abs(now - straight) <= stepSize ? straight : now - Math.sign(now - straight) * stepSize);
+      }
+    }
+  }
+}

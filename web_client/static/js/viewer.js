@@ -1,0 +1,362 @@
+// The three.js scene: the streamed character (one BufferGeometry whose position attribute is
+// rewritten in place per frame), a ground grid that follows it, a follow camera, the heatmap
+// colouring, the travelled path and a trail of every n-th frame.
+import * as THREE from "three";
+import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { colourAt } from "./colormap.js";
+import { typedView } from "./connection.js";
+
+const BODY_COLOUR = 0xc9a27e;
+const TRAIL_COLOUR = 0x8fa7c9;
+const PATH_POINTS = 8192;
+const LUT_SIZE = 256;
+
+const GRID_TILE_M = 5;
+
+/** A repeating texture of one GRID_TILE_M square: 1 m minor lines, a major line on its edge. */
+function gridTexture(repeat) {
+  const size = 512;
+  const canvas = document.createElement("canvas");
+  canvas.width = canvas.height = size;
+  const g = canvas.getContext("2d");
+  g.fillStyle = "#c9ced4";
+  g.fillRect(0, 0, size, size);
+  const cell = size / GRID_TILE_M;
+  g.fillStyle = "#a3abb4";
+  for (let i = 1; i < GRID_TILE_M; i += 1) {
+    g.fillRect(i * cell - 1.5, 0, 3, size);
+    g.fillRect(0, i * cell - 1.5, size, 3);
+  }
+  g.fillStyle = "#7d8792";
+  g.fillRect(0, 0, 5, size);
+  g.fillRect(0, 0, size, 5);
+  const texture = new THREE.CanvasTexture(canvas);
+  texture.wrapS = texture.wrapT = THREE.RepeatWrapping;
+  texture.repeat.set(repeat, repeat);
+  texture.anisotropy = 8;
+  texture.colorSpace = THREE.SRGBColorSpace;
+  return texture;
+}
+
+/** True when WebGL runs on a CPU rasteriser (SwiftShader, llvmpipe). */
+function softwareGL(canvas) {
+  const gl = canvas.getContext("webgl2");
+  const info = gl && gl.getExtension("WEBGL_debug_renderer_info");
+  const renderer = info ? String(gl.getParameter(info.UNMASKED_RENDERER_WEBGL)) : "";
+  return /swiftshader|llvmpipe|software/i.test(renderer);
+}
+
+function srgbToLinear(c) {
+  return c <= 0.04045 ? c / 12.92 : Math.pow((c + 0.055) / 1.055, 2.4);
+}
+
+/** (LUT_SIZE * 3) linear-space colours of the heatmap scale. */
+function heatmapLut() {
+  const lut = new Float32Array(LUT_SIZE * 3);
+  for (let i = 0; i < LUT_SIZE; i += 1) {
+    colourAt(i / (LUT_SIZE - 1), lut, i * 3);
+    for (let k = 0; k < 3; k += 1) lut[i * 3 + k] = srgbToLinear(lut[i * 3 + k]);
+  }
+  return lut;
+}
+
+export class Viewer {
+  /** quality: {antialias, shadows} (both default on; ?lite=1 turns them off for software GL). */
+  constructor(canvas, quality = {}) {
+    this.canvas = canvas;
+    this.renderer = new THREE.WebGLRenderer({ canvas, antialias: quality.antialias ?? !softwareGL(canvas) });
+    this.software = softwareGL(canvas);
+    // Software GL (e.g. headless Chromium's SwiftShader) draws every pixel on the CPU: start at a
+    // lower resolution without shadows, so the page stays responsive; adapt() tunes it further.
+    const lite = quality.lite ?? this.software;
+    this.pixelRatio = lite ? 0.6 : Math.min(window.devicePixelRatio || 1, 2);
+    this.renderer.setPixelRatio(this.pixelRatio);
+    this.renderer.shadowMap.enabled = quality.shadows ?? !lite;
+    this.frameMs = null;
+    this.renderer.shadowMap.type = THREE.PCFShadowMap;
+    this.scene = new THREE.Scene();
+    this.scene.background = new THREE.Color(0xdfe4ea);
+    this.scene.fog = new THREE.Fog(0xdfe4ea, 14, 34);
+    this.camera = new THREE.PerspectiveCamera(45, 1, 0.05, 200);
+    this.camera.position.set(4.2, 2.0, -2.4);
+    this.controls = new OrbitControls(this.camera, canvas);
+    this.controls.target.set(0, 0.9, 0);
+    this.controls.enableDamping = true;
+    this.controls.maxPolarAngle = Math.PI * 0.495;
+    this.controls.minDistance = 0.8;
+    this.controls.maxDistance = 25;
+    this.follow = true;
+
+    this.scene.add(new THREE.HemisphereLight(0xf4f6ff, 0x7d6e5a, 1.4));
+    this.sun = new THREE.DirectionalLight(0xffffff, 2.2);
+    this.sun.position.set(2.5, 6, -3);
+    this.sun.castShadow = true;
+    this.sun.shadow.mapSize.set(1024, 1024);
+    Object.assign(this.sun.shadow.camera, { left: -3, right: 3, top: 3, bottom: -3, near: 0.5, far: 15 });
+    this.scene.add(this.sun, this.sun.target);
+
+    // Ground grid: a 1 m grid with 5 m major lines drawn into a texture (lines rendered as
+    // GL lines get lost on some software renderers); the plane re-centres in 5 m steps.
+    const groundSize = 300;
+    const material = new THREE.MeshStandardMaterial({ map: gridTexture(groundSize / GRID_TILE_M), roughness: 1 });
+    this.ground = new THREE.Mesh(new THREE.PlaneGeometry(groundSize, groundSize), material);
+    this.ground.rotation.x = -Math.PI / 2;
+    this.ground.receiveShadow = true;
+    this.scene.add(this.ground);
+    this.origin = new THREE.AxesHelper(0.5);
+    this.origin.position.y = 0.003;
+    this.scene.add(this.origin);
+
+    const pathGeometry = new THREE.BufferGeometry();
+    pathGeometry.setAttribute("position", new THREE.BufferAttribute(new Float32Array(PATH_POINTS * 3), 3));
+    pathGeometry.setDrawRange(0, 0);
+    this.path = new THREE.Line(pathGeometry, new THREE.LineBasicMaterial({ color: 0x2a5db0 }));
+    this.path.frustumCulled = false;
+    this.pathCount = 0;
+    this.scene.add(this.path);
+
+    this.lut = heatmapLut();
+    this.mesh = null;
+    this.topology = null;
+    this.heatmap = { on: false, scale: 0.02 };  // metres at the red end
+    this.trail = { on: false, every: 8, count: 12, meshes: [], next: 0, bucket: null };
+    this.framesDrawn = 0;
+    this.resize();
+    window.addEventListener("resize", () => this.resize());
+  }
+
+  resize() {
+    const { clientWidth: w, clientHeight: h } = this.canvas;
+    if (w === 0 || h === 0) return;
+    this.renderer.setSize(w, h, false);
+    this.camera.aspect = w / h;
+    this.camera.updateProjectionMatrix();
+  }
+
+  /** A new topology: rebuild the character mesh and forget the path and trail. */
+  setTopology(topology) {
+    this.topology = topology;
+    const n = topology.n_vertices;
+    if (this.mesh) {
+      this.scene.remove(this.mesh);
+      this.mesh.geometry.dispose();
+      this.mesh.material.dispose();
+    }
+    const geometry = new THREE.BufferGeometry();
+    const position = new THREE.BufferAttribute(new Float32Array(n * 3), 3);
+    position.setUsage(THREE.DynamicDrawUsage);
+    geometry.setAttribute("position", position);
+    const colour = new THREE.BufferAttribute(new Float32Array(n * 3).fill(0.5), 3);
+    colour.setUsage(THREE.DynamicDrawUsage);
+    geometry.setAttribute("color", colour);
+    geometry.setIndex(new THREE.BufferAttribute(typedView(topology.faces, Uint32Array), 1));
+    const material = new THREE.MeshStandardMaterial({ color: BODY_COLOUR, roughness: 0.65, metalness: 0.0 });
+    this.mesh = new THREE.Mesh(geometry, material);
+    this.mesh.castShadow = true;
+    this.mesh.frustumCulled = false;  // positions change every frame; bounds would go stale
+    this.mesh.visible = false;
+    this.scene.add(this.mesh);
+    this.lo = topology.bounds_min;
+    this.step = topology.bounds_max.map((hi, k) => (hi - topology.bounds_min[k]) / 65535);
+    this._applyHeatmapMaterial();
+    this.clearPath();
+    this.clearTrail();
+    this.rootPrevious = null;
+  }
+
+  /** Dequantise (q16) or copy (f32) a frame's root-local vertices into the position attribute. */
+  _writePositions(frame) {
+    const out = this.mesh.geometry.attributes.position.array;
+    if (this.topology.codec === "q16") {
+      const q = typedView(frame.vertices, Uint16Array);
+      const [lx, ly, lz] = this.lo;
+      const [sx, sy, sz] = this.step;
+      for (let i = 0; i < q.length; i += 3) {
+        out[i] = lx + q[i] * sx;
+        out[i + 1] = ly + q[i + 1] * sy;
+        out[i + 2] = lz + q[i + 2] * sz;
+      }
+    } else {
+      out.set(typedView(frame.vertices, Float32Array));
+    }
+  }
+
+  _writeColours(frame) {
+    const colours = this.mesh.geometry.attributes.color;
+    const out = colours.array;
+    const lut = this.lut;
+    if (frame.error_um) {
+      const um = typedView(frame.error_um, Uint16Array);
+      const k = (LUT_SIZE - 1) / (this.heatmap.scale * 1e6);
+      for (let i = 0; i < um.length; i += 1) {
+        const j = Math.min(LUT_SIZE - 1, Math.round(um[i] * k)) * 3;
+        out[i * 3] = lut[j];
+        out[i * 3 + 1] = lut[j + 1];
+        out[i * 3 + 2] = lut[j + 2];
+      }
+    }
+    colours.needsUpdate = true;
+  }
+
+  _applyHeatmapMaterial() {
+    if (!this.mesh) return;
+    const material = this.mesh.material;
+    material.vertexColors = this.heatmap.on;
+    material.color.set(this.heatmap.on ? 0xffffff : BODY_COLOUR);
+    material.needsUpdate = true;
+  }
+
+  setHeatmap(on, scale) {
+    this.heatmap.on = on;
+    if (scale !== undefined) this.heatmap.scale = scale;
+    this._applyHeatmapMaterial();
+    this.clearTrail();  // old snapshots carry the other colouring
+  }
+
+  setTrail(on, every, count) {
+    const trail = this.trail;
+    trail.on = on;
+    if (every !== undefined) trail.every = Math.max(1, every);
+    if (count !== undefined && count !== trail.count) {
+      trail.count = Math.max(1, count);
+      this.clearTrail();
+    }
+    if (!on) this.clearTrail();
+  }
+
+  clearTrail() {
+    for (const m of this.trail.meshes) {
+      this.scene.remove(m);
+      m.geometry.dispose();
+      m.material.dispose();
+    }
+    this.trail.meshes = [];
+    this.trail.next = 0;
+    this.trail.bucket = null;
+  }
+
+  clearPath() {
+    this.pathCount = 0;
+    this.path.geometry.setDrawRange(0, 0);
+  }
+
+  /** Draw one streamed frame: vertices in place, normals, root transform, colours, path, trail. */
+  showFrame(frame) {
+    if (!this.mesh) return;
+    const geometry = this.mesh.geometry;
+    this._writePositions(frame);
+    geometry.attributes.position.needsUpdate = true;
+    geometry.computeVertexNormals();
+    if (this.heatmap.on) this._writeColours(frame);
+    this.mesh.position.set(frame.root[0], frame.root[1], frame.root[2]);
+    this.mesh.rotation.set(0, frame.heading, 0);
+    this.mesh.visible = true;
+    this._extendPath(frame.root);
+    if (this.trail.on) {
+      // every n-th frame of the stream (by frame number, so a slow page keeps the spacing)
+      const bucket = Math.floor(frame.seq / this.trail.every);
+      if (bucket !== this.trail.bucket) {
+        this.trail.bucket = bucket;
+        this._snapshot();
+      }
+    }
+    this.framesDrawn += 1;
+  }
+
+  _extendPath(root) {
+    const array = this.path.geometry.attributes.position.array;
+    if (this.pathCount > 0) {
+      const i = (this.pathCount - 1) * 3;
+      const dx = array[i] - root[0], dz = array[i + 2] - root[2];
+      if (dx * dx + dz * dz < 0.0004) return;  // 2 cm
+      if (dx * dx + dz * dz > 4) this.clearPath();  // a jump of 2 m: a reset, not a path
+    }
+    if (this.pathCount === PATH_POINTS) {
+      array.copyWithin(0, (PATH_POINTS / 2) * 3);
+      this.pathCount = PATH_POINTS / 2;
+    }
+    array.set([root[0], 0.01, root[2]], this.pathCount * 3);
+    this.pathCount += 1;
+    this.path.geometry.setDrawRange(0, this.pathCount);
+    this.path.geometry.attributes.position.needsUpdate = true;
+  }
+
+  /** Copy the character as it is now into the trail (a ring of `count` meshes, oldest faded). */
+  _snapshot() {
+    const trail = this.trail;
+    let copy;
+    if (trail.meshes.length < trail.count) {
+      const geometry = new THREE.BufferGeometry();
+      geometry.setAttribute("position", this.mesh.geometry.attributes.position.clone());
+      geometry.setAttribute("normal", this.mesh.geometry.attributes.normal.clone());
+      geometry.setAttribute("color", this.mesh.geometry.attributes.color.clone());
+      geometry.setIndex(this.mesh.geometry.index.clone());
+      const material = new THREE.MeshStandardMaterial({ color: TRAIL_COLOUR, roughness: 0.8, transparent: true });
+      copy = new THREE.Mesh(geometry, material);
+      copy.castShadow = true;
+      copy.frustumCulled = false;
+      trail.meshes.push(copy);
+      this.scene.add(copy);
+    } else {
+      copy = trail.meshes[trail.next];
+      for (const name of ["position", "normal", "color"]) {
+        copy.geometry.attributes[name].array.set(this.mesh.geometry.attributes[name].array);
+        copy.geometry.attributes[name].needsUpdate = true;
+      }
+    }
+    copy.material.vertexColors = this.heatmap.on;
+    copy.material.color.set(this.heatmap.on ? 0xffffff : TRAIL_COLOUR);
+    copy.material.needsUpdate = true;
+    copy.position.copy(this.mesh.position);
+    copy.rotation.copy(this.mesh.rotation);
+    copy.visible = true;
+    copy.userData.age = 0;
+    trail.next = (trail.meshes.indexOf(copy) + 1) % trail.count;
+    // fade: newest most opaque
+    const n = trail.meshes.length;
+    trail.meshes.forEach((m, i) => {
+      const age = (trail.next - 1 - i + n) % n;  // 0 = newest
+      m.material.opacity = 0.85 - 0.6 * (age / Math.max(1, trail.count - 1));
+    });
+  }
+
+  /**
+   * Resolution follows the frame time: down a step while frames take over 60 ms to come round
+   * (an average of dt), back up while they take under 25 ms; at most one step a second, and not
+   * during the first frames (shader compilation).
+   */
+  adapt(dt) {
+    this.adaptFrames = (this.adaptFrames ?? 0) + 1;
+    if (this.adaptFrames < 30) return;
+    this.frameMs = this.frameMs === null ? 16.7 : 0.9 * this.frameMs + 0.1 * dt * 1000;
+    const now = performance.now();
+    if (now - (this.adaptedAt ?? 0) < 1000) return;
+    const best = Math.min(window.devicePixelRatio || 1, 2);
+    let ratio = this.pixelRatio;
+    if (this.frameMs > 60 && ratio > 0.35) ratio = Math.max(0.35, ratio * 0.8);
+    else if (this.frameMs < 25 && ratio < best) ratio = Math.min(best, ratio * 1.25);
+    if (ratio !== this.pixelRatio) {
+      this.pixelRatio = ratio;
+      this.renderer.setPixelRatio(ratio);
+      this.resize();
+      this.adaptedAt = now;
+    }
+  }
+
+  /** Per animation frame: follow the character, place the grid and the sun, render. */
+  render(dt) {
+    if (this.mesh && this.mesh.visible && this.follow) {
+      const target = new THREE.Vector3(this.mesh.position.x, this.controls.target.y, this.mesh.position.z);
+      const k = 1 - Math.exp(-dt * 6);
+      const delta = target.sub(this.controls.target).multiplyScalar(k);
+      this.controls.target.add(delta);
+      this.camera.position.add(delta);
+    }
+    const t = this.controls.target;
+    this.ground.position.set(Math.round(t.x / GRID_TILE_M) * GRID_TILE_M, 0, Math.round(t.z / GRID_TILE_M) * GRID_TILE_M);
+    this.sun.position.set(t.x + 2.5, 6, t.z - 3);
+    this.sun.target.position.set(t.x, 0, t.z);
+    this.controls.update();
+    this.renderer.render(this.scene, this.camera);
+  }
+}

@@ -1,0 +1,127 @@
+// Generated from server/protocol.py by `python -m server.protocol --js`; do not edit.
+// A test checks that this file matches the server's message definitions.
+export const PROTOCOL_VERSION = 1;
+export const CODECS = ["f32", "q16"];
+export const MODES = ["linear", "hybrid", "nonlinear"];
+export const CLIENT_MESSAGES = {
+  "hello": [
+    "type",
+    "space",
+    "codec",
+    "rate",
+    "mode",
+    "params",
+    "smoothing",
+    "window",
+    "heatmap",
+    "seq"
+  ],
+  "params": [
+    "type",
+    "params",
+    "immediate",
+    "seq"
+  ],
+  "mode": [
+    "type",
+    "mode",
+    "seq"
+  ],
+  "rate": [
+    "type",
+    "rate",
+    "seq"
+  ],
+  "pause": [
+    "type",
+    "seq"
+  ],
+  "resume": [
+    "type",
+    "seq"
+  ],
+  "seek": [
+    "type",
+    "phase",
+    "seq"
+  ],
+  "reset": [
+    "type",
+    "seq"
+  ],
+  "heatmap": [
+    "type",
+    "on",
+    "seq"
+  ],
+  "pull": [
+    "type",
+    "id",
+    "params",
+    "time",
+    "phase",
+    "mode"
+  ],
+  "ack": [
+    "type",
+    "frame"
+  ]
+};
+export const SERVER_MESSAGES = {
+  "topology": [
+    "type",
+    "protocol",
+    "space",
+    "n_vertices",
+    "n_faces",
+    "faces",
+    "codec",
+    "bounds_min",
+    "bounds_max",
+    "quantisation_error",
+    "parameters",
+    "sources",
+    "durations",
+    "cyclic",
+    "mode",
+    "modes",
+    "rate",
+    "model_size",
+    "limits"
+  ],
+  "frame": [
+    "type",
+    "seq",
+    "ack",
+    "time",
+    "phase",
+    "mode",
+    "requested",
+    "realised",
+    "clamped",
+    "weights",
+    "root",
+    "heading",
+    "vertices",
+    "dropped",
+    "finished",
+    "sent_at",
+    "pull_id",
+    "error_um",
+    "error_max"
+  ],
+  "notice": [
+    "type",
+    "code",
+    "message",
+    "seq"
+  ],
+  "error": [
+    "type",
+    "code",
+    "message",
+    "ref",
+    "seq"
+  ]
+};
+export const ERROR_CODES = ["malformed", "unknown_type", "invalid_field", "unknown_space", "not_playable", "not_ready", "too_large", "rate_limited", "invalid_params", "server_busy", "internal"];
