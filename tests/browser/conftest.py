@@ -55,6 +55,22 @@ def web_server(built_spaces, tmp_path_factory):
         yield live
 
 
+@pytest.fixture()
+def restartable_server(built_spaces, tmp_path):
+    """A live server with the 'speed' space that a test may stop and start again on the same port."""
+    server = LiveServer(data_dir_with_spaces(tmp_path / "data", built_spaces, names=("speed",)))
+    server.start()
+    yield server
+    server.stop()
+
+
+@pytest.fixture()
+def empty_server(tmp_path):
+    """A live server with no motion spaces yet."""
+    with LiveServer(tmp_path / "data") as server:
+        yield server
+
+
 class Page:
     """A Playwright page plus what the browser reported: console messages and page errors."""
 
