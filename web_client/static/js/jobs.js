@@ -15,6 +15,10 @@ function el(tag, props = {}, ...children) {
 }
 
 /** A dataset name from a file name: "My capture (2).zip" -> "My_capture_2". */
+function unstructured(dataset) {
+  return dataset.sequences.filter((seq) => seq.unstructured_frames > 0);
+}
+
 export function datasetName(fileName) {
   const stem = fileName.replace(/\.zip$/i, "").replace(/[^A-Za-z0-9_.-]+/g, "_").replace(/^[^A-Za-z0-9]+/, "");
   return stem.slice(0, 128) || "dataset";
@@ -45,7 +49,8 @@ export class JobsPanel {
     this.say = say;
     this.datasets = [];
     this.jobs = [];
-    this.watching = new Set();   // build jobs seen queued/running here: announce when they succeed
+    this.watching = new Set();   // jobs seen queued/running here: announce when they finish
+    this.mine = new Set();       // jobs started from this page
     this.timer = null;
   }
 
@@ -58,6 +63,7 @@ export class JobsPanel {
     $("upload-form").addEventListener("submit", (e) => { e.preventDefault(); this.upload(); });
     $("build-form").addEventListener("submit", (e) => { e.preventDefault(); this.build(); });
     $("build-dataset").addEventListener("change", () => this.showDataset());
+    $("align-button").addEventListener("click", () => this.align());
     $("build-layout").addEventListener("change", () => this.showLayout());
     $("build-measures").replaceChildren(...MEASURES.map((m) => el("label", {},
       el("input", { type: "checkbox", value: m, checked: m === "speed" }), ` ${m.replace("_", " ")}`)));
@@ -97,18 +103,22 @@ export class JobsPanel {
     } catch {
       return;
     }
-    const buildable = this.datasets.filter((d) => d.buildable.length >= 2);
-    $("build-form").hidden = buildable.length === 0;
+    const usable = this.datasets.filter((d) => d.buildable.length >= 2 || unstructured(d).length > 0);
+    $("build-form").hidden = usable.length === 0;
     const picker = $("build-dataset");
     const keep = select || picker.value;
-    picker.replaceChildren(...buildable.map((d) => new Option(`${d.name} (${d.buildable.length} sequences)`, d.name)));
-    if (buildable.some((d) => d.name === keep)) picker.value = keep;
+    picker.replaceChildren(...usable.map((d) => new Option(
+      d.buildable.length >= 2 ? `${d.name} (${d.buildable.length} sequences)` : `${d.name} (unstructured)`, d.name)));
+    if (usable.some((d) => d.name === keep)) picker.value = keep;
     this.showDataset();
   }
 
   showDataset() {
     const dataset = this.datasets.find((d) => d.name === $("build-dataset").value);
     if (!dataset) return;
+    const buildable = dataset.buildable.length >= 2;
+    $("build-options").hidden = !buildable;
+    $("build-align").hidden = buildable;
     $("build-sources").replaceChildren(...dataset.buildable.map((name) => el("label", {},
       el("input", { type: "checkbox", value: name, checked: true }), ` ${name}`)));
     for (const id of ["build-left", "build-right"]) {
@@ -148,12 +158,26 @@ export class JobsPanel {
     try {
       const job = await api.request("POST", "/jobs", request);
       this.watching.add(job.id);
+      this.mine.add(job.id);
       this.say(`Build of ${request.space} queued (job ${job.id.slice(0, 8)}).`, "info");
       this.poll();
     } catch (err) {
       this.say(`Build refused (${err.status || "network"}): ${err.message}`, "error", 10000);
     } finally {
       $("build-button").disabled = false;
+    }
+  }
+
+  async align() {
+    const dataset = $("build-dataset").value;
+    const request = { kind: "align", datasets: [dataset], output: `${dataset}_aligned`.slice(0, 128) };
+    try {
+      const job = await api.request("POST", "/jobs", request);
+      this.say(`Alignment of ${dataset} queued (writes ${request.output}); build from it when it is done.`, "info", 8000);
+      this.watching.add(job.id);
+      this.poll();
+    } catch (err) {
+      this.say(`Alignment refused (${err.status || "network"}): ${err.message}`, "error", 10000);
     }
   }
 
@@ -183,7 +207,11 @@ export class JobsPanel {
   finished(job) {
     const space = job.params?.space;
     if (job.status === "succeeded" && job.kind === "build" && space) {
-      this.onSpaceReady(space);
+      this.onSpaceReady(space, this.mine.has(job.id));  // select it only if it was started here
+    } else if (job.status === "succeeded" && job.kind !== "build") {
+      this.say(`${job.kind} job done: dataset ${job.params?.output ?? job.params?.dataset} is ready.`, "info", 8000);
+      this.refreshDatasets(job.params?.output);
+      return;
     } else if (job.status === "failed") {
       this.say(`Job ${job.id.slice(0, 8)} failed: ${job.error}`, "error", 12000);
     }

@@ -24,7 +24,7 @@ const state = {
   targets: {},                // space -> {name: value} the user asked for
   topology: null,
   frame: null,                // newest frame received
-  connection: "connecting",
+  connection: "idle",
   notices: [],
   errors: [],
   resetPending: false,
@@ -289,7 +289,7 @@ function ms(value) {
 
 function renderStatus() {
   const pill = $("conn");
-  const labels = { open: "live", connecting: "connecting", reconnecting: "reconnecting…", idle: "idle" };
+  const labels = { open: "live", connecting: "connecting", reconnecting: "reconnecting…", idle: "no stream" };
   pill.textContent = labels[state.connection] ?? state.connection;
   pill.className = `pill ${state.connection}`;
   $("status-space").textContent = state.space ? `${state.space} · ${state.codec}` : "no playable space";
@@ -297,7 +297,7 @@ function renderStatus() {
   $("stat-fps").textContent = state.paused ? `${s.fps.toFixed(0)} (paused)` : s.fps.toFixed(0);
   const lat = s.latency;
   $("stat-latency").textContent = lat.n ? `${ms(lat.last)} (median ${ms(lat.median)}, p95 ${ms(lat.p95)})` : "–";
-  $("stat-dropped").textContent = `${s.dropped} / ${s.gaps}`;
+  $("stat-dropped").textContent = `${s.dropped} / ${s.gaps} / ${Math.max(0, s.framesTotal - viewer.framesDrawn)}`;
   const frame = state.frame;
   $("stat-frame").textContent = frame ? `#${frame.seq} · ${frame.phase.toFixed(2)} · ${frame.mode}` : "–";
   const defs = state.topology?.parameters ?? [];
@@ -356,12 +356,15 @@ window.morphspace = {
 updateLegend();
 setInterval(renderStatus, 200);
 setInterval(() => { if (connection.open) refreshSpaces(); }, 10000);
-new JobsPanel({ onSpaceReady: async (name) => {
+new JobsPanel({ onSpaceReady: async (name, select) => {
   await refreshSpaces();
-  if (state.spaces.some((s) => s.name === name && s.playable)) {
+  if (!state.spaces.some((s) => s.name === name && s.playable)) return;
+  if (select || !state.space) {
     chooseSpace(name);
     fillPicker();
     say(`New motion space ${name} is ready and selected.`, "info", 6000);
+  } else {
+    say(`New motion space ${name} is ready: pick it above.`, "info", 8000);
   }
 }, say }).start();
 requestAnimationFrame(animate);

@@ -121,6 +121,7 @@ export class Viewer {
     this.heatmap = { on: false, scale: 0.02 };  // metres at the red end
     this.trail = { on: false, every: 8, count: 12, meshes: [], next: 0, bucket: null };
     this.framesDrawn = 0;
+    this.lastTime = null;
     this.resize();
     window.addEventListener("resize", () => this.resize());
   }
@@ -161,7 +162,7 @@ export class Viewer {
     this._applyHeatmapMaterial();
     this.clearPath();
     this.clearTrail();
-    this.rootPrevious = null;
+    this.lastTime = null;
   }
 
   /** Dequantise (q16) or copy (f32) a frame's root-local vertices into the position attribute. */
@@ -243,6 +244,11 @@ export class Viewer {
   /** Draw one streamed frame: vertices in place, normals, root transform, colours, path, trail. */
   showFrame(frame) {
     if (!this.mesh) return;
+    if (this.lastTime !== null && frame.time < this.lastTime - 1e-6) {
+      this.clearPath();  // the clock went back (reset, a replayed clip): a new path starts
+      this.clearTrail();
+    }
+    this.lastTime = frame.time;
     const geometry = this.mesh.geometry;
     this._writePositions(frame);
     geometry.attributes.position.needsUpdate = true;
