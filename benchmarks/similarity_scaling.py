@@ -3,15 +3,19 @@
 Reads every unstructured frame of a capture dataset and repeats them, each repeat turned about
 the vertical axis by a random angle and moved, until there are N frames (re-meshed captures of
 3,000 vertices); then times the shape histograms, the dissimilarity matrix (chunked, worker
-processes), the temporal filter and the similarity tree. Prints one JSON object.
+processes), the temporal filter and the similarity tree. Prints one JSON object (with the load
+average, since the machine may be shared) and with --out appends it to a JSON list.
 
-    .venv/bin/python benchmarks/similarity_scaling.py data/captures/demo --frames 1500 [--workers 2]
+    .venv/bin/python benchmarks/similarity_scaling.py data/captures/demo --frames 1500 [--workers 2] \
+        [--out benchmarks/results/similarity_scaling.json]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import platform
 import time
 from pathlib import Path
 
@@ -30,6 +34,7 @@ def main():
     parser.add_argument("--frames", type=int, default=1500)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, help="append the result to this JSON list")
     args = parser.parse_args()
     manifest = read_capture_manifest(args.dataset)
     base = []
@@ -42,6 +47,7 @@ def main():
         shift = rng.uniform(-2.0, 2.0, 3) * [1, 0, 1] if frames else np.zeros(3)
         frames.extend((V @ turn.T + shift, F) for V, F in base[:args.frames - len(frames)])
     lengths = [len(frames)]
+    load_before = os.getloadavg()[0]
     timings = {}
     started = time.perf_counter()
     H, radius = frame_histograms(frames, workers=args.workers)
@@ -56,9 +62,17 @@ def main():
     tree = similarity_tree(filtered)
     timings["tree_s"] = time.perf_counter() - started
     timings["similarity_total_s"] = timings["histograms_s"] + timings["matrix_s"] + timings["filter_s"]
-    print(json.dumps({"frames": len(frames), "vertices_mean": float(np.mean([len(V) for V, _ in frames])),
-                      "workers": args.workers, **{k: round(v, 3) for k, v in timings.items()},
-                      "tree_depth": int(tree.depth.max()), "components": int(tree.components)}))
+    record = {"frames": len(frames), "vertices_mean": round(float(np.mean([len(V) for V, _ in frames])), 1),
+              "workers": args.workers, **{k: round(v, 3) for k, v in timings.items()},
+              "tree_depth": int(tree.depth.max()), "components": int(tree.components),
+              "cpus": os.cpu_count(), "load_average_1min_before": round(load_before, 2),
+              "machine": platform.machine(), "date": time.strftime("%Y-%m-%d %H:%M")}
+    print(json.dumps(record))
+    if args.out is not None:
+        records = json.loads(args.out.read_text()) if args.out.is_file() else []
+        records.append(record)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(records, indent=2) + "\n")
 
 
 if __name__ == "__main__":

@@ -105,12 +105,17 @@ def score_alignment(aligned, root, root_vertices, truth, template_faces, model_s
     return errors, error_summary(errors[others] if others.any() else errors, model_size)
 
 
-def pattern_colors(V, *, period=0.12):
-    """A checker pattern with rings, fixed on a mesh's rest positions (paper fig. 2 style).
+def pattern_colors(V, *, period=0.1):
+    """A checker fixed on a mesh's rest positions (paper fig. 2 style).
+
+    The checker is projected from the front (cells of ``period`` in x and y about the mesh's
+    centre), so it forms clean squares on the body, with one colour pair on the left half of
+    the rest mesh and another on the right: a cell that slides shows a correspondence error, a
+    left-coloured limb on the right a swap.
 
     Parameters
     ----------
-    V : (n, 3) float array   rest (root) vertex positions
+    V : (n, 3) float array   rest (root) vertex positions (+Y up)
     period : float           cell size in metres
 
     Returns
@@ -119,15 +124,13 @@ def pattern_colors(V, *, period=0.12):
                                             aligned frame shows where each root point went
     """
     V = np.asarray(V, dtype=np.float64)
-    cell = np.floor(V / period).astype(np.int64)
-    checker = cell.sum(axis=1) % 2
-    band = np.floor(V[:, 1] / (2 * period)).astype(np.int64) % 2
-    palette = np.array([[0.98, 0.80, 0.25], [0.20, 0.35, 0.80], [0.90, 0.30, 0.35], [0.25, 0.65, 0.45]])
-    colors = palette[2 * band + checker].copy()
-    local = V / period - cell - 0.5
-    ring = np.abs(np.linalg.norm(local, axis=1) - 0.32) < 0.1
-    colors[ring] = 0.97
-    return colors
+    centre = 0.5 * (V.min(axis=0) + V.max(axis=0))
+    x, y = V[:, 0] - centre[0], V[:, 1] - centre[1]
+    checker = (np.floor(x / period).astype(np.int64) + np.floor(y / period).astype(np.int64)) % 2
+    side = (x > 0).astype(np.int64)
+    palette = np.array([[0.98, 0.80, 0.25], [0.20, 0.35, 0.80],   # left: yellow / blue
+                        [0.90, 0.30, 0.35], [0.25, 0.65, 0.45]])  # right: red / green
+    return palette[2 * side + checker].copy()
 
 
 def pattern_render(frames, F, colors, *, columns=3, size=1100, title=None, azimuth=20.0):

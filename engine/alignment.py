@@ -877,11 +877,14 @@ class AlignedFrames:
     residual : (N,) float array        mean two-sided distance to each frame's surface (m)
     residual_max : (N,) float array
     distortion : (N,) float array      see :class:`PairAlignment`
-    seconds : (N,) float array         time spent on each frame (all attempts)
+    seconds : (N,) float array         time spent on each frame (all attempts; wall clock)
     parent : (N,) int array            the frame each was finally aligned from (-1 for the root)
     retried : (N,) bool array          frames whose first alignment was poor and that were
                                        aligned again from other frames
     root : int
+    cpu_seconds : (N,) float array     CPU time of the aligning process per frame (target
+                                       surface set-up and all attempts; all its threads), which
+                                       other load on the machine does not inflate
     """
 
     vertices: np.ndarray
@@ -893,6 +896,7 @@ class AlignedFrames:
     parent: np.ndarray
     retried: np.ndarray
     root: int
+    cpu_seconds: np.ndarray = None
 
 
 def partition_tree(parent, order, chunk):
@@ -976,9 +980,10 @@ def _align_task(aligner, job, tick=None):
         aligned[column[job["entry"]]] = True
     qualities = list(job["history"])
     out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "seconds": [],
-           "parent": [], "retried": [], "quality": [], "poses": {}}
+           "cpu_seconds": [], "parent": [], "retried": [], "quality": [], "poses": {}}
     for i, node in enumerate(nodes):
         node = int(node)
+        cpu_started = time.process_time()
         if parents[i] < 0:  # the root: its own mesh
             poses[node] = aligner.V_tet.copy()
             result = PairAlignment(V=aligner.V.copy(), X=poses[node], residual=0.0, residual_max=0.0)
@@ -1012,6 +1017,7 @@ def _align_task(aligner, job, tick=None):
         out["residual_max"].append(result.residual_max)
         out["distortion"].append(result.distortion)
         out["seconds"].append(result.seconds)
+        out["cpu_seconds"].append(time.process_time() - cpu_started)
         out["parent"].append(p)
         out["retried"].append(retried)
         if parents[i] >= 0:
@@ -1086,7 +1092,7 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
     n = aligner.n_vertices
     vertices = np.zeros((N, n, 3))
     residual, residual_max = np.zeros(N), np.zeros(N)
-    distortion, seconds = np.zeros(N), np.zeros(N)
+    distortion, seconds, cpu_seconds = np.zeros(N), np.zeros(N), np.zeros(N)
     parent = tree_parent.copy()
     retried = np.zeros(N, dtype=bool)
     poses = {}
@@ -1111,6 +1117,7 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
         vertices[idx] = np.stack(out["V"])
         residual[idx], residual_max[idx] = out["residual"], out["residual_max"]
         distortion[idx], seconds[idx] = out["distortion"], out["seconds"]
+        cpu_seconds[idx] = out["cpu_seconds"]
         parent[idx], retried[idx] = out["parent"], out["retried"]
         poses.update(out["poses"])
         qualities[t] = out["quality"]
@@ -1152,7 +1159,7 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
             progress(N, N)  # ticks still in the queue
     return AlignedFrames(vertices=vertices, faces=aligner.F.copy(), residual=residual, residual_max=residual_max,
                          distortion=distortion, seconds=seconds, parent=parent, retried=retried,
-                         root=int(tree.root))
+                         root=int(tree.root), cpu_seconds=cpu_seconds)
 
 
 def _mesh_arrays(mesh, use_colours):

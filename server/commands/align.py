@@ -235,6 +235,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         tree_components=np.array(tree.components), parent=aligned.parent,
         residual=aligned.residual, residual_max=aligned.residual_max, distortion=aligned.distortion,
         seconds=aligned.seconds, retried=aligned.retried,
+        **({} if aligned.cpu_seconds is None else {"cpu_seconds": aligned.cpu_seconds}),
     )
     names = [s["name"] for s in sequences]
     Image.fromarray(similarity_image(result.similarity.dissimilarity, lengths, names)).save(out / "similarity.png")
@@ -295,7 +296,9 @@ def run(args):
           f"({result.method}, root {aligned.root}, {len(meshes[aligned.root].vertices)} vertices)")
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
           f"{result.tree.components} components reconnected), tetrahedralise {t['tetrahedralize']:.1f} s, "
-          f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame")
+          f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "
+          f"{args.workers} workers ({aligned.seconds.sum() / max(frames - 1, 1):.2f} s, "
+          f"{aligned.cpu_seconds.sum() / max(frames - 1, 1):.2f} CPU s per frame and aligner)")
     print(f"  fit residual mean {1000 * aligned.residual.mean():.2f} mm, max {1000 * aligned.residual_max.max():.1f} mm; "
           f"{int(aligned.retried.sum())} frames re-aligned from other parents")
     return 0

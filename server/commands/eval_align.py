@@ -62,7 +62,7 @@ def _truth(dataset, sequences, lengths):
 
 
 def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, lengths, names, *, residual=None,
-           residual_max=None, seconds=None, retried=None):
+           residual_max=None, seconds=None, retried=None, cpu_seconds=None):
     errors, summary = score_alignment(aligned_vertices, root, root_vertices, truth, faces, size)
     frames = len(aligned_vertices)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -76,6 +76,8 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
         record["residual_max_mm"] = round(1000 * float(np.max(residual_max)), 2)
     if seconds is not None:
         record["seconds_per_frame"] = round(float(np.sum(seconds)) / max(frames - 1, 1), 3)
+    if cpu_seconds is not None:
+        record["cpu_seconds_per_frame"] = round(float(np.sum(cpu_seconds)) / max(frames - 1, 1), 3)
     if retried is not None:
         record["retried_frames"] = int(np.sum(retried))
     frame_mean = errors.mean(axis=1)
@@ -91,7 +93,8 @@ def _load_aligned(directory, dataset_names):
             names = [str(n) for n in data["sequence_names"]]
             lengths = data["lengths"].astype(np.int64)
             root = int(data["root"])
-            extra = {k: data[k] for k in ("residual", "residual_max", "seconds", "retried") if k in data.files}
+            extra = {k: data[k] for k in ("residual", "residual_max", "seconds", "retried", "cpu_seconds")
+                     if k in data.files}
     except FileNotFoundError:
         raise MeshFormatError(f"{path}: not found; is {directory} a `morphspace align` output?") from None
     except (OSError, ValueError, KeyError) as exc:
@@ -130,7 +133,8 @@ def run(args):
             size = size or model_size(truth[0])
             record, _ = _score("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths, names,
                                residual=extra.get("residual"), residual_max=extra.get("residual_max"),
-                               seconds=extra.get("seconds"), retried=extra.get("retried"))
+                               seconds=extra.get("seconds"), retried=extra.get("retried"),
+                               cpu_seconds=extra.get("cpu_seconds"))
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, aligned=record)
             results = {"aligned": (vertices, faces, root_vertices)}
         else:
@@ -170,7 +174,7 @@ def run(args):
                 a = result.aligned
                 record, _ = _score(method, a.vertices, root, meshes[root].vertices, truth, template_faces, size,
                                    lengths, names, residual=a.residual, residual_max=a.residual_max,
-                                   seconds=a.seconds, retried=a.retried)
+                                   seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds)
                 report[method] = {**report.get(method, {}), **record}
                 results[method] = (a.vertices, a.faces, meshes[root].vertices)
             if "sequential" in report:
@@ -212,7 +216,7 @@ def _print_report(report, out):
         print(f"similarity {report['similarity_seconds']:.1f} s, tree {report['tree_seconds']:.3f} s "
               f"(depth max {report['tree']['depth_max']}, mean {report['tree']['depth_mean']})")
     header = f"{'method':<12}{'mean %':>8}{'p95 %':>8}{'max %':>8}{'mean mm':>9}{'p95 mm':>8}{'max mm':>8}" \
-             f"{'resid mm':>10}{'s/frame':>9}"
+             f"{'resid mm':>10}{'s/frame':>9}{'CPU s/fr':>9}"
     print(header)
     for method in ("tree", "sequential", "aligned"):
         r = report.get(method)
@@ -220,7 +224,7 @@ def _print_report(report, out):
             continue
         print(f"{method:<12}{r['mean_pct']:>8.2f}{r['p95_pct']:>8.2f}{r['max_pct']:>8.1f}{r['mean_mm']:>9.1f}"
               f"{r['p95_mm']:>8.1f}{r['max_mm']:>8.0f}{r.get('residual_mean_mm', float('nan')):>10.2f}"
-              f"{r.get('seconds_per_frame', float('nan')):>9.2f}")
+              f"{r.get('seconds_per_frame', float('nan')):>9.2f}{r.get('cpu_seconds_per_frame', float('nan')):>9.2f}")
     if "sequential_over_tree_mean" in report:
         print(f"sequential / tree mean error: {report['sequential_over_tree_mean']:.2f}x")
     print(f"wrote {out / 'results.json'} and {out / 'aligned_pattern.png'}")

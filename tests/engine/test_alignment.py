@@ -122,3 +122,30 @@ def test_align_tree_and_captures_give_every_frame_the_root_topology(capture, ali
     errors, summary = score_alignment(run.aligned.vertices, 0, frames[0][0], V[:3], body.F, np.ptp(V[0], axis=0).max())
     assert errors.shape == (3, len(frames[0][0]))
     assert summary["mean_pct"] < 1.0
+
+
+def test_pattern_frames_take_frames_from_every_sequence():
+    from engine.align_evaluation import pattern_frames
+
+    picks = pattern_frames([10, 40, 5, 3], 6)
+    assert len(picks) == 6 and len(set(picks)) == 6
+    starts = np.array([0, 10, 50, 55])
+    sequences = {int(np.searchsorted(starts, k, side="right") - 1) for k in picks}
+    assert sequences == {0, 1, 2, 3}
+    assert pattern_frames([2], 6) == [0, 1]  # fewer frames than asked for
+
+
+def test_pattern_colours_follow_the_rest_positions_and_tell_left_from_right():
+    from engine.align_evaluation import pattern_colors, pattern_sheet
+
+    body = build_body(1000)
+    colors = pattern_colors(body.V)
+    assert colors.shape == (len(body.V), 3) and colors.min() >= 0 and colors.max() <= 1
+    left, right = body.V[:, 0] < -0.05, body.V[:, 0] > 0.05
+    left_colours = {tuple(c) for c in colors[left]}
+    right_colours = {tuple(c) for c in colors[right]}
+    assert len(left_colours) == 2 and len(right_colours) == 2 and not left_colours & right_colours
+    # moving the frames does not move the pattern: it is fixed on the root (frame 0 here)
+    frames = np.stack([body.V, body.V + [0.3, 0.0, 0.0], body.V @ rot_y(0.5).T])
+    image = pattern_sheet(frames, body.F, 0, [3], ["still"], size=300)
+    assert image.shape == (300, 300, 3) and image.std() > 10
