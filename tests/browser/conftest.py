@@ -78,6 +78,8 @@ class Page:
         self.page = page
         self.console = []
         self.page_errors = []
+        self.requests = []
+        page.on("request", lambda r: self.requests.append(r.url))
         page.on("console", lambda m: self.console.append((m.type, m.text)))
         page.on("pageerror", lambda e: self.page_errors.append(str(e)))
 

@@ -36,6 +36,10 @@ def test_page_loads_streams_and_draws_without_console_errors(web_server, open_pa
     status = page.status()
     assert status["stats"]["fps"] > 0 and status["errors"] == []
     assert page.errors() == [], page.errors()
+    # offline: everything (three.js, msgpack, the page) comes from the server itself
+    foreign = [url for url in page.requests if not url.startswith((web_server.url, web_server.ws_url, "data:"))]
+    assert foreign == []
+    assert any(url.endswith("/app/vendor/three/three.module.js") for url in page.requests)
     # the overlay shows the same numbers
     assert page.page.locator("#conn").inner_text() == "live"
     assert page.page.locator("#realised tbody tr").count() == len(status["realised"])

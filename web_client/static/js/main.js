@@ -77,6 +77,7 @@ const connection = new StreamConnection(wsUrl, () => state.space && {
     }
   },
   notice: (notice) => {
+    if (notice.code === "space_changed") connection.sayHello();  // the file was rebuilt: new topology
     state.notices.push(notice);
     if (state.notices.length > 20) state.notices.shift();
     say(notice.message, "warn", 2500);
@@ -191,6 +192,7 @@ function onTopology(topology) {
   const info = state.spaces.find((s) => s.name === topology.space);
   if (info) $("space-info").textContent = describeSpace(info);
   buildStatusRows(defs);
+  if (state.paused) connection.send("pause");  // a new session (reconnect, new space) starts playing
 }
 
 // ------------------------------------------------------------------ blend mode, heatmap, trail

@@ -46,6 +46,7 @@ export class ParameterPanel {
       input.value = String(value);
       input.setAttribute("aria-valuetext", `${formatValue(def, value)} ${def.unit}`);
       input.addEventListener("input", () => this.onChange(def.name, Number(input.value)));
+      input.addEventListener("pointerup", () => input.blur());  // arrows steer again after a drag
       this.inputs.set(def.name, { input, label: row.querySelector(".value"), def });
       row.querySelector(".value").textContent = formatValue(def, value);
       this.container.append(row);
@@ -102,7 +103,13 @@ const KEYS = {
 function typingInto(target) {
   if (!target || !target.tagName) return false;
   if (target.tagName === "SELECT" || target.tagName === "TEXTAREA") return true;
-  return target.tagName === "INPUT" && target.type !== "checkbox" && target.type !== "radio";
+  return target.tagName === "INPUT" && !["checkbox", "radio", "range"].includes(target.type);
+}
+
+/** Controls that act on Space themselves (buttons, checkboxes...): Space is theirs, not pause. */
+function ownsSpace(target) {
+  return Boolean(target && (target.tagName === "BUTTON" || target.tagName === "SUMMARY" ||
+    (target.tagName === "INPUT" && ["checkbox", "radio", "range", "file"].includes(target.type))));
 }
 
 /**
@@ -136,12 +143,14 @@ export class Steering {
     target.addEventListener("keydown", (event) => {
       if (typingInto(event.target) || event.ctrlKey || event.metaKey || event.altKey) return;
       if (event.code === "Space") {
+        if (ownsSpace(event.target)) return;
         onPause();
         event.preventDefault();
       } else if (event.code === "KeyR") {
         onReset();
       } else if (KEYS[event.code]) {
-        if (event.target?.type === "range") event.target.blur();
+        // a slider focused from the keyboard keeps its arrow keys (clicked sliders give focus back)
+        if (event.target?.type === "range" && event.code.startsWith("Arrow")) return;
         this.held.add(KEYS[event.code]);
         event.preventDefault();
       }

@@ -104,7 +104,7 @@ export class Viewer {
     this.ground.receiveShadow = true;
     this.scene.add(this.ground);
     this.origin = new THREE.AxesHelper(0.5);
-    this.origin.position.y = 0.003;
+    this.origin.position.y = 0.01;
     this.scene.add(this.origin);
 
     const pathGeometry = new THREE.BufferGeometry();
@@ -297,7 +297,9 @@ export class Viewer {
       geometry.setAttribute("normal", this.mesh.geometry.attributes.normal.clone());
       geometry.setAttribute("color", this.mesh.geometry.attributes.color.clone());
       geometry.setIndex(this.mesh.geometry.index.clone());
-      const material = new THREE.MeshStandardMaterial({ color: TRAIL_COLOUR, roughness: 0.8, transparent: true });
+      // pushed back in depth, so the live character wins where the newest copy coincides with it
+      const material = new THREE.MeshStandardMaterial({ color: TRAIL_COLOUR, roughness: 0.8, transparent: true,
+        polygonOffset: true, polygonOffsetFactor: 2, polygonOffsetUnits: 2 });
       copy = new THREE.Mesh(geometry, material);
       copy.castShadow = true;
       copy.frustumCulled = false;
