@@ -68,6 +68,10 @@ const connection = new StreamConnection(wsUrl, () => state.space && {
     if (!state.topology || state.topology.space !== state.space) return;  // an older hello's frames
     stats.frame(frame);
     state.frame = frame;
+    if (frame.error_max !== undefined && frame.error_max !== null && $("heat-auto").checked) {
+      autoMax = Math.max(frame.error_max, autoMax * 0.98);
+      viewer.heatmap.scale = heatScale();
+    }
     pendingDraw = frame;
     if (frame.finished && $("loop").checked && !state.resetPending && !state.paused) {
       state.resetPending = true;
@@ -212,7 +216,10 @@ function buildModes(modes) {
   }));
 }
 
+let autoMax = 0;  // metres: a slowly decaying maximum of the frames' error_max (auto scale)
+
 function heatScale() {
+  if ($("heat-auto").checked) return Math.max(autoMax, 1e-4);
   const mm = Number($("heat-scale").value);
   return (Number.isFinite(mm) && mm > 0 ? mm : 20) / 1000;
 }
@@ -222,6 +229,7 @@ function updateLegend() {
   legend.hidden = !state.heatmap;
   legend.querySelector(".legend-bar").style.background = cssGradient();
   const mm = heatScale() * 1000;
+  $("heat-scale").disabled = $("heat-auto").checked;
   $("legend-mid").textContent = `${(mm / 2).toPrecision(3)} mm`;
   $("legend-max").textContent = `≥ ${mm.toPrecision(3)} mm`;
 }
@@ -232,10 +240,13 @@ $("heatmap").addEventListener("change", (event) => {
   connection.send("heatmap", { on: state.heatmap });
   updateLegend();
 });
-$("heat-scale").addEventListener("input", () => {
-  viewer.setHeatmap(state.heatmap, heatScale());
-  updateLegend();
-});
+for (const id of ["heat-scale", "heat-auto"]) {
+  $(id).addEventListener("input", () => {
+    autoMax = 0;
+    viewer.setHeatmap(state.heatmap, heatScale());
+    updateLegend();
+  });
+}
 
 function updateTrail() {
   viewer.setTrail($("trail").checked, Number($("trail-every").value) || 8, Number($("trail-count").value) || 12);
@@ -312,6 +323,7 @@ function renderStatus() {
     row.querySelector(".realised").textContent = frame ? formatValue(def, frame.realised[i]) : "–";
   }
   $("clamped").hidden = !(frame && frame.clamped);
+  if (state.heatmap && $("heat-auto").checked) updateLegend();
   const readout = $("heat-readout");
   readout.hidden = !(state.heatmap && frame && frame.error_max !== undefined && frame.error_max !== null);
   if (!readout.hidden && state.topology) {
