@@ -310,3 +310,44 @@ def test_a_space_written_while_serving_appears_without_restart(server, built_spa
         async with StreamClient.connect(server.ws_url, "late") as c:
             return await c.next_frame()
     assert run(go()).seq >= 1
+
+
+def test_connections_over_the_limit_are_told_so_and_others_keep_streaming(built_spaces, tmp_path):
+    from conftest import LiveServer, data_dir_with_spaces
+
+    data = data_dir_with_spaces(tmp_path / "data", built_spaces, names=("speed",))
+
+    async def go(live):
+        async with StreamClient.connect(live.ws_url, "speed", rate=20) as first:
+            await first.next_frame()
+            async with websockets.connect(live.ws_url) as second:
+                reply = msgpack.unpackb(await asyncio.wait_for(second.recv(), 5))
+                with pytest.raises(websockets.ConnectionClosed) as closed:
+                    await asyncio.wait_for(second.recv(), 5)
+            frame = await first.next_frame()
+        return reply, closed.value.rcvd.code, frame
+
+    with LiveServer(data, env={"MORPHSPACE_STREAM_MAX_CLIENTS": "1"}) as live:
+        reply, code, frame = run(go(live))
+    assert reply["type"] == "error" and reply["code"] == "server_busy" and "at most 1" in reply["message"]
+    assert code == 1013
+    assert frame.seq > 1
+
+
+def test_clients_vanishing_mid_stream_leave_the_server_serving(server):
+    import httpx
+
+    async def go():
+        for _ in range(5):
+            ws = await websockets.connect(server.ws_url)
+            await ws.send(msgpack.packb({"type": "hello", "space": "speed", "rate": 60}))
+            await asyncio.wait_for(ws.recv(), 5)
+            ws.transport.abort()   # no close handshake: the TCP connection just dies
+        await asyncio.sleep(0.5)
+        async with StreamClient.connect(server.ws_url, "speed") as c:
+            return await c.next_frame()
+    assert run(go()).seq >= 1
+    deadline = time.monotonic() + 10
+    while httpx.get(server.url + "/v1/health").json()["connections"] != 0 and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert httpx.get(server.url + "/v1/health").json()["connections"] == 0
