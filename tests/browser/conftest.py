@@ -119,6 +119,13 @@ class Page:
             (ARTIFACTS / f"{name}.png").write_bytes(png)
         return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
 
+    @staticmethod
+    def save_pixels(rgb, name):
+        from PIL import Image
+
+        ARTIFACTS.mkdir(exist_ok=True)
+        Image.fromarray(rgb).save(ARTIFACTS / f"{name}.png")
+
     def screenshot(self, name):
         ARTIFACTS.mkdir(exist_ok=True)
         self.page.screenshot(path=str(ARTIFACTS / f"{name}.png"), timeout=10000)

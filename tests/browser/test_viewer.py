@@ -6,6 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from server import protocol as P
+
 
 def character_pixels(rgb):
     """Pixels of the default (warm beige) body colour: red well above blue."""
@@ -17,6 +19,29 @@ def heatmap_pixels(rgb):
     """Pixels of the heatmap's cold end (blue to cyan): blue well above red."""
     r, g, b = (rgb[..., k].astype(int) for k in range(3))
     return (b - r > 60) & (b > 120)
+
+
+def check_messages_decode_on_the_server(page):
+    """Messages the page's JavaScript builds are exactly what server/protocol.py decodes."""
+    built = page.page.evaluate("""async () => {
+        const m = await import("./js/messages.js");
+        const bytes = (type, fields) => Array.from(m.clientMessage(type, fields));
+        let refused = null;
+        try { m.clientMessage("params", { params: { speed: 1 }, bogus: 1 }); } catch (e) { refused = e.message; }
+        return {
+          hello: bytes("hello", { space: "speed", codec: "q16", rate: 30, mode: "linear", heatmap: true,
+                                  params: { speed: 1.25 }, smoothing: 0, window: 3, seq: 1 }),
+          params: bytes("params", { params: { speed: 2 }, seq: 7 }),
+          ack: bytes("ack", { frame: 12 }),
+          refused,
+        };
+    }""")
+    hello = P.decode_client(bytes(built["hello"]))
+    assert hello == P.Hello(space="speed", codec="q16", rate=30.0, mode="linear", heatmap=True,
+                            params={"speed": 1.25}, smoothing=0.0, window=3, seq=1)
+    assert P.decode_client(bytes(built["params"])) == P.Params(params={"speed": 2.0}, seq=7)
+    assert P.decode_client(bytes(built["ack"])) == P.Ack(frame=12)
+    assert "params has no field \"bogus\"" in built["refused"]
 
 
 def test_page_loads_streams_and_draws_without_console_errors(web_server, open_page):
@@ -43,6 +68,7 @@ def test_page_loads_streams_and_draws_without_console_errors(web_server, open_pa
     # the overlay shows the same numbers
     assert page.page.locator("#conn").inner_text() == "live"
     assert page.page.locator("#realised tbody tr").count() == len(status["realised"])
+    check_messages_decode_on_the_server(page)
 
 
 def wait_still(page, name, timeout=10.0):
@@ -52,7 +78,7 @@ def wait_still(page, name, timeout=10.0):
         page.page.wait_for_timeout(250)
         current = page.canvas_pixels()
         if np.array_equal(current, previous):
-            page.canvas_pixels(name)
+            page.save_pixels(current, name)
             return current
         previous = current
     raise AssertionError("the paused view kept changing")
@@ -84,7 +110,7 @@ def test_slider_changes_the_realised_parameters_and_the_image(web_server, open_p
     # the overlay prints the realised value the server reported
     page.page.wait_for_function(
         "v => Math.abs(Number(document.querySelector('#realised tr[data-name=speed] .realised').textContent) - v) < 0.01",
-        arg=realised_high, timeout=3000)  # the overlay refreshes five times a second
+        arg=realised_high, polling=100, timeout=3000)  # the overlay refreshes five times a second
     image_high = wait_still(page, "slider-high-speed")
     changed = np.abs(image_high.astype(int) - image_low.astype(int)).max(axis=2) > 30
     assert changed.mean() > 0.002, f"only {changed.mean():.3%} of the pixels changed"

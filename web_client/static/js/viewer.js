@@ -69,7 +69,7 @@ export class Viewer {
     // Software GL (e.g. headless Chromium's SwiftShader) draws every pixel on the CPU: start at a
     // lower resolution without shadows, so the page stays responsive; adapt() tunes it further.
     const lite = quality.lite ?? this.software;
-    this.pixelRatio = lite ? 0.6 : Math.min(window.devicePixelRatio || 1, 2);
+    this.pixelRatio = lite ? 0.5 : Math.min(window.devicePixelRatio || 1, 2);
     this.renderer.setPixelRatio(this.pixelRatio);
     this.renderer.shadowMap.enabled = quality.shadows ?? !lite;
     this.frameMs = null;
@@ -329,7 +329,7 @@ export class Viewer {
   }
 
   /**
-   * Resolution follows the frame time: down a step while frames take over 60 ms to come round
+   * Resolution follows the frame time: down while frames take over 60 ms to come round
    * (an average of dt), back up while they take under 25 ms; at most one step a second, and not
    * during the first frames (shader compilation).
    */
@@ -341,7 +341,8 @@ export class Viewer {
     if (now - (this.adaptedAt ?? 0) < 1000) return;
     const best = Math.min(window.devicePixelRatio || 1, 2);
     let ratio = this.pixelRatio;
-    if (this.frameMs > 60 && ratio > 0.35) ratio = Math.max(0.35, ratio * 0.8);
+    // pixels drawn scale with ratio²: aim at ~30 ms in one step, never below half resolution
+    if (this.frameMs > 60 && ratio > 0.5) ratio = Math.max(0.5, ratio * Math.max(0.5, Math.sqrt(30 / this.frameMs)));
     else if (this.frameMs < 25 && ratio < best) ratio = Math.min(best, ratio * 1.25);
     if (ratio !== this.pixelRatio) {
       this.pixelRatio = ratio;
