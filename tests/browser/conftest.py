@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import importlib.util
 import io
+import os
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-CHROMIUM = Path("/usr/bin/chromium")
+CHROMIUM = Path(os.environ.get("MORPHSPACE_TEST_CHROMIUM", "/usr/bin/chromium"))
 ARTIFACTS = Path(__file__).resolve().parent / "artifacts"
 VENDOR = Path(__file__).resolve().parents[2] / "web_client" / "static" / "vendor"
 VIEWPORT = {"width": 1100, "height": 700}
@@ -29,12 +30,24 @@ data_dir_with_spaces = server_fixtures.data_dir_with_spaces
 built_spaces = server_fixtures.built_spaces  # the session fixture, shared through its lock file
 
 
+SKIP_REASON = (f"browser tests need Debian's chromium at {CHROMIUM} (apt-get install -y chromium; "
+               "scripts/test installs it)")
+
+
+def pytest_collection_modifyitems(config, items):
+    """Without Chromium, skip the browser tests before their servers are started."""
+    if CHROMIUM.exists():
+        return
+    for item in items:
+        if "open_page" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.skip(reason=SKIP_REASON))
+
+
 @pytest.fixture(scope="session")
 def browser():
     """One headless Chromium for the run (Debian's package; skipped with the reason if absent)."""
     if not CHROMIUM.exists():
-        pytest.skip("browser tests need Debian's chromium at /usr/bin/chromium (apt-get install -y chromium; "
-                    "scripts/test installs it)")
+        pytest.skip(SKIP_REASON)
     if not (VENDOR / "three" / "three.module.js").exists():
         pytest.fail("web_client/static/vendor/ is missing: run scripts/build-web (scripts/setup-env does)")
     from playwright.sync_api import sync_playwright
