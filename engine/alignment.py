@@ -514,48 +514,37 @@ class PairwiseAligner:
         return (gap / cap) ** 2
 
     def _search_patches(self, x, n, target, level):
-        """Articulated hypotheses for the patches; the best scoring one (after ICP) wins.
+        """Articulated hypotheses for every patch; the best fitting one (after ICP) wins.
 
-        Hypotheses per patch: the current pose and rotations by the search angles about the
-        three axes through the joints with its two best-fitting neighbours (the centres of the
-        shared borders). Each is refined by point-to-plane ICP on a few samples and scored by
-        its capped fit cost, minus the share of its samples that land on target surface no part
-        of the source covers yet, plus how far it tears the joint open. Patches are searched
-        when they fit badly, and all of them while part of the target is uncovered (a limb
-        bent the other way fits somewhere, but leaves the target's limb bare).
+        Hypotheses: the current pose, the motions of the neighbouring patches (as moved in
+        this round relative to their start), and rotations about the joint with the
+        best-fitting neighbour (the centre of their shared border) by the search angles about
+        the three axes. Each is refined by point-to-plane ICP on a few samples and scored by
+        its capped fit cost plus how far it tears the joint open.
         """
         o = self.options
         labels, count = self.patch_labels[level], self.patch_counts[level]
         samples, sample_patch = self.patch_samples[level]
         pairs, border = self.patch_graph[level]
-        if len(pairs) == 0:
-            return x, n
         cost = np.bincount(sample_patch, weights=self._sample_cost(x[samples], n[samples], target),
                            minlength=count) / np.maximum(np.bincount(sample_patch, minlength=count), 1)
-        reach = 1.5 * target.edge_length
-        gap, _ = cKDTree(x).query(target.V)
-        uncovered = gap > reach
-        if uncovered.sum() > 0.005 * len(target.V):
-            search = np.arange(count)
-        else:
-            search = np.flatnonzero(cost > 0.05)
-        if len(search) == 0:
+        bad = np.flatnonzero(cost > 0.05)
+        if len(bad) == 0 or len(pairs) == 0:
             return x, n
         # joints: the centre of each shared border, at the current positions
         joint = np.stack([np.bincount(border[:, 2], weights=x[border[:, 0], a], minlength=len(pairs))
                           for a in range(3)], axis=1) / np.maximum(np.bincount(border[:, 2], minlength=len(pairs)), 1)[:, None]
         hyp_patch, hyp_R, hyp_c = [], [], []
         rotations = self._search_rotations
-        for p in search:
+        for p in bad:
             touching = np.flatnonzero((pairs[:, 0] == p) | (pairs[:, 1] == p))
             if len(touching) == 0:
                 continue
             other = np.where(pairs[touching, 0] == p, pairs[touching, 1], pairs[touching, 0])
-            anchors = touching[np.argsort(cost[other], kind="stable")[:2]]
-            hyp_patch.append(np.full(1 + len(anchors) * len(rotations), p))
-            hyp_R.append(np.concatenate([np.eye(3)[None]] + [rotations] * len(anchors)))
-            hyp_c.append(np.concatenate([joint[anchors[:1]]] + [np.repeat(joint[a][None], len(rotations), axis=0)
-                                                                 for a in anchors]))
+            anchor = touching[np.argmin(cost[other])]
+            hyp_patch.append(np.full(len(rotations) + 1, p))
+            hyp_R.append(np.concatenate([np.eye(3)[None], rotations]))
+            hyp_c.append(np.repeat(joint[anchor][None], len(rotations) + 1, axis=0))
         if not hyp_patch:
             return x, n
         hyp_patch = np.concatenate(hyp_patch)
@@ -581,18 +570,15 @@ class PairwiseAligner:
             # compose: x -> Rs (R x + t - c) + c + s
             t_total = np.einsum("hij,hj->hi", Rs, t_total - centres) + centres + shift
             R_total = Rs @ R_total
-        per = np.maximum(np.bincount(owner, minlength=H), 1)
-        score = np.bincount(owner, weights=self._sample_cost(P, N, target), minlength=H) / per
-        near, nearest = target.tree.query(P)
-        gain = np.bincount(owner, weights=(uncovered[nearest] & (near < reach)).astype(float), minlength=H) / per
-        score -= 0.5 * gain
+        score = np.bincount(owner, weights=self._sample_cost(P, N, target), minlength=H)
+        score /= np.maximum(np.bincount(owner, minlength=H), 1)
         tear = np.linalg.norm(np.einsum("hij,hj->hi", R_total, hyp_c) + t_total - hyp_c, axis=1)
         score += (tear / o.search_cap) ** 2 * 0.25
         x, n = x.copy(), n.copy()
         for p in np.unique(hyp_patch):
             mine = np.flatnonzero(hyp_patch == p)
             best = mine[np.argmin(score[mine])]
-            if best == mine[0] or score[best] > score[mine[0]] - 0.02:
+            if best == mine[0] or score[best] > cost[p] - 0.02:
                 continue  # the current pose (refined) is as good
             vertices = np.flatnonzero(labels == p)
             x[vertices] = x[vertices] @ R_total[best].T + t_total[best]
