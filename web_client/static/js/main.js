@@ -36,11 +36,13 @@ let pendingDraw = null;
 
 // ------------------------------------------------------------------ messages to the user
 
-function say(text, kind = "info", ms = 4000) {
+/** A message top right for `ms`; one with the same `key` (default: the text) replaces it. */
+function say(text, kind = "info", ms = 4000, key = text) {
   const box = $("messages");
-  for (const old of box.children) if (old.textContent === text) old.remove();
+  for (const old of [...box.children]) if (old.dataset.key === key) old.remove();
   const div = document.createElement("div");
   div.className = `message ${kind}`;
+  div.dataset.key = key;
   div.textContent = text;
   box.prepend(div);
   while (box.children.length > 4) box.lastChild.remove();
@@ -84,13 +86,13 @@ const connection = new StreamConnection(wsUrl, () => state.space && {
     if (notice.code === "space_changed") connection.sayHello();  // the file was rebuilt: new topology
     state.notices.push(notice);
     if (state.notices.length > 20) state.notices.shift();
-    say(notice.message, "warn", 2500);
+    say(notice.message, "warn", 2500, `notice:${notice.code}`);  // steering can clamp 20 times a second
   },
   error: (error) => {
     state.errors.push(error);
     if (state.errors.length > 20) state.errors.shift();
     console.warn(`morphspace stream: ${error.code}: ${error.message}`);
-    say(`${error.code}: ${error.message}`, "error", 6000);
+    say(`${error.code}: ${error.message}`, "error", 6000, `error:${error.code}`);
   },
 });
 
