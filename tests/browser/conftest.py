@@ -19,7 +19,7 @@ import pytest
 CHROMIUM = Path(os.environ.get("MORPHSPACE_TEST_CHROMIUM", "/usr/bin/chromium"))
 ARTIFACTS = Path(__file__).resolve().parent / "artifacts"
 VENDOR = Path(__file__).resolve().parents[2] / "web_client" / "static" / "vendor"
-VIEWPORT = {"width": 1100, "height": 700}
+VIEWPORT = {"width": 1000, "height": 640}
 
 _spec = importlib.util.spec_from_file_location(
     "morphspace_server_fixtures", Path(__file__).resolve().parents[1] / "server" / "conftest.py")
