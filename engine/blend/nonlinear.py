@@ -225,13 +225,9 @@ class NonlinearBlender:
         self._F = np.empty((t, 3, 3))
         self._X = np.empty((len(embedding.V_tet), 3))
 
-    def blend_frames(self, coefficients, frames, out=None):
-        """Blend decomposed frames ``frames`` (indices) with ``coefficients`` (summing to 1).
-
-        Returns
-        -------
-        V : (n, 3) float array   blended surface
-        """
+    def _parts(self, coefficients, frames):
+        """Per-tet gradients F (t, 3, 3), surface detail term, linear surface and per-tet
+        rotation dispersion of one blend of decomposed frames (everything before the solve)."""
         coefficients = np.asarray(coefficients, dtype=np.float64)
         frames = np.asarray(frames)
         keep = coefficients != 0
@@ -249,12 +245,33 @@ class NonlinearBlender:
         dispersion = 1.0 - c32 @ agreement
         R = quaternions_to_rotations(qb)
         s = np.tensordot(c32, self.stretch[frames], axes=1).astype(np.float64)
-        np.matmul(R, _vector_to_stretch(s), out=self._F)
-        X = self.solver.solve(_stacked(self._F), out=self._X)
-        detail = np.tensordot(c32, self.detail[frames], axes=1)
-        surface = self.B @ X
-        surface += np.einsum("nab,nb->na", R[self.surface_tet], detail)
+        F = np.matmul(R, _vector_to_stretch(s))
+        detail = np.einsum("nab,nb->na", R[self.surface_tet], np.tensordot(c32, self.detail[frames], axes=1))
         linear = np.tensordot(c32, self.surfaces[frames], axes=1)
+        return F, detail, linear, dispersion
+
+    def blend_frames(self, coefficients, frames, out=None, *, then=None, a=0.0):
+        """Blend decomposed frames ``frames`` (indices) with ``coefficients`` (summing to 1).
+
+        With ``then = (coefficients, frames)`` and ``a`` in (0, 1), the result is (1 - a) times
+        the first blend plus ``a`` times the second, computed with one solve (the solve is
+        linear in the gradients); the placement offset uses the interpolated dispersion.
+
+        Returns
+        -------
+        V : (n, 3) float array   blended surface
+        """
+        F, detail, linear, dispersion = self._parts(coefficients, frames)
+        if then is not None and a != 0.0:
+            F1, detail1, linear1, dispersion1 = self._parts(*then)
+            F = (1.0 - a) * F + a * F1
+            detail = (1.0 - a) * detail + a * detail1
+            linear = (1.0 - a) * linear + a * linear1
+            dispersion = (1.0 - a) * dispersion + a * dispersion1
+        self._F[...] = F
+        X = self.solver.solve(_stacked(self._F), out=self._X)
+        surface = self.B @ X
+        surface += detail
         surface -= anchored_offset(surface - linear, dispersion[self.surface_tet])
         if out is not None:
             out[...] = surface
@@ -265,8 +282,12 @@ class NonlinearBlender:
 class PhasedNonlinearBlender:
     """Exact non-linear blends of N sources on a phase grid.
 
-    Between two phase samples the blend treats the 2N neighbouring frames as sources (weights
-    times 1 - a and a), so rotations are interpolated in phase as well as across sources.
+    At a phase sample the blend is the exact non-linear blend of the N sources' frames there.
+    Between samples p0 and p1 it is (1 - a) times the blend at p0 plus a times the blend at p1
+    (one solve: the gradients are interpolated), as linear and hybrid blending interpolate in
+    phase. Rotations are not interpolated in time: fast limbs turn by large angles between
+    samples (a take-off's arm swing), where interpolating rotations would swing them the short
+    way round; the sources themselves are defined on the grid.
 
     Parameters
     ----------
@@ -287,9 +308,8 @@ class PhasedNonlinearBlender:
         i = np.arange(self.n_sources)
         if a == 0.0:
             return self.blender.blend_frames(c, p0 * self.n_sources + i, out=out)
-        return self.blender.blend_frames(np.concatenate([c * (1 - a), c * a]),
-                                         np.concatenate([p0 * self.n_sources + i, p1 * self.n_sources + i]),
-                                         out=out)
+        return self.blender.blend_frames(c, p0 * self.n_sources + i, out=out,
+                                         then=(c, p1 * self.n_sources + i), a=a)
 
     def blend_all_phases(self, weights):
         """(P, n, 3) exact non-linear blend at every phase sample."""

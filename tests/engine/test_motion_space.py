@@ -56,8 +56,8 @@ def test_space_round_trip_matches_the_sources(space_path):
         for mode in ("linear", "hybrid", "nonlinear"):
             V = space.blend([1.0, 0.0], 0.3, mode)
             np.testing.assert_allclose(V, space.sources[3, 0], atol=2e-4 * space.model_size)
-        # The epsilon bound holds on the phase grid (between samples the non-linear blend also
-        # interpolates rotations in phase, the hybrid linearly).
+        # The epsilon bound holds on the phase grid and, since every mode interpolates linearly
+        # in phase between samples, between them too.
         hybrid = space.blend([0.5, 0.5], 0.4, "hybrid")
         exact = space.blend([0.5, 0.5], 0.4, "nonlinear")
         assert np.linalg.norm(hybrid - exact, axis=1).max() <= space.metadata["epsilon"] * 1.05
