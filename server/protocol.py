@@ -193,7 +193,7 @@ class Frame:
     time: float = wire("float", "seconds on the stream's clock")
     phase: float = wire("float", "phase in [0, 1] of the cycle or clip")
     mode: str = wire("str", "blend mode of this frame")
-    requested: list = wire("floats", "parameters the frame was asked for (after smoothing)")
+    requested: list = wire("floats", "parameters on their way (smoothed) to the nearest reachable ones of the last request")
     realised: list = wire("floats", "parameters the blend realises")
     clamped: bool = wire("bool", "the request is outside the reachable domain")
     weights: list = wire("floats", "blend weights, one per source")
@@ -212,7 +212,7 @@ class Frame:
 class Notice:
     """Something the client should know that is not an error (e.g. a request was clamped)."""
     type = "notice"
-    code: str = wire("str", "'clamped' or 'space_changed'")
+    code: str = wire("str", "'clamped' (a request was outside the reachable domain)")
     message: str = wire("str", "human-readable explanation")
     seq: int = wire("int", "the client message it answers", default=0)
 
@@ -410,7 +410,7 @@ def markdown_table(message):
 # ---------------------------------------------------------------- JavaScript table
 
 def javascript():
-    """web_client/protocol.js: the message table the browser client builds its messages from."""
+    """web_client/static/protocol.js: the message table the browser client builds its messages from."""
     def table(messages):
         return {t: [name for name, *_ in fields_of(cls)] for t, cls in messages.items()}
     lines = [
