@@ -12,6 +12,8 @@ detail rotated by the blended rotations. Weights e_i give back source i exactly.
 
 from __future__ import annotations
 
+from collections import OrderedDict
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -224,12 +226,25 @@ class NonlinearBlender:
         t = len(embedding.T)
         self._F = np.empty((t, 3, 3))
         self._X = np.empty((len(embedding.V_tet), 3))
+        self._recent = OrderedDict()
 
     def _parts(self, coefficients, frames):
         """Per-tet gradients F (t, 3, 3), surface detail term, linear surface and per-tet
-        rotation dispersion of one blend of decomposed frames (everything before the solve)."""
+        rotation dispersion of one blend of decomposed frames (everything before the solve).
+
+        The last few are kept: a player at fixed weights asks for the same phase sample on
+        consecutive frames (as one end of the interval, then the other)."""
         coefficients = np.asarray(coefficients, dtype=np.float64)
         frames = np.asarray(frames)
+        key = (coefficients.tobytes(), frames.astype(np.int64).tobytes())
+        parts = self._recent.get(key)
+        if parts is None:
+            parts = self._recent[key] = self._compute_parts(coefficients, frames)
+            while len(self._recent) > 4:
+                self._recent.popitem(last=False)
+        return parts
+
+    def _compute_parts(self, coefficients, frames):
         keep = coefficients != 0
         coefficients, frames = coefficients[keep], frames[keep]
         if len(frames) == 0:
