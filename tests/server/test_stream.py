@@ -4,6 +4,7 @@ pulls, malformed and hostile messages, and a slow client beside a fast one."""
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import math
 import time
 
@@ -19,7 +20,10 @@ from server.stream import root_after
 
 
 def run(coroutine):
-    return asyncio.run(asyncio.wait_for(coroutine, 60))
+    """Run a client coroutine to completion (60 s at most) on its own loop in a thread: the
+    worker's main thread may hold another loop (Playwright's, from the browser tests)."""
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, asyncio.wait_for(coroutine, 60)).result()
 
 
 @pytest.fixture(scope="module")
