@@ -168,12 +168,16 @@ def pattern_frames(lengths, count=6):
     """Indices of ``count`` frames spread over the sequences (for :func:`pattern_sheet`).
 
     Frames are taken round-robin from the sequences, each sequence's picks spread evenly over
-    its interior, so a sheet shows as many different motions as it has room for.
+    its interior, so a sheet shows as many different motions as it has room for; with more
+    sequences than frames, sequences spread evenly over the list are used.
     """
     lengths = np.asarray(lengths, dtype=np.int64)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
     total = int(lengths.sum())
     count = min(int(count), total)
+    if len(lengths) > count > 0:
+        keep = np.unique(np.linspace(0, len(lengths) - 1, count).round().astype(int))
+        lengths, starts = lengths[keep], starts[keep]
     per = -(-count // max(len(lengths), 1))
     lists = [[int(s + k) for k in np.linspace(0, n - 1, per + 2)[1:-1].round().astype(int)] if n > 2
              else [int(s + k) for k in range(n)] for s, n in zip(starts, lengths)]
@@ -218,8 +222,8 @@ def pattern_sheet(vertices, faces, root, lengths, names=None, *, count=6, title=
         sequence_of = np.repeat(np.arange(len(lengths)), lengths)
         starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
         label = (lambda k: f"{names[sequence_of[k]]}:{k - starts[sequence_of[k]]}") if names else str
-        title = "pattern fixed on the root mesh (" + label(root) + ", first), carried into " + \
-                ", ".join(label(k) for k in picks)
+        title = (f"pattern fixed on the root mesh ({label(root)}, first), carried by the alignment into\n"
+                 + ", ".join(label(k) for k in picks))
     columns = max(1, -(-len(frames) // 2))
     return pattern_render(frames, faces, colors, columns=columns, size=size, title=title)
 

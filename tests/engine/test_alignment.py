@@ -149,3 +149,12 @@ def test_pattern_colours_follow_the_rest_positions_and_tell_left_from_right():
     frames = np.stack([body.V, body.V + [0.3, 0.0, 0.0], body.V @ rot_y(0.5).T])
     image = pattern_sheet(frames, body.F, 0, [3], ["still"], size=300)
     assert image.shape == (300, 300, 3) and image.std() > 10
+
+
+def test_pattern_frames_spread_over_many_sequences():
+    from engine.align_evaluation import pattern_frames
+
+    lengths = [10] * 14
+    picks = pattern_frames(lengths, 6)
+    sequences = sorted(k // 10 for k in picks)
+    assert len(set(sequences)) == 6 and sequences[0] == 0 and sequences[-1] == 13
