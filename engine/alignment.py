@@ -22,7 +22,7 @@ frame from its parent's result); :func:`align_sequential` is the frame-to-frame 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -30,9 +30,9 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from engine.deform import DeformationSolver
-from engine.rotations import rot_y
+from engine.rotations import axis_angle_matrix, rot_y
 from engine.shape_histogram import is_closed, shape_centre
-from engine.surface import _closest_on_triangles, face_normals, vertex_normals
+from engine.surface import _closest_on_triangles, vertex_normals
 
 
 @dataclass(frozen=True)
@@ -208,22 +208,7 @@ def farthest_point_patches(V, F, counts, *, seed=0):
 
 def _rodrigues(omega):
     """Rotation matrices (q, 3, 3) for rotation vectors (q, 3)."""
-    angle = np.linalg.norm(omega, axis=-1)
-    axis = omega / np.where(angle > 1e-300, angle, 1.0)[..., None]
-    x, y, z = axis[..., 0], axis[..., 1], axis[..., 2]
-    c, s = np.cos(angle), np.sin(angle)
-    t = 1.0 - c
-    R = np.empty(omega.shape[:-1] + (3, 3))
-    R[..., 0, 0] = c + x * x * t
-    R[..., 0, 1] = x * y * t - z * s
-    R[..., 0, 2] = x * z * t + y * s
-    R[..., 1, 0] = y * x * t + z * s
-    R[..., 1, 1] = c + y * y * t
-    R[..., 1, 2] = y * z * t - x * s
-    R[..., 2, 0] = z * x * t - y * s
-    R[..., 2, 1] = z * y * t + x * s
-    R[..., 2, 2] = c + z * z * t
-    return R
+    return axis_angle_matrix(omega, np.linalg.norm(omega, axis=-1))
 
 
 def rotation_fit(F, R0, iterations=4):

@@ -131,6 +131,26 @@ class RootTrack:
         w = np.asarray(w, dtype=float) / np.sum(w)
         return np.einsum("pnc,n->pc", self.root_rate, w), self.turn_rate @ w
 
+    def after(self, w, seconds):
+        """Root after ``seconds`` at constant weights w, starting at the origin facing +Z.
+
+        Returns position (3,) (y = 0), heading (rad) and the phase reached. Cyclic tracks repeat
+        the cycle: n whole cycles compose one rigid step n times, a geometric series in the
+        complex plane (z + i x turns by e^{i theta}); one-shot clips stop at their end.
+        """
+        duration = self.duration(w)
+        position, heading = self.integrate(w)
+        grid = np.linspace(0.0, 1.0, len(heading))
+        cycles, phase = divmod(seconds / duration, 1.0) if self.cyclic else (0.0, min(seconds / duration, 1.0))
+        step, turn = position[-1], heading[-1]
+        spin = complex(math.cos(turn), math.sin(turn))
+        one = complex(step[2], step[0])
+        whole = one * cycles if abs(turn) < 1e-12 else one * (1 - spin ** cycles) / (1 - spin)
+        h = cycles * turn
+        partial = complex(np.interp(phase, grid, position[:, 2]), np.interp(phase, grid, position[:, 0]))
+        end = whole + complex(math.cos(h), math.sin(h)) * partial
+        return np.array([end.imag, 0.0, end.real]), h + float(np.interp(phase, grid, heading)), phase
+
     def integrate(self, w, samples_per_step=4):
         """Root path of one cycle (or clip) of the blend: positions (S, 3) and headings (S,) at
         phases 0 .. 1, integrating the blended rates with the heading (midpoint rule)."""

@@ -94,6 +94,16 @@ class Player:
         if params is not None:
             self.set_params(params, immediate=True)
 
+    @property
+    def requested(self):
+        """(k,) the parameters now (smoothed on their way to ``target``)."""
+        return self._current.copy()
+
+    @property
+    def target(self):
+        """(k,) where the parameters are heading: the reachable part of the last request."""
+        return self._target.copy()
+
     def reset(self):
         """Back to phase 0 at the origin, facing +Z."""
         self.time = 0.0

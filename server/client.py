@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import asyncio
 import itertools
-import math
 import time
 from dataclasses import dataclass
 
@@ -24,6 +23,7 @@ import msgpack
 import numpy as np
 import websockets
 
+from engine.rotations import rot_y
 from server import protocol as P
 
 
@@ -58,9 +58,7 @@ class ClientFrame:
 
     def world_vertices(self):
         """(n, 3) float32 vertices placed by the root transform."""
-        c, s = math.cos(self.heading), math.sin(self.heading)
-        R = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]], dtype=np.float32)
-        return self.vertices @ R.T + self.root.astype(np.float32)
+        return self.vertices @ rot_y(self.heading).T.astype(np.float32) + self.root.astype(np.float32)
 
 
 class StreamClient:
@@ -81,6 +79,7 @@ class StreamClient:
         self._frame_ready = asyncio.Event()
         self._topology_ready = asyncio.Event()
         self._closed = False
+        self._topology_error = None  # an error answering the hello, raised by connect()
         self._reader = None
         self.last_seq = 0
 
@@ -187,43 +186,39 @@ class StreamClient:
         """(Re)start streaming ``space``; a new topology follows."""
         self._topology_ready.clear()
         self.window = window
+        await self._control(P.Hello, space=space, codec=codec, rate=rate, mode=mode, params=params,
+                            smoothing=smoothing, window=window, heatmap=heatmap)
+
+    async def _control(self, message_type, **fields):
+        """Send a control message with the next sequence number; returns it (frames with
+        ``ack >= seq`` reflect the message)."""
         self.last_seq = next(self._seq)
-        await self.send(P.Hello(space=space, codec=codec, rate=rate, mode=mode, params=params,
-                                smoothing=smoothing, window=window, heatmap=heatmap, seq=self.last_seq))
+        return await self.send(message_type(seq=self.last_seq, **fields))
 
     async def set_params(self, params=None, *, immediate=False, **named):
         """Request parameters; returns the message's seq (frames with ``ack >= seq`` reflect it)."""
-        values = dict(params or {}, **named)
-        self.last_seq = next(self._seq)
-        return await self.send(P.Params(params=values, immediate=immediate, seq=self.last_seq))
+        return await self._control(P.Params, params=dict(params or {}, **named), immediate=immediate)
 
     async def set_mode(self, mode):
-        self.last_seq = next(self._seq)
-        return await self.send(P.Mode(mode=mode, seq=self.last_seq))
+        return await self._control(P.Mode, mode=mode)
 
     async def set_rate(self, rate):
-        self.last_seq = next(self._seq)
-        return await self.send(P.Rate(rate=rate, seq=self.last_seq))
+        return await self._control(P.Rate, rate=rate)
 
     async def pause(self):
-        self.last_seq = next(self._seq)
-        return await self.send(P.Pause(seq=self.last_seq))
+        return await self._control(P.Pause)
 
     async def resume(self):
-        self.last_seq = next(self._seq)
-        return await self.send(P.Resume(seq=self.last_seq))
+        return await self._control(P.Resume)
 
     async def seek(self, phase):
-        self.last_seq = next(self._seq)
-        return await self.send(P.Seek(phase=phase, seq=self.last_seq))
+        return await self._control(P.Seek, phase=phase)
 
     async def reset(self):
-        self.last_seq = next(self._seq)
-        return await self.send(P.Reset(seq=self.last_seq))
+        return await self._control(P.Reset)
 
     async def heatmap(self, on=True):
-        self.last_seq = next(self._seq)
-        return await self.send(P.Heatmap(on=on, seq=self.last_seq))
+        return await self._control(P.Heatmap, on=on)
 
     async def pull(self, params=None, *, time=None, phase=None, mode=None, timeout=10.0):
         """The frame at ``params`` and ``time`` (s) or ``phase``, independent of the stream's clock."""
@@ -274,7 +269,7 @@ class _Connection:
         self.client = self.cls(ws, window=self.hello["window"])
         try:
             await self.client._start(self.hello, self.open_timeout)
-            if getattr(self.client, "_topology_error", None) is not None:
+            if self.client._topology_error is not None:
                 raise self.client._topology_error
             if self.client.topology is None:
                 raise ConnectionError("the stream closed before its topology arrived")

@@ -22,9 +22,10 @@ from dataclasses import dataclass, field
 import msgpack
 import numpy as np
 
+from engine.player import MODES  # the blend modes a client may ask for
+
 PROTOCOL_VERSION = 1
 CODECS = ("f32", "q16")
-MODES = ("linear", "hybrid", "nonlinear")
 
 # wire kinds: how a field is checked and documented
 KINDS = {

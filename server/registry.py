@@ -96,9 +96,6 @@ class SpaceRegistry:
         """The open MotionSpace called ``name``."""
         return self._open(name).space
 
-    def bounds(self, name):
-        return self._open(name).bounds
-
     def describe(self, name):
         """A JSON-ready description: sources, parameters (names, units, ranges), modes, sizes."""
         entry = self._open(name)

@@ -23,7 +23,6 @@ import time
 import numpy as np
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from engine.blend.phase import phase_samples
 from engine.player import Player
 from server import protocol as P
 from server.registry import BrokenSpace, UnknownSpace
@@ -57,26 +56,6 @@ class StreamStats:
         self.frames = 0
         self.dropped = 0
         self.errors = 0
-
-
-def root_after(track, w, seconds, cyclic):
-    """Root (position (3,), heading) after ``seconds`` at constant weights, from the origin."""
-    duration = track.duration(w)
-    position, heading = track.integrate(w)
-    grid = np.linspace(0.0, 1.0, len(heading))
-    cycles, phase = divmod(seconds / duration, 1.0) if cyclic else (0.0, min(seconds / duration, 1.0))
-    cycles = int(min(cycles, 100000))
-    p, h = np.zeros(3), 0.0
-    step, turn = position[-1], heading[-1]
-    for _ in range(cycles):
-        c, s = math.cos(h), math.sin(h)
-        p = p + np.array([c * step[0] + s * step[2], step[1], -s * step[0] + c * step[2]])
-        h += turn
-    partial = np.array([np.interp(phase, grid, position[:, k]) for k in range(3)])
-    c, s = math.cos(h), math.sin(h)
-    p = p + np.array([c * partial[0] + s * partial[2], partial[1], -s * partial[0] + c * partial[2]])
-    p[1] = 0.0
-    return p, h + float(np.interp(phase, grid, heading)), phase
 
 
 class StreamSession:
@@ -122,9 +101,9 @@ class StreamSession:
         self.stats.errors += 1
         await self._send(P.Error(code=code, message=message, ref=ref, seq=seq))
 
-    def _poke(self, seq=None):
-        if seq is not None:
-            self.ack = max(self.ack, seq) if seq else self.ack
+    def _poke(self, seq=0):
+        """Make the next frame due at once, acknowledging client message ``seq``."""
+        self.ack = max(self.ack, seq)
         self.urgent = True
         self.wake.set()
 
@@ -166,18 +145,23 @@ class StreamSession:
             self._close()
 
     async def _on_data(self, data):
-        cost = 0.25 if len(data) < 32 and b"ack" in (data if isinstance(data, bytes) else data.encode()) else 1.0
-        if not self.bucket.take(cost):
+        message = failure = None
+        try:
+            message = P.decode_client(data, self.settings.stream_max_message)
+        except P.ProtocolError as exc:
+            failure = exc
+        if not self.bucket.take(0.25 if isinstance(message, P.Ack) else 1.0):
             await self.error("rate_limited", f"more than {self.settings.stream_max_rate:g} messages per second "
                                              f"(burst {self.settings.stream_burst}); message dropped")
             return
         try:
-            message = P.decode_client(data, self.settings.stream_max_message)
+            if failure is not None:
+                raise failure
             await self._apply(message)
         except P.ProtocolError as exc:
             await self.error(exc.code, exc.message, exc.ref, exc.seq)
         except ValueError as exc:  # the engine's checks on values (unknown parameters, ranges)
-            await self.error("invalid_field", str(exc), getattr(message, "type", None), getattr(message, "seq", None))
+            await self.error("invalid_field", str(exc), message.type, getattr(message, "seq", None))
         except Exception as exc:  # noqa: BLE001 - report, keep the connection and the server
             log.exception("stream: failed to apply %r", data[:200])
             await self.error("internal", f"the server failed on this message: {type(exc).__name__}: {exc}")
@@ -280,11 +264,11 @@ class StreamSession:
             player.set_params(m.params, immediate=True)
         self.player, self.space_name = player, m.space
         self.codec, self.window, self.heatmap = m.codec, m.window, m.heatmap
-        self.bounds = self.registry.bounds(m.space)
+        description = self.registry.describe(m.space)
+        self.bounds = np.asarray(description["bounds"], dtype=np.float32)
         self.paused, self._last_step = False, None
         self._scratch = np.empty((space.n_vertices, 3), dtype=np.float32)
-        description = self.registry.describe(m.space)
-        current = dict(zip(player.names, player.frame().requested.tolist()))
+        current = dict(zip(player.names, player.requested.tolist()))
         parameters = [dict(p, value=current[p["name"]]) for p in description["parameters"]]
         s = self.settings
         await self._send(P.Topology(
@@ -316,18 +300,18 @@ class StreamSession:
         if unknown:
             raise P.ProtocolError("invalid_params", f"pull: unknown parameter(s) {', '.join(unknown)}; "
                                                     f"{self.space_name} has {', '.join(names)}", "pull", m.id)
-        request = player._target.copy()
+        request = player.target
         for name, value in (m.params or {}).items():
             request[names.index(name)] = value
         solution = player.map.solve(request)
         w = solution.weights
         space = player.space
         if m.time is not None:
-            root, heading, phase = root_after(player.track, w, m.time, space.cyclic)
+            root, heading, phase = player.track.after(w, m.time)
             seconds = m.time
         else:
             phase = m.phase % 1.0 if space.cyclic and m.phase < 1.0 else m.phase
-            root, heading, _ = root_after(player.track, w, phase * player.track.duration(w), False)
+            root, heading, _ = player.track.after(w, phase * player.track.duration(w))
             seconds = phase * player.track.duration(w)
         vertices = space.blender(mode).blend(w, phase)
         await self._send_frame(time_=seconds, phase=phase, mode=mode, requested=request, realised=solution.realised,

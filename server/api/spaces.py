@@ -11,9 +11,9 @@ import trimesh
 from fastapi import APIRouter, HTTPException, Query, Response
 from pydantic import BaseModel, Field
 
+from engine.rotations import rot_y
 from server.api.deps import RegistryDep
 from server.registry import BrokenSpace, UnknownSpace
-from server.stream import root_after
 
 router = APIRouter(tags=["motion spaces"])
 
@@ -87,9 +87,10 @@ class FrameJSON(BaseModel):
     faces: list[list[int]]
 
 
-def _space_or_404(registry, name):
+def _space_or_404(lookup, name):
+    """``lookup(name)`` (the registry's get or describe), its errors as 404 / 409."""
     try:
-        return registry.get(name)
+        return lookup(name)
     except UnknownSpace as exc:
         raise HTTPException(404, str(exc)) from None
     except BrokenSpace as exc:
@@ -110,8 +111,7 @@ def list_spaces(registry: RegistryDep):
 @router.get("/spaces/{name}", response_model=SpaceInfo, summary="Describe one motion space",
             responses={404: {"description": "no such space"}, 409: {"description": "the file cannot be read"}})
 def describe_space(name: str, registry: RegistryDep):
-    _space_or_404(registry, name)
-    return registry.describe(name)
+    return _space_or_404(registry.describe, name)
 
 
 def parse_params(text, names):
@@ -149,7 +149,7 @@ def space_frame(
     format: FrameFormat = FrameFormat.obj,
     placed: Annotated[bool, Query(description="apply the root transform (world coordinates)")] = True,
 ) -> Any:
-    space = _space_or_404(registry, name)
+    space = _space_or_404(registry.get, name)
     pmap = space.parameter_map
     if pmap is None:
         raise HTTPException(409, f"{name} has no parameter map; rebuild it from a spec with parameters")
@@ -162,15 +162,14 @@ def space_frame(
     w = solution.weights
     track = space.root_track
     if phase is None:
-        root, heading, phase_ = root_after(track, w, time or 0.0, space.cyclic)
+        root, heading, phase_ = track.after(w, time or 0.0)
         seconds = time or 0.0
     else:
         phase_ = phase % 1.0 if space.cyclic and phase < 1.0 else phase
         root, heading, seconds = np.zeros(3), 0.0, phase_ * track.duration(w)
     V = np.asarray(space.blend(w, phase_, mode.value), dtype=np.float64)
     if placed:
-        c, s = math.cos(heading), math.sin(heading)
-        V = V @ np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]).T + root
+        V = V @ rot_y(heading).T + root
     F = np.asarray(space.faces)
     headers = {"X-Morphspace-Phase": f"{phase_:.6f}", "X-Morphspace-Clamped": str(solution.clamped).lower()}
     if format is FrameFormat.json:

@@ -23,7 +23,6 @@ import time
 import traceback
 from pathlib import Path
 
-import numpy as np
 
 # Share of the whole job per stage, in the order the stages run; unknown stages keep the level.
 STAGES = {

@@ -75,3 +75,33 @@ def test_root_track_integrates_straight_and_turning_paths():
     assert heading[-1] == pytest.approx(np.radians(90))
     radius = 1.5 * T / np.radians(90)  # arc length / angle
     np.testing.assert_allclose(position[-1], [radius, 0, radius], rtol=1e-3)
+
+
+def test_root_after_whole_cycles_composes_the_cycle_step():
+    rng = np.random.default_rng(5)
+    P = 16
+    track = RootTrack(durations=np.array([0.9]), root_rate=rng.normal(0.3, 0.1, (P, 1, 3)),
+                      turn_rate=rng.normal(0.4, 0.2, (P, 1)), cyclic=True)
+    w = np.array([1.0])
+    step, turn = track.integrate(w)
+    position, heading = np.zeros(3), 0.0
+    for _ in range(7):   # one cycle at a time, rotated by the heading so far
+        c, s = np.cos(heading), np.sin(heading)
+        position = position + np.array([c * step[-1, 0] + s * step[-1, 2], 0.0, -s * step[-1, 0] + c * step[-1, 2]])
+        heading += turn[-1]
+    root, h, phase = track.after(w, 7 * 0.9 + 0.45)
+    partial_root, partial_heading, half = track.after(w, 0.45)
+    c, s = np.cos(heading), np.sin(heading)
+    expected = position + np.array([c * partial_root[0] + s * partial_root[2], 0.0,
+                                    -s * partial_root[0] + c * partial_root[2]])
+    assert phase == pytest.approx(0.5) and half == pytest.approx(0.5)
+    np.testing.assert_allclose(root, expected, atol=1e-12)
+    assert h == pytest.approx(heading + partial_heading)
+
+
+def test_root_after_stops_a_one_shot_clip_at_its_end():
+    track = RootTrack(durations=np.array([2.0]), root_rate=np.tile([0.0, 0.0, 1.5], (8, 1, 1)),
+                      turn_rate=np.zeros((8, 1)), cyclic=False)
+    root, heading, phase = track.after(np.array([1.0]), 5.0)
+    assert phase == 1.0 and heading == 0.0
+    np.testing.assert_allclose(root, [0.0, 0.0, 1.5], atol=1e-12)

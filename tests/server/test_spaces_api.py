@@ -9,7 +9,6 @@ import pytest
 import trimesh
 
 from engine.motion_space import MotionSpace
-from server.stream import root_after
 
 
 @pytest.fixture(scope="module")
@@ -58,7 +57,7 @@ def test_json_frame_is_the_engine_blend_placed_on_the_root_path(server, speed_sp
     solution = speed_space.parameter_map.solve(np.array([speed]))
     np.testing.assert_allclose(body["weights"], solution.weights)
     local = speed_space.blend(solution.weights, body["phase"], "linear")
-    root, heading, phase = root_after(speed_space.root_track, solution.weights, 0.7, True)
+    root, heading, phase = speed_space.root_track.after(solution.weights, 0.7)
     assert body["phase"] == pytest.approx(phase)
     c, s = math.cos(heading), math.sin(heading)
     placed = local @ np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]]).T + root

@@ -16,7 +16,6 @@ import websockets
 from engine.motion_space import MotionSpace
 from server import protocol as P
 from server.client import StreamClient
-from server.stream import root_after
 
 
 def run(coroutine):
@@ -156,7 +155,7 @@ def test_pull_is_the_frame_at_those_params_and_time(server, speed_space):
     assert frame.phase == pytest.approx((1.3 / duration) % 1.0)
     np.testing.assert_allclose(frame.weights, solution.weights)
     np.testing.assert_allclose(frame.vertices, speed_space.blend(solution.weights, frame.phase), atol=1e-6)
-    root, heading, _ = root_after(speed_space.root_track, solution.weights, 1.3, True)
+    root, heading, _ = speed_space.root_track.after(solution.weights, 1.3)
     np.testing.assert_allclose(frame.root, root, atol=1e-9)
     # travelling at the realised speed (straight gait): distance ~ speed * time
     assert np.linalg.norm(frame.root) == pytest.approx(solution.realised[0] * 1.3, rel=0.05)
