@@ -122,7 +122,7 @@ class RawClient(asyncio.Protocol):
 async def one_client(host, port, space, fps, seconds, measure_from, measure_to, updates, update_every, params,
                      rng, out):
     loop = asyncio.get_running_loop()
-    state = {"frames": 0, "latencies": [], "pending": {}}
+    state = {"frames": 0, "latencies": [], "pending": {}, "transit": []}
 
     def on_message(opcode, buf, start, length):
         if opcode != 0x2:
@@ -134,6 +134,7 @@ async def one_client(host, port, space, fps, seconds, measure_from, measure_to, 
                 return
             for s in [s for s in state["pending"] if s <= msg["ack"]]:
                 state["latencies"].append(received - state["pending"].pop(s))
+                state["transit"].append(time.time() - msg["sent_at"])  # encoded -> read by the client
         elif b"\xa5frame" not in buf[start:start + 16]:
             return  # the map's first entry is its type: count frames only
         if measure_from <= received < measure_to:
@@ -155,7 +156,7 @@ async def one_client(host, port, space, fps, seconds, measure_from, measure_to, 
         wake = min(stop, next_update) if updates else stop
         await asyncio.sleep(max(0.0, wake - time.monotonic()))
     transport.close()
-    out.append((state["frames"], state["latencies"]))
+    out.append((state["frames"], state["latencies"], state["transit"]))
 
 
 def client_process(host, port, space, n, fps, seconds, warmup, update_share, update_every, params, seed, queue):
@@ -176,7 +177,8 @@ def client_process(host, port, space, n, fps, seconds, warmup, update_share, upd
         return out, failures, measure_to - measure_from
 
     out, failures, window = asyncio.run(main())
-    queue.put({"frames": [f for f, _ in out], "latencies": [x for _, l in out for x in l],
+    queue.put({"frames": [f for f, _, _ in out], "latencies": [x for _, l, _ in out for x in l],
+               "transit": [x for _, _, t in out for x in t],
                "failures": failures, "window": window})
 
 
@@ -276,6 +278,7 @@ def main(argv=None):
         cpu = (cpu_seconds(server.pid) - cpu_start) / (time.monotonic() - wall_start)
         frames = [f for o in outputs for f in o["frames"]]
         latencies = [x * 1e3 for o in outputs for x in o["latencies"]]
+        transit = [x * 1e3 for o in outputs for x in o["transit"]]
         window = min(o["window"] for o in outputs)
         expected = args.fps * window
         delivered = [f / expected for f in frames]
@@ -289,6 +292,10 @@ def main(argv=None):
             "latency_ms": {"count": len(latencies), "median": percentile(latencies, 50),
                            "p95": percentile(latencies, 95), "p99": percentile(latencies, 99),
                            "max": max(latencies) if latencies else float("nan")},
+            # of which: from the server encoding the frame to the client reading it (socket
+            # buffers and the load generator's own lag)
+            "transit_ms": {"median": percentile(transit, 50), "p95": percentile(transit, 95),
+                           "p99": percentile(transit, 99)},
             "server_cpu_cores": cpu,
             "server_rss_mb": {"start": rss_start, "after_load": rss_mb(server.pid)},
         })
@@ -300,6 +307,9 @@ def main(argv=None):
         lat = result["latency_ms"]
         print(f"  params -> first frame reflecting them: median {lat['median']:.1f} ms, p95 {lat['p95']:.1f} ms, "
               f"p99 {lat['p99']:.1f} ms, max {lat['max']:.1f} ms ({lat['count']} updates)")
+        tr = result["transit_ms"]
+        print(f"    of which frame encoded -> read by the client: median {tr['median']:.1f} ms, p95 {tr['p95']:.1f} ms, "
+              f"p99 {tr['p99']:.1f} ms")
         print(f"  server: {cpu:.2f} cores, RSS {rss_start:.0f} -> {result['server_rss_mb']['after_load']:.0f} MB")
         if result["failures"]:
             print(f"  client failures: {result['failures']}")

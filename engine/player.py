@@ -90,6 +90,7 @@ class Player:
         self._target = middle
         self._current = middle.copy()
         self._velocity = np.zeros_like(middle)
+        self._settled = True
         self.reset()
         if params is not None:
             self.set_params(params, immediate=True)
@@ -149,6 +150,9 @@ class Player:
             self._current = self._target.copy()
             self._velocity[:] = 0.0
             self._solution = self._solve(self._current)
+            self._settled = True
+        else:
+            self._settled = bool(np.array_equal(self._current, self._target) and not np.any(self._velocity))
         self._last_request = solution
         return solution
 
@@ -173,20 +177,40 @@ class Player:
         key = w.tobytes()
         if self._track_cache is None or self._track_cache[0] != key:
             step, turn = self.track.rates(w)
-            self._track_cache = (key, step, turn, self.track.duration(w))
+            self._track_cache = (key, step.tolist(), turn.tolist(), self.track.duration(w))
         return self._track_cache[1:]
 
-    def _rates_at(self, w, phase):
-        step, turn, _ = self._track_at(w)
-        p0, p1, a = phase_samples(phase, len(step), self.space.cyclic)
-        return (1 - a) * step[p0] + a * step[p1], (1 - a) * turn[p0] + a * turn[p1]
+    @property
+    def weights(self):
+        """(N,) the blend weights now (read-only view; do not modify)."""
+        return self._solution.weights
+
+    @property
+    def realised(self):
+        """(k,) the parameters the current weights realise (read-only view)."""
+        return self._solution.realised
+
+    @property
+    def clamped(self):
+        """Whether the last request lay outside what the space can do."""
+        return bool(self._last_request.clamped)
+
+    @property
+    def settled(self):
+        """The parameters have reached their target (the weights stay fixed until a new request)."""
+        return self._settled
 
     def step(self, dt, out=None, local=False):
         """Advance the clock by ``dt`` seconds and return the frame there (``frame(out, local)``)."""
+        self.advance(dt)
+        return self.frame(out=out, local=local)
+
+    def advance(self, dt):
+        """Advance the clock by ``dt`` seconds: parameters, weights, phase and root (no blend)."""
         dt = float(dt)
-        if not (np.isfinite(dt) and dt >= 0):
+        if not (dt >= 0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a non-negative number of seconds, got {dt}")
-        if not np.array_equal(self._current, self._target) or np.any(self._velocity):
+        if not self._settled:
             self._current, self._velocity = _critically_damped(self._current, self._velocity, self._target, dt,
                                                                self.smoothing)
             # settled to a millionth of each range: stop moving (the weights then stay fixed,
@@ -194,26 +218,32 @@ class Player:
             settled = np.abs(self._current - self._target) <= 1e-6 * self.map.ranges
             if np.all(settled) and np.all(np.abs(self._velocity) * dt <= 1e-6 * self.map.ranges):
                 self._current, self._velocity = self._target.copy(), np.zeros_like(self._velocity)
+                self._settled = True
             self._solution = self._solve(self._current)
         w = self._solution.weights
         if not self.finished and dt > 0:
-            d_phase = dt / self._track_at(w)[2]
+            step, turn, duration = self._track_at(w)
+            d_phase = dt / duration
             if not self.space.cyclic and not self.loop:
                 d_phase = min(d_phase, 1.0 - self.phase)
             middle = self.phase + 0.5 * d_phase
-            step, turn = self._rates_at(w, middle % 1.0 if self.space.cyclic or self.loop else middle)
-            heading_middle = self.heading + 0.5 * turn * d_phase
+            p0, p1, a = phase_samples(middle % 1.0 if self.space.cyclic or self.loop else middle, len(turn),
+                                      self.space.cyclic)
+            s0, s1 = step[p0], step[p1]
+            sx, sz = s0[0] + a * (s1[0] - s0[0]), s0[2] + a * (s1[2] - s0[2])
+            t = turn[p0] + a * (turn[p1] - turn[p0])
+            heading_middle = self.heading + 0.5 * t * d_phase
             c, s = math.cos(heading_middle), math.sin(heading_middle)  # rot_y(heading_middle) @ step
-            self.position += np.array([c * step[0] + s * step[2], step[1], c * step[2] - s * step[0]]) * d_phase
-            self.position[1] = 0.0
-            self.heading += turn * d_phase
+            position = self.position
+            position[0] += (c * sx + s * sz) * d_phase
+            position[2] += (c * sz - s * sx) * d_phase
+            self.heading += t * d_phase
             self.phase += d_phase
             if self.space.cyclic or self.loop:
                 self.phase %= 1.0
             elif self.phase >= 1.0 - 1e-12:
                 self.phase, self.finished = 1.0, True
         self.time += dt
-        return self.frame(out=out, local=local)
 
     def frame(self, out=None, local=False):
         """The frame at the current state (nothing advances).

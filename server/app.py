@@ -20,6 +20,7 @@ from server import __version__
 from server.api import datasets, jobs, spaces
 from server.jobs import JobService
 from server.registry import SpaceRegistry
+from server.scheduler import FrameScheduler
 from server.settings import Settings
 from server.stream import StreamSession, StreamStats
 
@@ -48,6 +49,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.registry = SpaceRegistry(settings.spaces_dir)
     app.state.stream_stats = StreamStats()
+    app.state.frame_scheduler = FrameScheduler()
     app.state.jobs = JobService(settings, app.state.registry)
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
@@ -66,7 +68,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @app.websocket("/v1/stream")
     async def stream(websocket: WebSocket):
-        await StreamSession(websocket, app.state.registry, settings, app.state.stream_stats).run()
+        await StreamSession(websocket, app.state.registry, settings, app.state.stream_stats,
+                            app.state.frame_scheduler).run()
 
     if WEB_CLIENT.is_dir():
         app.mount("/app", StaticFiles(directory=WEB_CLIENT, html=True), name="web_client")

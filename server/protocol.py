@@ -353,6 +353,12 @@ def to_wire(message):
     return msgpack.packb(body, use_bin_type=True)
 
 
+def frame_wire(**values):
+    """The msgpack bytes of ``Frame(**values)`` without building the object: the streaming hot
+    path. Give every required Frame field (tests decode these bytes into a Frame)."""
+    return msgpack.packb({"type": "frame", **values}, use_bin_type=True)
+
+
 def decode_server(data):
     """A server message object from msgpack bytes (for clients written in Python)."""
     raw = msgpack.unpackb(data, raw=False)
@@ -372,17 +378,45 @@ def quantisation_error(bounds):
     return float(np.linalg.norm(step / 2))
 
 
-def encode_vertices(V, codec, bounds, scratch=None):
+class Quantiser:
+    """The q16 codec over a box: ``q = round((v - lo) * 65535 / (hi - lo))`` per axis, clamped
+    to [0, 65535].
+
+    ``Quantiser(bounds, n_vertices).encode(V)`` is the hot path: the per-axis scale and offset
+    are tiled over the flat (x, y, z, x, ...) array once, so every step is one contiguous pass.
+    ``scale`` and ``offset`` (3,) float32 map metres to the codec's units *before* rounding
+    (``offset`` includes the + 0.5 of round-to-nearest): ``floor(v * scale + offset)``.
+    """
+
+    def __init__(self, bounds, n_vertices):
+        lo, hi = np.asarray(bounds[0], dtype=np.float32), np.asarray(bounds[1], dtype=np.float32)
+        self.scale = (np.float32(65535.0) / np.maximum(hi - lo, np.float32(1e-12))).astype(np.float32)
+        self.offset = (np.float32(0.5) - lo * self.scale).astype(np.float32)
+        self.n_vertices = int(n_vertices)
+        self._scale = np.tile(self.scale, self.n_vertices)
+        self._offset = np.tile(self.offset, self.n_vertices)
+        self._q = np.empty(3 * self.n_vertices, dtype=np.float32)
+
+    def encode(self, V):
+        """Raw little-endian uint16 bytes of (n, 3) vertices."""
+        q = self._q
+        np.multiply(np.asarray(V, dtype=np.float32).reshape(-1), self._scale, out=q)
+        np.add(q, self._offset, out=q)
+        np.maximum(q, np.float32(0.0), out=q)
+        np.minimum(q, np.float32(65535.0), out=q)
+        return q.astype("<u2").tobytes()
+
+    def table(self, table):
+        """A PhaseTable (engine.blend.cache) in codec units: interpolating its rows and
+        truncating to uint16 gives the encoded frame."""
+        return table.scaled(self.scale, self.offset, 0.0, 65535.0)
+
+
+def encode_vertices(V, codec, bounds):
     """Raw little-endian bytes of (n, 3) vertices in ``codec``; q16 clamps to ``bounds``."""
     if codec == "f32":
         return np.ascontiguousarray(V, dtype="<f4").tobytes()
-    lo, hi = np.asarray(bounds[0], dtype=np.float32), np.asarray(bounds[1], dtype=np.float32)
-    scale = np.float32(65535.0) / np.maximum(hi - lo, np.float32(1e-12))
-    q = scratch if scratch is not None else np.empty(V.shape, dtype=np.float32)
-    np.multiply(V, scale, out=q)
-    q += 0.5 - lo * scale          # (V - lo) * scale, rounded to nearest by the + 0.5
-    np.clip(q, 0.0, 65535.0, out=q)
-    return q.astype("<u2").tobytes()
+    return Quantiser(bounds, len(V)).encode(V)
 
 
 def decode_vertices(data, codec, n_vertices, bounds_min=None, bounds_max=None):

@@ -1,13 +1,14 @@
 """``/v1/stream``: one WebSocket connection streaming a motion space under live parameters.
 
-A connection is two tasks: the receiver decodes, checks and applies client messages; the
-producer steps the connection's Player on its own clock and sends frames. Latest-wins: the
-producer computes a frame only when it is due *and* the previous one has been handed to the
-transport (uvicorn pauses the send while its buffer is above the high-water mark), and with a
-client ``window`` also only while fewer than ``window`` frames are unacknowledged. Ticks missed
-meanwhile are counted in ``dropped``, never queued, so a slow client gets fewer, fresh frames
-and never delays anyone else. A message that changes what the client sees (params, mode, seek,
-reset, resume) makes the next frame due at once, so it reflects the change within one blend.
+A connection is a task receiving, checking and applying client messages; its frames are
+produced by the server's FrameScheduler (server/scheduler.py), which steps every connection's
+Player on its own clock in shared ticks and writes the frames. Latest-wins: a frame is computed
+only when it is due *and* the previous one has been handed to the transport (uvicorn pauses the
+send while its buffer is above the high-water mark), and with a client ``window`` also only while
+fewer than ``window`` frames are unacknowledged. Ticks missed meanwhile are counted in
+``dropped``, never queued, so a slow client gets fewer, fresh frames and never delays anyone
+else. A message that changes what the client sees (params, mode, seek, reset, resume) makes the
+next frame due at once, so it reflects the change within one blend.
 
 All blending runs on the event loop thread (the engine's blenders keep scratch buffers); only
 the slow one-off set-up (opening a space, building the non-linear solver) goes to a thread.
@@ -17,7 +18,6 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import math
 import time
 
 import numpy as np
@@ -26,6 +26,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from engine.player import Player
 from server import protocol as P
 from server.registry import BrokenSpace, UnknownSpace
+from server.scheduler import URGENT, start_now
 
 log = logging.getLogger("morphspace.stream")
 MAX_DT = 0.25  # a stalled connection does not jump the clock by more than this per frame
@@ -59,10 +60,11 @@ class StreamStats:
 
 
 class StreamSession:
-    """One connection's state; ``await StreamSession(ws, registry, settings, stats).run()``."""
+    """One connection's state; ``await StreamSession(ws, registry, settings, stats, scheduler).run()``."""
 
-    def __init__(self, websocket: WebSocket, registry, settings, stats: StreamStats):
+    def __init__(self, websocket: WebSocket, registry, settings, stats: StreamStats, scheduler):
         self.ws, self.registry, self.settings, self.stats = websocket, registry, settings, stats
+        self.scheduler = scheduler
         self.bucket = TokenBucket(settings.stream_max_rate, settings.stream_burst)
         self.player = None
         self.space_name = None
@@ -70,6 +72,7 @@ class StreamSession:
         self.bounds = None
         self.rate = 60.0
         self.window = 0
+        self.waiting_ack = False
         self.heatmap = False
         self.paused = False
         self.ack = 0
@@ -78,8 +81,12 @@ class StreamSession:
         self.dropped = 0
         self.urgent = False
         self.closed = False
-        self.wake = asyncio.Event()
-        self._scratch = None
+        self.ready = False      # the topology has gone out: frames may follow
+        self.busy = False       # a frame's send is suspended on a full transport
+        self.version = 0        # the scheduler's bookkeeping
+        self.payload = None     # encoded vertices the scheduler prepared for the next frame
+        self.quantiser = None
+        self._send_task = None
         self._last_step = None
         self._next_due = 0.0
 
@@ -95,7 +102,6 @@ class StreamSession:
 
     def _close(self):
         self.closed = True
-        self.wake.set()
 
     async def error(self, code, message, ref=None, seq=None):
         self.stats.errors += 1
@@ -105,7 +111,8 @@ class StreamSession:
         """Make the next frame due at once, acknowledging client message ``seq``."""
         self.ack = max(self.ack, seq)
         self.urgent = True
-        self.wake.set()
+        if self.ready and not self.closed:
+            self.scheduler.schedule(self, URGENT)
 
     # ------------------------------------------------------------ connection
 
@@ -117,17 +124,15 @@ class StreamSession:
             await self.ws.close(code=1013)
             return
         self.stats.connections += 1
-        receiver = asyncio.create_task(self._receive_loop())
+        self.scheduler.add(self)
         try:
-            await self._produce_loop()
+            await self._receive_loop()
         finally:
+            self.scheduler.remove(self)
             self.stats.connections -= 1
             self.stats.dropped += self.dropped
-            receiver.cancel()
-            try:
-                await receiver
-            except (asyncio.CancelledError, Exception):  # the connection is gone either way
-                pass
+            if self._send_task is not None:
+                self._send_task.cancel()
 
     async def _receive_loop(self):
         try:
@@ -173,7 +178,9 @@ class StreamSession:
             return await self._hello(m)
         if isinstance(m, P.Ack):
             self.acked_frame = max(self.acked_frame, min(m.frame, self.seq))
-            self.wake.set()
+            if self.waiting_ack and self.seq - self.acked_frame < self.window:
+                self.waiting_ack = False
+                self.after_frame()
             return
         if self.player is None:
             raise P.ProtocolError("not_ready", f"send hello before {m.type}", ref=m.type, seq=getattr(m, "seq", None))
@@ -185,6 +192,7 @@ class StreamSession:
         elif isinstance(m, P.Rate):
             self._set_rate(m.rate, m)
             self._next_due = asyncio.get_running_loop().time()
+            self._last_step = None
         elif isinstance(m, P.Pause):
             self.paused = True
         elif isinstance(m, P.Resume):
@@ -262,12 +270,13 @@ class StreamSession:
                 raise P.ProtocolError("invalid_params", f"hello: unknown parameter(s) {', '.join(unknown)}; "
                                                         f"{m.space} has {', '.join(player.names)}", "hello", m.seq)
             player.set_params(m.params, immediate=True)
+        self.ready = False  # no frames until the new topology has gone out
         self.player, self.space_name = player, m.space
         self.codec, self.window, self.heatmap = m.codec, m.window, m.heatmap
         description = self.registry.describe(m.space)
         self.bounds = np.asarray(description["bounds"], dtype=np.float32)
         self.paused, self._last_step = False, None
-        self._scratch = np.empty((space.n_vertices, 3), dtype=np.float32)
+        self.quantiser = P.Quantiser(self.bounds, space.n_vertices) if m.codec == "q16" else None
         current = dict(zip(player.names, player.requested.tolist()))
         parameters = [dict(p, value=current[p["name"]]) for p in description["parameters"]]
         s = self.settings
@@ -282,7 +291,9 @@ class StreamSession:
             limits={"max_message": s.stream_max_message, "max_rate": s.stream_max_rate,
                     "burst": s.stream_burst, "max_fps": s.stream_max_fps}))
         self.seq = self.acked_frame = 0
+        self.waiting_ack = False
         self._next_due = asyncio.get_running_loop().time()
+        self.ready = True
         self._poke(m.seq)
 
     async def _pull(self, m):
@@ -320,61 +331,133 @@ class StreamSession:
 
     # ------------------------------------------------------------ frames
 
+    def _vertex_bytes(self, vertices):
+        if self.codec == "q16":
+            return self.quantiser.encode(vertices)
+        return np.ascontiguousarray(vertices, dtype="<f4").tobytes()
+
+    def _heatmap(self, mode, weights, phase, vertices, space):
+        """(error_um bytes, error_max) of ``vertices`` against the non-linear blend."""
+        if mode == "nonlinear":
+            distance = np.zeros(len(vertices), dtype=np.float32)
+        else:
+            reference = space.blender("nonlinear").blend(weights, phase)
+            distance = np.linalg.norm(vertices - reference, axis=1)
+        return np.minimum(np.rint(distance * 1e6), 65535).astype("<u2").tobytes(), float(distance.max())
+
     async def _send_frame(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
                           vertices, finished, pull_id, space):
+        """A pulled frame (streamed ones go through the scheduler: send_frame)."""
         error_um = error_max = None
         if self.heatmap:
-            if mode == "nonlinear":
-                distance = np.zeros(len(vertices), dtype=np.float32)
-            else:
-                reference = space.blender("nonlinear").blend(weights, phase)
-                distance = np.linalg.norm(vertices - reference, axis=1)
-            error_max = float(distance.max())
-            error_um = np.minimum(np.rint(distance * 1e6), 65535).astype("<u2").tobytes()
+            error_um, error_max = self._heatmap(mode, weights, phase, vertices, space)
         self.seq += 1
-        frame = P.Frame(seq=self.seq, ack=self.ack, time=float(time_), phase=float(phase), mode=mode,
-                        requested=[float(x) for x in requested], realised=[float(x) for x in realised],
-                        clamped=bool(clamped), weights=[float(x) for x in weights],
-                        root=[float(x) for x in root], heading=float(heading),
-                        vertices=P.encode_vertices(vertices, self.codec, self.bounds, self._scratch),
-                        dropped=self.dropped, finished=bool(finished), sent_at=time.time(), pull_id=pull_id,
-                        error_um=error_um, error_max=error_max)
+        data = P.frame_wire(seq=self.seq, ack=self.ack, time=float(time_), phase=float(phase), mode=mode,
+                            requested=[float(x) for x in requested], realised=[float(x) for x in realised],
+                            clamped=bool(clamped), weights=[float(x) for x in weights],
+                            root=[float(x) for x in root], heading=float(heading),
+                            vertices=self._vertex_bytes(vertices), dropped=self.dropped, finished=bool(finished),
+                            sent_at=time.time(), pull_id=pull_id, error_um=error_um, error_max=error_max)
         self.stats.frames += 1
-        await self._send(frame)
+        if not self.closed:
+            try:
+                await self.ws.send_bytes(data)
+            except (WebSocketDisconnect, OSError, RuntimeError):
+                self._close()
 
-    async def _produce_loop(self):
-        loop = asyncio.get_running_loop()
-        while not self.closed:
-            now = loop.time()
-            streaming = self.player is not None and not self.paused and self.rate > 0
-            period = 1.0 / self.rate if self.rate > 0 else math.inf
-            waiting_ack = self.window > 0 and self.seq - self.acked_frame >= self.window
-            due = streaming and now >= self._next_due
-            if self.player is not None and (self.urgent or due) and not (waiting_ack and not self.urgent):
-                urgent, self.urgent = self.urgent, False
-                if streaming:
-                    late = now - self._next_due
-                    if not urgent and late >= period:
-                        missed = int(late / period)
-                        self.dropped += missed
-                    dt = 0.0 if self._last_step is None else min(now - self._last_step, MAX_DT)
-                    self._last_step = now
-                    self._next_due = max(self._next_due + period, now + 0.5 * period) if not urgent else now + period
-                else:
-                    dt = 0.0
-                frame = self.player.step(dt, local=True)
-                await self._send_frame(time_=frame.time, phase=frame.phase, mode=self.player.mode,
-                                       requested=frame.requested, realised=frame.realised, clamped=frame.clamped,
-                                       weights=frame.weights, root=frame.root_position, heading=frame.heading,
-                                       vertices=frame.vertices, finished=frame.finished, pull_id=None,
-                                       space=self.player.space)
-                continue
-            if due and waiting_ack:
-                self.dropped += 1
-                self._next_due += period
-                continue
-            handle = loop.call_at(self._next_due, self.wake.set) if streaming and not waiting_ack else None
-            await self.wake.wait()
-            self.wake.clear()
-            if handle is not None:
-                handle.cancel()
+    # ------------------------------------------------------------ the scheduler's side
+
+    def advance(self, now):
+        """Step the player for a frame at loop time ``now``; False when none is to be sent."""
+        if not self.ready or self.player is None:
+            return False
+        urgent = self.urgent
+        streaming = not self.paused and self.rate > 0
+        if not urgent:
+            if not streaming:
+                return False
+            if self.window > 0 and self.seq - self.acked_frame >= self.window:
+                self.waiting_ack = True  # the next ack reschedules
+                return False
+        self.urgent = False
+        dt = 0.0
+        if streaming:
+            period = 1.0 / self.rate
+            late = now - self._next_due
+            if not urgent and late >= period:
+                self.dropped += int(late / period)
+            dt = 0.0 if self._last_step is None else min(now - self._last_step, MAX_DT)
+            self._last_step = now
+            self._next_due = max(self._next_due + period, now + 0.5 * period) if not urgent else now + period
+        self.player.advance(dt)
+        return True
+
+    def frame_source(self):
+        """(phase table or None, codec): a table when this frame is one interpolation of it
+        (linear or hybrid at weights that recur, no heatmap); q16 tables are in codec units."""
+        player = self.player
+        if self.heatmap or player.mode == "nonlinear":
+            return None, self.codec
+        table = player.space.frame_blender(player.mode).lookup(player.weights)
+        if table is not None and self.codec == "q16":
+            table = self.quantiser.table(table)
+        return table, self.codec
+
+    def send_frame(self, payload):
+        """Write the frame at the player's state; ``payload``: its encoded vertices, or None to
+        blend them here."""
+        player = self.player
+        error_um = error_max = None
+        if payload is None:
+            space, mode, weights, phase = player.space, player.mode, player.weights, player.phase
+            vertices = space.frame_blender(mode).blend(weights, phase)
+            if self.heatmap:
+                error_um, error_max = self._heatmap(mode, weights, phase, vertices, space)
+            payload = self._vertex_bytes(vertices)
+        self.seq += 1
+        data = P.frame_wire(seq=self.seq, ack=self.ack, time=player.time, phase=player.phase, mode=player.mode,
+                            requested=player.requested.tolist(), realised=player.realised.tolist(),
+                            clamped=player.clamped, weights=player.weights.tolist(),
+                            root=player.position.tolist(), heading=float(player.heading), vertices=payload,
+                            dropped=self.dropped, finished=player.finished, sent_at=time.time(), pull_id=None,
+                            error_um=error_um, error_max=error_max)
+        self.stats.frames += 1
+        try:
+            task = start_now(self.ws.send_bytes(data))
+        except (WebSocketDisconnect, OSError, RuntimeError):
+            self._close()
+            return
+        if task is not None:  # the transport is full: this connection waits, nobody else
+            self.busy, self._send_task = True, task
+            task.add_done_callback(self._sent)
+
+    def _sent(self, task):
+        self.busy, self._send_task = False, None
+        if task.cancelled() or task.exception() is not None:
+            self._close()
+            return
+        self.after_frame()
+
+    def after_frame(self):
+        """Ask the scheduler for the next frame (now if one is urgent)."""
+        if self.closed or not self.ready:
+            return
+        if self.urgent:
+            self.scheduler.schedule(self, URGENT)
+        elif not self.paused and self.rate > 0:
+            self.scheduler.schedule(self, self._next_due)
+
+    def fail(self, exc):
+        """The scheduler failed on this connection: report, close it, keep everyone else."""
+        log.error("stream: frame for %s failed", self.space_name, exc_info=exc)
+        self.stats.errors += 1
+        self._close()
+        asyncio.get_running_loop().create_task(self._fail_message(exc))
+
+    async def _fail_message(self, exc):
+        try:
+            await self.ws.send_bytes(P.to_wire(P.Error(code="internal", message=f"the server failed to produce a "
+                                                       f"frame: {type(exc).__name__}: {exc}")))
+            await self.ws.close(code=1011)
+        except (WebSocketDisconnect, OSError, RuntimeError):
+            pass

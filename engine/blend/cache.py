@@ -2,14 +2,19 @@
 
 Linear and hybrid blends are linear in phase between the phase samples: at weights w,
 
-    M(t, w) = (1 - a) B[p0] + a B[p1],    B[p] = sum_i w_i S_i[p] + sum_j phi_j(w) D_j[p]
+    M(t, w) = B[p0] + a (B[p1] - B[p0]),    B[p] = sum_i w_i S_i[p] + sum_j phi_j(w) D_j[p]
 
 (``phase_samples`` gives p0, p1, a). So once a weight vector has been asked for a few times, its
 table B (P, n, 3) is built (P blends) and every later frame at those weights costs one
-interpolation of two rows. This is exact (float32 rounding), not a cache of approximations.
+multiply-add of two rows. This is exact (float32 rounding), not a cache of approximations.
 A player whose parameters have settled, or many viewers at the same parameters, hit the table;
 moving weights fall through to the blender. Tables are kept least-recently-used, up to
-``capacity`` (each is P x n x 3 float32: 1.2 MB for 32 phases of 3,000 vertices).
+``capacity`` (each is 2 x P x n x 3 float32 with its differences: 2.3 MB for 32 phases of
+3,000 vertices).
+
+A table can also be held in affine coordinates ``scale * B + offset`` (``PhaseTable.scaled``):
+a quantising encoder then reads its integers straight off the interpolated rows, and a server
+interpolates the rows of many clients in one gather (``PhaseTable.rows_at``).
 """
 
 from __future__ import annotations
@@ -19,6 +24,74 @@ from collections import OrderedDict
 import numpy as np
 
 from engine.blend.phase import phase_of_sample, phase_samples
+
+
+class PhaseTable:
+    """The blends at every phase sample for one weight vector, with forward differences.
+
+    Parameters
+    ----------
+    rows : (P, n, 3) float32   blends at the phase samples
+    cyclic : bool              the last sample runs on to the first (else it is the end)
+
+    Attributes
+    ----------
+    rows, delta : (P, n * 3) float32   B[p] and B[p1(p)] - B[p] (0 after a clip's last sample)
+    """
+
+    def __init__(self, rows, cyclic):
+        P = len(rows)
+        self.n_phases, self.cyclic = P, bool(cyclic)
+        self.n_vertices = rows.shape[1]
+        self.rows = np.ascontiguousarray(rows, dtype=np.float32).reshape(P, -1)
+        self.delta = np.empty_like(self.rows)
+        np.subtract(self.rows[1:], self.rows[:-1], out=self.delta[:-1])
+        if cyclic:
+            np.subtract(self.rows[0], self.rows[-1], out=self.delta[-1])
+        else:
+            self.delta[-1] = 0.0
+        self._scaled = {}
+
+    def at(self, phase, out=None):
+        """(n, 3) float32 vertices at ``phase`` in [0, 1]."""
+        p0, _, a = phase_samples(phase, self.n_phases, self.cyclic)
+        V = np.empty((self.n_vertices, 3), dtype=np.float32) if out is None else out
+        flat = V.reshape(-1)
+        np.multiply(self.delta[p0], np.float32(a), out=flat)
+        flat += self.rows[p0]
+        return V
+
+    def rows_at(self, phases, out=None):
+        """(K, n * 3) float32 rows at K phases: every client of a table in one gather.
+
+        ``phases`` : (K,) floats in [0, 1]. Rows are flat (x, y, z per vertex).
+        """
+        samples = [phase_samples(t, self.n_phases, self.cyclic) for t in phases]
+        p0 = np.fromiter((s[0] for s in samples), dtype=np.intp, count=len(samples))
+        a = np.fromiter((s[2] for s in samples), dtype=np.float32, count=len(samples))
+        R = np.take(self.delta, p0, axis=0, out=out)
+        R *= a[:, None]
+        R += self.rows[p0]
+        return R
+
+    def scaled(self, scale, offset, lo=None, hi=None):
+        """This table in the affine coordinates ``scale * B + offset`` (per axis), clipped to
+        [lo, hi] when given; built once per (scale, offset, lo, hi) and kept with the table.
+
+        scale, offset : (3,) float   per-axis
+        Interpolating the scaled rows equals scaling the interpolated blend (to float32
+        rounding), and stays within [lo, hi] (the rows are clipped before differencing).
+        """
+        scale = np.asarray(scale, dtype=np.float32).reshape(3)
+        offset = np.asarray(offset, dtype=np.float32).reshape(3)
+        key = (scale.tobytes(), offset.tobytes(), lo, hi)
+        table = self._scaled.get(key)
+        if table is None:
+            rows = self.rows.reshape(self.n_phases, -1, 3) * scale + offset
+            if lo is not None or hi is not None:
+                np.clip(rows, lo, hi, out=rows)
+            table = self._scaled[key] = PhaseTable(rows, self.cyclic)
+        return table
 
 
 class PhaseTableBlender:
@@ -45,29 +118,35 @@ class PhaseTableBlender:
         return np.stack([self.blender.blend(weights, phase_of_sample(p, self.n_phases, self.cyclic))
                          for p in range(self.n_phases)]).astype(np.float32, copy=False)
 
+    def lookup(self, weights):
+        """The PhaseTable for ``weights``, or None while they have not recurred ``after`` times.
+
+        Counts as a request: the table is built on the ``after``-th request at the same weights.
+        """
+        key = np.asarray(weights, dtype=np.float64).tobytes()
+        table = self._tables.get(key)
+        if table is not None:
+            self._tables.move_to_end(key)
+            self.hits += 1
+            return table
+        count = self._seen.pop(key, 0) + 1
+        if count < self.after:
+            self._seen[key] = count
+            while len(self._seen) > 4 * self.capacity:
+                self._seen.popitem(last=False)
+            self.misses += 1
+            return None
+        table = self._tables[key] = PhaseTable(self.table(weights), self.cyclic)
+        self.builds += 1
+        self.hits += 1
+        while len(self._tables) > self.capacity:
+            self._tables.popitem(last=False)
+        return table
+
     def blend(self, weights, phase, out=None):
         """Blended vertices (n, 3) float32, as the wrapped blender gives them."""
-        w = np.asarray(weights, dtype=np.float64)
-        key = w.tobytes()
-        table = self._tables.get(key)
+        table = self.lookup(weights)
         if table is None:
-            count = self._seen.pop(key, 0) + 1
-            if count < self.after:
-                self._seen[key] = count
-                while len(self._seen) > 4 * self.capacity:
-                    self._seen.popitem(last=False)
-                self.misses += 1
-                V = self.blender.blend(w, phase, out=out)
-                return V if out is not None else np.asarray(V, dtype=np.float32)
-            table = self._tables[key] = self.table(w)
-            self.builds += 1
-            while len(self._tables) > self.capacity:
-                self._tables.popitem(last=False)
-        else:
-            self._tables.move_to_end(key)
-        self.hits += 1
-        p0, p1, a = phase_samples(phase, self.n_phases, self.cyclic)
-        V = np.empty(table.shape[1:], dtype=np.float32) if out is None else out
-        np.multiply(table[p0], np.float32(1.0 - a), out=V)
-        V += np.float32(a) * table[p1]
-        return V
+            V = self.blender.blend(np.asarray(weights, dtype=np.float64), phase, out=out)
+            return V if out is not None else np.asarray(V, dtype=np.float32)
+        return table.at(phase, out=out)

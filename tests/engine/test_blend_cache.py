@@ -29,3 +29,31 @@ def test_tables_are_kept_least_recently_used():
         blender.blend(np.array(w, float), 0.3)
     assert blender.builds == 4          # [1, 0] was evicted by the third and built again
     assert len(blender._tables) == 2
+
+
+@pytest.mark.parametrize("cyclic", [True, False])
+def test_rows_of_many_phases_in_one_gather_equal_single_frames(cyclic):
+    rng = np.random.default_rng(5)
+    inner = LinearBlender(rng.normal(size=(10, 3, 40, 3)).astype(np.float32), cyclic)
+    blender = PhaseTableBlender(inner, 10, cyclic, after=1)
+    w = np.array([0.1, 0.6, 0.3])
+    table = blender.lookup(w)
+    phases = [0.0, 1.0, 0.5, *rng.random(13)]
+    R = table.rows_at(phases)
+    assert R.shape == (len(phases), 40 * 3) and R.dtype == np.float32
+    for row, phase in zip(R, phases):
+        np.testing.assert_allclose(row.reshape(-1, 3), inner.blend(w, phase), atol=2e-6)
+
+
+def test_a_scaled_table_interpolates_to_the_scaled_blend_within_its_clip():
+    rng = np.random.default_rng(6)
+    inner = LinearBlender(rng.normal(size=(8, 2, 30, 3)).astype(np.float32), True)
+    table = PhaseTableBlender(inner, 8, True, after=1).lookup(np.array([0.3, 0.7]))
+    scale, offset = np.array([2.0, 3.0, 4.0]), np.array([10.0, 20.0, 30.0])
+    scaled = table.scaled(scale, offset)
+    assert table.scaled(scale, offset) is scaled           # built once
+    for phase in rng.random(10):
+        np.testing.assert_allclose(scaled.at(phase), table.at(phase) * scale + offset, atol=1e-4)
+    clipped = table.scaled(scale, offset, 0.0, 25.0)
+    values = clipped.rows_at(rng.random(50))
+    assert values.min() >= 0.0 and values.max() <= 25.0

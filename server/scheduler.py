@@ -1,0 +1,181 @@
+"""One task produces the frames of every streaming connection: ``FrameScheduler``.
+
+Connections wait in a heap keyed by the time their next frame is due. A tick takes every
+connection due within half a tick (``TICK``), advances its player, blends, encodes and hands the
+frame to its transport, then sleeps until the next one falls due (at least a tick later, unless a
+client message makes a frame urgent). Per tick:
+
+- clients whose weights have a phase table (settled parameters, or many viewers at the same
+  ones) are grouped by table; each group's rows are interpolated in one gather, q16 clients'
+  straight from the table in codec units (``Quantiser.table``), so their integers need one
+  truncating cast;
+- moving weights, the non-linear mode and heatmaps blend one client at a time;
+- frames are written without a task switch: the ASGI send is started by hand and, when the
+  transport accepts it at once (the usual case), it completes in the call. A transport above its
+  high-water mark suspends the send; then it finishes in a task of its own and only that
+  connection waits (latest-wins: its missed frames are counted in ``dropped``, never queued).
+
+All of it runs on the event loop thread: the engine's blenders keep scratch buffers and the
+work per frame is a few tens of microseconds.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import heapq
+import itertools
+import logging
+import math
+
+log = logging.getLogger("morphspace.stream")
+TICK = 0.002      # seconds: ticks come at most this often (urgent frames excepted)
+MAX_BATCH = 32    # frames per tick at most; then the loop reads sockets before the next tick
+URGENT = -math.inf
+
+
+async def _finish(coro, future):
+    """Run a coroutine that was started by hand (``coro.send(None)``) and suspended on
+    ``future`` to its end, as a Task would have."""
+    try:
+        while True:
+            if future is None:  # a bare yield (asyncio.sleep(0))
+                await asyncio.sleep(0)
+            else:
+                try:
+                    await future
+                except asyncio.CancelledError:
+                    if not future.done():
+                        raise  # this task was cancelled: close the coroutine below
+                except Exception:  # noqa: BLE001 - the coroutine reads the outcome itself on resume
+                    pass
+            future = coro.send(None)
+    except StopIteration:
+        return
+    finally:
+        coro.close()
+
+
+def start_now(coro):
+    """Run ``coro`` until it first suspends. Returns None when it completed in the call (its
+    exceptions propagate), else a Task finishing it."""
+    try:
+        future = coro.send(None)
+    except StopIteration:
+        return None
+    except BaseException:
+        coro.close()
+        raise
+    return asyncio.get_running_loop().create_task(_finish(coro, future))
+
+
+class FrameScheduler:
+    """Produces the frames of every StreamSession added to it, on one task of the running loop.
+
+    ``scheduler.add(session)``; ``scheduler.schedule(session, due)`` whenever a session wants a
+    frame at loop time ``due``; ``scheduler.remove(session)``. The task starts with the first
+    session and ends when the last one leaves.
+
+    A session provides ``version`` (int, bumped here), ``closed``, ``busy`` (a send in flight),
+    ``advance(now)`` -> bool (step its player; False: no frame now), ``frame_source()`` ->
+    (table or None, codec), ``send_frame(payload)`` where payload is the encoded vertices or None
+    (blend one client), and ``after_frame()`` (schedule the next one).
+    """
+
+    def __init__(self):
+        self._heap = []
+        self._order = itertools.count()
+        self._sessions = set()
+        self._task = None
+        self._wakeup = None
+        self._planned = math.inf
+        self.ticks = 0
+        self.frames = 0
+
+    def add(self, session):
+        self._sessions.add(session)
+        if self._task is None or self._task.done():
+            self._wakeup = asyncio.Event()
+            self._task = asyncio.get_running_loop().create_task(self._run())
+
+    def remove(self, session):
+        self._sessions.discard(session)
+        session.version += 1
+        if not self._sessions and self._wakeup is not None:
+            self._wakeup.set()
+
+    def schedule(self, session, due):
+        """Produce ``session``'s next frame at loop time ``due`` (replacing any earlier request);
+        ``URGENT``: ahead of every frame already due (a client message changed what it sees)."""
+        session.version += 1
+        heapq.heappush(self._heap, (due, next(self._order), session.version, session))
+        if due < self._planned and self._wakeup is not None:
+            self._wakeup.set()
+
+    async def _run(self):
+        loop = asyncio.get_running_loop()
+        try:
+            while self._sessions:
+                now = loop.time()
+                batch = []
+                heap = self._heap
+                while heap and heap[0][0] <= now + 0.5 * TICK and len(batch) < MAX_BATCH:
+                    _, _, version, session = heapq.heappop(heap)
+                    if version == session.version and not session.closed and not session.busy:
+                        batch.append(session)
+                if batch:
+                    self.ticks += 1
+                    self._produce(batch, now)
+                if not self._sessions:
+                    break
+                if heap and heap[0][0] <= loop.time() + 0.5 * TICK:
+                    await asyncio.sleep(0)  # behind: let the loop read sockets, then go on
+                    continue
+                # sleep until the next frame falls due, at least a tick from now
+                self._planned = max(heap[0][0] - 0.5 * TICK, now + TICK) if heap else math.inf
+                handle = loop.call_at(self._planned, self._wakeup.set) if heap else None
+                await self._wakeup.wait()
+                self._wakeup.clear()
+                self._planned = -math.inf  # a schedule() during the tick must not wake it again
+                if handle is not None:
+                    handle.cancel()
+        finally:
+            self._heap.clear()
+
+    def _produce(self, batch, now):
+        ready = []
+        for session in batch:
+            try:
+                if session.advance(now):
+                    ready.append(session)
+            except Exception as exc:  # noqa: BLE001 - one connection's failure stays its own
+                session.fail(exc)
+        # clients at weights with a phase table: one gather per table
+        groups = {}
+        for session in ready:
+            session.payload = None
+            try:
+                table, codec = session.frame_source()
+            except Exception as exc:  # noqa: BLE001
+                session.fail(exc)
+                continue
+            if table is not None:
+                groups.setdefault(id(table), (table, codec, []))[2].append(session)
+        for table, codec, members in groups.values():
+            rows = table.rows_at([m.player.phase for m in members])
+            if codec == "q16":
+                rows = rows.astype("<u2")  # the table is in codec units, + 0.5: truncation rounds
+            for member, row in zip(members, rows):
+                member.payload = row.tobytes()
+        for session in ready:
+            if session.closed:
+                continue
+            try:
+                session.send_frame(session.payload)
+            except Exception as exc:  # noqa: BLE001
+                session.fail(exc)
+                continue
+            self.frames += 1
+            session.payload = None
+            if not session.busy:
+                session.after_frame()
+
