@@ -51,8 +51,6 @@ async def _finish(coro, future):
             future = coro.send(None)
     except StopIteration:
         return
-    finally:
-        coro.close()
 
 
 def start_now(coro):
@@ -65,7 +63,9 @@ def start_now(coro):
     except BaseException:
         coro.close()
         raise
-    return asyncio.get_running_loop().create_task(_finish(coro, future))
+    task = asyncio.get_running_loop().create_task(_finish(coro, future))
+    task.add_done_callback(lambda _: coro.close())  # cancelled (even before it ran): close it too
+    return task
 
 
 class FrameScheduler:

@@ -8,9 +8,11 @@ Linear and hybrid blends are linear in phase between the phase samples: at weigh
 table B (P, n, 3) is built (P blends) and every later frame at those weights costs one
 multiply-add of two rows. This is exact (float32 rounding), not a cache of approximations.
 A player whose parameters have settled, or many viewers at the same parameters, hit the table;
-moving weights fall through to the blender. Tables are kept least-recently-used, up to
-``capacity`` (each is 2 x P x n x 3 float32 with its differences: 2.3 MB for 32 phases of
-3,000 vertices).
+moving weights fall through to the blender. At most ``capacity`` tables are kept (each is
+2 x P x n x 3 float32 with its differences: 2.3 MB for 32 phases of 3,000 vertices); a new one
+replaces the least recently used only if that one has been idle for ``idle`` seconds, so more
+recurring weights than tables (hundreds of viewers at different settings) never thrash: the
+tables serve the first ``capacity`` of them and the rest blend as if there were none.
 
 A table can also be held in affine coordinates ``scale * B + offset`` (``PhaseTable.scaled``):
 a quantising encoder then reads its integers straight off the interpolated rows, and a server
@@ -19,6 +21,7 @@ interpolates the rows of many clients in one gather (``PhaseTable.rows_at``).
 
 from __future__ import annotations
 
+import time
 from collections import OrderedDict
 
 import numpy as np
@@ -103,13 +106,16 @@ class PhaseTableBlender:
     n_phases : int; cyclic : bool
     capacity : int    tables kept
     after : int       requests at the same weights before a table is built
+    idle : float      seconds without a request before a table may be replaced
+    clock : callable  seconds (default time.monotonic)
     """
 
-    def __init__(self, blender, n_phases, cyclic, *, capacity=32, after=3):
+    def __init__(self, blender, n_phases, cyclic, *, capacity=32, after=3, idle=1.0, clock=time.monotonic):
         self.blender = blender
         self.n_phases, self.cyclic = int(n_phases), bool(cyclic)
-        self.capacity, self.after = int(capacity), int(after)
-        self._tables = OrderedDict()
+        self.capacity, self.after, self.idle = int(capacity), int(after), float(idle)
+        self.clock = clock
+        self._tables = OrderedDict()   # weights key -> [PhaseTable, last request time]
         self._seen = OrderedDict()
         self.hits = self.misses = self.builds = 0
 
@@ -124,23 +130,27 @@ class PhaseTableBlender:
         Counts as a request: the table is built on the ``after``-th request at the same weights.
         """
         key = np.asarray(weights, dtype=np.float64).tobytes()
-        table = self._tables.get(key)
-        if table is not None:
+        now = self.clock()
+        entry = self._tables.get(key)
+        if entry is not None:
             self._tables.move_to_end(key)
+            entry[1] = now
             self.hits += 1
-            return table
+            return entry[0]
         count = self._seen.pop(key, 0) + 1
-        if count < self.after:
-            self._seen[key] = count
+        full = len(self._tables) >= self.capacity
+        if count < self.after or (full and now - next(iter(self._tables.values()))[1] < self.idle):
+            self._seen[key] = min(count, self.after)
             while len(self._seen) > 4 * self.capacity:
                 self._seen.popitem(last=False)
             self.misses += 1
             return None
-        table = self._tables[key] = PhaseTable(self.table(weights), self.cyclic)
+        if full:
+            self._tables.popitem(last=False)
+        table = PhaseTable(self.table(weights), self.cyclic)
+        self._tables[key] = [table, now]
         self.builds += 1
         self.hits += 1
-        while len(self._tables) > self.capacity:
-            self._tables.popitem(last=False)
         return table
 
     def blend(self, weights, phase, out=None):

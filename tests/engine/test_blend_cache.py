@@ -21,10 +21,10 @@ def test_tables_reproduce_the_blender_at_any_phase(cyclic):
     assert blender.blend(w, 0.3, out=out) is out
 
 
-def test_tables_are_kept_least_recently_used():
+def test_idle_tables_are_replaced_least_recently_used():
     rng = np.random.default_rng(4)
     inner = LinearBlender(rng.normal(size=(8, 2, 50, 3)).astype(np.float32), True)
-    blender = PhaseTableBlender(inner, 8, True, capacity=2, after=1)
+    blender = PhaseTableBlender(inner, 8, True, capacity=2, after=1, idle=0.0)
     for w in ([1, 0], [0, 1], [0.5, 0.5], [1, 0]):
         blender.blend(np.array(w, float), 0.3)
     assert blender.builds == 4          # [1, 0] was evicted by the third and built again
@@ -57,3 +57,18 @@ def test_a_scaled_table_interpolates_to_the_scaled_blend_within_its_clip():
     clipped = table.scaled(scale, offset, 0.0, 25.0)
     values = clipped.rows_at(rng.random(50))
     assert values.min() >= 0.0 and values.max() <= 25.0
+
+
+def test_tables_in_use_are_not_replaced_so_many_viewers_never_thrash():
+    rng = np.random.default_rng(7)
+    inner = LinearBlender(rng.normal(size=(8, 2, 50, 3)).astype(np.float32), True)
+    now = [0.0]
+    blender = PhaseTableBlender(inner, 8, True, capacity=2, after=1, idle=1.0, clock=lambda: now[0])
+    weights = [np.array([1.0 - k / 10, k / 10]) for k in range(5)]
+    for _ in range(20):                      # five viewers round-robin, all active
+        for w in weights:
+            np.testing.assert_allclose(blender.blend(w, 0.3), inner.blend(w, 0.3), atol=2e-6)
+        now[0] += 0.05
+    assert blender.builds == 2               # the first two got tables, the others blend directly
+    now[0] += 2.0                            # everyone idle: a new weight vector replaces the oldest
+    assert blender.lookup(np.array([0.5, 0.5])) is not None and blender.builds == 3
