@@ -69,34 +69,35 @@ class Layout:
     def dims(self):
         return 1 if self.kind == "chain" else 2
 
-    def _chain_weights(self, u, chain):
-        w = np.zeros(self.n_sources)
+    def _chain_weights(self, u, chain, w, share=1.0):
+        """Add ``share`` of the chain's weights at u in [0, 1] into the list w."""
         if len(chain) == 1:
-            w[chain[0]] = 1.0
-            return w
-        x = float(np.clip(u, 0.0, 1.0)) * (len(chain) - 1)
+            w[chain[0]] += share
+            return
+        x = min(max(u, 0.0), 1.0) * (len(chain) - 1)
         i = min(int(x), len(chain) - 2)
         a = x - i
-        w[chain[i]] += 1.0 - a
-        w[chain[i + 1]] += a
-        return w
+        w[chain[i]] += share * (1.0 - a)
+        w[chain[i + 1]] += share * a
 
     def weights(self, u):
-        """(N,) blend weights (summing to 1) at sheet coordinates u (dims,)."""
-        u = np.clip(np.atleast_1d(np.asarray(u, dtype=float)), 0.0, 1.0)
+        """(N,) blend weights (summing to 1) at sheet coordinates u (dims,).
+
+        Plain Python on the one or two coordinates: the player asks every frame."""
+        u = [min(max(float(x), 0.0), 1.0) for x in (u if isinstance(u, list) else np.atleast_1d(u).tolist())]
+        w = [0.0] * self.n_sources
         if self.kind == "chain":
-            return self._chain_weights(u[0], self.chain)
-        if self.kind == "grid":
+            self._chain_weights(u[0], self.chain, w)
+        elif self.kind == "grid":
             a, b = u
-            w = np.zeros(self.n_sources)
             for corner, coefficient in zip(self.corners, ((1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b)):
                 w[corner] += coefficient
-            return w
-        d = 2.0 * u[1] - 1.0  # direction: -1 right, +1 left
-        w = (1.0 - abs(d)) * self._chain_weights(u[0], self.chain)
-        w[self.left] += max(d, 0.0)
-        w[self.right] += max(-d, 0.0)
-        return w
+        else:
+            d = 2.0 * u[1] - 1.0  # direction: -1 right, +1 left
+            self._chain_weights(u[0], self.chain, w, 1.0 - abs(d))
+            w[self.left] += max(d, 0.0)
+            w[self.right] += max(-d, 0.0)
+        return np.array(w)
 
     def to_dict(self):
         return {"kind": self.kind, "n_sources": self.n_sources, "chain": list(self.chain),
@@ -330,9 +331,11 @@ class ParameterMap:
 
     def _gauss_newton(self, p, u):
         """Sheet coordinates u (list) minimising |(at(u) - p) / ranges|, from ``u``, projected
-        onto the unit square; stops when a step no longer reduces the residual."""
+        onto the unit square; stops when a step no longer reduces the residual. Returns u and
+        the parameters there (list)."""
         scale = self._ranges_list
         at, jac = self._cell(u)
+        at_u = at
         r = [(q - t) / s for q, t, s in zip(at, p, scale)]
         norm = math.sqrt(sum(x * x for x in r))
         for _ in range(20):
@@ -362,8 +365,8 @@ class ParameterMap:
             norm_next = math.sqrt(sum(x * x for x in r_next))
             if norm_next >= norm:
                 break
-            u, r, norm, jac = u_next, r_next, norm_next, jac_next
-        return u
+            u, r, norm, jac, at_u = u_next, r_next, norm_next, jac_next, at
+        return u, at_u
 
     def _dense(self):
         steps = 401 if self.layout.dims == 1 else 81
@@ -393,26 +396,27 @@ class ParameterMap:
         -------
         Solution
         """
-        p = np.asarray(requested, dtype=float)
+        p = np.array(requested, dtype=float)
         if p.shape != (len(self.names),):
             raise ValueError(f"expected {len(self.names)} parameters ({', '.join(self.names)}), got {p.shape}")
-        if not np.all(np.isfinite(p)):
-            raise ValueError(f"parameters must be finite, got {p.tolist()}")
-        scale = self.ranges
+        p_list = p.tolist()
+        if not all(math.isfinite(x) for x in p_list):
+            raise ValueError(f"parameters must be finite, got {p_list}")
         if start is None:
-            distance = np.linalg.norm((self._dense_p - p) / scale, axis=1)
-            u = self._dense_u[int(np.argmin(distance))].astype(float)
+            distance = np.linalg.norm((self._dense_p - p) / self.ranges, axis=1)
+            u_list = self._dense_u[int(np.argmin(distance))].astype(float).tolist()
         else:
-            u = np.clip(np.asarray(start, dtype=float).reshape(self.layout.dims), 0.0, 1.0)
-        u_list = self._gauss_newton(p.tolist(), u.tolist())
+            u_list = np.asarray(start, dtype=float).reshape(self.layout.dims).tolist()
+            u_list = [min(max(x, 0.0), 1.0) for x in u_list]
+        u_list, realised_list = self._gauss_newton(p_list, u_list)
         u = np.array(u_list)
-        realised = np.array(self._cell(u_list)[0])
-        clamped = any(abs(r - q) > tolerance * s for r, q, s in zip(realised.tolist(), p.tolist(), self._ranges_list))
+        realised = np.array(realised_list)
+        clamped = any(abs(r - q) > tolerance * s for r, q, s in zip(realised_list, p_list, self._ranges_list))
         message = ""
         if clamped:
             parts = [f"{n} {q:g} {unit} -> {r:.3g}" for n, q, r, unit in zip(self.names, p, realised, self.units)]
             message = "outside the reachable domain, clamped: " + ", ".join(parts)
-        return Solution(weights=self.layout.weights(u), u=u, requested=p, realised=realised, clamped=clamped,
+        return Solution(weights=self.layout.weights(u_list), u=u, requested=p, realised=realised, clamped=clamped,
                         message=message)
 
     def to_arrays(self):

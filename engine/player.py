@@ -51,14 +51,21 @@ class PlayerFrame:
 
 
 def _critically_damped(x, v, target, dt, tau):
-    """Exact step of x'' = -2 w x' - w^2 (x - target), w = 1 / tau: no overshoot."""
+    """Exact step of x'' = -2 w x' - w^2 (x - target), w = 1 / tau: no overshoot.
+
+    x, v, target : (k,) float arrays. Plain Python per component (k is one or two; the
+    player steps every frame)."""
     if tau <= 0:
         return target.copy(), np.zeros_like(v)
     w = 1.0 / tau
-    y = x - target
-    decay = np.exp(-w * dt)
-    c = v + w * y
-    return target + (y + c * dt) * decay, (v - w * c * dt) * decay
+    decay = math.exp(-w * dt)
+    xs, vs = [], []
+    for xi, vi, ti in zip(x.tolist(), v.tolist(), target.tolist()):
+        y = xi - ti
+        c = vi + w * y
+        xs.append(ti + (y + c * dt) * decay)
+        vs.append((vi - w * c * dt) * decay)
+    return np.array(xs), np.array(vs)
 
 
 class Player:
@@ -81,6 +88,7 @@ class Player:
         self.map = space.parameter_map
         self.track = space.root_track
         self.names = list(self.map.names)
+        self._ranges = np.asarray(self.map.ranges, dtype=float).tolist()
         self.set_mode(mode)
         if not (np.isfinite(smoothing) and smoothing >= 0):
             raise ValueError(f"smoothing must be a non-negative number of seconds, got {smoothing}")
@@ -215,8 +223,8 @@ class Player:
                                                                self.smoothing)
             # settled to a millionth of each range: stop moving (the weights then stay fixed,
             # which lets the blender use its phase tables)
-            settled = np.abs(self._current - self._target) <= 1e-6 * self.map.ranges
-            if np.all(settled) and np.all(np.abs(self._velocity) * dt <= 1e-6 * self.map.ranges):
+            if all(abs(x - t) <= 1e-6 * r and abs(v) * dt <= 1e-6 * r for x, t, v, r in
+                   zip(self._current.tolist(), self._target.tolist(), self._velocity.tolist(), self._ranges)):
                 self._current, self._velocity = self._target.copy(), np.zeros_like(self._velocity)
                 self._settled = True
             self._solution = self._solve(self._current)

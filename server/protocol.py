@@ -396,6 +396,7 @@ class Quantiser:
         self._scale = np.tile(self.scale, self.n_vertices)
         self._offset = np.tile(self.offset, self.n_vertices)
         self._q = np.empty(3 * self.n_vertices, dtype=np.float32)
+        self.key = ("q16", self.scale.tobytes(), self.offset.tobytes())
 
     def encode(self, V):
         """Raw little-endian uint16 bytes of (n, 3) vertices."""
@@ -409,7 +410,7 @@ class Quantiser:
     def table(self, table):
         """A PhaseTable (engine.blend.cache) in codec units: interpolating its rows and
         truncating to uint16 gives the encoded frame."""
-        return table.scaled(self.scale, self.offset, 0.0, 65535.0)
+        return table.scaled(self.scale, self.offset, 0.0, 65535.0, key=self.key)
 
 
 def encode_vertices(V, codec, bounds):

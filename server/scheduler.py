@@ -124,7 +124,13 @@ class FrameScheduler:
                         batch.append(session)
                 if batch:
                     self.ticks += 1
-                    self._produce(batch, now)
+                    try:
+                        self._produce(batch, now)
+                    except Exception:  # noqa: BLE001 - a bug here must not stop everyone's stream
+                        log.exception("stream: a tick failed; its connections are rescheduled")
+                        for session in batch:
+                            session.payload = None
+                            session.after_frame()
                 if not self._sessions:
                     break
                 if heap and heap[0][0] <= loop.time() + 0.5 * TICK:
@@ -161,9 +167,13 @@ class FrameScheduler:
             if table is not None:
                 groups.setdefault(id(table), (table, codec, []))[2].append(session)
         for table, codec, members in groups.values():
-            rows = table.rows_at([m.player.phase for m in members])
-            if codec == "q16":
-                rows = rows.astype("<u2")  # the table is in codec units, + 0.5: truncation rounds
+            try:
+                rows = table.rows_at([m.player.phase for m in members])
+                if codec == "q16":
+                    rows = rows.astype("<u2")  # the table is in codec units, + 0.5: truncation rounds
+            except Exception:  # noqa: BLE001 - its members blend one by one below
+                log.exception("stream: gathering %d frames from a phase table failed", len(members))
+                continue
             for member, row in zip(members, rows):
                 member.payload = row.tobytes()
         for session in ready:

@@ -77,19 +77,23 @@ class PhaseTable:
         R += self.rows[p0]
         return R
 
-    def scaled(self, scale, offset, lo=None, hi=None):
+    def scaled(self, scale, offset, lo=None, hi=None, key=None):
         """This table in the affine coordinates ``scale * B + offset`` (per axis), clipped to
         [lo, hi] when given; built once per (scale, offset, lo, hi) and kept with the table.
 
         scale, offset : (3,) float   per-axis
+        key : hashable or None       names (scale, offset, lo, hi) for a caller asking every
+                                     frame (default: made from the values)
         Interpolating the scaled rows equals scaling the interpolated blend (to float32
         rounding), and stays within [lo, hi] (the rows are clipped before differencing).
         """
-        scale = np.asarray(scale, dtype=np.float32).reshape(3)
-        offset = np.asarray(offset, dtype=np.float32).reshape(3)
-        key = (scale.tobytes(), offset.tobytes(), lo, hi)
+        if key is None:
+            key = (np.asarray(scale, dtype=np.float32).tobytes(), np.asarray(offset, dtype=np.float32).tobytes(),
+                   lo, hi)
         table = self._scaled.get(key)
         if table is None:
+            scale = np.asarray(scale, dtype=np.float32).reshape(3)
+            offset = np.asarray(offset, dtype=np.float32).reshape(3)
             rows = self.rows.reshape(self.n_phases, -1, 3) * scale + offset
             if lo is not None or hi is not None:
                 np.clip(rows, lo, hi, out=rows)
