@@ -276,6 +276,7 @@ def main(argv=None):
         for p in procs:
             p.join(30)
         cpu = (cpu_seconds(server.pid) - cpu_start) / (time.monotonic() - wall_start)
+        health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
         frames = [f for o in outputs for f in o["frames"]]
         latencies = [x * 1e3 for o in outputs for x in o["latencies"]]
         transit = [x * 1e3 for o in outputs for x in o["transit"]]
@@ -298,6 +299,8 @@ def main(argv=None):
                            "p99": percentile(transit, 99)},
             "server_cpu_cores": cpu,
             "server_rss_mb": {"start": rss_start, "after_load": rss_mb(server.pid)},
+            "server_counters": health.get("scheduler", {}),
+            "load_average": os.getloadavg(),
         })
         print(f"{args.clients} clients x {args.fps:g} fps, {name} ({n_vertices} vertices, q16), "
               f"{window:.1f} s measured:")
@@ -310,7 +313,10 @@ def main(argv=None):
         tr = result["transit_ms"]
         print(f"    of which frame encoded -> read by the client: median {tr['median']:.1f} ms, p95 {tr['p95']:.1f} ms, "
               f"p99 {tr['p99']:.1f} ms")
-        print(f"  server: {cpu:.2f} cores, RSS {rss_start:.0f} -> {result['server_rss_mb']['after_load']:.0f} MB")
+        counters = result["server_counters"]
+        print(f"  server: {cpu:.2f} cores, RSS {rss_start:.0f} -> {result['server_rss_mb']['after_load']:.0f} MB; "
+              f"{counters.get('table_frames', 0)} of {counters.get('frames', 0)} frames from phase tables, "
+              f"{counters.get('busy_sends', 0)} sends found a full transport")
         if result["failures"]:
             print(f"  client failures: {result['failures']}")
         if args.soak > 0:

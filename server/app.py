@@ -61,10 +61,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @app.get("/v1/health", tags=["server"], summary="Liveness and counters")
     def health():
-        stats = app.state.stream_stats
+        stats, scheduler = app.state.stream_stats, app.state.frame_scheduler
         return {"status": "ok", "version": __version__, "spaces": len(app.state.registry.names()),
                 "connections": stats.connections, "frames_sent": stats.frames, "frames_dropped": stats.dropped,
-                "stream_errors": stats.errors}
+                "stream_errors": stats.errors, "scheduler": scheduler.counters()}
 
     @app.websocket("/v1/stream")
     async def stream(websocket: WebSocket):

@@ -88,8 +88,15 @@ class FrameScheduler:
         self._task = None
         self._wakeup = None
         self._planned = math.inf
-        self.ticks = 0
-        self.frames = 0
+        self.ticks = 0           # ticks that produced frames
+        self.frames = 0          # frames written
+        self.table_frames = 0    # of which interpolated from a phase table
+        self.busy_sends = 0      # sends that found the transport full
+
+    def counters(self):
+        """Ticks, frames, frames from phase tables, sends that found a full transport."""
+        return {"ticks": self.ticks, "frames": self.frames, "table_frames": self.table_frames,
+                "busy_sends": self.busy_sends}
 
     def add(self, session):
         self._sessions.add(session)
@@ -176,6 +183,7 @@ class FrameScheduler:
                 continue
             for member, row in zip(members, rows):
                 member.payload = row.tobytes()
+            self.table_frames += len(members)
         for session in ready:
             if session.closed:
                 continue
@@ -186,6 +194,8 @@ class FrameScheduler:
                 continue
             self.frames += 1
             session.payload = None
-            if not session.busy:
+            if session.busy:
+                self.busy_sends += 1
+            else:
                 session.after_frame()
 

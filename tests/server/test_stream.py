@@ -8,6 +8,7 @@ import concurrent.futures
 import math
 import time
 
+import httpx
 import msgpack
 import numpy as np
 import pytest
@@ -41,9 +42,11 @@ def test_f32_frames_are_the_engine_blend(server, speed_space):
             assert c.topology.n_vertices == speed_space.n_vertices
             np.testing.assert_array_equal(c.faces, speed_space.faces)
             assert c.topology.quantisation_error == 0.0
-            frames = [await c.next_frame() for _ in range(5)]
+            frames = [await c.next_frame() for _ in range(12)]
         return frames
+    before = table_frames(server)
     frames = run(go())
+    assert table_frames(server) - before >= 6  # the later ones from the phase table
     for f in frames:
         np.testing.assert_allclose(f.vertices, expected_local(speed_space, f), atol=1e-6)
         c, s = math.cos(f.heading), math.sin(f.heading)
@@ -53,11 +56,17 @@ def test_f32_frames_are_the_engine_blend(server, speed_space):
     assert frames[-1].time > frames[0].time
 
 
+def table_frames(server):
+    return httpx.get(server.url + "/v1/health").json()["scheduler"]["table_frames"]
+
+
 def test_q16_frames_are_within_the_reported_quantisation_error(server, speed_space):
     async def go():
         async with StreamClient.connect(server.ws_url, "speed", codec="q16", rate=30) as c:
-            return c.topology, [await c.next_frame() for _ in range(5)]
+            return c.topology, [await c.next_frame() for _ in range(12)]
+    before = table_frames(server)
     topology, frames = run(go())
+    assert table_frames(server) - before >= 6  # settled weights: read off the phase table in codec units
     bounds = np.array([topology.bounds_min, topology.bounds_max])
     assert topology.quantisation_error == pytest.approx(P.quantisation_error(bounds))
     assert 0 < topology.quantisation_error < 1e-4   # well under a tenth of a millimetre
@@ -301,7 +310,6 @@ def test_unknown_space_fails_the_connect_with_a_clear_error(server):
 
 def test_a_space_written_while_serving_appears_without_restart(server, built_spaces):
     import shutil
-    import httpx
     target = server.data_dir / "spaces" / "late.mspace"
     tmp = target.with_suffix(".partial")
     shutil.copyfile(built_spaces / "speed.mspace", tmp)
