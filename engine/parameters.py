@@ -329,10 +329,54 @@ class ParameterMap:
                         last * ((1 - a) * (c01 - c00) + a * (c11 - c10))])
         return at, jac
 
+    def _newton_square(self, p, u):
+        """``_gauss_newton`` for two parameters on a two-dimensional sheet, unrolled: the
+        Gauss-Newton step of a square Jacobian is the Newton step J^-1 r. The player's hot path.
+        Returns None where the Jacobian is singular (the general solver takes over)."""
+        values, last = self._values_list, self._last
+        s0, s1 = self._ranges_list
+        q0, q1 = p
+        x0, x1 = u
+        norm = None
+        for _ in range(21):
+            x = min(max(x0, 0.0), 1.0) * last
+            y = min(max(x1, 0.0), 1.0) * last
+            i, j = min(int(x), last - 1), min(int(y), last - 1)
+            a, b = x - i, y - j
+            row0, row1 = values[i], values[i + 1]
+            (c00, d00), (c10, d10), (c01, d01), (c11, d11) = row0[j], row1[j], row0[j + 1], row1[j + 1]
+            wa, wb = 1.0 - a, 1.0 - b
+            at0 = wa * wb * c00 + a * wb * c10 + wa * b * c01 + a * b * c11
+            at1 = wa * wb * d00 + a * wb * d10 + wa * b * d01 + a * b * d11
+            r0, r1 = (at0 - q0) / s0, (at1 - q1) / s1
+            norm_here = math.sqrt(r0 * r0 + r1 * r1)
+            if norm is not None:
+                if norm_here >= norm:  # no longer improving: keep the last point
+                    break
+            u, at, norm = [x0, x1], [at0, at1], norm_here
+            if norm < 1e-9:
+                break
+            j00, j01 = last * (wb * (c10 - c00) + b * (c11 - c01)), last * (wa * (c01 - c00) + a * (c11 - c10))
+            j10, j11 = last * (wb * (d10 - d00) + b * (d11 - d01)), last * (wa * (d01 - d00) + a * (d11 - d10))
+            det = j00 * j11 - j01 * j10
+            if abs(det) <= 1e-12 * max(abs(j00 * j11), abs(j01 * j10), 1e-30):
+                return None
+            e0, e1 = at0 - q0, at1 - q1
+            x0 = min(max(u[0] - (j11 * e0 - j01 * e1) / det, 0.0), 1.0)
+            x1 = min(max(u[1] - (j00 * e1 - j10 * e0) / det, 0.0), 1.0)
+        return u, at
+
     def _gauss_newton(self, p, u):
         """Sheet coordinates u (list) minimising |(at(u) - p) / ranges|, from ``u``, projected
         onto the unit square; stops when a step no longer reduces the residual. Returns u and
         the parameters there (list)."""
+        if len(u) == 2 and len(p) == 2:
+            solved = self._newton_square(p, u)
+            if solved is not None:
+                return solved
+        return self._gauss_newton_general(p, u)
+
+    def _gauss_newton_general(self, p, u):
         scale = self._ranges_list
         at, jac = self._cell(u)
         at_u = at

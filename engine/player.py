@@ -230,16 +230,25 @@ class Player:
             self._solution = self._solve(self._current)
         w = self._solution.weights
         if not self.finished and dt > 0:
-            step, turn, duration = self._track_at(w)
+            track = self.track
+            if self._settled:  # fixed weights: the whole cycle's rates, kept
+                step, turn, duration = self._track_at(w)
+            else:              # moving weights: only the two samples this step needs
+                wn = w / w.sum()
+                duration = float(wn @ track.durations)
             d_phase = dt / duration
             if not self.space.cyclic and not self.loop:
                 d_phase = min(d_phase, 1.0 - self.phase)
             middle = self.phase + 0.5 * d_phase
-            p0, p1, a = phase_samples(middle % 1.0 if self.space.cyclic or self.loop else middle, len(turn),
-                                      self.space.cyclic)
-            s0, s1 = step[p0], step[p1]
+            p0, p1, a = phase_samples(middle % 1.0 if self.space.cyclic or self.loop else middle,
+                                      len(track.turn_rate), self.space.cyclic)
+            if self._settled:
+                s0, s1, t0, t1 = step[p0], step[p1], turn[p0], turn[p1]
+            else:
+                s0, s1 = (wn @ track.root_rate[p0]).tolist(), (wn @ track.root_rate[p1]).tolist()
+                t0, t1 = float(track.turn_rate[p0] @ wn), float(track.turn_rate[p1] @ wn)
             sx, sz = s0[0] + a * (s1[0] - s0[0]), s0[2] + a * (s1[2] - s0[2])
-            t = turn[p0] + a * (turn[p1] - turn[p0])
+            t = t0 + a * (t1 - t0)
             heading_middle = self.heading + 0.5 * t * d_phase
             c, s = math.cos(heading_middle), math.sin(heading_middle)  # rot_y(heading_middle) @ step
             position = self.position

@@ -122,9 +122,13 @@ class HybridBlender:
     tree : SimplexTree
     corrections : Corrections
     cyclic : bool
+    dense_above : int or None   (reference, phase) corrections listing more vertices than this
+                                are also kept dense: adding a dense row is two contiguous passes,
+                                cheaper than scattering that many entries (default n / 60)
+    dense_budget : int          bytes of dense rows at most (the largest corrections first)
     """
 
-    def __init__(self, sources, tree, corrections, cyclic):
+    def __init__(self, sources, tree, corrections, cyclic, *, dense_above=None, dense_budget=64 << 20):
         self.sources = sources
         self.n_phases, self.n_sources, self.n_vertices = sources.shape[:3]
         self._flat = sources.reshape(self.n_phases, self.n_sources, -1)
@@ -142,9 +146,29 @@ class HybridBlender:
         self._value = corrections.value.reshape(-1)
         self._scale = corrections.scale.tolist()
         self._buffer = np.empty(self.n_vertices * 3, dtype=np.float32)
+        self._scratch = np.empty(self.n_vertices * 3, dtype=np.float32)
+        self._dense = self._dense_rows(self.n_vertices // 60 if dense_above is None else dense_above, dense_budget)
+
+    def _dense_rows(self, above, budget):
+        """{(reference, phase) index: (n * 3,) float32 scaled correction} for the big ones."""
+        counts = np.diff(np.asarray(self.corrections.pointer, dtype=np.int64))
+        dense = {}
+        for k in np.argsort(-counts, kind="stable")[:budget // (12 * self.n_vertices)]:
+            if counts[k] <= above:
+                break
+            s, e = self._pointer[k], self._pointer[k + 1]
+            row = np.zeros(self.n_vertices * 3, dtype=np.float32)
+            row[self._flat_index[3 * s:3 * e]] = self._value[3 * s:3 * e] * np.float32(self._scale[k])
+            dense[int(k)] = row
+        return dense
 
     def _add(self, flat, r, p, coefficient):
         k = r * self.n_phases + p
+        row = self._dense.get(k)
+        if row is not None:
+            np.multiply(row, np.float32(coefficient), out=self._scratch)
+            flat += self._scratch
+            return
         s, e = self._pointer[k], self._pointer[k + 1]
         if e > s:
             # a (reference, phase) entry lists each vertex once, so plain fancy-index adding is

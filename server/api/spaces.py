@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import math
 from enum import Enum
 from typing import Annotated, Any
@@ -139,7 +140,7 @@ def parse_params(text, names):
             responses={200: {"content": {"model/obj": {}, "model/gltf-binary": {}},
                              "description": "the frame as OBJ, GLB or JSON"},
                        404: {"description": "no such space"}, 422: {"description": "bad parameters"}})
-def space_frame(
+async def space_frame(
     name: str, registry: RegistryDep,
     params: Annotated[str, Query(description="comma-separated name:value pairs, e.g. speed:1.5,turn_rate:10; "
                                              "missing ones take the middle of their range")] = "",
@@ -149,7 +150,7 @@ def space_frame(
     format: FrameFormat = FrameFormat.obj,
     placed: Annotated[bool, Query(description="apply the root transform (world coordinates)")] = True,
 ) -> Any:
-    space = _space_or_404(registry.get, name)
+    space = await asyncio.to_thread(_space_or_404, registry.get, name)
     pmap = space.parameter_map
     if pmap is None:
         raise HTTPException(409, f"{name} has no parameter map; rebuild it from a spec with parameters")
@@ -167,6 +168,9 @@ def space_frame(
     else:
         phase_ = phase % 1.0 if space.cyclic and phase < 1.0 else phase
         root, heading, seconds = np.zeros(3), 0.0, phase_ * track.duration(w)
+    # The blenders keep scratch buffers and the streams use them on the event loop: blend there
+    # too (after building the blender, which for the non-linear mode factorises, in a thread).
+    await asyncio.to_thread(space.blender, mode.value)
     V = np.asarray(space.blend(w, phase_, mode.value), dtype=np.float64)
     if placed:
         V = V @ rot_y(heading).T + root
@@ -180,6 +184,7 @@ def space_frame(
                          vertices=V.round(6).tolist(), faces=F.tolist())
     mesh = trimesh.Trimesh(V, F, process=False)
     if format is FrameFormat.obj:
-        body = mesh.export(file_type="obj", include_normals=False, include_texture=False)
+        body = await asyncio.to_thread(mesh.export, file_type="obj", include_normals=False, include_texture=False)
         return Response(body, media_type="model/obj", headers=headers)
-    return Response(mesh.export(file_type="glb"), media_type="model/gltf-binary", headers=headers)
+    body = await asyncio.to_thread(mesh.export, file_type="glb")
+    return Response(body, media_type="model/gltf-binary", headers=headers)

@@ -135,11 +135,14 @@ def test_hierarchical_corrections_equal_nodal_interpolation(space3):
             a, b = tree.split[node]
             cell = tree.cells[node]
             nodal[r] = 0.5 * (nodal[cell[a]] + nodal[cell[b]]) + corrections.dense(r, n)
-    hybrid = HybridBlender(sources, tree, corrections, cyclic=True)
+    sparse = HybridBlender(sources, tree, corrections, cyclic=True, dense_above=n)   # every row scattered
+    dense = HybridBlender(sources, tree, corrections, cyclic=True, dense_above=0)    # every row dense
+    assert not sparse._dense and len(dense._dense) == np.count_nonzero(np.diff(corrections.pointer))
     for w in np.random.default_rng(1).dirichlet(np.ones(3), 20):
         leaf, g = tree.locate(w)
         expected = linear.blend_all_phases(w)[4] + sum(gk * nodal[r][4] for gk, r in zip(g, tree.cells[leaf]))
-        np.testing.assert_allclose(hybrid.blend(w, 4 / P), expected, atol=2e-6)
+        for hybrid in (sparse, dense):
+            np.testing.assert_allclose(hybrid.blend(w, 4 / P), expected, atol=2e-6)
 
 
 def test_quantised_corrections_are_within_half_a_step(space3):

@@ -62,6 +62,19 @@ def test_unreachable_requests_are_clamped_and_flagged():
         pmap.solve([0.4])
 
 
+def test_the_unrolled_newton_solver_agrees_with_the_general_gauss_newton():
+    pmap, _ = _analytic_map()
+    rng = np.random.default_rng(2)
+    (lo0, hi0), (lo1, hi1) = pmap.domain()
+    for _ in range(300):  # reachable and unreachable requests, from random starts
+        p = [rng.uniform(lo0 - 0.1, hi0 + 0.1), rng.uniform(lo1 - 0.2, hi1 + 0.2)]
+        u = rng.uniform(0, 1, 2).tolist()
+        u_fast, at_fast = pmap._newton_square(p, u)
+        u_general, at_general = pmap._gauss_newton_general(p, u)
+        np.testing.assert_allclose(u_fast, u_general, atol=1e-9)
+        np.testing.assert_allclose(at_fast, at_general, atol=1e-9)
+
+
 def test_root_track_integrates_straight_and_turning_paths():
     P, T = 16, 1.2
     forward = np.zeros((P, 2, 3))
