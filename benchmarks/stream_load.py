@@ -53,6 +53,16 @@ def rss_mb(pid):
     return float("nan")
 
 
+def machine_times():
+    """(busy, idle, steal) seconds of all CPUs since boot (/proc/stat)."""
+    with open("/proc/stat") as f:
+        fields = [int(x) for x in f.readline().split()[1:]]
+    tick = os.sysconf("SC_CLK_TCK")
+    idle = fields[3] + fields[4]
+    steal = fields[7] if len(fields) > 7 else 0
+    return (sum(fields[:8]) - idle - steal) / tick, idle / tick, steal / tick
+
+
 def cpu_seconds(pid):
     with open(f"/proc/{pid}/stat") as f:
         parts = f.read().rsplit(")", 1)[1].split()
@@ -263,6 +273,7 @@ def main(argv=None):
         httpx.get(f"http://127.0.0.1:{port}/v1/spaces/{name}", timeout=30)  # open (and verify) it once
         rss_start = rss_mb(server.pid)
         cpu_start, wall_start = cpu_seconds(server.pid), time.monotonic()
+        machine_start = machine_times()
         ctx = mp.get_context("spawn")
         queue = ctx.Queue()
         per = [args.clients // args.client_procs + (i < args.clients % args.client_procs)
@@ -275,8 +286,14 @@ def main(argv=None):
         outputs = [queue.get(timeout=args.seconds + 120) for _ in procs]
         for p in procs:
             p.join(30)
-        cpu = (cpu_seconds(server.pid) - cpu_start) / (time.monotonic() - wall_start)
+        elapsed = time.monotonic() - wall_start
+        cpu = (cpu_seconds(server.pid) - cpu_start) / elapsed
+        busy, idle, steal = (b - a for a, b in zip(machine_start, machine_times()))
         health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
+        deadline = time.monotonic() + 15
+        while health["connections"] and time.monotonic() < deadline:  # closed connections report their drops
+            time.sleep(0.2)
+            health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
         frames = [f for o in outputs for f in o["frames"]]
         latencies = [x * 1e3 for o in outputs for x in o["latencies"]]
         transit = [x * 1e3 for o in outputs for x in o["transit"]]
@@ -299,7 +316,9 @@ def main(argv=None):
                            "p99": percentile(transit, 99)},
             "server_cpu_cores": cpu,
             "server_rss_mb": {"start": rss_start, "after_load": rss_mb(server.pid)},
-            "server_counters": health.get("scheduler", {}),
+            "server_counters": dict(health.get("scheduler", {}), frames_dropped=health["frames_dropped"]),
+            # the whole machine over the run: cores busy (server, clients, kernel), idle, stolen by the host
+            "machine_cores": {"busy": busy / elapsed, "idle": idle / elapsed, "steal": steal / elapsed},
             "load_average": os.getloadavg(),
         })
         print(f"{args.clients} clients x {args.fps:g} fps, {name} ({n_vertices} vertices, q16), "
@@ -316,7 +335,10 @@ def main(argv=None):
         counters = result["server_counters"]
         print(f"  server: {cpu:.2f} cores, RSS {rss_start:.0f} -> {result['server_rss_mb']['after_load']:.0f} MB; "
               f"{counters.get('table_frames', 0)} of {counters.get('frames', 0)} frames from phase tables, "
-              f"{counters.get('busy_sends', 0)} sends found a full transport")
+              f"{counters.get('busy_sends', 0)} sends found a full transport, {counters['frames_dropped']} ticks "
+              f"dropped (a frame more than a period late)")
+        print(f"  machine: {busy / elapsed:.2f} cores busy, {idle / elapsed:.2f} idle, {steal / elapsed:.2f} stolen "
+              f"by the host (of {os.cpu_count()})")
         if result["failures"]:
             print(f"  client failures: {result['failures']}")
         if args.soak > 0:

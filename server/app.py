@@ -7,6 +7,7 @@ browser client at ``/``. Nothing happens at import time; ``morphspace serve`` (o
 
 from __future__ import annotations
 
+import gc
 import logging
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -37,6 +38,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         for directory in (settings.data_dir, settings.spaces_dir, settings.datasets_dir, settings.work_dir):
             directory.mkdir(parents=True, exist_ok=True)
         await app.state.jobs.start()
+        # Everything loaded so far lives as long as the server: keep it out of the cyclic
+        # collector's full passes, which otherwise stall the event loop (and every stream) for
+        # ~100 ms now and then (the registry does the same after opening a space).
+        gc.freeze()
         try:
             yield
         finally:

@@ -8,6 +8,7 @@ can be named.
 
 from __future__ import annotations
 
+import gc
 import re
 import threading
 from dataclasses import dataclass
@@ -87,6 +88,7 @@ class SpaceRegistry:
         except (MotionSpaceError, OSError, ValueError, KeyError) as exc:
             raise BrokenSpace(f"motion space {name!r} cannot be read: {exc}") from exc
         entry = _Entry(stamp=stamp, space=space, bounds=quantisation_box(space))
+        gc.freeze()  # a space lives as long as it is served: out of the collector's full passes
         with self._lock:
             # an older version stays open for connections already streaming it (mapped memory)
             self._entries[name] = entry

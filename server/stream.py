@@ -383,12 +383,15 @@ class StreamSession:
         dt = 0.0
         if streaming:
             period = 1.0 / self.rate
-            late = now - self._next_due
-            if not urgent and late >= period:
-                self.dropped += int(late / period)
+            if urgent:  # an extra frame now; the grid restarts from it
+                self._next_due = now + period
+            else:       # stay on the grid; ticks missed by a whole period are dropped, not caught up
+                late = now - self._next_due
+                missed = int(late / period) if late >= period else 0
+                self.dropped += missed
+                self._next_due += (missed + 1) * period
             dt = 0.0 if self._last_step is None else min(now - self._last_step, MAX_DT)
             self._last_step = now
-            self._next_due = max(self._next_due + period, now + 0.5 * period) if not urgent else now + period
         self.player.advance(dt)
         return True
 
