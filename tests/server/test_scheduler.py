@@ -1,10 +1,18 @@
 """start_now runs a send in the caller when the transport takes it, in a task when it must wait."""
 
 import asyncio
+import concurrent.futures
 
 import pytest
 
 from server.scheduler import start_now
+
+
+def run(main):
+    """asyncio.run(main()) on a thread of its own: the worker's main thread may hold another
+    loop (Playwright's, from the browser tests)."""
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, main()).result(timeout=30)
 
 
 def test_a_coroutine_that_does_not_wait_completes_in_the_call():
@@ -17,7 +25,7 @@ def test_a_coroutine_that_does_not_wait_completes_in_the_call():
         assert start_now(send()) is None
         assert done == [1]
 
-    asyncio.run(main())
+    run(main)
 
 
 def test_a_coroutine_that_waits_finishes_in_a_task_with_its_result_seen_by_it():
@@ -36,7 +44,7 @@ def test_a_coroutine_that_waits_finishes_in_a_task_with_its_result_seen_by_it():
         await asyncio.wait_for(task, 1.0)
         assert seen == ["open", "after"]
 
-    asyncio.run(main())
+    run(main)
 
 
 def test_errors_before_and_after_waiting_reach_the_caller():
@@ -57,7 +65,7 @@ def test_errors_before_and_after_waiting_reach_the_caller():
         with pytest.raises(ConnectionResetError, match="gone later"):
             await asyncio.wait_for(task, 1.0)
 
-    asyncio.run(main())
+    run(main)
 
 
 def test_cancelling_the_task_closes_the_waiting_coroutine():
@@ -76,4 +84,4 @@ def test_cancelling_the_task_closes_the_waiting_coroutine():
             await task
         assert closed == [True]
 
-    asyncio.run(main())
+    run(main)
