@@ -1,6 +1,7 @@
 """Streaming load benchmark: many clients on one server process, latency, and a memory soak.
 
     .venv/bin/python benchmarks/stream_load.py                       # 200 clients x 60 fps, 20 s
+    .venv/bin/python benchmarks/stream_load.py --repeat 3            # three rounds, and their median
     .venv/bin/python benchmarks/stream_load.py --soak 300            # + 5-minute connect/leave soak
 
 Starts ``morphspace serve`` (one process) on 127.0.0.1 over a data directory holding the space
@@ -220,6 +221,84 @@ def soak_process(url, space, clients, fps, seconds, seed):
     asyncio.run(main())
 
 
+def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start, seed):
+    """One measuring round: the clients connect, stream for ``args.seconds`` and leave; the
+    server's counters are differences over the round."""
+    import httpx
+
+    before = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
+    cpu_start, wall_start = cpu_seconds(server_pid), time.monotonic()
+    machine_start = machine_times()
+    queue = ctx.Queue()
+    per = [args.clients // args.client_procs + (i < args.clients % args.client_procs)
+           for i in range(args.client_procs)]
+    procs = [ctx.Process(target=client_process, args=("127.0.0.1", port, name, n, args.fps, args.seconds, args.warmup,
+                                                       args.update_share, args.update_every, params, seed + i,
+                                                       queue)) for i, n in enumerate(per)]
+    for p in procs:
+        p.start()
+    outputs = [queue.get(timeout=args.seconds + 120) for _ in procs]
+    for p in procs:
+        p.join(30)
+    elapsed = time.monotonic() - wall_start
+    cpu = (cpu_seconds(server_pid) - cpu_start) / elapsed
+    busy, idle, steal = (b - a for a, b in zip(machine_start, machine_times()))
+    health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
+    deadline = time.monotonic() + 15
+    while health["connections"] and time.monotonic() < deadline:  # closed connections report their drops
+        time.sleep(0.2)
+        health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
+    frames = [f for o in outputs for f in o["frames"]]
+    latencies = [x * 1e3 for o in outputs for x in o["latencies"]]
+    transit = [x * 1e3 for o in outputs for x in o["transit"]]
+    window = min(o["window"] for o in outputs)
+    expected = args.fps * window
+    delivered = [f / expected for f in frames]
+    result = {
+        "failures": [f for o in outputs for f in o["failures"]][:10],
+        "connected": len(frames),
+        "delivered_mean": statistics.mean(delivered) if delivered else 0.0,
+        "delivered_min": min(delivered) if delivered else 0.0,
+        "delivered_p5": percentile(delivered, 5),
+        "frames_per_second_total": sum(frames) / window,
+        "latency_ms": {"count": len(latencies), "median": percentile(latencies, 50),
+                       "p95": percentile(latencies, 95), "p99": percentile(latencies, 99),
+                       "max": max(latencies) if latencies else float("nan")},
+        # of which: from the server encoding the frame to the client reading it (socket
+        # buffers and the load generator's own lag)
+        "transit_ms": {"median": percentile(transit, 50), "p95": percentile(transit, 95),
+                       "p99": percentile(transit, 99)},
+        "server_cpu_cores": cpu,
+        "server_rss_mb": {"start": rss_start, "after_load": rss_mb(server_pid)},
+        "server_counters": dict({k: v - before["scheduler"].get(k, 0) for k, v in health["scheduler"].items()},
+                                frames_dropped=health["frames_dropped"] - before["frames_dropped"]),
+        # the whole machine over the run: cores busy (server, clients, kernel), idle, stolen by the host
+        "machine_cores": {"busy": busy / elapsed, "idle": idle / elapsed, "steal": steal / elapsed},
+        "load_average": os.getloadavg(),
+    }
+    print(f"{args.clients} clients x {args.fps:g} fps, {name} ({n_vertices} vertices, q16), "
+          f"{window:.1f} s measured:")
+    print(f"  frames delivered: mean {100 * result['delivered_mean']:.1f}%, 5th percentile "
+          f"{100 * result['delivered_p5']:.1f}%, min {100 * result['delivered_min']:.1f}% "
+          f"({result['frames_per_second_total']:.0f} frames/s in total)")
+    lat = result["latency_ms"]
+    print(f"  params -> first frame reflecting them: median {lat['median']:.1f} ms, p95 {lat['p95']:.1f} ms, "
+          f"p99 {lat['p99']:.1f} ms, max {lat['max']:.1f} ms ({lat['count']} updates)")
+    tr = result["transit_ms"]
+    print(f"    of which frame encoded -> read by the client: median {tr['median']:.1f} ms, p95 {tr['p95']:.1f} ms, "
+          f"p99 {tr['p99']:.1f} ms")
+    counters = result["server_counters"]
+    print(f"  server: {cpu:.2f} cores, RSS {rss_start:.0f} -> {result['server_rss_mb']['after_load']:.0f} MB; "
+          f"{counters.get('table_frames', 0)} of {counters.get('frames', 0)} frames from phase tables, "
+          f"{counters.get('busy_sends', 0)} sends found a full transport, {counters['frames_dropped']} ticks "
+          f"dropped (a frame more than a period late)")
+    print(f"  machine: {busy / elapsed:.2f} cores busy, {idle / elapsed:.2f} idle, {steal / elapsed:.2f} stolen "
+          f"by the host (of {os.cpu_count()})")
+    if result["failures"]:
+        print(f"  client failures: {result['failures']}")
+    return result
+
+
 def percentile(values, q):
     values = sorted(values)
     if not values:
@@ -238,6 +317,8 @@ def main(argv=None):
     parser.add_argument("--client-procs", type=int, default=2)
     parser.add_argument("--update-share", type=float, default=0.25, help="share of clients sending params")
     parser.add_argument("--update-every", type=float, default=0.5, help="seconds between their updates")
+    parser.add_argument("--repeat", type=int, default=1, help="measuring rounds against the same server "
+                                                               "(each reported; the median of their means)")
     parser.add_argument("--soak", type=float, default=0.0, help="seconds of connect/leave soak (0: none)")
     parser.add_argument("--soak-clients", type=int, default=50)
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "stream_load.json")
@@ -272,75 +353,22 @@ def main(argv=None):
                 time.sleep(0.2)
         httpx.get(f"http://127.0.0.1:{port}/v1/spaces/{name}", timeout=30)  # open (and verify) it once
         rss_start = rss_mb(server.pid)
-        cpu_start, wall_start = cpu_seconds(server.pid), time.monotonic()
-        machine_start = machine_times()
         ctx = mp.get_context("spawn")
-        queue = ctx.Queue()
-        per = [args.clients // args.client_procs + (i < args.clients % args.client_procs)
-               for i in range(args.client_procs)]
-        procs = [ctx.Process(target=client_process, args=("127.0.0.1", port, name, n, args.fps, args.seconds, args.warmup,
-                                                           args.update_share, args.update_every, params, 17 + i,
-                                                           queue)) for i, n in enumerate(per)]
-        for p in procs:
-            p.start()
-        outputs = [queue.get(timeout=args.seconds + 120) for _ in procs]
-        for p in procs:
-            p.join(30)
-        elapsed = time.monotonic() - wall_start
-        cpu = (cpu_seconds(server.pid) - cpu_start) / elapsed
-        busy, idle, steal = (b - a for a, b in zip(machine_start, machine_times()))
-        health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
-        deadline = time.monotonic() + 15
-        while health["connections"] and time.monotonic() < deadline:  # closed connections report their drops
-            time.sleep(0.2)
-            health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
-        frames = [f for o in outputs for f in o["frames"]]
-        latencies = [x * 1e3 for o in outputs for x in o["latencies"]]
-        transit = [x * 1e3 for o in outputs for x in o["transit"]]
-        window = min(o["window"] for o in outputs)
-        expected = args.fps * window
-        delivered = [f / expected for f in frames]
-        result.update({
-            "failures": [f for o in outputs for f in o["failures"]][:10],
-            "connected": len(frames),
-            "delivered_mean": statistics.mean(delivered) if delivered else 0.0,
-            "delivered_min": min(delivered) if delivered else 0.0,
-            "delivered_p5": percentile(delivered, 5),
-            "frames_per_second_total": sum(frames) / window,
-            "latency_ms": {"count": len(latencies), "median": percentile(latencies, 50),
-                           "p95": percentile(latencies, 95), "p99": percentile(latencies, 99),
-                           "max": max(latencies) if latencies else float("nan")},
-            # of which: from the server encoding the frame to the client reading it (socket
-            # buffers and the load generator's own lag)
-            "transit_ms": {"median": percentile(transit, 50), "p95": percentile(transit, 95),
-                           "p99": percentile(transit, 99)},
-            "server_cpu_cores": cpu,
-            "server_rss_mb": {"start": rss_start, "after_load": rss_mb(server.pid)},
-            "server_counters": dict(health.get("scheduler", {}), frames_dropped=health["frames_dropped"]),
-            # the whole machine over the run: cores busy (server, clients, kernel), idle, stolen by the host
-            "machine_cores": {"busy": busy / elapsed, "idle": idle / elapsed, "steal": steal / elapsed},
-            "load_average": os.getloadavg(),
-        })
-        print(f"{args.clients} clients x {args.fps:g} fps, {name} ({n_vertices} vertices, q16), "
-              f"{window:.1f} s measured:")
-        print(f"  frames delivered: mean {100 * result['delivered_mean']:.1f}%, 5th percentile "
-              f"{100 * result['delivered_p5']:.1f}%, min {100 * result['delivered_min']:.1f}% "
-              f"({result['frames_per_second_total']:.0f} frames/s in total)")
-        lat = result["latency_ms"]
-        print(f"  params -> first frame reflecting them: median {lat['median']:.1f} ms, p95 {lat['p95']:.1f} ms, "
-              f"p99 {lat['p99']:.1f} ms, max {lat['max']:.1f} ms ({lat['count']} updates)")
-        tr = result["transit_ms"]
-        print(f"    of which frame encoded -> read by the client: median {tr['median']:.1f} ms, p95 {tr['p95']:.1f} ms, "
-              f"p99 {tr['p99']:.1f} ms")
-        counters = result["server_counters"]
-        print(f"  server: {cpu:.2f} cores, RSS {rss_start:.0f} -> {result['server_rss_mb']['after_load']:.0f} MB; "
-              f"{counters.get('table_frames', 0)} of {counters.get('frames', 0)} frames from phase tables, "
-              f"{counters.get('busy_sends', 0)} sends found a full transport, {counters['frames_dropped']} ticks "
-              f"dropped (a frame more than a period late)")
-        print(f"  machine: {busy / elapsed:.2f} cores busy, {idle / elapsed:.2f} idle, {steal / elapsed:.2f} stolen "
-              f"by the host (of {os.cpu_count()})")
-        if result["failures"]:
-            print(f"  client failures: {result['failures']}")
+        rounds = []
+        for k in range(args.repeat):
+            if args.repeat > 1:
+                print(f"round {k + 1} of {args.repeat}:")
+            rounds.append(load_round(args, port, name, n_vertices, params, server.pid, ctx, rss_start, 17 + 10 * k))
+        result.update(rounds[-1])
+        if args.repeat > 1:
+            values = [r["delivered_mean"] for r in rounds]
+            p99s = [r["latency_ms"]["p99"] for r in rounds]
+            result["rounds"] = rounds
+            result["delivered_mean_median"] = statistics.median(values)
+            result["latency_p99_ms_median"] = statistics.median(p99s)
+            print(f"{args.repeat} rounds: frames delivered (mean per round) "
+                  f"{', '.join(f'{100 * v:.1f}%' for v in values)}: median {100 * statistics.median(values):.1f}%; "
+                  f"update -> frame p99 median {statistics.median(p99s):.1f} ms")
         if args.soak > 0:
             per = [args.soak_clients // args.client_procs] * args.client_procs
             procs = [ctx.Process(target=soak_process, args=(url, name, n, args.fps, args.soak, 99 + i))
