@@ -54,6 +54,20 @@ def rss_mb(pid):
     return float("nan")
 
 
+def reference_loop_ms():
+    """Milliseconds of a fixed pure-Python loop (best of three): how fast the host runs Python
+    right now. This machine's speed swings (31-55 ms here over one session), and with it how many
+    frames one server process can produce."""
+    best = float("inf")
+    for _ in range(3):
+        started = time.perf_counter()
+        total = 0
+        for i in range(1_000_000):
+            total += i * i
+        best = min(best, time.perf_counter() - started)
+    return 1e3 * best
+
+
 def machine_times():
     """(busy, idle, steal) seconds of all CPUs since boot (/proc/stat)."""
     with open("/proc/stat") as f:
@@ -227,6 +241,7 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     import httpx
 
     before = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
+    reference_before = reference_loop_ms()
     cpu_start, wall_start = cpu_seconds(server_pid), time.monotonic()
     machine_start = machine_times()
     queue = ctx.Queue()
@@ -243,6 +258,7 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     elapsed = time.monotonic() - wall_start
     cpu = (cpu_seconds(server_pid) - cpu_start) / elapsed
     busy, idle, steal = (b - a for a, b in zip(machine_start, machine_times()))
+    reference_after = reference_loop_ms()
     health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
     deadline = time.monotonic() + 15
     while health["connections"] and time.monotonic() < deadline:  # closed connections report their drops
@@ -275,6 +291,7 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
         # the whole machine over the run: cores busy (server, clients, kernel), idle, stolen by the host
         "machine_cores": {"busy": busy / elapsed, "idle": idle / elapsed, "steal": steal / elapsed},
         "load_average": os.getloadavg(),
+        "reference_loop_ms": [reference_before, reference_after],
     }
     print(f"{args.clients} clients x {args.fps:g} fps, {name} ({n_vertices} vertices, q16), "
           f"{window:.1f} s measured:")
@@ -293,7 +310,8 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
           f"{counters.get('busy_sends', 0)} sends found a full transport, {counters['frames_dropped']} ticks "
           f"dropped (a frame more than a period late)")
     print(f"  machine: {busy / elapsed:.2f} cores busy, {idle / elapsed:.2f} idle, {steal / elapsed:.2f} stolen "
-          f"by the host (of {os.cpu_count()})")
+          f"by the host (of {os.cpu_count()}); reference Python loop {reference_before:.0f} ms before, "
+          f"{reference_after:.0f} ms after (lower is a faster host)")
     if result["failures"]:
         print(f"  client failures: {result['failures']}")
     return result
