@@ -258,12 +258,12 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     elapsed = time.monotonic() - wall_start
     cpu = (cpu_seconds(server_pid) - cpu_start) / elapsed
     busy, idle, steal = (b - a for a, b in zip(machine_start, machine_times()))
-    reference_after = reference_loop_ms()
     health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
     deadline = time.monotonic() + 15
     while health["connections"] and time.monotonic() < deadline:  # closed connections report their drops
         time.sleep(0.2)
         health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
+    reference_after = reference_loop_ms()  # once the server has closed every connection
     frames = [f for o in outputs for f in o["frames"]]
     latencies = [x * 1e3 for o in outputs for x in o["latencies"]]
     transit = [x * 1e3 for o in outputs for x in o["transit"]]
