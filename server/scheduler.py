@@ -75,10 +75,11 @@ class FrameScheduler:
     frame at loop time ``due``; ``scheduler.remove(session)``. The task starts with the first
     session and ends when the last one leaves.
 
-    A session provides ``version`` (int, bumped here), ``closed``, ``busy`` (a send in flight),
+    A session (server.stream.StreamSession) provides ``version`` (int, bumped here), ``closed``,
+    ``busy`` (a send in flight), ``player`` (its ``phase`` is read), ``payload`` (set here),
     ``advance(now)`` -> bool (step its player; False: no frame now), ``frame_source()`` ->
     (table or None, codec), ``send_frame(payload)`` where payload is the encoded vertices or None
-    (blend one client), and ``after_frame()`` (schedule the next one).
+    (blend this one alone), ``after_frame()`` (schedule the next one) and ``fail(exc)``.
     """
 
     def __init__(self):
@@ -101,7 +102,7 @@ class FrameScheduler:
     def add(self, session):
         self._sessions.add(session)
         if self._task is None or self._task.done():
-            self._wakeup = asyncio.Event()
+            self._wakeup, self._planned = asyncio.Event(), math.inf
             self._task = asyncio.get_running_loop().create_task(self._run())
 
     def remove(self, session):
