@@ -179,6 +179,8 @@ class FrameScheduler:
                 rows = table.rows_at([m.player.phase for m in members])
                 if codec == "q16":
                     rows = rows.astype("<u2")  # the table is in codec units, + 0.5: truncation rounds
+                else:
+                    rows = rows.astype("<f4", copy=False)  # (no copy on little-endian machines)
             except Exception:  # noqa: BLE001 - its members blend one by one below
                 log.exception("stream: gathering %d frames from a phase table failed", len(members))
                 continue
