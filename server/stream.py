@@ -93,10 +93,11 @@ class StreamSession:
     # ------------------------------------------------------------ plumbing
 
     async def _send(self, message):
+        """Send a message object, or wire bytes."""
         if self.closed:
             return
         try:
-            await self.ws.send_bytes(P.to_wire(message))
+            await self.ws.send_bytes(message if isinstance(message, bytes) else P.to_wire(message))
         except (WebSocketDisconnect, OSError, RuntimeError):
             self._close()
 
@@ -334,7 +335,20 @@ class StreamSession:
     def _vertex_bytes(self, vertices):
         if self.codec == "q16":
             return self.quantiser.encode(vertices)
-        return np.ascontiguousarray(vertices, dtype="<f4").tobytes()
+        return P.encode_vertices(vertices, "f32", None)
+
+    def _frame_bytes(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
+                     vertices, finished, pull_id=None, error_um=None, error_max=None):
+        """The next frame's wire bytes (numbers as arrays or sequences, ``vertices`` encoded)."""
+        self.seq += 1
+        self.stats.frames += 1
+        return P.frame_wire(seq=self.seq, ack=self.ack, time=float(time_), phase=float(phase), mode=mode,
+                            requested=np.asarray(requested, dtype=float).tolist(),
+                            realised=np.asarray(realised, dtype=float).tolist(), clamped=bool(clamped),
+                            weights=np.asarray(weights, dtype=float).tolist(),
+                            root=np.asarray(root, dtype=float).tolist(), heading=float(heading), vertices=vertices,
+                            dropped=self.dropped, finished=bool(finished), sent_at=time.time(), pull_id=pull_id,
+                            error_um=error_um, error_max=error_max)
 
     def _heatmap(self, mode, weights, phase, vertices, space):
         """(error_um bytes, error_max) of ``vertices`` against the non-linear blend."""
@@ -351,19 +365,10 @@ class StreamSession:
         error_um = error_max = None
         if self.heatmap:
             error_um, error_max = self._heatmap(mode, weights, phase, vertices, space)
-        self.seq += 1
-        data = P.frame_wire(seq=self.seq, ack=self.ack, time=float(time_), phase=float(phase), mode=mode,
-                            requested=[float(x) for x in requested], realised=[float(x) for x in realised],
-                            clamped=bool(clamped), weights=[float(x) for x in weights],
-                            root=[float(x) for x in root], heading=float(heading),
-                            vertices=self._vertex_bytes(vertices), dropped=self.dropped, finished=bool(finished),
-                            sent_at=time.time(), pull_id=pull_id, error_um=error_um, error_max=error_max)
-        self.stats.frames += 1
-        if not self.closed:
-            try:
-                await self.ws.send_bytes(data)
-            except (WebSocketDisconnect, OSError, RuntimeError):
-                self._close()
+        await self._send(self._frame_bytes(
+            time_=time_, phase=phase, mode=mode, requested=requested, realised=realised, clamped=clamped,
+            weights=weights, root=root, heading=heading, vertices=self._vertex_bytes(vertices), finished=finished,
+            pull_id=pull_id, error_um=error_um, error_max=error_max))
 
     # ------------------------------------------------------------ the scheduler's side
 
@@ -417,14 +422,10 @@ class StreamSession:
             if self.heatmap:
                 error_um, error_max = self._heatmap(mode, weights, phase, vertices, space)
             payload = self._vertex_bytes(vertices)
-        self.seq += 1
-        data = P.frame_wire(seq=self.seq, ack=self.ack, time=player.time, phase=player.phase, mode=player.mode,
-                            requested=player.requested.tolist(), realised=player.realised.tolist(),
-                            clamped=player.clamped, weights=player.weights.tolist(),
-                            root=player.position.tolist(), heading=float(player.heading), vertices=payload,
-                            dropped=self.dropped, finished=player.finished, sent_at=time.time(), pull_id=None,
-                            error_um=error_um, error_max=error_max)
-        self.stats.frames += 1
+        data = self._frame_bytes(time_=player.time, phase=player.phase, mode=player.mode,
+                                 requested=player.requested, realised=player.realised, clamped=player.clamped,
+                                 weights=player.weights, root=player.position, heading=player.heading,
+                                 vertices=payload, finished=player.finished, error_um=error_um, error_max=error_max)
         try:
             task = start_now(self.ws.send_bytes(data))
         except (WebSocketDisconnect, OSError, RuntimeError):

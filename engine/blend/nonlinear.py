@@ -70,14 +70,6 @@ def _stretch_to_vector(S):
     return np.stack([S[..., i, j] for i, j in SYMMETRIC], axis=-1)
 
 
-def _vector_to_stretch(s):
-    S = np.empty(s.shape[:-1] + (3, 3), dtype=s.dtype)
-    for c, (i, j) in enumerate(SYMMETRIC):
-        S[..., i, j] = s[..., c]
-        S[..., j, i] = s[..., c]
-    return S
-
-
 @dataclass(frozen=True)
 class FrameDecomposition:
     """One source frame in blendable form.
