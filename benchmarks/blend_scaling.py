@@ -5,6 +5,10 @@ two-source motion space at epsilon = 5 mm, and time linear, hybrid and exact non
 on one core at random weights and phases. Prints a table and writes JSON.
 
     .venv/bin/python benchmarks/blend_scaling.py [--vertices 3000 20000 50000] [--out results.json]
+    .venv/bin/python benchmarks/blend_scaling.py --tiny --out /tmp/blend_scaling.json   # a few seconds
+
+``--tiny`` (the test suite's smoke run): 1,000 vertices, gaits at 15 fps, 200 linear and hybrid
+calls and 10 non-linear calls; ``--out`` is required with it.
 """
 
 from __future__ import annotations
@@ -22,13 +26,16 @@ from engine.motion_space import MotionSpace, SourceClip, build_motion_space
 from engine.synthetic import animate, build_body, gait
 
 
-def run_one(n_vertices, workdir, calls=2000, nonlinear_calls=40):
+TINY = {"vertices": [1000], "fps": 15.0, "calls": 200, "nonlinear_calls": 10}
+
+
+def run_one(n_vertices, workdir, calls=2000, nonlinear_calls=40, fps=30.0):
     started = time.perf_counter()
     body = build_body(n_vertices)
     clips = []
     for name, speed in (("walk_slow", 0.8), ("jog", 2.8)):
-        motion = gait(body.skeleton, speed, cycles=1.1, start_phase=0.0)
-        clips.append(SourceClip(name, animate(body, motion), motion.fps, True, motion.frames_per_cycle, 0))
+        motion = gait(body.skeleton, speed, fps=fps, cycles=1.1, start_phase=0.0)
+        clips.append(SourceClip(name, animate(body, motion), motion.fps, True, motion.frames_per_cycle))
     generate_s = time.perf_counter() - started
     path = Path(workdir) / f"walk_jog_{n_vertices}.mspace"
     report = build_motion_space(path, clips, body.F, name=f"walk_jog_{n_vertices}", epsilon=0.005, rest=body.V)
@@ -50,15 +57,27 @@ def run_one(n_vertices, workdir, calls=2000, nonlinear_calls=40):
     return row
 
 
-def main():
+def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--vertices", type=int, nargs="+", default=[3000, 20000, 50000])
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/blend_scaling.json"))
-    args = parser.parse_args()
+    parser.add_argument("--fps", type=float, default=30.0, help="frame rate of the generated gaits")
+    parser.add_argument("--calls", type=int, default=2000, help="linear and hybrid blend calls per size")
+    parser.add_argument("--nonlinear-calls", type=int, default=40, help="non-linear blend calls per size")
+    parser.add_argument("--tiny", action="store_true", help="smoke run: " + ", ".join(f"--{k.replace('_', '-')} "
+                        + " ".join(map(str, v if isinstance(v, list) else [v])) for k, v in TINY.items())
+                        + "; needs --out")
+    parser.add_argument("--out", type=Path, help="JSON results (default benchmarks/results/blend_scaling.json)")
+    args = parser.parse_args(argv)
+    if args.tiny:
+        if args.out is None:
+            parser.error("--tiny needs --out (a tiny run never replaces the recorded results)")
+        parser.set_defaults(**TINY)
+        args = parser.parse_args(argv)  # options given on the command line still win
+    out = args.out or Path("benchmarks/results/blend_scaling.json")
     rows = []
     with tempfile.TemporaryDirectory() as workdir:
         for n in args.vertices:
-            row = run_one(n, workdir)
+            row = run_one(n, workdir, calls=args.calls, nonlinear_calls=args.nonlinear_calls, fps=args.fps)
             rows.append(row)
             m = row["modes"]
             print(f"{row['vertices']:>6} vertices {row['tets']:>6} tets | linear {m['linear']['frames_per_second']:>8.0f}/s "
@@ -67,9 +86,9 @@ def main():
                   f"{100 * row['hybrid']['correction_share_of_sources']:.1f}% of sources, "
                   f"{row['hybrid']['references']} refs, max test error {row['hybrid']['max_test_error_mm']:.2f} mm | "
                   f"build {row['build_s']['total_s']:.0f} s", flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(rows, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(rows, indent=2) + "\n")
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":
