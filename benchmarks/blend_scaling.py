@@ -63,9 +63,8 @@ def main(argv=None):
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate of the generated gaits")
     parser.add_argument("--calls", type=int, default=2000, help="linear and hybrid blend calls per size")
     parser.add_argument("--nonlinear-calls", type=int, default=40, help="non-linear blend calls per size")
-    parser.add_argument("--tiny", action="store_true", help="smoke run: " + ", ".join(f"--{k.replace('_', '-')} "
-                        + " ".join(map(str, v if isinstance(v, list) else [v])) for k, v in TINY.items())
-                        + "; needs --out")
+    parser.add_argument("--tiny", action="store_true",
+                        help="smoke run: 1,000 vertices, 15 fps, 200 and 10 calls; needs --out")
     parser.add_argument("--out", type=Path, help="JSON results (default benchmarks/results/blend_scaling.json)")
     args = parser.parse_args(argv)
     if args.tiny:

@@ -8,6 +8,11 @@ average, since the machine may be shared) and with --out appends it to a JSON li
 
     .venv/bin/python benchmarks/similarity_scaling.py data/captures/demo --frames 1500 [--workers 2] \
         [--out benchmarks/results/similarity_scaling.json]
+    .venv/bin/python benchmarks/similarity_scaling.py --tiny --out /tmp/similarity_scaling.json
+
+``--tiny`` (the test suite's smoke run) needs no dataset: its frames are one gait cycle of the
+generator's 1,000-vertex body at 15 fps, repeated turned and moved up to 60 frames, on one
+worker; ``--out`` is required with it.
 """
 
 from __future__ import annotations
@@ -21,25 +26,51 @@ from pathlib import Path
 
 import numpy as np
 
+from engine.align.similarity import dissimilarity_matrix, frame_histograms, temporal_filter
+from engine.align.similarity_tree import similarity_tree
 from engine.mesh_io import read_frames
 from engine.mesh_io.dataset import read_capture_manifest
 from engine.rotations import rot_y
-from engine.similarity import dissimilarity_matrix, frame_histograms, temporal_filter
-from engine.similarity_tree import similarity_tree
+from engine.synthetic import animate, build_body, gait
+
+TINY = {"frames": 60, "workers": 1}
 
 
-def main():
+def dataset_frames(dataset):
+    """Every unstructured frame of a capture dataset: list of (V, F)."""
+    manifest = read_capture_manifest(dataset)
+    frames = []
+    for entry in manifest["sequences"]:
+        frames.extend((m.vertices, m.faces) for m in read_frames(dataset / "sequences" / entry["name"] / "unstructured"))
+    return frames
+
+
+def tiny_frames():
+    """The --tiny run's frames: one walk cycle (1.3 m/s) of the 1,000-vertex body at 15 fps: list of (V, F)."""
+    body = build_body(1000)
+    return [(V, body.F) for V in animate(body, gait(body.skeleton, 1.3, fps=15.0, cycles=1.0))]
+
+
+def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("dataset", type=Path)
+    parser.add_argument("dataset", type=Path, nargs="?", help="capture dataset (not with --tiny)")
     parser.add_argument("--frames", type=int, default=1500)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--tiny", action="store_true",
+                        help="smoke run without a dataset: 60 frames of a generated walk, one worker; needs --out")
     parser.add_argument("--out", type=Path, help="append the result to this JSON list")
-    args = parser.parse_args()
-    manifest = read_capture_manifest(args.dataset)
-    base = []
-    for entry in manifest["sequences"]:
-        base.extend((m.vertices, m.faces) for m in read_frames(args.dataset / "sequences" / entry["name"] / "unstructured"))
+    args = parser.parse_args(argv)
+    if args.tiny:
+        if args.out is None:
+            parser.error("--tiny needs --out (a tiny run never replaces the recorded results)")
+        parser.set_defaults(**TINY)
+        args = parser.parse_args(argv)  # options given on the command line still win
+        base = tiny_frames()
+    elif args.dataset is None:
+        parser.error("give a capture dataset (or --tiny)")
+    else:
+        base = dataset_frames(args.dataset)
     rng = np.random.default_rng(args.seed)
     frames = []
     while len(frames) < args.frames:

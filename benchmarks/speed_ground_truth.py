@@ -7,6 +7,11 @@ on the space's phase grid exactly like the sources. Reports per-vertex mean and 
 edge-length and volume errors, and linear / non-linear ratios.
 
     .venv/bin/python benchmarks/speed_ground_truth.py [--space data/spaces/speed.mspace]
+    .venv/bin/python benchmarks/speed_ground_truth.py --tiny --out /tmp/speed_ground_truth.json
+
+``--tiny`` (the test suite's smoke run) needs neither the captures nor a built space: it builds a
+speed space from the generator's own gaits (1,000 vertices, 15 fps, no re-meshing or noise) in a
+temporary directory and compares one speed, 1.8 m/s; ``--out`` is required with it.
 """
 
 from __future__ import annotations
@@ -15,6 +20,7 @@ import argparse
 import json
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -24,27 +30,19 @@ from engine.mesh_io.dataset import read_capture_manifest
 from engine.motion_space import MotionSpace
 from engine.synthetic import build_body, gait
 
+from _tiny import TINY_FPS, build_tiny_speed_space
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--space", type=Path, default=Path("data/spaces/speed.mspace"))
-    parser.add_argument("--captures", type=Path, default=Path("data/captures/demo"))
-    parser.add_argument("--speeds", type=float, nargs="+", default=[1.3, 1.8, 2.3])
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/speed_ground_truth.json"))
-    args = parser.parse_args()
-    if not args.space.exists():
-        subprocess.run([sys.executable, "-m", "server.cli", "build", "specs/demo/speed.toml", "--out",
-                        str(args.space)], check=True)
-    space = MotionSpace.open(args.space)
-    manifest = read_capture_manifest(args.captures)
-    body = build_body(int(manifest["body"]["vertices"]), float(manifest["body"]["height"]))
+
+def compare_speeds(space, body, speeds, fps):
+    """One row per speed: the weights the parameter map gives and each blend's errors against the
+    generator's gait at that speed (``fps``: the truth's frame rate)."""
     cache = evaluation.BlendCache(space)
     faces = np.asarray(space.faces, dtype=np.int64)
     edges = evaluation._edges(faces)
     rows = []
-    for speed in args.speeds:
+    for speed in speeds:
         solution = space.parameter_map.solve([speed])
-        truth = evaluation.true_samples(space, body, gait(body.skeleton, speed, cycles=2.0, fps=30.0))
+        truth = evaluation.true_samples(space, body, gait(body.skeleton, speed, cycles=2.0, fps=fps))
         row = {"speed": speed, "weights": solution.weights.round(4).tolist(), "clamped": solution.clamped}
         for method in ("linear", "hybrid", "nonlinear"):
             row[method] = evaluation._truth_errors(cache.blend(method, solution.weights), truth, faces, edges)
@@ -57,8 +55,40 @@ def main():
             f"volume {row[m]['volume_error_percent']:.2f}%" for m in ("linear", "hybrid", "nonlinear"))
             + f" | linear/non-linear: mean {row['ratio_mean']:.2f}, edge {row['ratio_edge']:.2f}, "
               f"volume {row['ratio_volume']:.2f}", flush=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(rows, indent=2) + "\n")
+    return rows
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--space", type=Path, default=Path("data/spaces/speed.mspace"))
+    parser.add_argument("--captures", type=Path, default=Path("data/captures/demo"))
+    parser.add_argument("--speeds", type=float, nargs="+", default=[1.3, 1.8, 2.3])
+    parser.add_argument("--tiny", action="store_true",
+                        help="smoke run on a speed space built from the generator (1,000 vertices, 15 fps) at 1.8 "
+                             "m/s; ignores --space and --captures; needs --out")
+    parser.add_argument("--out", type=Path, help="JSON results (default benchmarks/results/speed_ground_truth.json)")
+    args = parser.parse_args(argv)
+    if args.tiny:
+        if args.out is None:
+            parser.error("--tiny needs --out (a tiny run never replaces the recorded results)")
+        parser.set_defaults(speeds=[1.8])
+        args = parser.parse_args(argv)  # options given on the command line still win
+        with tempfile.TemporaryDirectory(prefix="morphspace-bench-") as workdir:
+            path = Path(workdir) / "speed.mspace"
+            body = build_tiny_speed_space(path)
+            with MotionSpace.open(path) as space:
+                rows = compare_speeds(space, body, args.speeds, TINY_FPS)
+    else:
+        if not args.space.exists():
+            subprocess.run([sys.executable, "-m", "server.cli", "build", "specs/demo/speed.toml", "--out",
+                            str(args.space)], check=True)
+        manifest = read_capture_manifest(args.captures)
+        body = build_body(int(manifest["body"]["vertices"]), float(manifest["body"]["height"]))
+        with MotionSpace.open(args.space) as space:
+            rows = compare_speeds(space, body, args.speeds, 30.0)
+    out = args.out or Path("benchmarks/results/speed_ground_truth.json")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(rows, indent=2) + "\n")
 
 
 if __name__ == "__main__":

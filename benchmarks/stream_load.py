@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/stream_load.py                       # 200 clients x 60 fps, 20 s
     .venv/bin/python benchmarks/stream_load.py --repeat 3            # three rounds, and their median
     .venv/bin/python benchmarks/stream_load.py --soak 300            # + 5-minute connect/leave soak
+    .venv/bin/python benchmarks/stream_load.py --tiny --out /tmp/stream_load.json   # smoke run, ~10 s
 
 Starts ``morphspace serve`` (one process) on 127.0.0.1 over a data directory holding the space
 (default data/spaces/locomotion.mspace, 3,000 vertices), then runs the clients in separate
@@ -15,7 +16,11 @@ processes (``--client-procs``), each an asyncio loop of plain websockets connect
 - the server's CPU and resident memory; with ``--soak``, resident memory sampled while clients
   connect and leave (start, end, max, and the slope of a line fitted to the second half).
 
-Results go to benchmarks/results/stream_load.json.
+Results go to benchmarks/results/stream_load.json. ``--tiny`` (the test suite's smoke run) builds a
+1,000-vertex speed space in a temporary directory unless ``--space`` is given, and runs 4 clients
+x 30 fps for 4 s (1.5 s of warm-up) in one client process, every client sending parameters; it
+needs ``--out``. The server always binds 127.0.0.1 and is stopped (its whole process group) at
+the end, whatever happens.
 """
 
 from __future__ import annotations
@@ -29,21 +34,37 @@ import os
 import random
 import signal
 import socket
+import shutil
 import statistics
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
 import msgpack
 
 ROOT = Path(__file__).resolve().parents[1]
+TINY = {"clients": 4, "fps": 30.0, "seconds": 4.0, "warmup": 1.5, "client_procs": 1, "update_share": 1.0}
 
 
 def free_port():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+def stop_process_group(process, timeout=15.0):
+    """SIGTERM the process group led by ``process`` (started with start_new_session), SIGKILL it
+    after ``timeout`` seconds."""
+    try:
+        os.killpg(process.pid, signal.SIGTERM)
+        process.wait(timeout)
+    except ProcessLookupError:  # the group has already gone
+        pass
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+    process.wait()
 
 
 def rss_mb(pid):
@@ -327,7 +348,9 @@ def percentile(values, q):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--space", type=Path, default=ROOT / "data" / "spaces" / "locomotion.mspace")
+    parser.add_argument("--space", type=Path,
+                        help="motion space to serve (default data/spaces/locomotion.mspace; with --tiny a "
+                             "1,000-vertex speed space built for the run)")
     parser.add_argument("--clients", type=int, default=200)
     parser.add_argument("--fps", type=float, default=60.0)
     parser.add_argument("--seconds", type=float, default=20.0)
@@ -339,31 +362,60 @@ def main(argv=None):
                                                                "(each reported; the median of their means)")
     parser.add_argument("--soak", type=float, default=0.0, help="seconds of connect/leave soak (0: none)")
     parser.add_argument("--soak-clients", type=int, default=50)
-    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "stream_load.json")
+    parser.add_argument("--tiny", action="store_true",
+                        help="smoke run: 4 clients x 30 fps for 4 s in one process, on a 1,000-vertex space "
+                             "built for the run unless --space is given; needs --out")
+    parser.add_argument("--out", type=Path, help="JSON results (default benchmarks/results/stream_load.json)")
     args = parser.parse_args(argv)
+    if args.tiny:
+        if args.out is None:
+            parser.error("--tiny needs --out (a tiny run never replaces the recorded results)")
+        parser.set_defaults(**TINY)
+        args = parser.parse_args(argv)  # options given on the command line still win
+    out = args.out or ROOT / "benchmarks" / "results" / "stream_load.json"
 
-    import tempfile
-    sys.path.insert(0, str(ROOT))
-    from engine.motion_space import MotionSpace
+    data = Path(tempfile.mkdtemp(prefix="morphspace-bench-"))
+    try:
+        (data / "spaces").mkdir()
+        if args.space is None and args.tiny:
+            from _tiny import build_tiny_speed_space
 
-    with MotionSpace.open(args.space, verify=False) as space:
-        name, n_vertices = args.space.stem, space.n_vertices
+            space_path = data / "spaces" / "speed.mspace"
+            build_tiny_speed_space(space_path)
+        else:
+            space_path = data / "spaces" / (args.space or ROOT / "data" / "spaces" / "locomotion.mspace").name
+            space_path.symlink_to((args.space or ROOT / "data" / "spaces" / "locomotion.mspace").resolve())
+        result = serve_and_measure(args, data, space_path)
+    finally:
+        shutil.rmtree(data, ignore_errors=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1))
+    return 0
+
+
+def serve_and_measure(args, data, space_path):
+    """Start ``morphspace serve`` on 127.0.0.1 over ``data``, run the rounds (and the soak), stop
+    the server; returns the result record."""
+    from engine.motion_space import MotionSpace  # here, not at the top: the client processes never need it
+
+    with MotionSpace.open(space_path, verify=False) as space:
+        name, n_vertices = space_path.stem, space.n_vertices
         pmap = space.parameter_map
         params = list(zip(pmap.names, pmap.domain()))
-    data = Path(tempfile.mkdtemp(prefix="morphspace-bench-"))
-    (data / "spaces").mkdir()
-    (data / "spaces" / args.space.name).symlink_to(args.space.resolve())
     port = free_port()
     url = f"ws://127.0.0.1:{port}/v1/stream"
     env = dict(os.environ, MORPHSPACE_STREAM_MAX_CLIENTS=str(max(1000, args.clients * 2)))
-    server = subprocess.Popen([sys.executable, "-m", "server.cli", "serve", "--data-dir", str(data), "--port",
-                               str(port), "--log-level", "warning"], cwd=ROOT, env=env, start_new_session=True)
+    server = subprocess.Popen([sys.executable, "-m", "server.cli", "serve", "--data-dir", str(data), "--host",
+                               "127.0.0.1", "--port", str(port), "--log-level", "warning"], cwd=ROOT, env=env,
+                              start_new_session=True)
     result = {"space": name, "n_vertices": n_vertices, "clients": args.clients, "fps": args.fps,
               "codec": "q16", "seconds": args.seconds, "cpus": os.cpu_count()}
     try:
         import httpx
         deadline = time.monotonic() + 60
         while time.monotonic() < deadline:
+            if server.poll() is not None:
+                raise RuntimeError(f"morphspace serve exited with status {server.returncode} before it answered")
             try:
                 if httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=1).status_code == 200:
                     break
@@ -412,14 +464,8 @@ def main(argv=None):
             print(f"  soak {args.soak:.0f} s, {sum(per)} clients connecting and leaving: RSS {values[0]:.0f} -> "
                   f"{values[-1]:.0f} MB (max {max(values):.0f}), second-half slope {slope:+.2f} MB/min")
     finally:
-        os.killpg(server.pid, signal.SIGTERM)
-        try:
-            server.wait(15)
-        except subprocess.TimeoutExpired:
-            os.killpg(server.pid, signal.SIGKILL)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1))
-    return 0
+        stop_process_group(server)
+    return result
 
 
 if __name__ == "__main__":

@@ -1,0 +1,24 @@
+"""What the benchmarks' ``--tiny`` smoke runs share (a module, not a benchmark: no ``--tiny`` of its own)."""
+
+from __future__ import annotations
+
+from engine.motion_space import SourceClip, build_motion_space
+from engine.parameters import Layout
+from engine.synthetic import animate, build_body, gait
+
+TINY_VERTICES = 1000
+TINY_FPS = 15.0
+
+
+def build_tiny_speed_space(path):
+    """Build a two-gait speed space at ``path``: a slow walk (0.8 m/s) and a jog (2.8 m/s) of a
+    1,000-vertex body at 15 fps straight from the generator, in a speed chain, epsilon 5 mm
+    (a few seconds). Returns the body (engine.synthetic.Body)."""
+    body = build_body(TINY_VERTICES)
+    clips = []
+    for name, speed in (("walk_slow", 0.8), ("jog", 2.8)):
+        motion = gait(body.skeleton, speed, fps=TINY_FPS, cycles=2.0)
+        clips.append(SourceClip(name, animate(body, motion), TINY_FPS, True, motion.frames_per_cycle))
+    build_motion_space(path, clips, body.F, name=path.stem, epsilon=0.005, rest=body.V,
+                       parameters={"layout": Layout("chain", 2, chain=(0, 1)), "names": ["speed"]})
+    return body

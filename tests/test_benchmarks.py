@@ -1,0 +1,118 @@
+"""Every script under benchmarks/ runs in its ``--tiny`` mode and reports sane figures.
+
+Each script is run as a real subprocess (``python benchmarks/X.py --tiny --out TMP/result.json``)
+from an empty working directory. The scripts are found by globbing, so a new benchmark fails here
+until it has a tiny mode and an entry in ``CHECKS`` saying which figures it must report
+(``benchmarks/_*.py`` are modules the scripts share, not benchmarks). A few seconds each; the
+stream benchmark starts a real server on 127.0.0.1 and stops it itself.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+BENCHMARKS = ROOT / "benchmarks"
+SCRIPTS = sorted(p.name for p in BENCHMARKS.glob("*.py") if not p.name.startswith("_"))
+# pytetwild writes this into the working directory on every tetrahedralisation (issue 12, deliverable 4)
+TETWILD_LEFTOVER = "__tracked_surface.stl"
+
+
+def positive(x):
+    return isinstance(x, (int, float)) and math.isfinite(x) and x > 0
+
+
+def non_negative(x):
+    return isinstance(x, (int, float)) and math.isfinite(x) and x >= 0
+
+
+def check_blend_scaling(rows, stdout):
+    (row,) = rows
+    assert row["vertices"] == 1000 and row["tets"] > 0 and row["phases"] > 0
+    assert positive(row["build_s"]["total_s"])
+    for mode, calls in (("linear", 200), ("hybrid", 200), ("nonlinear", 10)):
+        figures = row["modes"][mode]
+        assert figures["calls"] == calls
+        assert all(positive(figures[k]) for k in ("frames_per_second", "median_us", "p95_us")), (mode, figures)
+    hybrid = row["hybrid"]
+    assert hybrid["references"] >= 1 and non_negative(hybrid["max_test_error_mm"])
+    assert non_negative(hybrid["correction_share_of_sources"]) and hybrid["correction_share_of_sources"] < 1
+    assert positive(hybrid["source_mb"])
+    assert "1000 vertices" in stdout and "non-linear" in stdout and "corrections" in stdout
+
+
+def check_similarity_scaling(records, stdout):
+    (record,) = records
+    assert record["frames"] == 60 and record["vertices_mean"] == 1000 and record["workers"] == 1
+    assert positive(record["histograms_s"]) and positive(record["similarity_total_s"])
+    assert all(non_negative(record[k]) for k in ("matrix_s", "filter_s", "tree_s"))
+    assert record["tree_depth"] >= 1 and record["components"] >= 1
+    assert json.loads(stdout.strip().splitlines()[-1]) == record  # the printed line is the record
+
+
+def check_speed_ground_truth(rows, stdout):
+    (row,) = rows
+    assert row["speed"] == 1.8
+    assert len(row["weights"]) == 2 and sum(row["weights"]) == pytest.approx(1.0, abs=1e-3)
+    for method in ("linear", "hybrid", "nonlinear"):
+        errors = row[method]
+        assert all(positive(errors[k]) for k in ("mean_mm", "max_mm", "edge_error_percent", "volume_error_percent"))
+        assert errors["max_mm"] >= errors["mean_mm"]
+    assert all(positive(row[k]) for k in ("ratio_mean", "ratio_edge", "ratio_volume"))
+    assert "speed 1.80 m/s" in stdout and "linear/non-linear" in stdout
+
+
+def check_stream_load(result, stdout):
+    assert result["clients"] == 4 and result["connected"] == 4 and result["failures"] == []
+    assert 0.25 < result["delivered_mean"] < 1.5  # a 1.5 s window: a frame more or less is a few percent
+    assert positive(result["frames_per_second_total"])
+    assert result["latency_ms"]["count"] > 0 and positive(result["latency_ms"]["median"])
+    assert non_negative(result["server_cpu_cores"]) and positive(result["server_rss_mb"]["start"])
+    assert result["server_counters"]["frames"] > 0
+    assert "frames delivered: mean" in stdout and "params -> first frame" in stdout
+
+
+CHECKS = {
+    "blend_scaling.py": check_blend_scaling,
+    "similarity_scaling.py": check_similarity_scaling,
+    "speed_ground_truth.py": check_speed_ground_truth,
+    "stream_load.py": check_stream_load,
+}
+
+
+def recorded_results():
+    """(name, size, mtime) of every file in benchmarks/results/: a tiny run must leave them alone."""
+    return sorted((p.name, p.stat().st_size, p.stat().st_mtime_ns) for p in (BENCHMARKS / "results").glob("*"))
+
+
+def test_scripts_are_found():
+    assert {"blend_scaling.py", "stream_load.py"} <= set(SCRIPTS)
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_benchmark_tiny_mode(script, tmp_path):
+    assert script in CHECKS, (f"benchmarks/{script} is not checked: give it a --tiny mode (smallest sizes, a few "
+                              f"seconds, JSON to --out) and add the figures it must report to CHECKS")
+    out, cwd = tmp_path / "result.json", tmp_path / "cwd"
+    cwd.mkdir()
+    before = recorded_results()
+    run = subprocess.run([sys.executable, str(BENCHMARKS / script), "--tiny", "--out", str(out)], cwd=cwd,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, f"benchmarks/{script} --tiny failed:\n{run.stdout[-2000:]}\n{run.stderr[-4000:]}"
+    CHECKS[script](json.loads(out.read_text()), run.stdout)
+    assert recorded_results() == before
+    assert set(p.name for p in cwd.iterdir()) <= {TETWILD_LEFTOVER}, "a tiny run wrote into its working directory"
+
+
+@pytest.mark.parametrize("script", [s for s in SCRIPTS if s in CHECKS])
+def test_tiny_mode_needs_out(script, tmp_path):
+    run = subprocess.run([sys.executable, str(BENCHMARKS / script), "--tiny"], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "--tiny needs --out" in run.stderr
+    assert list(tmp_path.iterdir()) == []
