@@ -1,0 +1,164 @@
+"""The stream benchmark's load generator (benchmarks/stream_load.py): raw WebSocket clients that
+count frames and time parameter updates, and the connect/leave soak clients, each group run in a
+process of its own (``client_process``, ``soak_process``)."""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import os
+import random
+import time
+
+import msgpack
+
+
+class RawClient(asyncio.Protocol):
+    """A minimal WebSocket client (RFC 6455) for load generation: it counts frames by their
+    headers and decodes the msgpack body only of frames that may acknowledge a pending update,
+    so that the load generator costs little beside the server on a 2-core machine."""
+
+    def __init__(self, host, port, on_message):
+        self.host, self.port, self.on_message = host, port, on_message
+        self.buffer = bytearray()
+        self.upgraded = asyncio.get_running_loop().create_future()
+        self.closed = asyncio.get_running_loop().create_future()
+        self.transport = None
+
+    def connection_made(self, transport):
+        self.transport = transport
+        key = base64.b64encode(os.urandom(16)).decode()
+        transport.write((f"GET /v1/stream HTTP/1.1\r\nHost: {self.host}:{self.port}\r\nUpgrade: websocket\r\n"
+                         f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n").encode())
+
+    def data_received(self, data):
+        self.buffer += data
+        if not self.upgraded.done():
+            end = self.buffer.find(b"\r\n\r\n")
+            if end < 0:
+                return
+            if not self.buffer.startswith(b"HTTP/1.1 101"):
+                self.upgraded.set_exception(ConnectionError(bytes(self.buffer[:200]).decode(errors="replace")))
+                return
+            del self.buffer[:end + 4]
+            self.upgraded.set_result(True)
+        buf = self.buffer
+        offset = 0
+        while len(buf) - offset >= 2:
+            opcode, length = buf[offset] & 0x0F, buf[offset + 1] & 0x7F
+            header = 2
+            if length == 126:
+                if len(buf) - offset < 4:
+                    break
+                length, header = int.from_bytes(buf[offset + 2:offset + 4], "big"), 4
+            elif length == 127:
+                if len(buf) - offset < 10:
+                    break
+                length, header = int.from_bytes(buf[offset + 2:offset + 10], "big"), 10
+            if len(buf) - offset < header + length:
+                break
+            self.on_message(opcode, buf, offset + header, length)
+            offset += header + length
+        del buf[:offset]
+
+    def connection_lost(self, exc):
+        if not self.closed.done():
+            self.closed.set_result(exc)
+
+    def send(self, payload, opcode=0x2):
+        mask = os.urandom(4)
+        n = len(payload)
+        head = bytes([0x80 | opcode]) + (bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + n.to_bytes(2, "big"))
+        body = bytes(b ^ mask[i % 4] for i, b in enumerate(payload))
+        self.transport.write(head + mask + body)
+
+
+async def one_client(host, port, space, fps, seconds, measure_from, measure_to, updates, update_every, params,
+                     rng, out):
+    loop = asyncio.get_running_loop()
+    state = {"frames": 0, "latencies": [], "pending": {}, "transit": []}
+
+    def on_message(opcode, buf, start, length):
+        if opcode != 0x2:
+            return
+        received = time.monotonic()
+        if state["pending"]:
+            msg = msgpack.unpackb(bytes(buf[start:start + length]))
+            if msg.get("type") != "frame":
+                return
+            for s in [s for s in state["pending"] if s <= msg["ack"]]:
+                state["latencies"].append(received - state["pending"].pop(s))
+                state["transit"].append(time.time() - msg["sent_at"])  # encoded -> read by the client
+        elif b"\xa5frame" not in buf[start:start + 16]:
+            return  # the map's first entry is its type: count frames only
+        if measure_from <= received < measure_to:
+            state["frames"] += 1
+
+    transport, client = await loop.create_connection(lambda: RawClient(host, port, on_message), host, port)
+    await client.upgraded
+    client.send(msgpack.packb({"type": "hello", "space": space, "codec": "q16", "rate": fps, "seq": 0}))
+    seq = 0
+    stop = time.monotonic() + seconds
+    next_update = time.monotonic() + rng.uniform(0.5, 0.5 + update_every)
+    while time.monotonic() < stop:
+        if updates and time.monotonic() >= next_update:
+            seq += 1
+            name, (lo, hi) = rng.choice(params)
+            state["pending"][seq] = time.monotonic()
+            client.send(msgpack.packb({"type": "params", "params": {name: rng.uniform(lo, hi)}, "seq": seq}))
+            next_update += update_every
+        wake = min(stop, next_update) if updates else stop
+        await asyncio.sleep(max(0.0, wake - time.monotonic()))
+    transport.close()
+    out.append((state["frames"], state["latencies"], state["transit"]))
+
+
+def client_process(host, port, space, n, fps, seconds, warmup, update_share, update_every, params, seed, queue):
+    rng = random.Random(seed)
+
+    async def main():
+        out = []
+        start = time.monotonic()
+        measure_from, measure_to = start + warmup, start + seconds - 1.0
+        tasks = []
+        for i in range(n):
+            tasks.append(asyncio.create_task(one_client(
+                host, port, space, fps, seconds, measure_from, measure_to, rng.random() < update_share, update_every,
+                params, random.Random(rng.random()), out)))
+            await asyncio.sleep(0.005)  # do not open every connection in the same instant
+        results = await asyncio.gather(*tasks, return_exceptions=True)
+        failures = [repr(r) for r in results if isinstance(r, BaseException)]
+        return out, failures, measure_to - measure_from
+
+    out, failures, window = asyncio.run(main())
+    queue.put({"frames": [f for f, _, _ in out], "latencies": [x for _, l, _ in out for x in l],
+               "transit": [x for _, _, t in out for x in t],
+               "failures": failures, "window": window})
+
+
+async def soak_client(url, space, fps, hold, rng):
+    import websockets
+    async with websockets.connect(url, max_size=2**26, compression=None) as ws:
+        await ws.send(msgpack.packb({"type": "hello", "space": space, "codec": rng.choice(["q16", "f32"]),
+                                     "rate": fps, "mode": rng.choice(["hybrid", "linear"])}))
+        stop = time.monotonic() + hold
+        while time.monotonic() < stop:
+            try:
+                await asyncio.wait_for(ws.recv(), timeout=max(0.01, stop - time.monotonic()))
+            except asyncio.TimeoutError:
+                break
+
+
+def soak_process(url, space, clients, fps, seconds, seed):
+    rng = random.Random(seed)
+
+    async def main():
+        stop = time.monotonic() + seconds
+        running = set()
+        while time.monotonic() < stop:
+            while len(running) < clients:
+                running.add(asyncio.create_task(soak_client(url, space, fps, rng.uniform(1.0, 8.0), rng)))
+            done, running = await asyncio.wait(running, timeout=0.5, return_when=asyncio.FIRST_COMPLETED)
+        await asyncio.gather(*running, return_exceptions=True)
+
+    asyncio.run(main())
