@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from engine.alignment import AlignmentOptions, align_captures
+from engine.align import AlignmentOptions, align_captures
 from engine.mesh_io import read_frames, write_obj, write_sequence
 from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
@@ -187,9 +187,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
     """Write the aligned frames, metadata, arrays and pictures (see the module docstring)."""
     from PIL import Image
 
-    from engine.align_evaluation import pattern_sheet
-    from engine.similarity import similarity_image
-    from engine.similarity_tree import tree_image
+    from engine.align import pattern_sheet, similarity_image, tree_image
 
     aligned = result.aligned
     tree = result.tree

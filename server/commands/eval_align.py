@@ -21,8 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.align_evaluation import error_summary, pattern_sheet, score_alignment
-from engine.alignment import AlignmentOptions, align_captures
+from engine.align import AlignmentOptions, align_captures, error_summary, pattern_sheet, score_alignment
 from engine.mesh_io import read_mesh, read_sequence
 from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
@@ -194,8 +193,7 @@ def run(args):
         Image.fromarray(pattern_sheet(vertices, faces, root, lengths, names, title=title)).save(
             out / "aligned_pattern_sequential.png")
     if args.aligned is None:
-        from engine.similarity import similarity_image
-        from engine.similarity_tree import tree_image
+        from engine.align import similarity_image, tree_image
 
         Image.fromarray(similarity_image(runs["tree"].similarity.dissimilarity, lengths, names)).save(
             out / "similarity.png")

@@ -198,7 +198,7 @@ def run_build(payload, reporter):
 
 # --- align ----------------------------------------------------------------------------------------
 def run_align(payload, reporter):
-    from engine.alignment import AlignmentOptions, align_captures
+    from engine.align import AlignmentOptions, align_captures
     from server.commands.align import parse_root, read_inputs, resolve_inputs, write_alignment
 
     params, staging = payload["params"], Path(payload["staging"])

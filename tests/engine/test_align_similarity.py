@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from engine.rotations import rot_y
-from engine.similarity import (
+from engine.align.similarity import (
     _balanced_row_blocks,
     dissimilarity_matrix,
     frame_histograms,
@@ -13,6 +12,7 @@ from engine.similarity import (
     similarity_image,
     temporal_filter,
 )
+from engine.rotations import rot_y
 
 
 def _bent(angle):

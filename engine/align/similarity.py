@@ -1,7 +1,7 @@
 """Shape dissimilarity between all frames of all sequences (Casas et al. 2012, section 3.1).
 
 ``histograms = frame_histograms(meshes)`` computes one volumetric shape histogram per frame
-(``engine.shape_histogram``), ``D, yaw = dissimilarity_matrix(histograms)`` compares every
+(``engine.align.shape_histogram``), ``D, yaw = dissimilarity_matrix(histograms)`` compares every
 pair at its best rotation about the vertical axis, and ``temporal_filter(D, lengths)``
 averages each pair over a window of neighbouring frame pairs so that the measure reflects
 motion as well as shape (Huang et al. 2010, the paper's ref [31]). :func:`shape_dissimilarity`
@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from engine.shape_histogram import (
+from engine.align.shape_histogram import (
     correlation_over_rotations,
     best_rotation,
     histogram_norm2,
@@ -98,7 +98,7 @@ def frame_histograms(meshes, *, radius=None, workers=1, chunk=32, progress=None,
     chunk : int              frames per task
     progress : callable(done, total) or None
     **options                shells, elevations, harmonics, subdivisions (see
-                             ``engine.shape_histogram.shape_histogram``)
+                             ``engine.align.shape_histogram.shape_histogram``)
 
     Returns
     -------

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import minimum_spanning_tree
 
-from engine.similarity_tree import (
+from engine.align.similarity_tree import (
     chain_tree,
     pruned_graph,
     pruning_threshold,

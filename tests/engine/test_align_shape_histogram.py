@@ -4,8 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from engine.rotations import rot_y
-from engine.shape_histogram import (
+from engine.align.shape_histogram import (
     best_rotation,
     histogram_distance,
     histogram_norm2,
@@ -14,6 +13,7 @@ from engine.shape_histogram import (
     rotation_correlation,
     shape_histogram,
 )
+from engine.rotations import rot_y
 
 
 @pytest.fixture(scope="module")

@@ -1,0 +1,106 @@
+"""Alignment of unstructured capture frames end to end (Casas et al. 2012, section 3).
+
+``run = align_captures(meshes, lengths)``: shape similarity of all frames, the similarity tree
+(or a frame-to-frame chain, the baseline), the root's tet mesh, and the alignment of every frame
+along the tree. The CLI (``morphspace align``, ``eval-align``) and the align job call it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.align.pairwise import AlignmentOptions, PairwiseAligner
+from engine.align.propagation import AlignedFrames, align_tree
+from engine.align.similarity import shape_dissimilarity
+from engine.align.similarity_tree import chain_tree, similarity_tree
+
+
+@dataclass
+class CaptureAlignment:
+    """Everything :func:`align_captures` computed.
+
+    Attributes
+    ----------
+    similarity : engine.align.similarity.ShapeSimilarity
+    tree : engine.align.similarity_tree.SimilarityTree   the tree the frames were aligned along
+                                                    (a chain for ``method="sequential"``)
+    aligned : AlignedFrames
+    timings : dict   seconds for "similarity", "tree", "tetrahedralize", "align"
+    method : str     "tree" or "sequential"
+    tets : (V_tet, T)   the root's tet mesh (reusable for another run with the same root)
+    """
+
+    similarity: object
+    tree: object
+    aligned: AlignedFrames
+    timings: dict
+    method: str
+    tets: tuple
+
+
+def align_captures(meshes, lengths, *, method="tree", root=None, options=None, window=2, workers=1,
+                   retries=3, tets=None, use_colors=True, seed=0, similarity=None, progress=None):
+    """Shape similarity, tree and alignment of unstructured frames of several sequences.
+
+    Parameters
+    ----------
+    meshes : list of Mesh-like (vertices, faces, colors)   all frames, sequences concatenated
+    lengths : (S,) int array    frames per sequence
+    method : {"tree", "sequential"}
+        "tree" aligns along the shape similarity tree (paper section 3); "sequential" tracks
+        frame to frame from the same root (forwards and backwards, sequences end to end), the
+        baseline, with no retries.
+    root : int or None          root frame (default: the tree's most central frame)
+    options : AlignmentOptions
+    window : int                temporal filter half-width
+    workers : int               processes for the dissimilarity matrix and for aligning
+                                independent pieces of the tree
+    retries : int               see :func:`engine.align.propagation.align_tree`
+    tets : (V_tet, T) or None   a tet mesh of the root (default: tetrahedralised here)
+    use_colors : bool           use vertex colours as cues when every frame has them
+    seed : int
+    similarity : ShapeSimilarity or None   reuse an earlier computation on the same frames
+    progress : callable(stage, done, total) or None
+        stages "histograms", "dissimilarity", "align"
+
+    Returns
+    -------
+    CaptureAlignment
+    """
+    from engine.tetmesh import tetrahedralize
+
+    if method not in ("tree", "sequential"):
+        raise ValueError(f"method must be 'tree' or 'sequential', got {method!r}")
+    lengths = np.asarray(lengths, dtype=np.int64)
+    timings = {}
+    started = time.perf_counter()
+    if similarity is None:
+        similarity = shape_dissimilarity(meshes, lengths, window=window, workers=workers, progress=progress)
+    timings["similarity"] = time.perf_counter() - started
+    started = time.perf_counter()
+    tree = similarity_tree(similarity.dissimilarity, root=root)
+    if method == "sequential":
+        tree = chain_tree(lengths, tree.root)
+    timings["tree"] = time.perf_counter() - started
+    base = meshes[tree.root]
+    colours = all(getattr(m, "colors", None) is not None for m in meshes) and use_colors
+    started = time.perf_counter()
+    if tets is None:
+        tets = tetrahedralize(base.vertices, base.faces, epsilon=(options or AlignmentOptions()).tet_epsilon)
+    timings["tetrahedralize"] = time.perf_counter() - started
+    aligner = PairwiseAligner(base.vertices, base.faces, base.colors if colours else None, tets=tets,
+                              options=options, seed=seed)
+    started = time.perf_counter()
+    aligned = align_tree(aligner, meshes, tree, yaw=similarity.yaw,
+                         dissimilarity=similarity.dissimilarity if method == "tree" else None,
+                         retries=retries if method == "tree" else 0, workers=workers,
+                         progress=(lambda d, t: progress("align", d, t)) if progress else None)
+    timings["align"] = time.perf_counter() - started
+    return CaptureAlignment(similarity=similarity, tree=tree, aligned=aligned, timings=timings, method=method,
+                            tets=tets)
+
+
+__all__ = ["CaptureAlignment", "align_captures"]

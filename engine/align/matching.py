@@ -1,0 +1,253 @@
+"""Correspondences between the deforming root surface and a target frame's surface.
+
+``TargetSurface(V, F, colors)`` prepares one frame once (normals, k-d trees, edge length,
+centre); the functions here pair points of the moving surface with it: closest points with
+compatible normals both ways, robust weights, colour cues and a capped fit cost. ``options`` is
+an :class:`engine.align.pairwise.AlignmentOptions`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from engine.align.shape_histogram import shape_centre
+from engine.surface import _closest_on_triangles, vertex_normals
+
+
+class TargetSurface:
+    """A frame's unstructured surface prepared for correspondence queries.
+
+    Parameters
+    ----------
+    V : (m, 3) float array
+    F : (l, 3) int array
+    colors : (m, 3) float array in [0, 1] or None
+    """
+
+    def __init__(self, V, F, colors=None):
+        self.V = np.ascontiguousarray(V, dtype=np.float64)
+        self.F = np.ascontiguousarray(F, dtype=np.int64)
+        if self.V.ndim != 2 or self.V.shape[1] != 3 or len(self.V) < 4:
+            raise ValueError(f"target vertices must have shape (m >= 4, 3), got {self.V.shape}")
+        self.colors = None if colors is None else np.asarray(colors, dtype=np.float64)
+        self.normals = vertex_normals(self.V, self.F)
+        self.tree = cKDTree(self.V)
+        self.face_centres = self.V[self.F].mean(axis=1)
+        self.face_tree = cKDTree(self.face_centres)
+        edges = self.V[self.F] - self.V[np.roll(self.F, 1, axis=1)]
+        self.edge_length = float(np.mean(np.linalg.norm(edges, axis=2)))
+        self.centre = shape_centre(self.V, self.F)
+
+    def closest(self, P, k=6):
+        """Closest points on the surface among the ``k`` faces with the nearest centres.
+
+        Returns
+        -------
+        points : (q, 3) float array
+        distance : (q,) float array
+        faces : (q,) int array
+        """
+        P = np.asarray(P, dtype=np.float64)
+        k = min(k, len(self.F))
+        _, faces = self.face_tree.query(P, k=k)
+        faces = faces.reshape(len(P), k)
+        tri = self.V[self.F[faces.ravel()]]
+        Pq = np.repeat(P, k, axis=0)
+        points, _ = _closest_on_triangles(Pq, tri[:, 0], tri[:, 1], tri[:, 2])
+        dist = np.linalg.norm(points - Pq, axis=1).reshape(len(P), k)
+        best = np.argmin(dist, axis=1)
+        pick = np.arange(len(P)) * k + best
+        return points[pick], dist[np.arange(len(P)), best], faces[np.arange(len(P)), best]
+
+
+def normal_cosine(options):
+    """Cosine of ``options.max_normal_angle``: pairs whose normals agree less are incompatible."""
+    return np.cos(np.radians(options.max_normal_angle))
+
+
+def nearest_compatible(P, N, target, options):
+    """Per point: the nearest target vertex with a compatible normal, projected to its plane.
+
+    Returns
+    -------
+    q : (p, 3) foot of P on that vertex's tangent plane
+    m : (p, 3) its normal
+    d : (p,) distance to the vertex
+    ok : (p,) bool, False when none of the nearest vertices is compatible
+    """
+    k = min(options.neighbours, len(target.V))
+    d, idx = target.tree.query(P, k=k)
+    d, idx = d.reshape(len(P), k), idx.reshape(len(P), k)
+    compatible = np.einsum("pkc,pc->pk", target.normals[idx], N) > normal_cosine(options)
+    masked = np.where(compatible, d, np.inf)
+    j = np.argmin(masked, axis=1)
+    rows = np.arange(len(P))
+    ok = np.isfinite(masked[rows, j])
+    v, m = target.V[idx[rows, j]], target.normals[idx[rows, j]]
+    q = P - np.einsum("pc,pc->p", P - v, m)[:, None] * m
+    return q, m, d[rows, j], ok
+
+
+def correspondences(x, n, target, options, colors=None, labels=None, count=1):
+    """Correspondences of source points x (normals n) on the target surface.
+
+    The closest surface point (exact, among the faces with the nearest centres) when its
+    normal is compatible, otherwise the foot on the tangent plane of the nearest compatible
+    vertex; robust weights from the distances (outliers get 0). With the root's ``colors``
+    (n, 3) the matches also shift towards the target's matching colours (:func:`colour_flow`).
+
+    Returns
+    -------
+    y : (p, 3) target points        m : (p, 3) target normals there
+    w : (p,) weights in [0, 1]      tangential : (p,) tangential weight (colour cues)
+    d : (p,) distances
+    """
+    o = options
+    y, d, face, bary = closest_points(x, target.V, target.F, target.face_tree)
+    m = np.einsum("pk,pkc->pc", bary, target.normals[target.F[face]])
+    m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-12)
+    ok = np.einsum("pc,pc->p", m, n) > normal_cosine(o)
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        q, mq, dq, okq = nearest_compatible(x[bad], n[bad], target, o)
+        y[bad], m[bad], d[bad], ok[bad] = q, mq, dq, okq
+    w = robust_weights(d, ok, labels, count, o.outlier_factor, 1.5 * target.edge_length)
+    tangential = np.full(len(x), o.tangential_damping)
+    if colors is not None:
+        flow, strength = colour_flow(y, m, face, bary, target, colors, o)
+        y = y + flow
+        tangential = tangential + o.colour_weight * strength
+    return y, m, w, tangential, d
+
+
+def colour_flow(y, m, face, bary, target, colors, options):
+    """Tangential shift towards where the target shows each source vertex's colour.
+
+    Candidates are the current match y (colour interpolated in its face), the nearest
+    target vertices and the midpoints towards them; each is scored by its colour distance
+    to the source vertex's (root) colour plus a distance penalty, and the best one wins if
+    it beats y clearly. A match whose colour already agrees does not move, so uniform
+    regions and exact matches get no shift.
+
+    Returns
+    -------
+    flow : (p, 3) tangential shifts
+    strength : (p,) in [0, 1)   how much better the chosen colour agrees than y's
+    """
+    o = options
+    h = target.edge_length
+    k = min(o.neighbours, len(target.V))
+    dist, idx = target.tree.query(y, k=k)
+    dist, idx = dist.reshape(len(y), k), idx.reshape(len(y), k)
+    here = np.einsum("pk,pkc->pc", bary, target.colors[target.F[face]])
+    there = target.colors[idx]
+    points = np.concatenate([y[:, None, :], target.V[idx], 0.5 * (y[:, None, :] + target.V[idx])], axis=1)
+    colours = np.concatenate([here[:, None, :], there, 0.5 * (here[:, None, :] + there)], axis=1)
+    facing = np.einsum("pkc,pc->pk", target.normals[idx], m) > 0.5
+    allowed = np.concatenate([np.ones((len(y), 1), dtype=bool), facing, facing], axis=1)
+    sigma2 = o.colour_sigma ** 2
+    score = (np.sum((colours - colors[:, None, :]) ** 2, axis=2) / sigma2
+             + np.sum((points - y[:, None, :]) ** 2, axis=2) / (2.0 * h * h))
+    score = np.where(allowed, score, np.inf)
+    best = np.argmin(score, axis=1)
+    rows = np.arange(len(y))
+    gain = score[:, 0] - score[rows, best]
+    shift = points[rows, best] - y
+    shift -= np.einsum("pc,pc->p", shift, m)[:, None] * m
+    strength = gain / (gain + 1.0)
+    return shift, strength
+
+
+def reverse_correspondences(x, n, F, target, options, labels=None, count=1):
+    """Target vertices paired with their closest points on the current source surface (x, F).
+
+    Returns
+    -------
+    points : (t, 3) source surface points    labels_from : (t,) a source vertex of each
+    y : (t, 3) target vertices                m : (t, 3) target normals
+    w : (t,) weights
+    """
+    o = options
+    tree = cKDTree(x[F].mean(axis=1))
+    points, d, face, bary = closest_points(target.V, x, F, tree)
+    normal = np.einsum("tk,tkc->tc", bary, n[F[face]])
+    ok = np.einsum("tc,tc->t", normal, target.normals) > normal_cosine(o)
+    vertex = F[face, np.argmax(bary, axis=1)]
+    w = robust_weights(d, ok, None if labels is None else labels[vertex], count, o.outlier_factor,
+                        1.5 * target.edge_length)
+    return points, vertex, target.V, target.normals, 0.5 * w
+
+
+def sample_cost(P, N, target, options):
+    """Robust fit cost per point: squared distance to the target, capped; incompatible = cap."""
+    cap = options.search_cap
+    q, m, d, ok = nearest_compatible(P, N, target, options)
+    plane = np.abs(np.einsum("pc,pc->p", P - q, m))
+    gap = np.where(ok, np.minimum(np.maximum(plane, 0.5 * d), cap), cap)
+    return (gap / cap) ** 2
+
+
+def robust_weights(d, ok, labels, count, factor, floor):
+    """Tukey-style weights with an outlier limit of factor x the median distance per patch.
+
+    Parameters
+    ----------
+    d : (p,) distances     ok : (p,) bool, pairs that passed the normal test
+    labels : (p,) int patch of each pair, or None for one global limit
+    count : int number of patches
+    factor, floor : the limit is max(factor * median, floor)
+
+    Returns
+    -------
+    w : (p,) float in [0, 1]
+    """
+    if labels is None:
+        labels, count = np.zeros(len(d), dtype=np.int64), 1
+    median = np.full(count, np.inf)
+    good = np.flatnonzero(ok)
+    if len(good):
+        order = good[np.lexsort((d[good], labels[good]))]
+        lab = labels[order]
+        starts = np.searchsorted(lab, np.arange(count), side="left")
+        stops = np.searchsorted(lab, np.arange(count), side="right")
+        has = stops > starts
+        middle = (starts + stops - 1) // 2
+        median[has] = d[order[middle[has]]]
+    limit = np.maximum(factor * median, floor)[labels]
+    return np.where(ok & (d < limit), (1.0 - (np.minimum(d, limit) / limit) ** 2) ** 2, 0.0)
+
+
+def closest_points(P, V, F, face_tree, k=6):
+    """Closest points on a mesh among the k faces whose centres (in face_tree) are nearest.
+
+    Returns
+    -------
+    points : (p, 3)   distance : (p,)   face : (p,)   bary : (p, 3)
+    """
+    k = min(k, len(F))
+    _, faces = face_tree.query(P, k=k)
+    faces = faces.reshape(len(P), k)
+    tri = V[F[faces.ravel()]]
+    Pq = np.repeat(P, k, axis=0)
+    points, bary = _closest_on_triangles(Pq, tri[:, 0], tri[:, 1], tri[:, 2])
+    dist = np.linalg.norm(points - Pq, axis=1).reshape(len(P), k)
+    best = np.argmin(dist, axis=1)
+    pick = np.arange(len(P)) * k + best
+    return points[pick], dist[np.arange(len(P)), best], faces[np.arange(len(P)), best], bary[pick]
+
+
+def point_to_mesh_distance(P, V, F, k=6):
+    """Distance from points P to the closest of the k faces (of V, F) with the nearest centres."""
+    centres = V[F].mean(axis=1)
+    k = min(k, len(F))
+    _, faces = cKDTree(centres).query(P, k=k)
+    faces = faces.reshape(len(P), k)
+    tri = V[F[faces.ravel()]]
+    Pq = np.repeat(P, k, axis=0)
+    points, _ = _closest_on_triangles(Pq, tri[:, 0], tri[:, 1], tri[:, 2])
+    return np.linalg.norm(points - Pq, axis=1).reshape(len(P), k).min(axis=1)
+
+
+__all__ = ["TargetSurface", "closest_points", "colour_flow", "correspondences", "nearest_compatible",
+           "normal_cosine", "point_to_mesh_distance", "reverse_correspondences", "robust_weights", "sample_cost"]

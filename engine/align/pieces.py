@@ -1,0 +1,107 @@
+"""Aligning one piece of the similarity tree, in this process or in a worker process.
+
+A piece is a connected part of the tree (:func:`engine.align.propagation.partition_tree`). Its
+frames are aligned breadth first, each from its parent's aligned pose; a frame whose alignment
+scores poorly is aligned again from other already aligned frames of the piece, the most similar
+first, and the best result is kept. A worker process builds its aligner once
+(:func:`init_worker`) and then aligns pieces (:func:`run_piece`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from engine.align.matching import TargetSurface
+from engine.align.pairwise import PairAlignment, PairwiseAligner
+
+
+_WORKER = {}
+
+
+def init_worker(state, ticks):
+    """Process-pool initializer: build the aligner once per worker; ``ticks`` counts frames."""
+    V, F, colors, tets, options, seed = state
+    _WORKER["aligner"] = PairwiseAligner(V, F, colors, tets=tets, options=options, seed=seed)
+    _WORKER["ticks"] = ticks
+
+
+def run_piece(job):
+    """Process-pool task: :func:`align_piece` with the worker's aligner, counting frames as they finish."""
+    ticks = _WORKER.get("ticks")
+    return align_piece(_WORKER["aligner"], job, tick=(lambda: ticks.put(1)) if ticks is not None else None)
+
+
+def align_piece(aligner, job, tick=None):
+    """Align one piece of the tree: its frames in breadth-first order, from the head's parent.
+
+    ``job`` holds: nodes (in order), parents (of each node), meshes (V, F, colors) per node,
+    hints (yaw degrees per node w.r.t. its parent), entry (the head's parent index or -1),
+    entry_pose (its tet pose or None), candidates (frame indices allowed as retry sources:
+    the piece's frames and the entry), similarity (rows of the dissimilarity for the nodes over
+    the candidates, or None), yaw_rows (same shape, yaw of node w.r.t. each candidate),
+    retries, retry_factor, history (qualities from earlier pieces), exports (nodes whose pose
+    other pieces need).
+    """
+    nodes, parents = job["nodes"], job["parents"]
+    poses = {}
+    if job["entry"] >= 0:
+        poses[job["entry"]] = job["entry_pose"]
+    candidates = np.asarray(job["candidates"])
+    column = {int(c): i for i, c in enumerate(candidates)}
+    aligned = np.zeros(len(candidates), dtype=bool)
+    if job["entry"] >= 0:
+        aligned[column[job["entry"]]] = True
+    qualities = list(job["history"])
+    out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "seconds": [],
+           "cpu_seconds": [], "parent": [], "retried": [], "quality": [], "poses": {}}
+    for i, node in enumerate(nodes):
+        node = int(node)
+        cpu_started = time.process_time()
+        if parents[i] < 0:  # the root: its own mesh
+            poses[node] = aligner.V_tet.copy()
+            result = PairAlignment(V=aligner.V.copy(), X=poses[node], residual=0.0, residual_max=0.0)
+            p, retried = -1, False
+        else:
+            V, F, C = job["meshes"][i]
+            target = TargetSurface(V, F, C)
+            p = int(parents[i])
+            result = aligner.align(poses[p], target, yaw=job["hints"][i])
+            spent = result.seconds
+            limit = job["retry_factor"] * np.median(qualities) if len(qualities) >= 10 else np.inf
+            retried = False
+            if job["similarity"] is not None and job["retries"] > 0 and result.quality > limit:
+                retried = True
+                row = job["similarity"][i]
+                usable = np.flatnonzero(aligned & (candidates != p))
+                for j in usable[np.argsort(row[usable], kind="stable")][:job["retries"]]:
+                    source = int(candidates[j])
+                    other = aligner.align(poses[source], target, yaw=float(job["yaw_rows"][i][j]))
+                    spent += other.seconds
+                    if other.quality < result.quality:
+                        result, p = other, source
+                    if result.quality <= limit:
+                        break
+            result.seconds = spent
+            poses[node] = result.X
+            qualities.append(result.quality)
+        aligned[column[node]] = True
+        out["V"].append(result.V.astype(np.float64))
+        out["residual"].append(result.residual)
+        out["residual_max"].append(result.residual_max)
+        out["distortion"].append(result.distortion)
+        out["seconds"].append(result.seconds)
+        out["cpu_seconds"].append(time.process_time() - cpu_started)
+        out["parent"].append(p)
+        out["retried"].append(retried)
+        if parents[i] >= 0:
+            out["quality"].append(result.quality)
+        if node in job["exports"]:
+            out["poses"][node] = result.X
+        if tick is not None:
+            tick()
+    return out
+
+
+__all__ = ["align_piece", "init_worker", "run_piece"]

@@ -1,0 +1,239 @@
+"""Propagating the pairwise alignment over the shape similarity tree (Casas et al. 2012, 3.2).
+
+``aligned = align_tree(aligner, meshes, tree)`` aligns every frame from its parent's aligned
+pose, from the root outwards, so every frame gets the root's vertices and faces. The tree is
+cut into connected pieces (:func:`partition_tree`); each piece is aligned in order by
+:func:`engine.align.pieces.align_piece`, and pieces whose parent piece is done run at the same
+time in worker processes. The result does not depend on the number of workers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.align.pieces import align_piece, init_worker, run_piece
+
+
+@dataclass
+class AlignedFrames:
+    """Every frame in the root mesh's topology.
+
+    Attributes
+    ----------
+    vertices : (N, n, 3) float array   aligned vertices per frame
+    faces : (m, 3) int array           the root mesh's faces
+    residual : (N,) float array        mean two-sided distance to each frame's surface (m)
+    residual_max : (N,) float array
+    distortion : (N,) float array      see :class:`PairAlignment`
+    seconds : (N,) float array         time spent on each frame (all attempts; wall clock)
+    parent : (N,) int array            the frame each was finally aligned from (-1 for the root)
+    retried : (N,) bool array          frames whose first alignment was poor and that were
+                                       aligned again from other frames
+    root : int
+    cpu_seconds : (N,) float array     CPU time of the aligning process per frame (target
+                                       surface set-up and all attempts; all its threads), which
+                                       other load on the machine does not inflate
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    residual: np.ndarray
+    residual_max: np.ndarray
+    distortion: np.ndarray
+    seconds: np.ndarray
+    parent: np.ndarray
+    retried: np.ndarray
+    root: int
+    cpu_seconds: np.ndarray = None
+
+
+def partition_tree(parent, order, chunk):
+    """Cut a rooted tree into connected pieces of about ``chunk`` frames (alignment tasks).
+
+    Parameters
+    ----------
+    parent : (N,) int array   -1 for the root
+    order : (N,) int array    breadth-first order
+    chunk : int
+
+    Returns
+    -------
+    task_of : (N,) int array          the piece of every frame
+    heads : list of int               the first frame of each piece (its parent lies in
+                                      another piece, or it is the root); piece 0 holds the root
+    task_parent : (T,) int array      the piece holding each head's parent (-1 for piece 0)
+
+    Notes
+    -----
+    Bottom-up: a frame whose not-yet-assigned subtree reaches ``chunk`` frames starts a piece.
+    Pieces depend on each other only through their heads' parents, so pieces whose parent
+    piece is done can be aligned at the same time.
+    """
+    parent = np.asarray(parent)
+    order = np.asarray(order)
+    N = len(parent)
+    pending = np.ones(N, dtype=np.int64)
+    cut = np.zeros(N, dtype=bool)
+    for node in order[:0:-1]:
+        if pending[node] >= chunk:
+            cut[node] = True
+        else:
+            pending[parent[node]] += pending[node]
+    cut[order[0]] = True
+    heads = [int(node) for node in order if cut[node]]
+    task_of = np.full(N, -1, dtype=np.int64)
+    for t, head in enumerate(heads):
+        task_of[head] = t
+    for node in order[1:]:
+        if task_of[node] < 0:
+            task_of[node] = task_of[parent[node]]
+    task_parent = np.array([-1] + [int(task_of[parent[h]]) for h in heads[1:]], dtype=np.int64)
+    return task_of, heads, task_parent
+
+
+def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3, retry_factor=2.5, chunk=48,
+               workers=1, progress=None):
+    """Align every frame along a rooted tree, each from its parent's aligned pose.
+
+    Parameters
+    ----------
+    aligner : PairwiseAligner       built on the root frame's mesh
+    meshes : sequence of Mesh-like (vertices, faces, colors) or (V, F[, colors]) tuples, one per
+             frame; colours are used only when the aligner has root colours
+    tree : engine.align.similarity_tree.SimilarityTree (or anything with root, parent, order)
+    yaw : (N, N) array or None      ``yaw[i, j]`` degrees about +Y turning frame j onto frame i
+                                    (from ``engine.align.similarity.dissimilarity_matrix``)
+    dissimilarity : (N, N) array or None
+        With it, a frame whose alignment scores poorly (``PairAlignment.quality`` above
+        ``retry_factor`` times the median so far) is aligned again from up to ``retries`` other
+        already aligned frames of its piece, the most similar first; the best result is kept.
+    chunk : int                     frames per piece of the tree (see :func:`partition_tree`);
+                                    the result does not depend on ``workers``
+    workers : int                   processes aligning independent pieces at the same time
+    progress : callable(done, total) or None
+
+    Returns
+    -------
+    AlignedFrames
+
+    Notes
+    -----
+    Casas et al. 2012, section 3.2: pairwise non-rigid alignment across the branches of the
+    shape similarity tree gives every frame the root's mesh structure.
+    """
+    N = len(meshes)
+    order = np.asarray(tree.order)
+    tree_parent = np.asarray(tree.parent)
+    if len(order) != N or len(tree_parent) != N:
+        raise ValueError(f"the tree has {len(order)} frames, there are {N} meshes")
+    task_of, heads, task_parent = partition_tree(tree_parent, order, max(1, int(chunk)))
+    members = [[] for _ in heads]
+    for node in order:
+        members[task_of[node]].append(int(node))
+    exports = [set() for _ in heads]
+    for t, head in enumerate(heads[1:], start=1):
+        exports[task_parent[t]].add(int(tree_parent[head]))
+    use_colours = aligner.colors is not None
+
+    def job_for(t, history):
+        nodes = members[t]
+        entry = int(tree_parent[heads[t]]) if t > 0 else -1
+        candidates = nodes + ([entry] if entry >= 0 else [])
+        parents = [int(tree_parent[v]) for v in nodes]
+        return {
+            "nodes": nodes, "parents": parents,
+            "meshes": [mesh_arrays(meshes[v], use_colours) for v in nodes],
+            "hints": [None if (yaw is None or p < 0) else float(yaw[v, p]) for v, p in zip(nodes, parents)],
+            "entry": entry, "entry_pose": poses.get(entry), "candidates": candidates,
+            "similarity": None if dissimilarity is None else np.asarray(dissimilarity)[np.ix_(nodes, candidates)],
+            "yaw_rows": None if yaw is None else np.asarray(yaw)[np.ix_(nodes, candidates)],
+            "retries": int(retries) if dissimilarity is not None else 0, "retry_factor": float(retry_factor),
+            "history": history, "exports": exports[t],
+        }
+
+    n = aligner.n_vertices
+    vertices = np.zeros((N, n, 3))
+    residual, residual_max = np.zeros(N), np.zeros(N)
+    distortion, seconds, cpu_seconds = np.zeros(N), np.zeros(N), np.zeros(N)
+    parent = tree_parent.copy()
+    retried = np.zeros(N, dtype=bool)
+    poses = {}
+    qualities = [None] * len(heads)
+    done = 0
+
+    def history(t):
+        found, u = [], task_parent[t]
+        while u >= 0:
+            found.extend(qualities[u])
+            u = task_parent[u]
+        return found
+
+    def tick():
+        nonlocal done
+        done += 1
+        if progress is not None:
+            progress(done, N)
+
+    def collect(t, out):
+        idx = np.asarray(out["nodes"])
+        vertices[idx] = np.stack(out["V"])
+        residual[idx], residual_max[idx] = out["residual"], out["residual_max"]
+        distortion[idx], seconds[idx] = out["distortion"], out["seconds"]
+        cpu_seconds[idx] = out["cpu_seconds"]
+        parent[idx], retried[idx] = out["parent"], out["retried"]
+        poses.update(out["poses"])
+        qualities[t] = out["quality"]
+
+    children = [[] for _ in heads]
+    for t in range(1, len(heads)):
+        children[task_parent[t]].append(t)
+    if workers <= 1 or len(heads) == 1:
+        stack = [0]
+        while stack:
+            t = stack.pop(0)
+            collect(t, align_piece(aligner, job_for(t, history(t)), tick=tick))
+            stack.extend(children[t])
+    else:
+        import multiprocessing
+        import queue as queue_module
+        from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+        context = multiprocessing.get_context("forkserver")
+        ticks = context.Queue()
+        state = (aligner.V, aligner.F, aligner.colors, (aligner.V_tet, aligner.T), aligner.options, aligner.seed)
+        with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=init_worker,
+                                 initargs=(state, ticks)) as pool:
+            running = {pool.submit(run_piece, job_for(0, [])): 0}
+            while running:
+                finished, _ = wait(running, timeout=0.5, return_when=FIRST_COMPLETED)
+                while True:
+                    try:
+                        ticks.get_nowait()
+                    except queue_module.Empty:
+                        break
+                    tick()
+                for future in finished:
+                    t = running.pop(future)
+                    collect(t, future.result())
+                    for c in children[t]:
+                        running[pool.submit(run_piece, job_for(c, history(c)))] = c
+        if progress is not None:
+            progress(N, N)  # ticks still in the queue
+    return AlignedFrames(vertices=vertices, faces=aligner.F.copy(), residual=residual, residual_max=residual_max,
+                         distortion=distortion, seconds=seconds, parent=parent, retried=retried,
+                         root=int(tree.root), cpu_seconds=cpu_seconds)
+
+
+def mesh_arrays(mesh, use_colours):
+    """(V, F, colors or None) arrays of a Mesh-like or a (V, F[, colors]) tuple."""
+    if hasattr(mesh, "vertices"):
+        V, F, C = mesh.vertices, mesh.faces, getattr(mesh, "colors", None)
+    else:
+        V, F, C = mesh[0], mesh[1], (mesh[2] if len(mesh) > 2 else None)
+    return (np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64),
+            None if (C is None or not use_colours) else np.asarray(C, dtype=np.float64))
+
+
+__all__ = ["AlignedFrames", "align_tree", "mesh_arrays", "partition_tree"]

@@ -1,0 +1,69 @@
+"""The pairwise non-rigid aligner and its pieces (rigid fitting, patches) on a small synthetic body."""
+
+import numpy as np
+
+from engine.align import TargetSurface, farthest_point_patches, rotation_fit, surface_coordinates, true_positions
+from engine.rotations import rot_y
+from engine.synthetic.remesh import remesh_frame
+from engine.tetmesh import polar_decomposition
+
+
+def _errors(result_V, capture, aligner, k, transform=None):
+    body, V, _ = capture
+    faces, bary, _ = surface_coordinates(aligner.V, V[0], body.F)
+    truth = true_positions(V[k:k + 1], body.F, faces, bary)[0]
+    if transform is not None:
+        truth = transform(truth)
+    return np.linalg.norm(result_V - truth, axis=1)
+
+
+def test_aligning_the_root_onto_itself_changes_nothing(walk_aligner):
+    aligner = walk_aligner
+    result = aligner.align(aligner.V_tet, TargetSurface(aligner.V, aligner.F))
+    np.testing.assert_allclose(result.V, aligner.V, atol=1e-9)
+    assert result.residual < 1e-9 and result.distortion < 1e-9
+
+
+def test_a_rigidly_moved_remeshed_copy_recovers_the_correspondences(walk_capture, walk_aligner):
+    body, V, _ = walk_capture
+    aligner = walk_aligner
+    R, t = rot_y(np.radians(25.0)), np.array([0.3, 0.02, -0.4])
+    Vb, Fb, _ = remesh_frame(V[0], body.F, None, seed=77)
+    result = aligner.align(aligner.V_tet, TargetSurface(Vb @ R.T + t, Fb))
+    errors = _errors(result.V, walk_capture, aligner, 0, transform=lambda P: P @ R.T + t)
+    assert errors.mean() < 0.15 * aligner.edge_length  # ~5 mm for 5 cm edges
+    assert np.percentile(errors, 95) < 0.5 * aligner.edge_length
+    assert result.residual < 0.003
+
+
+def test_a_bent_copy_is_aligned_within_a_bound(walk_capture, walk_aligner):
+    _, V, frames = walk_capture
+    size = np.ptp(V[0], axis=0).max()
+    for k in (1, 2):
+        Vk, Fk, Ck = frames[k]
+        result = walk_aligner.align(walk_aligner.V_tet, TargetSurface(Vk, Fk, Ck))
+        errors = _errors(result.V, walk_capture, walk_aligner, k)
+        assert errors.mean() < 0.01 * size  # 1% of the model size
+        assert np.percentile(errors, 95) < 0.03 * size
+        assert result.residual < 0.003
+
+
+def test_rotation_fit_finds_the_polar_rotation():
+    rng = np.random.default_rng(0)
+    R, _ = polar_decomposition(rng.normal(size=(50, 3, 3)) * 0.1 + np.eye(3))
+    S = np.eye(3) + 0.05 * rng.normal(size=(50, 3, 3))
+    S = 0.5 * (S + np.swapaxes(S, 1, 2))
+    F = R @ S
+    expected, _ = polar_decomposition(F)
+    np.testing.assert_allclose(rotation_fit(F, np.broadcast_to(np.eye(3), F.shape), iterations=20), expected,
+                               atol=1e-8)
+
+
+def test_patches_are_nested_and_cover_the_surface(walk_aligner):
+    counts = [10, 20, 40]
+    labels = farthest_point_patches(walk_aligner.V, walk_aligner.F, counts, seed=0)
+    for count, label in zip(counts, labels):
+        assert label.min() == 0 and label.max() == count - 1
+        assert len(np.unique(label)) == count
+    again = farthest_point_patches(walk_aligner.V, walk_aligner.F, counts, seed=0)
+    assert all(np.array_equal(a, b) for a, b in zip(labels, again))  # reproducible from the seed
