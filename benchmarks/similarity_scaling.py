@@ -41,7 +41,8 @@ def dataset_frames(dataset):
     manifest = read_capture_manifest(dataset)
     frames = []
     for entry in manifest["sequences"]:
-        frames.extend((m.vertices, m.faces) for m in read_frames(dataset / "sequences" / entry["name"] / "unstructured"))
+        folder = dataset / "sequences" / entry["name"] / "unstructured"
+        frames.extend((m.vertices, m.faces) for m in read_frames(folder))
     return frames
 
 

@@ -1,7 +1,9 @@
 """Blend two or more same-topology meshes: linear, exact non-linear or hybrid.
 
 The way to try morphspace's blending on your own meshes. Non-linear and hybrid blending
-tetrahedralise the first mesh (or --rest), so the meshes must be closed surfaces. Example:
+tetrahedralise the first mesh (or --rest), so the meshes must be closed surfaces. Progress bars on
+stderr follow the stages: read, tetrahedralise, decompose, solve, hybrid (hybrid mode or --compare),
+write. Example:
 
     morphspace blend walk.obj run.obj --weights 0.5 0.5 --mode nonlinear --out half.obj
 """
@@ -25,6 +27,7 @@ from engine.blend import (
 )
 from engine.mesh_io import read_mesh, write_mesh
 from engine.surface import model_size
+from server.progress import StageBars
 
 
 def add_arguments(parser):
@@ -40,8 +43,12 @@ def add_arguments(parser):
                         help="also report linear and hybrid errors against the non-linear blend")
 
 
-def _load(paths):
-    meshes = [read_mesh(p) for p in paths]
+def _load(paths, progress):
+    meshes = []
+    for k, path in enumerate(paths):
+        progress("read", k, len(paths))
+        meshes.append(read_mesh(path))
+    progress("read", len(paths), len(paths))
     first = meshes[0]
     for path, mesh in zip(paths[1:], meshes[1:]):
         if len(mesh.vertices) != len(first.vertices):
@@ -62,40 +69,14 @@ def run(args):
         raise ValueError(f"weights must be finite, non-negative and not all zero, got {args.weights}")
     if args.epsilon_mm <= 0:
         raise ValueError(f"--epsilon-mm must be > 0, got {args.epsilon_mm}")
-    meshes = _load(args.meshes)
-    faces = meshes[0].faces
-    sources = np.stack([m.vertices for m in meshes])[None].astype(np.float32)  # (P=1, N, n, 3)
-    N, n = sources.shape[1:3]
-    linear = LinearBlender(sources, cyclic=True)
-    started = time.perf_counter()
-    result = {}
-    if args.mode == "linear" and not args.compare:
-        V = linear.blend(w, 0.0)
-    else:
-        rest = meshes[0].vertices
-        if args.rest is not None:
-            rest_mesh = read_mesh(args.rest)
-            if rest_mesh.vertices.shape != rest.shape or not np.array_equal(rest_mesh.faces, faces):
-                raise ValueError(f"{args.rest}: the rest mesh must have the same topology as the inputs")
-            rest = rest_mesh.vertices
-        try:
-            embedding = VolumetricEmbedding.from_surface(rest, faces)
-        except ValueError as exc:
-            raise ValueError(f"{args.rest or args.meshes[0]}: non-linear blending needs a closed, consistently "
-                             f"oriented surface to fill with tetrahedra ({exc}); use --mode linear") from None
-        frames = sources[0]
-        q, s, d = decompose_frames(FrameDecomposer(embedding), frames)
-        nonlinear = PhasedNonlinearBlender(NonlinearBlender(embedding, q, s, d, frames), 1, N, cyclic=True)
-        result["nonlinear"] = nonlinear.blend(w, 0.0)
-        result["linear"] = linear.blend(w, 0.0)
-        if args.mode == "hybrid" or args.compare:
-            tree, corrections, report = build_hybrid(
-                linear.blend_all_phases, nonlinear.blend_all_phases, N, 1, n, epsilon=args.epsilon_mm / 1000.0)
-            result["hybrid"] = HybridBlender(sources, tree, corrections, cyclic=True).blend(w, 0.0)
-        V = result[args.mode]
-    write_mesh(args.out, np.asarray(V, dtype=np.float64), faces)
+    bars = StageBars()
+    try:
+        meshes, result, elapsed = _blend(args, w, bars)
+    finally:
+        bars.close()
+    N, n = len(meshes), len(meshes[0].vertices)
     print(f"wrote {args.out}: {args.mode} blend of {N} meshes ({n} vertices) with weights "
-          f"{np.round(w / w.sum(), 4).tolist()} in {time.perf_counter() - started:.2f} s")
+          f"{np.round(w / w.sum(), 4).tolist()} in {elapsed:.2f} s")
     if args.compare:
         size = model_size(meshes[0].vertices)
         for mode in ("linear", "hybrid"):
@@ -103,3 +84,55 @@ def run(args):
             print(f"  {mode:<7} vs non-linear: max {error.max():.4g} ({100 * error.max() / size:.2f}% of model size), "
                   f"mean {error.mean():.4g}")
     return 0
+
+
+def _blend(args, w, progress):
+    """Read, blend and write; ``progress(stage, done, total)`` is told about each stage.
+
+    Returns (meshes, result, seconds): the input meshes, the (n, 3) blends by mode computed on the
+    way (``result[args.mode]`` is the one written), and the seconds from the meshes read to the
+    blend written."""
+    meshes = _load(args.meshes, progress)
+    faces = meshes[0].faces
+    sources = np.stack([m.vertices for m in meshes])[None].astype(np.float32)  # (P=1, N, n, 3)
+    N, n = sources.shape[1:3]
+    linear = LinearBlender(sources, cyclic=True)
+    started = time.perf_counter()
+    result = {}
+    if args.mode == "linear" and not args.compare:
+        progress("solve", 0, 1)
+        result["linear"] = linear.blend(w, 0.0)
+        progress("solve", 1, 1)
+    else:
+        rest = meshes[0].vertices
+        if args.rest is not None:
+            rest_mesh = read_mesh(args.rest)
+            if rest_mesh.vertices.shape != rest.shape or not np.array_equal(rest_mesh.faces, faces):
+                raise ValueError(f"{args.rest}: the rest mesh must have the same topology as the inputs")
+            rest = rest_mesh.vertices
+        progress("tetrahedralise", 0, 1)
+        try:
+            embedding = VolumetricEmbedding.from_surface(rest, faces)
+        except ValueError as exc:
+            raise ValueError(f"{args.rest or args.meshes[0]}: non-linear blending needs a closed, consistently "
+                             f"oriented surface to fill with tetrahedra ({exc}); use --mode linear") from None
+        progress("tetrahedralise", 1, 1)
+        frames = sources[0]
+        progress("decompose", 0, N)
+        q, s, d = decompose_frames(FrameDecomposer(embedding), frames,
+                                   progress=lambda done, total: progress("decompose", done, total))
+        progress("solve", 0, 1)
+        nonlinear = PhasedNonlinearBlender(NonlinearBlender(embedding, q, s, d, frames), 1, N, cyclic=True)
+        result["nonlinear"] = nonlinear.blend(w, 0.0)
+        result["linear"] = linear.blend(w, 0.0)
+        progress("solve", 1, 1)
+        if args.mode == "hybrid" or args.compare:
+            progress("hybrid", 0, 1)
+            tree, corrections, report = build_hybrid(
+                linear.blend_all_phases, nonlinear.blend_all_phases, N, 1, n, epsilon=args.epsilon_mm / 1000.0)
+            result["hybrid"] = HybridBlender(sources, tree, corrections, cyclic=True).blend(w, 0.0)
+            progress("hybrid", 1, 1)
+    progress("write", 0, 1)
+    write_mesh(args.out, np.asarray(result[args.mode], dtype=np.float64), faces)
+    progress("write", 1, 1)
+    return meshes, result, time.perf_counter() - started

@@ -1,4 +1,6 @@
-"""`morphspace blend` on meshes the project did not make, and its errors."""
+"""`morphspace blend` on meshes the project did not make, its progress display, and its errors."""
+
+import re
 
 import numpy as np
 import pytest
@@ -62,6 +64,27 @@ def test_blend_compare_reports_errors(arms, capsys):
                  "--mode", "hybrid", "--compare", "--out", str(folder / "cmp.obj")]) == 0
     out = capsys.readouterr().out
     assert "linear  vs non-linear: max" in out and "hybrid  vs non-linear: max" in out
+
+
+def test_blend_shows_its_stages_on_stderr_and_keeps_stdout_and_output(arms, capsys):
+    folder, V0, V1, F = arms
+    inputs = [str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "1", "3"]
+    assert main(["blend", *inputs, "--mode", "linear", "--out", str(folder / "lin.obj")]) == 0
+    captured = capsys.readouterr()
+    assert re.fullmatch(rf"wrote {re.escape(str(folder / 'lin.obj'))}: linear blend of 2 meshes \({len(V0)} vertices\) "
+                        r"with weights \[0.25, 0.75\] in \d+\.\d\d s\n", captured.out)
+    assert [stage for stage in ("read", "solve", "write") if f"{stage}: 100%" in captured.err] == ["read", "solve",
+                                                                                                     "write"]
+    np.testing.assert_allclose(read_mesh(folder / "lin.obj").vertices, 0.25 * V0 + 0.75 * V1, atol=1e-6)
+
+    assert main(["blend", *inputs, "--mode", "hybrid", "--out", str(folder / "hyb.obj")]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.startswith(f"wrote {folder / 'hyb.obj'}: hybrid blend of 2 meshes")
+    assert captured.out.count("\n") == 1
+    stages = ("read", "tetrahedralise", "decompose", "solve", "hybrid", "write")
+    assert all(f"{stage}: 100%" in captured.err for stage in stages), captured.err
+    assert re.search(r"decompose: 100%\|[^|\r\n]*\| 2/2 ", captured.err)  # one step per source mesh
+    np.testing.assert_array_equal(read_mesh(folder / "hyb.obj").faces, F)
 
 
 def test_blend_errors_are_clear(arms, tmp_path, capsys):
