@@ -89,7 +89,7 @@ def align_captures(meshes, lengths, *, method="tree", root=None, options=None, w
     colours = all(getattr(m, "colors", None) is not None for m in meshes) and use_colors
     started = time.perf_counter()
     if tets is None:
-        tets = tetrahedralize(base.vertices, base.faces, epsilon=(options or AlignmentOptions()).tet_epsilon)
+        tets = tetrahedralize(base.vertices, base.faces, resolution=(options or AlignmentOptions()).tet_resolution)
     timings["tetrahedralize"] = time.perf_counter() - started
     aligner = PairwiseAligner(base.vertices, base.faces, base.colors if colours else None, tets=tets,
                               options=options, seed=seed)

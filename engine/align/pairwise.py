@@ -78,8 +78,8 @@ class AlignmentOptions:
     search_angles : tuple       rotation angles tried about each axis (degrees, both signs)
     search_samples : int        vertices per patch used to score hypotheses
     search_cap : float          distance (m) at which a sample counts as unmatched
-    tet_epsilon : float         fTetWild envelope (fraction of the bounding-box diagonal) when
-                                the root is tetrahedralised here
+    tet_resolution : float      lattice cells along the model size when the root is
+                                tetrahedralised here (``engine.tetmesh.tetrahedralize``)
     """
 
     patches: int = 30
@@ -103,7 +103,7 @@ class AlignmentOptions:
     search_angles: tuple = (30.0, 60.0, 90.0)
     search_samples: int = 24
     search_cap: float = 0.05
-    tet_epsilon: float = 2e-3
+    tet_resolution: float = 48.0
 
 
 @dataclass
@@ -139,11 +139,11 @@ class PairwiseAligner:
 
     Parameters
     ----------
-    V : (n, 3) float array      root surface (closed, outward oriented): its vertices and faces
+    V : (n, 3) float array      root surface (holes are capped for its solid): its vertices and faces
     F : (m, 3) int array        become every aligned frame's
     colors : (n, 3) float array or None   root vertex colours (colour cues when targets have them)
-    tets : (V_tet, T) or None   a tet mesh of the root's solid (default: ``tetrahedralize``,
-                                several seconds: pass a cached one)
+    tets : (V_tet, T) or None   a tet mesh of the root's solid (default: ``tetrahedralize``
+                                at ``options.tet_resolution``)
     options : AlignmentOptions
     seed : int                  for the patch sampling
 
@@ -164,11 +164,10 @@ class PairwiseAligner:
         self.seed = int(seed)
         self.V = np.ascontiguousarray(V, dtype=np.float64)
         self.F = np.ascontiguousarray(F, dtype=np.int64)
-        if not is_closed(self.F):
-            raise ValueError("the root mesh must be a closed surface (it is filled with tetrahedra)")
+        self.closed = is_closed(self.F)
         self.colors = None if colors is None else np.asarray(colors, dtype=np.float64)
         if tets is None:
-            tets = tetrahedralize(self.V, self.F)
+            tets = tetrahedralize(self.V, self.F, resolution=self.options.tet_resolution)
         self.V_tet = np.ascontiguousarray(tets[0], dtype=np.float64)
         self.T = np.ascontiguousarray(tets[1], dtype=np.int64)
         tet, bary, _ = tet_barycentric(self.V, self.V_tet, self.T)
@@ -285,7 +284,7 @@ class PairwiseAligner:
         """Best rigid motion of X onto the target, trying the hinted turn and none."""
         o = self.options
         S = self.B @ X
-        centre = shape_centre(S, self.F, closed=True)
+        centre = shape_centre(S, self.F, closed=self.closed)
         rng = np.random.default_rng(0)
         sample = rng.choice(len(S), size=min(len(S), 600), replace=False)
         normals = vertex_normals(S, self.F)[sample]

@@ -52,7 +52,11 @@ class VolumetricEmbedding:
 
     @classmethod
     def from_surface(cls, V, F, **tetrahedralize_options):
-        """Tetrahedralise a closed rest surface and embed its vertices (takes seconds: cache it)."""
+        """Tetrahedralise a rest surface (holes are capped) and embed its vertices.
+
+        ``tetrahedralize_options`` go to :func:`engine.tetmesh.tetrahedralize` (resolution,
+        cell, min_inside). Deterministic: the same surface gives the same embedding.
+        """
         V_tet, T = tetrahedralize(V, F, **tetrahedralize_options)
         tet, bary, _ = tet_barycentric(V, V_tet, T)
         return cls(V_tet=V_tet, T=T, surface_tet=np.asarray(tet, dtype=np.int64), surface_bary=bary)

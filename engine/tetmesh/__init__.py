@@ -1,8 +1,8 @@
-"""Tetrahedral meshes: tetrahedralise a closed surface, embed the surface, operators G, D, L.
+"""Tetrahedral meshes: tetrahedralise a surface, embed the surface, operators G, D, L.
 
 One function per file, each named after what it returns:
 
-``V_tet, T = tetrahedralize(V, F)``            fill a closed surface (pytetwild)
+``V_tet, T = tetrahedralize(V, F)``            fill a (possibly open) surface: voxel lattice
 ``B = embed_barycentric(P, V_tet, T)``         surface points as tet-vertex combinations
 ``tet_index, W, distance = tet_barycentric(P, V_tet, T)``
 ``F, tet_index = boundary_faces(T)``           outward boundary triangles

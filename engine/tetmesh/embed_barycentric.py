@@ -33,9 +33,9 @@ def embed_barycentric(P, V_tet, T):
 
     Notes
     -----
-    DESIGN.md step 7: fTetWild does not keep the surface vertices, so the surface rides on
-    the tet mesh (Casas et al. 2012, section 4.1, blends per tetrahedron). Points outside the
-    tet mesh (the tet boundary only approximates the surface, within fTetWild's envelope)
+    DESIGN.md step 7: the tet vertices are lattice points, not the surface vertices, so the
+    surface rides on the tet mesh (Casas et al. 2012, section 4.1, blends per tetrahedron). Points outside the
+    tet mesh (the tet boundary only approximates the surface, to within about a lattice cell)
     use the *extrapolated* coordinates of the closest tet, some slightly negative, rather
     than clamped ones: extrapolation reproduces the rest points exactly and still follows
     that tet's affine motion, whereas clamping would snap them onto the boundary. See

@@ -1,80 +1,127 @@
-"""Tetrahedral mesh of the solid bounded by a closed triangle surface (wraps pytetwild)."""
+"""Tetrahedral mesh of the solid a captured surface bounds: a voxel lattice, deterministic."""
 
 from __future__ import annotations
 
-import numpy as np
+import itertools
 
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from ..holes import cap_holes
 from ..surface import enclosed_volume
 from ._validate import as_vertices
+from .occupancy import grid_occupancy
 from .tet_volumes import tet_volumes
 
+# The lattice sits off the surface's own coordinates by an irrational fraction of a cell, so
+# parity rays do not run exactly through vertices or along edges of axis-aligned models.
+_OFFSET = np.array([0.2360679775, 0.4142135624, 0.7320508076])
+# Kuhn (Freudenthal) split of the unit cube into 6 tets along its main diagonal: for each
+# permutation (a, b, c) of the axes, 000 -> e_a -> e_a + e_b -> 111. Neighbouring cubes share
+# the split of every common face, so the tets of any set of cubes form a conforming mesh.
+_KUHN = np.array([[(0, 0, 0), tuple(int(i == a) for i in range(3)),
+                   tuple(int(i in (a, b)) for i in range(3)), (1, 1, 1)]
+                  for a, b, _ in itertools.permutations(range(3))])
 
-def tetrahedralize(V, F, *, edge_length_fac=0.05, epsilon=1e-3, optimize=True, num_threads=0):
-    """Fill a closed surface with tetrahedra (fTetWild through ``pytetwild``).
+
+def tetrahedralize(V, F, *, resolution=56, cell=None, max_cells=4000, min_inside=2):
+    """Fill the solid bounded by a (possibly open) surface with a lattice of tetrahedra.
 
     Parameters
     ----------
-    V : (n, 3) float array     surface vertices
-    F : (m, 3) int array       triangles of a closed (watertight), consistently oriented
-                               surface; an inward-facing surface is flipped first
-    edge_length_fac : float    target tet edge length as a fraction of the bounding-box diagonal
-    epsilon : float            allowed distance of the tet boundary from the surface, as a
-                               fraction of the bounding-box diagonal (fTetWild's envelope)
-    optimize : bool            improve element quality (slower, far fewer vertices)
-    num_threads : int          0 uses every core
+    V : (n, 3) float array   surface vertices
+    F : (m, 3) int array     triangles; holes and open boundaries are capped first, small
+                             cracks and self-intersections are tolerated (three-axis vote)
+    resolution : float       lattice cells along the model size (the largest bounding-box
+                             extent); the default gives cells of 3.1 cm on a 1.75 m body
+    cell : float or None     the cell edge length in the data's units, overriding resolution
+                             and max_cells
+    max_cells : int          cells are made larger when the solid would fill more than about
+                             this many (a box fills its whole bounding box; a body ~15% of it)
+    min_inside : int         a cell is solid when at least this many of its 8 sub-cell centres
+                             are inside the surface (1-8; 2 keeps limbs down to ~half a cell)
 
     Returns
     -------
-    V_tet : (k, 3) float64 array   tet vertices; every one is used by some tet
-    T : (t, 4) int64 array         tetrahedra, all with positive signed volume (tet_volumes)
+    V_tet : (k, 3) float64 array   lattice vertices used by some tet
+    T : (t, 4) int64 array         tetrahedra (6 per solid cell), all positively oriented
 
     Raises
     ------
     ValueError
-        Bad shapes or indices, non-finite coordinates, a surface that is open, non-manifold
-        or inconsistently oriented, or an empty result from pytetwild.
+        Bad shapes, indices or coordinates, or a surface that encloses no cell.
 
     Notes
     -----
-    Step 7 of DESIGN.md (Casas et al. 2012, section 4.1 blends per tetrahedron of a
-    volumetric mesh, their eq. 2). The tet vertices are *not* the surface vertices: fTetWild
-    re-meshes the boundary within ``epsilon`` of the surface, so attach the surface with
-    :func:`embed_barycentric`. For a 1.75 m, 3,000-vertex body the defaults give about
-    3,600 tet vertices and 12,000 tets in 6-8 s; the surface resolution, and hence the count,
-    is set mostly by ``epsilon`` (doubling it roughly halves the count), little by
-    ``edge_length_fac``. fTetWild seeds its randomness from ``std::random_device``, so the
-    mesh differs slightly from run to run and no seed can be given: cache the result.
+    Step 7 of DESIGN.md (Casas et al. 2012, section 4.1 blends per tetrahedron). The tet mesh
+    follows the body's size, not the surface's vertex count: a 10k- or 50k-vertex capture of
+    a body gets the same cells, and the surface rides on them through
+    :func:`embed_barycentric`. Holes are capped (:func:`engine.holes.cap_holes`), the inside
+    is found by ray parity on a grid twice as fine as the cells
+    (:func:`grid_occupancy`), and solid cells are split into Kuhn tets. Tet components that
+    no surface vertex is embedded in (a sliver cut off by the lattice) are dropped, so every
+    component is held by the surface in a fit. Everything is plain arithmetic on the input:
+    the same surface gives the same tets, byte for byte, and nothing is written anywhere.
     """
     V = as_vertices(V, "V")
-    F = _closed_surface_faces(F, len(V))
-    if edge_length_fac <= 0 or epsilon <= 0:
-        raise ValueError(f"edge_length_fac and epsilon must be positive, got {edge_length_fac}, {epsilon}")
-    if enclosed_volume(V, F) < 0:
-        F = F[:, ::-1]
-    import pytetwild  # heavy extension module: imported on first use, not with the engine
+    F = _faces(F, len(V))
+    if not 1 <= int(min_inside) <= 8:
+        raise ValueError(f"min_inside must be 1..8, got {min_inside}")
+    size = float(np.max(V.max(axis=0) - V.min(axis=0)))
+    if not size > 0:
+        raise ValueError("V has no extent: every vertex is at the same place")
+    V_capped, F_capped = cap_holes(V, F)
+    if cell is not None:
+        h = float(cell)
+    else:
+        volume = abs(float(enclosed_volume(V_capped, F_capped)))
+        h = max(size / float(resolution), (volume / max(int(max_cells), 1)) ** (1.0 / 3.0))
+    if not np.isfinite(h) or h <= 0 or size / h > 1000:
+        raise ValueError(f"cell size {h} is not usable for a model of size {size}")
+    lo = V.min(axis=0) - (1.0 + _OFFSET) * h
+    cells = np.ceil((V.max(axis=0) + h - lo) / h).astype(np.int64)
+    half = 0.5 * h
+    inside = grid_occupancy(V_capped, F_capped, lo + 0.5 * half, half, 2 * cells)
+    count = inside.reshape(cells[0], 2, cells[1], 2, cells[2], 2).sum(axis=(1, 3, 5))
+    solid = np.argwhere(count >= int(min_inside))
+    if len(solid) == 0:
+        raise ValueError(f"the surface encloses no lattice cell of {h:.4g} (is it too thin or "
+                         f"open beyond capping? try a smaller cell)")
+    corners = solid[:, None, None, :] + _KUHN[None]                    # (cells, 6, 4, 3)
+    stride = np.array([(cells[1] + 1) * (cells[2] + 1), cells[2] + 1, 1])
+    ids = (corners @ stride).reshape(-1, 4)
+    used, T = np.unique(ids, return_inverse=True)
+    T = T.reshape(-1, 4).astype(np.int64)
+    grid = np.stack(np.unravel_index(used, cells + 1), axis=1)
+    V_tet = lo + grid * h
+    volume = tet_volumes(V_tet, T)
+    flip = volume < 0
+    T[flip] = T[flip][:, [0, 1, 3, 2]]
+    return _held_components(V, V_tet, T)
 
-    V_out, T_out = pytetwild.tetrahedralize(
-        V, np.ascontiguousarray(F, dtype=np.int32), edge_length_fac=float(edge_length_fac),
-        epsilon=float(epsilon), optimize=bool(optimize), num_threads=int(num_threads), quiet=True)
-    V_out = np.asarray(V_out, dtype=np.float64).reshape(-1, 3)
-    T_out = np.asarray(T_out, dtype=np.int64).reshape(-1, 4)
-    if len(T_out) == 0:
-        raise ValueError(f"pytetwild returned no tetrahedra for a surface of {len(V)} vertices "
-                         f"and {len(F)} faces (is it too thin for epsilon={epsilon}?)")
-    volume = tet_volumes(V_out, T_out)
-    T_out, volume = T_out[volume != 0.0], volume[volume != 0.0]  # drop exactly flat tets
-    negative = volume < 0  # fTetWild's tets come negatively oriented
-    T_out[negative] = T_out[negative][:, [0, 1, 3, 2]]
-    used, T = np.unique(T_out, return_inverse=True)
-    return V_out[used], T.reshape(-1, 4).astype(np.int64)
+
+def _held_components(P, V_tet, T):
+    """Drop tet components that no point of P is embedded in (they would float in a fit)."""
+    from .embed_barycentric import tet_barycentric
+
+    n = len(V_tet)
+    rows = np.repeat(T, 4, axis=1).ravel()
+    cols = np.tile(T, (1, 4)).ravel()
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n, n))
+    count, label = connected_components(graph, directed=False)
+    if count == 1:
+        return V_tet, T
+    tet_index, _, _ = tet_barycentric(P, V_tet, T)
+    held = np.zeros(count, dtype=bool)
+    held[label[T[tet_index, 0]]] = True
+    keep = held[label[T[:, 0]]]
+    used, T = np.unique(T[keep], return_inverse=True)
+    return V_tet[used], T.reshape(-1, 4).astype(np.int64)
 
 
-def _closed_surface_faces(F, n_vertices):
-    """``F`` as (m, 3) int64 after checking it is closed, manifold and consistently oriented.
-
-    Each directed edge (i, j) must occur once, and its twin (j, i) once: exactly two faces
-    meet at every edge and they traverse it in opposite directions.
-    """
+def _faces(F, n_vertices):
+    """``F`` as (m, 3) int64 after checking shapes and indices (open surfaces are fine)."""
     F = np.asarray(F)
     if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
         raise ValueError(f"F must be a non-empty (m, 3) array of triangles, got shape {F.shape}")
@@ -83,17 +130,4 @@ def _closed_surface_faces(F, n_vertices):
     F = F.astype(np.int64)
     if F.min() < 0 or F.max() >= n_vertices:
         raise ValueError(f"F indexes vertices outside 0..{n_vertices - 1}")
-    if np.any((F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])):
-        raise ValueError("F has triangles with a repeated vertex")
-    edges = np.stack([F, np.roll(F, -1, axis=1)], axis=-1).reshape(-1, 2)
-    directed, counts = np.unique(edges, axis=0, return_counts=True)
-    if np.any(counts > 1):
-        raise ValueError(f"surface is non-manifold or inconsistently oriented: "
-                         f"{int(np.sum(counts > 1))} directed edges are used by more than one face")
-    code = directed[:, 0] * n_vertices + directed[:, 1]
-    twin = directed[:, 1] * n_vertices + directed[:, 0]
-    open_edges = int(np.sum(~np.isin(twin, code)))
-    if open_edges:
-        raise ValueError(f"surface is not closed (watertight): {open_edges} boundary edges")
     return F
-

@@ -114,8 +114,8 @@ def _blend(args, w, progress):
         try:
             embedding = VolumetricEmbedding.from_surface(rest, faces)
         except ValueError as exc:
-            raise ValueError(f"{args.rest or args.meshes[0]}: non-linear blending needs a closed, consistently "
-                             f"oriented surface to fill with tetrahedra ({exc}); use --mode linear") from None
+            raise ValueError(f"{args.rest or args.meshes[0]}: cannot fill this surface with tetrahedra for "
+                             f"non-linear blending ({exc}); use --mode linear") from None
         progress("tetrahedralise", 1, 1)
         frames = sources[0]
         progress("decompose", 0, N)

@@ -16,7 +16,6 @@ Cycle lengths, key poses and events are found on the meshes.
 
 from __future__ import annotations
 
-import hashlib
 import json
 import time
 import tomllib
@@ -24,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.blend import VolumetricEmbedding
 from engine.mesh_io import read_mesh, read_sequence
 from engine.motion_space import SourceClip, build_motion_space
 from engine.parameters import MEASURES, Layout
@@ -45,8 +43,6 @@ def add_arguments(parser):
                         "template/body.obj, else the first source's first frame)")
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate of sources without meta.json")
     parser.add_argument("--cyclic", action="store_true", help="sources without meta.json are cyclic")
-    parser.add_argument("--cache", type=Path, help="directory caching tetrahedralisations "
-                        "(default: .tetcache next to the output)")
     parser.add_argument("--force", action="store_true", help="replace an existing output file")
 
 
@@ -123,27 +119,6 @@ def read_spec(path):
             "captures": captures, "parameters": parameters}
 
 
-def cached_embedding(cache_dir, rest, faces):
-    """Tetrahedralise the rest surface once: reuse a cached embedding keyed by its content."""
-    key = hashlib.blake2b(np.ascontiguousarray(rest, dtype=np.float64).tobytes()
-                          + np.ascontiguousarray(faces, dtype=np.int64).tobytes(), digest_size=12).hexdigest()
-    path = Path(cache_dir) / f"tets-{key}.npz"
-    if path.is_file():
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                return VolumetricEmbedding(V_tet=data["V_tet"], T=data["T"], surface_tet=data["surface_tet"],
-                                           surface_bary=data["surface_bary"])
-        except (OSError, ValueError, KeyError):
-            path.unlink(missing_ok=True)  # a broken cache entry is rebuilt
-    embedding = VolumetricEmbedding.from_surface(rest, faces)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(tmp, V_tet=embedding.V_tet, T=embedding.T, surface_tet=embedding.surface_tet,
-             surface_bary=embedding.surface_bary)
-    tmp.replace(path)
-    return embedding
-
-
 def load_sources(directories, *, fps, cyclic, progress=None, log=None):
     """SourceClips of ``directories`` and their shared faces; an error names a source whose
     mesh structure differs from the first one's."""
@@ -208,10 +183,8 @@ def run(args):
     rest, _ = choose_rest(clips, faces, rest_path, Path(directories[0]).parent.parent / "template" / "body.obj")
     bars = StageBars()
     started = time.perf_counter()
-    bars("tetrahedralise", 0, 1)
-    embedding = cached_embedding(args.cache or out.parent / ".tetcache", rest, faces)
     report = build_motion_space(out, clips, faces, name=name, n_phases=args.phases or spec["phases"],
-                                epsilon=epsilon_mm / 1000.0, rest=rest, embedding=embedding,
+                                epsilon=epsilon_mm / 1000.0, rest=rest,
                                 parameters=spec["parameters"], progress=bars)
     bars.close()
     hybrid = report["hybrid"]

@@ -298,8 +298,7 @@ class JobService:
         staging = job_dir / f"attempt-{job['attempts']}"
         staging.mkdir(parents=True)
         payload = {"id": job_id, "kind": job["kind"], "attempt": job["attempts"], "params": job["params"],
-                   "data_dir": str(self.settings.data_dir.resolve()), "staging": str(staging.resolve()),
-                   "tetcache": str((self.settings.work_dir / "tetcache").resolve())}
+                   "data_dir": str(self.settings.data_dir.resolve()), "staging": str(staging.resolve())}
         state.log.append(f"attempt {job['attempts']} started on {self.executor.name} executor")
         status, result, error = "failed", None, None
         try:

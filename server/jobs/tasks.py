@@ -4,8 +4,7 @@ The same functions run in a local worker process (server/jobs/worker.py) and on 
 (``dask_entry``). A payload is plain JSON::
 
     {"id": ..., "kind": "build", "attempt": 1, "params": {... the validated request ...},
-     "data_dir": "/srv/data", "staging": "/srv/data/work/jobs/<id>/attempt-1",
-     "tetcache": "/srv/data/work/tetcache"}
+     "data_dir": "/srv/data", "staging": "/srv/data/work/jobs/<id>/attempt-1"}
 
 A task writes only inside ``staging`` and returns a result whose ``output`` names what the
 server then renames into ``spaces/`` or ``datasets/`` (``publish``): a cancelled or failed job
@@ -155,7 +154,7 @@ def check_build_sources(dataset_dir, spec):
 
 def run_build(payload, reporter):
     from engine.motion_space import build_motion_space
-    from server.commands.build import cached_embedding, choose_rest, load_sources, read_spec
+    from server.commands.build import choose_rest, load_sources, read_spec
 
     params, staging = payload["params"], Path(payload["staging"])
     dataset_dir = Path(payload["data_dir"]) / "datasets" / params["dataset"]
@@ -173,13 +172,10 @@ def run_build(payload, reporter):
     except ValueError as exc:
         raise JobError(str(exc).replace(str(dataset_dir) + "/", "")) from None
     reporter.log(note.replace(str(dataset_dir) + "/", ""))
-    reporter.progress("tetrahedralise", 0, 1)
-    embedding = cached_embedding(payload["tetcache"], rest, faces)
-    reporter.progress("tetrahedralise", 1, 1)
     out = staging / f"{params['space']}.mspace"
     epsilon_mm = spec["epsilon_mm"] or 5.0
     report = build_motion_space(out, clips, faces, name=params["space"], n_phases=spec["phases"],
-                                epsilon=epsilon_mm / 1000.0, rest=rest, embedding=embedding,
+                                epsilon=epsilon_mm / 1000.0, rest=rest,
                                 parameters=spec["parameters"], progress=reporter.progress)
     reporter.progress("write", 1, 1)
     hybrid = report["hybrid"]
@@ -199,7 +195,9 @@ def run_build(payload, reporter):
 # --- align ----------------------------------------------------------------------------------------
 def run_align(payload, reporter):
     from engine.align import AlignmentOptions, align_captures
-    from server.commands.align import parse_root, read_inputs, resolve_inputs, write_alignment
+    from engine.surface import model_size
+    from server.commands.align import convert_inputs, parse_root, read_inputs, resolve_inputs, write_alignment
+    from server.units import convention_record
 
     params, staging = payload["params"], Path(payload["staging"])
     datasets = Path(payload["data_dir"]) / "datasets"
@@ -216,6 +214,8 @@ def run_align(payload, reporter):
     started = time.perf_counter()
     meshes, lengths = read_inputs(sequences, reporter.progress)
     reporter.log(f"read {int(lengths.sum())} frames of {len(sequences)} sequences")
+    meshes, convention = convert_inputs(meshes, sequences, params.get("units", "auto"), params.get("up", "auto"),
+                                        say=reporter.log)
     root = parse_root(params.get("root"), sequences, lengths)
     options = AlignmentOptions(patches=params["patches"], levels=params["levels"])
     result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree", root=root,
@@ -225,15 +225,20 @@ def run_align(payload, reporter):
     out.mkdir()
     fps = float((sequences[0].get("meta") or {}).get("fps", 30.0))
     write_alignment(out, sequences, meshes, lengths, result, fps=fps,
-                    options_record={k: params[k] for k in ("patches", "levels", "window", "retries", "seed")},
-                    progress=reporter.progress)
+                    options_record={**{k: params[k] for k in ("patches", "levels", "window", "retries", "seed")},
+                                    "units": params.get("units", "auto"), "up": params.get("up", "auto")},
+                    progress=reporter.progress, convention=convention)
     aligned = result.aligned
+    size = model_size(meshes[aligned.root].vertices)
     reporter.log(f"aligned {int(lengths.sum())} frames in {time.perf_counter() - started:.1f} s")
     return {"output": {"type": "dataset", "name": params["output"], "path": out.name},
             "summary": {"dataset": params["output"], "frames": int(lengths.sum()),
                         "sequences": [s["name"] for s in sequences], "root": int(aligned.root),
                         "residual_mean_mm": float(1000 * aligned.residual.mean()),
                         "residual_max_mm": float(1000 * aligned.residual_max.max()),
+                        "residual_mean_pct": float(100 * aligned.residual.mean() / size),
+                        "residual_max_pct": float(100 * aligned.residual_max.max() / size),
+                        "units": convention_record(convention, size),
                         "seconds": round(time.perf_counter() - started, 2)}}
 
 

@@ -22,4 +22,4 @@ def walk_aligner(walk_capture):
     """A PairwiseAligner on the walk's first unstructured frame."""
     _, _, frames = walk_capture
     V, F, C = frames[0]
-    return PairwiseAligner(V, F, C, tets=tetrahedralize(V, F, epsilon=2e-3))
+    return PairwiseAligner(V, F, C, tets=tetrahedralize(V, F, resolution=48))

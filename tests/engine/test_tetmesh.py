@@ -1,4 +1,4 @@
-"""Tests for engine.tetmesh: exact facts first, then properties, then pytetwild meshes."""
+"""Tests for engine.tetmesh: exact facts first, then properties, then lattice tet meshes."""
 
 from itertools import permutations
 
@@ -12,6 +12,7 @@ from hypothesis.extra.numpy import arrays
 
 from engine.rotations import axis_angle_matrix
 from engine.surface import enclosed_volume
+from engine.tetmesh.occupancy import grid_occupancy
 from engine.tetmesh import (
     boundary_faces,
     deformation_gradients,
@@ -52,9 +53,9 @@ def grid_tets(n, size=1.0):
 
 @pytest.fixture(scope="module")
 def sphere_tets():
-    """An icosphere (radius 1) and its pytetwild tet mesh, computed once for the module."""
+    """An icosphere (radius 1) and its lattice tet mesh, computed once for the module."""
     sphere = trimesh.creation.icosphere(subdivisions=2)
-    V_tet, T = tetrahedralize(sphere.vertices, sphere.faces, edge_length_fac=0.1)
+    V_tet, T = tetrahedralize(sphere.vertices, sphere.faces, resolution=24)
     return sphere.vertices, sphere.faces, V_tet, T
 
 
@@ -224,44 +225,103 @@ def test_quaternions_to_rotations_rejects_zero():
         quaternions_to_rotations(np.zeros(4))
 
 
-# -- tetrahedralize (pytetwild) ---------------------------------------------------------------
+# -- tetrahedralize (voxel lattice) -----------------------------------------------------------
 
-def check_tet_mesh(V_surface, F_surface, V_tet, T):
+def check_tet_mesh(V_surface, F_surface, V_tet, T, rel):
     assert V_tet.dtype == np.float64 and V_tet.shape[1] == 3
     assert T.dtype == np.int64 and T.shape[1] == 4
     np.testing.assert_array_equal(np.unique(T), np.arange(len(V_tet)))  # no unused vertices
     volumes = tet_volumes(V_tet, T)
     assert volumes.min() > 0
-    surface_volume = enclosed_volume(V_surface, F_surface)
-    assert volumes.sum() == pytest.approx(surface_volume, rel=0.02)
+    surface_volume = abs(enclosed_volume(V_surface, F_surface))
+    assert volumes.sum() == pytest.approx(surface_volume, rel=rel)
     F_boundary, _ = boundary_faces(T)
     assert enclosed_volume(V_tet, F_boundary) == pytest.approx(volumes.sum(), rel=1e-12)
 
 
 def test_tetrahedralize_icosphere(sphere_tets):
     V, F, V_tet, T = sphere_tets
-    check_tet_mesh(V, F, V_tet, T)
+    check_tet_mesh(V, F, V_tet, T, rel=0.3)  # cells half inside count as solid: a superset
+    _, _, distance = tet_barycentric(V, V_tet, T)
+    assert np.mean(distance == 0) > 0.5     # most of the surface lies inside the tets
 
 
-def test_tetrahedralize_capsule_given_inside_out():
+def test_tetrahedralize_volume_converges_with_the_half_inside_rule():
+    capsule = trimesh.creation.capsule(height=1.0, radius=0.3, count=[24, 24])
+    errors = []
+    for resolution in (16, 32, 64):
+        V_tet, T = tetrahedralize(capsule.vertices, capsule.faces, resolution=resolution, min_inside=4)
+        errors.append(abs(tet_volumes(V_tet, T).sum() / capsule.volume - 1))
+    assert errors[2] < errors[0] and errors[2] < 0.03
+
+
+def test_tetrahedralize_is_deterministic_and_ignores_orientation():
     capsule = trimesh.creation.capsule(height=1.0, radius=0.3, count=[16, 16])
-    F_inverted = capsule.faces[:, ::-1]
-    V_tet, T = tetrahedralize(capsule.vertices, F_inverted, edge_length_fac=0.1)
-    check_tet_mesh(capsule.vertices, capsule.faces, V_tet, T)
+    first = tetrahedralize(capsule.vertices, capsule.faces, resolution=20)
+    again = tetrahedralize(capsule.vertices.copy(), capsule.faces.copy(), resolution=20)
+    inverted = tetrahedralize(capsule.vertices, capsule.faces[:, ::-1], resolution=20)
+    for a, b in ((first, again), (first, inverted)):
+        assert a[0].tobytes() == b[0].tobytes() and a[1].tobytes() == b[1].tobytes()
+    check_tet_mesh(capsule.vertices, capsule.faces, *first, rel=0.3)
 
 
-def test_tetrahedralize_rejects_open_and_non_manifold_surfaces():
+def test_tetrahedralize_follows_the_shape_not_the_vertex_count():
+    """Midpoint subdivision keeps the surface, and so the cells, while quadrupling the faces."""
+    sphere = trimesh.creation.icosphere(subdivisions=2)
+    V4, F4 = trimesh.remesh.subdivide(sphere.vertices, sphere.faces)
+    V_tet, T = tetrahedralize(sphere.vertices, sphere.faces, resolution=20)
+    V_tet4, T4 = tetrahedralize(V4, F4, resolution=20)
+    assert len(F4) == 4 * len(sphere.faces)
+    np.testing.assert_array_equal(T, T4)
+    np.testing.assert_allclose(V_tet, V_tet4, atol=1e-12)
+
+
+def test_tetrahedralize_open_surface_fills_as_if_capped():
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    closed = tetrahedralize(sphere.vertices, sphere.faces, resolution=20)
+    # a one-triangle hole: its cap lies in the triangle's plane, so the cells are the same
+    one = tetrahedralize(sphere.vertices, sphere.faces[1:], resolution=20)
+    np.testing.assert_array_equal(one[1], closed[1])
+    # a hole round the top: the flat cap cuts off a spherical segment, and no more than that
+    top = np.flatnonzero(sphere.vertices[sphere.faces].min(axis=1)[:, 1] > 0.9)
+    opened = tetrahedralize(sphere.vertices, np.delete(sphere.faces, top, axis=0), resolution=20)
+    segment = np.pi * 0.1 ** 2 * (3 - 0.1) / 3  # the part of the unit ball above y = 0.9
+    lost = tet_volumes(*closed).sum() - tet_volumes(*opened).sum()
+    assert len(top) > 10 and 0 < lost < 2 * segment
+    check_tet_mesh(sphere.vertices, sphere.faces, *opened, rel=0.3)
+
+
+def test_tetrahedralize_drops_cells_no_surface_point_holds():
+    """Two spheres far apart, the second of them with no faces: only the first is filled."""
+    a = trimesh.creation.icosphere(subdivisions=2)
+    V = np.concatenate([a.vertices, a.vertices + [5.0, 0, 0]])
+    V_tet, T = tetrahedralize(V, a.faces, resolution=60)
+    assert V_tet[:, 0].max() < 1.5
+
+
+def test_tetrahedralize_rejects_bad_input():
     sphere = trimesh.creation.icosphere(subdivisions=1)
-    with pytest.raises(ValueError, match="not closed"):
-        tetrahedralize(sphere.vertices, sphere.faces[1:])
-    with pytest.raises(ValueError, match="non-manifold or inconsistently oriented"):
-        F = sphere.faces.copy()
-        F[0] = F[0, ::-1]
-        tetrahedralize(sphere.vertices, F)
     with pytest.raises(ValueError, match="non-empty"):
         tetrahedralize(sphere.vertices, np.zeros((0, 3), dtype=int))
     with pytest.raises(ValueError, match="non-finite"):
         tetrahedralize(np.full_like(sphere.vertices, np.inf), sphere.faces)
+    with pytest.raises(ValueError, match="outside"):
+        tetrahedralize(sphere.vertices, sphere.faces + 1000)
+    with pytest.raises(ValueError, match="encloses no lattice cell"):
+        flat = sphere.vertices * [1.0, 1e-4, 1.0]
+        tetrahedralize(flat, sphere.faces, resolution=8)
+
+
+def test_grid_occupancy_of_a_sphere():
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    h = 0.05
+    origin = np.array([-1.2, -1.2, -1.2]) + 0.013
+    shape = (49, 49, 49)
+    inside = grid_occupancy(sphere.vertices, sphere.faces, origin, h, shape)
+    P = origin + np.stack(np.meshgrid(*[np.arange(s) for s in shape], indexing="ij"), axis=-1) * h
+    radius = np.linalg.norm(P, axis=-1)
+    clear = np.abs(radius - 1.0) > 0.01  # the icosphere lies within 0.5% of the unit sphere
+    np.testing.assert_array_equal(inside[clear], radius[clear] < 1.0)
 
 
 # -- barycentric embedding --------------------------------------------------------------------
@@ -288,8 +348,8 @@ def test_embedding_of_the_sphere_surface(sphere_tets):
     np.testing.assert_allclose(np.asarray(B.sum(axis=1)).ravel(), 1.0, atol=1e-12)
     np.testing.assert_allclose(B @ V_tet, V, atol=1e-9)
     _, _, distance = tet_barycentric(V, V_tet, T)
-    # pytetwild's boundary stays within its envelope (epsilon = 1e-3 of the bbox diagonal).
-    assert distance.max() <= 1e-3 * np.linalg.norm(np.ptp(V, axis=0)) * 1.01
+    # the solid cells reach to within one cell (model size / resolution 24) of the surface
+    assert distance.max() <= np.ptp(V, axis=0).max() / 24
 
 
 def test_points_outside_take_the_closest_boundary_tet(sphere_tets):

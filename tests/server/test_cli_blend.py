@@ -103,14 +103,23 @@ def test_blend_errors_are_clear(arms, tmp_path, capsys):
     assert not (tmp_path / "x.obj").exists()
 
 
-def test_open_surfaces_blend_linearly_and_explain_the_nonlinear_limit(tmp_path, capsys):
-    plane = trimesh.creation.box(extents=(1, 1, 1))
-    V, F = np.asarray(plane.vertices), np.asarray(plane.faces)[:-2]  # a box missing one side
+def test_open_surfaces_blend_non_linearly_and_a_flat_one_is_explained(tmp_path, capsys):
+    box = trimesh.creation.box(extents=(1, 1, 1)).subdivide().subdivide()
+    V, F = np.asarray(box.vertices), np.asarray(box.faces)
+    F = F[V[F].mean(axis=1)[:, 1] < 0.45]  # a box missing its top: holes are capped for the tets
     write_obj(tmp_path / "a.obj", V, F)
     write_obj(tmp_path / "b.obj", V * 1.1, F)
     assert main(["blend", str(tmp_path / "a.obj"), str(tmp_path / "b.obj"), "--weights", "1", "1",
                  "--mode", "linear", "--out", str(tmp_path / "lin.obj")]) == 0
     np.testing.assert_allclose(read_mesh(tmp_path / "lin.obj").vertices, 1.05 * V, atol=1e-9)
     assert main(["blend", str(tmp_path / "a.obj"), str(tmp_path / "b.obj"), "--weights", "1", "1",
-                 "--mode", "nonlinear", "--out", str(tmp_path / "nl.obj")]) == 2
-    assert "closed" in capsys.readouterr().err
+                 "--mode", "nonlinear", "--out", str(tmp_path / "nl.obj")]) == 0
+    half = read_mesh(tmp_path / "nl.obj").vertices
+    # blending a uniform scale's stretch gives the halfway scale, up to where the solve anchors it
+    np.testing.assert_allclose(half - half.mean(axis=0), 1.05 * (V - V.mean(axis=0)), atol=0.01)
+    flat = V * [1.0, 0.0, 1.0]
+    write_obj(tmp_path / "flat.obj", flat, F)
+    assert main(["blend", str(tmp_path / "flat.obj"), str(tmp_path / "b.obj"), "--weights", "1", "1",
+                 "--mode", "nonlinear", "--out", str(tmp_path / "nl2.obj")]) == 2
+    err = capsys.readouterr().err
+    assert "flat.obj" in err and "encloses no lattice cell" in err

@@ -206,7 +206,7 @@ def test_a_job_left_running_by_a_crashed_server_is_run_again(tmp_path, dataset_z
             client.post("/v1/datasets", params={"name": "gaits"}, content=dataset_zip,
                         headers={**AUTH, "Content-Type": "application/zip"}).raise_for_status()
             job = client.post("/v1/jobs", json=build_request("after_crash"), headers=AUTH).json()
-            # past tetrahedralisation (cached by then), so the second attempt is quick
+            # well into the build, so the second attempt has work left to redo
             job = wait_for(client, job["id"], lambda j: j["status"] == "running" and j["progress"] >= 0.3, 90)
         worker = job["worker"]["pid"]
         os.kill(first.process.pid, signal.SIGKILL)  # the server only: the worker must notice by itself
@@ -238,8 +238,11 @@ def test_align_job_writes_a_buildable_dataset(client, live, dataset_zip):
     r = client.post("/v1/datasets", params={"name": "raw", "fps": 10}, content=small.getvalue(),
                     headers={**AUTH, "Content-Type": "application/zip"})
     assert r.status_code == 201 and r.json()["buildable"] == [], r.text
+    bad = client.post("/v1/jobs", headers=AUTH, json={"kind": "align", "datasets": ["raw"], "output": "x",
+                                                      "units": "inch"})
+    assert bad.status_code == 422 and "units" in bad.text
     r = client.post("/v1/jobs", headers=AUTH, json={"kind": "align", "datasets": ["raw"], "output": "raw_aligned",
-                                                    "patches": 10, "levels": 2, "retries": 0})
+                                                    "patches": 10, "levels": 2, "retries": 0, "units": "m"})
     assert r.status_code == 202, r.text
     seen = []
     job = wait_for(client, r.json()["id"], lambda j: j["status"] in FINAL, timeout=90, seen=seen)
@@ -250,3 +253,7 @@ def test_align_job_writes_a_buildable_dataset(client, live, dataset_zip):
     assert info["kind"] == "aligned" and info["buildable"] == sorted(SEQUENCES) and info["frames"] == 6
     assert info["templates"] == ["body.obj"]
     assert job["result"]["url"] == "/v1/datasets/raw_aligned" and job["result"]["frames"] == 6
+    units = job["result"]["units"]  # units as asked for, the up axis detected, said in the log
+    assert (units["units"], units["units_from"], units["up"], units["up_from"]) == ("m", "given", "+Y", "detected")
+    assert any("input units m (given" in line and "up +Y (detected" in line for line in job["log"]), job["log"]
+    assert 0 < job["result"]["residual_mean_pct"] < 1
