@@ -4,8 +4,10 @@ Each DIR is a capture dataset (its sequences/*/unstructured frames are used), on
 directory of a dataset (sequences/<name>, its unstructured/ frames), or any directory or zip of
 per-frame meshes. All frames of all sequences are compared by volumetric shape histograms, a
 shape similarity tree is built over them, and every frame is deformed into the root frame's
-mesh along the tree (Casas et al. 2012, section 3). Output, readable by `morphspace build
---source OUT/sequences/<name>`:
+mesh along the tree (Casas et al. 2012, section 3). Frames in centimetres or millimetres, or
+with +Z up, are converted to metres with +Y up first (--units, --up; detected by default, and
+said on stderr). Output, in metres with +Y up, readable by `morphspace build --source
+OUT/sequences/<name>`:
 
     OUT/sequences/<name>/consistent/frame_0000.obj ...   every frame in the root's mesh
     OUT/sequences/<name>/meta.json                        input meta.json + alignment fields
@@ -14,7 +16,7 @@ mesh along the tree (Casas et al. 2012, section 3). Output, readable by `morphsp
     OUT/similarity.png, OUT/tree.png                      the matrix and the tree (fig. 1c, 1d)
     OUT/aligned_pattern.png                               a pattern fixed on the root, carried
                                                           into aligned frames (fig. 2)
-    OUT/manifest.json
+    OUT/manifest.json                                     + the inputs' units and up axis
 
 Example:
 
@@ -37,7 +39,9 @@ from engine.align import AlignmentOptions, align_captures
 from engine.mesh_io import read_frames, write_obj, write_sequence
 from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
+from engine.mesh_io.units import Convention
 from engine.surface import model_size
+from server.units import add_units_arguments, convention_record, declared_convention, length_text, meshes_to_metres
 
 ALIGNMENT_FORMAT = "morphspace-alignment"
 ALIGNMENT_VERSION = 1
@@ -60,6 +64,7 @@ def add_arguments(parser):
     parser.add_argument("--colors", action="store_true",
                         help="use vertex colours as matching cues when every frame has them")
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate of inputs without meta.json (default 30)")
+    add_units_arguments(parser)
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                         help="worker processes for the dissimilarity matrix (default: up to 2)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (patch sampling; default 0)")
@@ -101,7 +106,9 @@ def resolve_inputs(inputs, only=None):
 
     Returns
     -------
-    sequences : list of dict   name, frames (path of the frame directory or zip), meta (dict or None)
+    sequences : list of dict   name, frames (path of the frame directory or zip), meta (dict or None),
+                               declared (metadata that may say units and up: meta.json, the
+                               dataset manifest's ``body``)
     """
     sequences = []
     for path in inputs:
@@ -118,7 +125,7 @@ def resolve_inputs(inputs, only=None):
                     raise ValueError(f"{path}: no sequence(s) {', '.join(unknown)}; it has {', '.join(names)}")
                 names = [n for n in names if n in only]
             for name in names:
-                sequences.append(_sequence_entry(path / "sequences" / name))
+                sequences.append(_sequence_entry(path / "sequences" / name, manifest.get("body")))
         else:
             if only:
                 raise ValueError("--only selects sequences of a capture dataset; "
@@ -131,7 +138,7 @@ def resolve_inputs(inputs, only=None):
     return sequences
 
 
-def _sequence_entry(path):
+def _sequence_entry(path, body=None):
     meta = None
     if (path / "meta.json").is_file():
         try:
@@ -140,7 +147,12 @@ def _sequence_entry(path):
             raise MeshFormatError(f"{path / 'meta.json'}: unreadable: {exc}") from None
     frames = path / "unstructured" if (path / "unstructured").is_dir() else path
     name = (meta or {}).get("name") or (path.stem if path.suffix.lower() == ".zip" else path.name)
-    return {"name": str(name), "frames": frames, "meta": meta}
+    if body is None and (path.parent.parent / "manifest.json").is_file():  # a sequence of a dataset
+        try:
+            body = read_capture_manifest(path.parent.parent).get("body")
+        except (OSError, ValueError):
+            body = None
+    return {"name": str(name), "frames": frames, "meta": meta, "declared": [meta, body]}
 
 
 def parse_root(text, sequences, lengths):
@@ -183,8 +195,29 @@ def read_inputs(sequences, progress=None):
     return meshes, np.array(lengths, dtype=np.int64)
 
 
-def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_record, progress=None):
-    """Write the aligned frames, metadata, arrays and pictures (see the module docstring)."""
+def convert_inputs(meshes, sequences, units="auto", up="auto", *, say=None):
+    """The frames in metres with +Y up, and the inputs' convention (see ``server.units``).
+
+    ``say(line)`` is told what was decided and any doubt about it.
+    """
+    declared = declared_convention(record for s in sequences for record in s.get("declared", ()))
+    meshes, convention = meshes_to_metres(meshes, units, up, declared=declared)
+    if say is not None:
+        converted = "" if (convention.units, convention.up) == ("m", "y") else "; converted to metres, +Y up"
+        say(f"input {convention.describe()}{converted}")
+        for warning in convention.warnings:
+            say(f"warning: {warning}")
+    return meshes, convention
+
+
+def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_record, progress=None,
+                    convention=None):
+    """Write the aligned frames, metadata, arrays and pictures (see the module docstring).
+
+    ``meshes`` are in metres with +Y up; ``convention`` (engine.mesh_io.Convention) says what the
+    input files were in, recorded in the manifest, the meta.json files and alignment.npz.
+    """
+    convention = convention or Convention()
     from PIL import Image
 
     from engine.align import pattern_sheet, similarity_image, tree_image
@@ -199,6 +232,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
     root_frame = int(root - starts[sequence_of[root]])
     colors = root_mesh.colors
     write_obj(out / "template" / "body.obj", root_mesh.vertices, root_mesh.faces, colors=colors)
+    size = model_size(root_mesh.vertices)
     metas = []
     written = 0
     for k, s in enumerate(sequences):
@@ -212,11 +246,14 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
                                                    "duration": float(lengths[k] / fps), "cyclic": False,
                                                    "frames_per_cycle": None}
         meta["name"] = s["name"]
+        meta["units"], meta["up"] = "m", "+Y"  # what the written frames are in
         meta["alignment"] = {
             "method": result.method, "root": f"{root_sequence}:{root_frame}",
-            "source": str(s["frames"]),
+            "source": str(s["frames"]), "source_units": convention.units, "source_up": convention.up_label,
             "residual_mean_mm": float(1000 * aligned.residual[span].mean()),
             "residual_max_mm": float(1000 * aligned.residual_max[span].max()),
+            "residual_mean_pct": float(100 * aligned.residual[span].mean() / size),
+            "residual_max_pct": float(100 * aligned.residual_max[span].max() / size),
             "retried_frames": int(aligned.retried[span].sum()),
         }
         (base / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
@@ -234,6 +271,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         residual=aligned.residual, residual_max=aligned.residual_max, distortion=aligned.distortion,
         seconds=aligned.seconds, retried=aligned.retried,
         **({} if aligned.cpu_seconds is None else {"cpu_seconds": aligned.cpu_seconds}),
+        source_units=np.array(convention.units), source_up=np.array(convention.up_label),
     )
     names = [s["name"] for s in sequences]
     Image.fromarray(similarity_image(result.similarity.dissimilarity, lengths, names)).save(out / "similarity.png")
@@ -242,9 +280,11 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         out / "aligned_pattern.png")
     write_capture_manifest(out, {
         "aligned": True, "alignment": {"method": result.method, "root": f"{root_sequence}:{root_frame}",
-                                       "options": options_record, "timings_s": result.timings},
+                                       "options": options_record, "timings_s": result.timings,
+                                       "input": convention_record(convention, size)},
         "body": {"vertices": int(len(root_mesh.vertices)), "faces": int(len(root_mesh.faces)),
-                 "model_size": model_size(root_mesh.vertices), "up": "+Y", "units": "m"},
+                 "model_size": size, "up": "+Y", "units": "m",
+                 "source_units": convention.units, "source_up": convention.up_label},
         "fps": fps, "sequences": metas,
     })
 
@@ -263,6 +303,8 @@ def run(args):
     started = time.perf_counter()
     try:
         meshes, lengths = read_inputs(sequences, progress)
+        meshes, convention = convert_inputs(meshes, sequences, args.units, args.up,
+                                            say=lambda line: tqdm.write(f"morphspace align: {line}", file=sys.stderr))
         root = parse_root(args.root, sequences, lengths)
         options = AlignmentOptions(patches=args.patches, levels=args.levels,
                                    colour_weight=AlignmentOptions().colour_weight if not args.colors else 0.5)
@@ -276,8 +318,9 @@ def run(args):
         try:
             write_alignment(staging, sequences, meshes, lengths, result, fps=args.fps,
                             options_record={"patches": args.patches, "levels": args.levels, "window": args.window,
-                                            "retries": args.retries, "colors": bool(args.colors), "seed": args.seed},
-                            progress=progress)
+                                            "retries": args.retries, "colors": bool(args.colors), "seed": args.seed,
+                                            "units": args.units, "up": args.up},
+                            progress=progress, convention=convention)
         except BaseException:
             shutil.rmtree(staging, ignore_errors=True)
             raise
@@ -297,9 +340,13 @@ def run(args):
           f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "
           f"{args.workers} workers ({aligned.seconds.sum() / max(frames - 1, 1):.2f} s, "
           f"{aligned.cpu_seconds.sum() / max(frames - 1, 1):.2f} CPU s per frame and aligner)")
-    print(f"  fit residual mean {1000 * aligned.residual.mean():.2f} mm, max {1000 * aligned.residual_max.max():.1f} mm; "
+    size = model_size(meshes[aligned.root].vertices)
+    print(f"  input {convention.units}, {convention.up_label} up (written in metres, +Y up); fit residual mean "
+          f"{length_text(aligned.residual.mean(), convention, size)}, max "
+          f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "
           f"{int(aligned.retried.sum())} frames re-aligned from other parents")
     return 0
 
 
-__all__ = ["add_arguments", "parse_root", "read_inputs", "resolve_inputs", "run", "write_alignment"]
+__all__ = ["add_arguments", "convert_inputs", "parse_root", "read_inputs", "resolve_inputs", "run",
+           "write_alignment"]

@@ -7,7 +7,9 @@ every other frame. Reports mean, 95th percentile and max correspondence error (m
 model size), the surface fit residual and seconds per frame, and writes DIR/results.json, a
 render of aligned frames textured with a pattern fixed on the root mesh (paper fig. 2,
 DIR/aligned_pattern.png), DIR/similarity.png and DIR/tree.png. With --aligned, scores the output
-of an earlier `morphspace align` instead. Example:
+of an earlier `morphspace align` instead. Frames and ground truth in centimetres or millimetres, or
+with +Z up, are converted to metres with +Y up (--units, --up; detected by default); lengths are
+reported in the data's units (mm for data in metres) and in % of the model size. Example:
 
     morphspace eval-align data/captures/demo --only walk jog jump_low_short --out eval-align
 """
@@ -16,17 +18,21 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from engine.align import AlignmentOptions, align_captures, error_summary, pattern_sheet, score_alignment
 from engine.mesh_io import read_mesh, read_sequence
 from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
+from engine.mesh_io.units import UNITS_PER_METRE, resolve_convention, to_metres_y_up
 from engine.surface import model_size
-from server.commands.align import Progress, parse_root, read_inputs, resolve_inputs
+from server.commands.align import Progress, convert_inputs, parse_root, read_inputs, resolve_inputs
+from server.units import DISPLAY_PER_METRE, add_units_arguments, convention_record, declared_convention
 
 
 def add_arguments(parser):
@@ -44,6 +50,7 @@ def add_arguments(parser):
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                         help="worker processes for the dissimilarity matrix (default: up to 2)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    add_units_arguments(parser)
 
 
 def _truth(dataset, sequences, lengths):
@@ -72,6 +79,8 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
     if residual is not None:
         record["residual_mean_mm"] = round(1000 * float(np.mean(residual)), 3)
         record["residual_max_mm"] = round(1000 * float(np.max(residual_max)), 2)
+        record["residual_mean_pct"] = round(100 * float(np.mean(residual)) / size, 4)
+        record["residual_max_pct"] = round(100 * float(np.max(residual_max)) / size, 3)
     if seconds is not None:
         record["seconds_per_frame"] = round(float(np.sum(seconds)) / max(frames - 1, 1), 3)
     if cpu_seconds is not None:
@@ -80,7 +89,18 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
         record["retried_frames"] = int(np.sum(retried))
     frame_mean = errors.mean(axis=1)
     record["worst_frame_mean_mm"] = round(1000 * float(frame_mean.max()), 2)
+    record["worst_frame_mean_pct"] = round(100 * float(frame_mean.max()) / size, 3)
     return record, errors
+
+
+def _model_size(manifest, convention, truth):
+    """Model size in metres: the manifest's (in its body's units, else the data's), else the truth's."""
+    body = manifest.get("body", {})
+    size = float(body.get("model_size") or 0.0)
+    if size > 0:
+        units = body.get("units") if body.get("units") in UNITS_PER_METRE else convention.units
+        return size / UNITS_PER_METRE[units]
+    return model_size(truth[0])
 
 
 def _load_aligned(directory, dataset_names):
@@ -118,7 +138,6 @@ def run(args):
     out = args.out or dataset.with_name(dataset.name + "-align-eval")
     if args.max_frames is not None and args.max_frames < 2:
         raise ValueError(f"--max-frames must be >= 2, got {args.max_frames}")
-    size = float(manifest.get("body", {}).get("model_size") or 0.0)
     progress = Progress()
     report = {"dataset": str(dataset)}
     started = time.perf_counter()
@@ -128,12 +147,21 @@ def run(args):
             vertices, faces, root, root_vertices, names, lengths, extra = _load_aligned(args.aligned, dataset_names)
             sequences = [{"name": n} for n in names]
             truth, template_faces = _truth(dataset, sequences, lengths)
-            size = size or model_size(truth[0])
+            # the ground truth is in the dataset's units; the aligned frames are in metres, +Y up
+            recorded = read_capture_manifest(args.aligned).get("body", {})
+            declared = declared_convention([{"units": recorded.get("source_units"), "up": recorded.get("source_up")},
+                                            manifest.get("body")])
+            convention = resolve_convention(truth, args.units, args.up, declared_units=declared[0],
+                                            declared_up=declared[1])
+            _say(convention)
+            truth = to_metres_y_up(truth, convention.units, convention.up)
+            size = _model_size(manifest, convention, truth)
             record, _ = _score("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths, names,
                                residual=extra.get("residual"), residual_max=extra.get("residual_max"),
                                seconds=extra.get("seconds"), retried=extra.get("retried"),
                                cpu_seconds=extra.get("cpu_seconds"))
-            report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, aligned=record)
+            report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, aligned=record,
+                          units=convention_record(convention))
             results = {"aligned": (vertices, faces, root_vertices)}
         else:
             sequences = resolve_inputs([dataset], args.only)
@@ -144,11 +172,14 @@ def run(args):
                 meshes = [meshes[i] for i in keep]
                 lengths = np.minimum(lengths, args.max_frames)
             names = [s["name"] for s in sequences]
+            meshes, convention = convert_inputs(meshes, sequences, args.units, args.up, say=_say_line)
             truth, template_faces = _truth(dataset, sequences, lengths)
-            size = size or model_size(truth[0])
+            truth = to_metres_y_up(truth, convention.units, convention.up)
+            size = _model_size(manifest, convention, truth)
             root = parse_root(args.root, sequences, lengths)
             options = AlignmentOptions(colour_weight=0.5 if args.colors else AlignmentOptions().colour_weight)
-            report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names)
+            report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names,
+                          units=convention_record(convention))
             tree_run = align_captures(meshes, lengths, method="tree", root=root, options=options,
                                       workers=args.workers, use_colors=args.colors, seed=args.seed,
                                       progress=progress)
@@ -206,21 +237,36 @@ def run(args):
     return 0
 
 
+def _say_line(line):
+    tqdm.write(f"morphspace eval-align: {line}", file=sys.stderr)
+
+
+def _say(convention):
+    _say_line(f"ground truth {convention.describe()}")
+    for warning in convention.warnings:
+        _say_line(f"warning: {warning}")
+
+
 def _print_report(report, out):
+    units = report["units"]
+    unit = units["display_unit"]
+    scale = DISPLAY_PER_METRE[unit] / 1000.0  # from the records' mm
     print(f"{report['frames']} frames of {len(report['sequences'])} sequences, model size "
-          f"{report['model_size_m']:.3f} m")
+          f"{report['model_size_m']:.3f} m; input in {units['units']} ({units['units_from']}), "
+          f"{units['up']} up ({units['up_from']})")
     if "similarity_seconds" in report:
         print(f"similarity {report['similarity_seconds']:.1f} s, tree {report['tree_seconds']:.3f} s "
               f"(depth max {report['tree']['depth_max']}, mean {report['tree']['depth_mean']})")
-    header = f"{'method':<12}{'mean %':>8}{'p95 %':>8}{'max %':>8}{'mean mm':>9}{'p95 mm':>8}{'max mm':>8}" \
-             f"{'resid mm':>10}{'s/frame':>9}{'CPU s/fr':>9}"
+    header = f"{'method':<12}{'mean %':>8}{'p95 %':>8}{'max %':>8}{'mean ' + unit:>9}{'p95 ' + unit:>8}" \
+             f"{'max ' + unit:>8}{'resid ' + unit:>10}{'s/frame':>9}{'CPU s/fr':>9}"
     print(header)
     for method in ("tree", "sequential", "aligned"):
         r = report.get(method)
         if not r:
             continue
-        print(f"{method:<12}{r['mean_pct']:>8.2f}{r['p95_pct']:>8.2f}{r['max_pct']:>8.1f}{r['mean_mm']:>9.1f}"
-              f"{r['p95_mm']:>8.1f}{r['max_mm']:>8.0f}{r.get('residual_mean_mm', float('nan')):>10.2f}"
+        print(f"{method:<12}{r['mean_pct']:>8.2f}{r['p95_pct']:>8.2f}{r['max_pct']:>8.1f}"
+              f"{scale * r['mean_mm']:>9.1f}{scale * r['p95_mm']:>8.1f}{scale * r['max_mm']:>8.0f}"
+              f"{scale * r.get('residual_mean_mm', float('nan')):>10.2f}"
               f"{r.get('seconds_per_frame', float('nan')):>9.2f}{r.get('cpu_seconds_per_frame', float('nan')):>9.2f}")
     if "sequential_over_tree_mean" in report:
         print(f"sequential / tree mean error: {report['sequential_over_tree_mean']:.2f}x")

@@ -97,6 +97,12 @@ class AlignJob(_Body):
     levels: int = Field(4, ge=1, le=8)
     retries: int = Field(3, ge=0, le=10)
     seed: int = Field(0, ge=0, le=2**31 - 1)
+    units: Literal["auto", "m", "cm", "mm"] = Field(
+        "auto", description="length unit of the input meshes; auto: from the model's size (a person is "
+                            "0.5-2.5 m across), else the dataset's metadata")
+    up: Literal["auto", "y", "z"] = Field(
+        "auto", description="up axis of the input meshes; auto: the longer of the body's Y and Z extents, "
+                            "else the dataset's metadata")
     replace: bool = False
 
 

@@ -1,0 +1,254 @@
+"""Length units and up axis of captured meshes: detection and conversion to metres, +Y up.
+
+Capture files come in metres, centimetres or millimetres, with +Y or +Z up. The engine works in
+metres with +Y up (DESIGN.md conventions), so readers of captures convert on the way in:
+
+``V = to_metres_y_up(V_file, "mm", "z")``      file coordinates -> metres, +Y up
+``V_file = from_metres_y_up(V, "mm", "z")``    and back
+``convention = resolve_convention(frames, units="auto", up="auto")``   what the files are in
+
+Z up becomes Y up by the rotation of -90 degrees about X, ``(x, y, z) -> (x, z, -y)``: a proper
+rotation (faces keep their orientation), and a Z-up scene's front (-Y, as in Blender) faces +Z.
+
+Detection (``auto``) assumes a human-sized subject, whose model size (the largest extent of the
+bounding box) is 0.5-2.5 m: 0.5-2.5 in metres, 50-250 in centimetres, 500-2,500 in millimetres.
+The ranges are a factor of 20 apart, so a person's size names the unit. The up axis is the
+longer of the body's Y and Z extents: a standing or moving body is several times taller than
+it is deep.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+UNITS_PER_METRE = {"m": 1.0, "cm": 100.0, "mm": 1000.0}
+UP_AXES = ("y", "z")
+HUMAN_SIZE_M = (0.5, 2.5)
+UP_RATIO_CONFIDENT = 1.25
+
+
+def _units(units):
+    if units not in UNITS_PER_METRE:
+        raise ValueError(f"units must be one of {', '.join(UNITS_PER_METRE)}, got {units!r}")
+    return units
+
+
+def _up(up):
+    """'y' or 'z' from 'y', 'Y', '+Y', 'z', 'Z', '+Z'."""
+    axis = str(up).strip().lower().lstrip("+")
+    if axis not in UP_AXES:
+        raise ValueError(f"up must be one of y, z (or +Y, +Z), got {up!r}")
+    return axis
+
+
+def to_metres_y_up(V, units="m", up="y"):
+    """Positions in ``units`` with ``up`` up -> metres with +Y up.
+
+    Parameters
+    ----------
+    V : (..., 3) float array   positions in the file's coordinates (one mesh or a sequence)
+    units : {"m", "cm", "mm"}
+    up : {"y", "z"} (or "+Y", "+Z")
+
+    Returns
+    -------
+    V : (..., 3) float64 array   a new array; ``(x, y, z) -> (x, z, -y) / per_metre`` for Z up
+    """
+    V = np.asarray(V, dtype=np.float64)
+    out = V / UNITS_PER_METRE[_units(units)]
+    if _up(up) == "z":
+        out = np.stack([out[..., 0], out[..., 2], -out[..., 1]], axis=-1)
+    return out
+
+
+def from_metres_y_up(V, units="m", up="y"):
+    """The inverse of :func:`to_metres_y_up`: metres, +Y up -> ``units`` with ``up`` up.
+
+    Parameters
+    ----------
+    V : (..., 3) float array   positions in metres, +Y up
+    units : {"m", "cm", "mm"}
+    up : {"y", "z"} (or "+Y", "+Z")
+
+    Returns
+    -------
+    V : (..., 3) float64 array   ``(x, y, z) -> (x, -z, y) * per_metre`` for Z up
+    """
+    V = np.asarray(V, dtype=np.float64)
+    out = V * UNITS_PER_METRE[_units(units)]
+    if _up(up) == "z":
+        out = np.stack([out[..., 0], -out[..., 2], out[..., 1]], axis=-1)
+    return out
+
+
+def detect_units(size):
+    """The unit in which a human-sized model measures ``size`` across.
+
+    Parameters
+    ----------
+    size : float   model size (largest bounding-box extent) in the file's units
+
+    Returns
+    -------
+    units : str    "m", "cm" or "mm"
+    fits : bool    True when ``size`` lies in that unit's human range (0.5-2.5 m); otherwise
+                   ``units`` is the unit whose range is nearest on a log scale (a guess)
+    """
+    size = float(size)
+    if not np.isfinite(size) or size <= 0:
+        raise ValueError(f"model size must be positive and finite, got {size}")
+    gaps = {}
+    for units, per_metre in UNITS_PER_METRE.items():
+        lo, hi = HUMAN_SIZE_M[0] * per_metre, HUMAN_SIZE_M[1] * per_metre
+        if lo <= size <= hi:
+            return units, True
+        gaps[units] = max(np.log(lo / size), np.log(size / hi))
+    return min(gaps, key=gaps.get), False
+
+
+def detect_up(extents):
+    """Up axis from per-frame bounding-box extents: the longer of Y and Z.
+
+    Parameters
+    ----------
+    extents : (frames, 3) float array   each frame's bounding-box extent along x, y, z
+
+    Returns
+    -------
+    up : str          "y" or "z"
+    ratio : float     median over frames of (Y extent / Z extent)
+    confident : bool  the ratio is at least 1.25 (or at most 1 / 1.25)
+    """
+    extents = np.atleast_2d(np.asarray(extents, dtype=np.float64))
+    ratio = float(np.median(extents[:, 1] / np.maximum(extents[:, 2], 1e-300)))
+    up = "y" if ratio >= 1.0 else "z"
+    return up, ratio, bool(max(ratio, 1.0 / max(ratio, 1e-300)) >= UP_RATIO_CONFIDENT)
+
+
+@dataclass(frozen=True)
+class Convention:
+    """Units and up axis of a set of capture files, and how they were decided.
+
+    Attributes
+    ----------
+    units : str          "m", "cm" or "mm"
+    up : str             "y" or "z"
+    units_from : str     "given" (asked for), "detected" (from the model size) or "metadata"
+                         (the dataset's manifest or meta.json said so)
+    up_from : str        the same for the up axis
+    size : float         median over frames of the model size, in ``units``
+    up_ratio : float     median over frames of (Y extent / Z extent)
+    warnings : tuple of str   doubts worth telling the user (ambiguous size or axis, metadata
+                              contradicted by the geometry)
+    """
+
+    units: str = "m"
+    up: str = "y"
+    units_from: str = "given"
+    up_from: str = "given"
+    size: float = float("nan")
+    up_ratio: float = float("nan")
+    warnings: tuple = ()
+
+    @property
+    def per_metre(self):
+        """File units per metre (1, 100 or 1000)."""
+        return UNITS_PER_METRE[self.units]
+
+    @property
+    def up_label(self):
+        """"+Y" or "+Z"."""
+        return "+" + self.up.upper()
+
+    def describe(self):
+        """One line saying what the files are in and why, e.g. for the command line."""
+        units = f"units {self.units} ({self.units_from}"
+        if np.isfinite(self.size):
+            units += f": the model is {self.size:.4g} {self.units} across"
+        up = f"up {self.up_label} ({self.up_from}"
+        if np.isfinite(self.up_ratio) and self.up_ratio > 0:
+            up += f": height / depth {max(self.up_ratio, 1 / self.up_ratio):.2g}"
+        return f"{units}), {up})"
+
+    def to_metadata(self):
+        """JSON record: units, up ("+Y"/"+Z"), units_from, up_from."""
+        return {"units": self.units, "up": self.up_label, "units_from": self.units_from, "up_from": self.up_from}
+
+
+def resolve_convention(frames, units="auto", up="auto", *, declared_units=None, declared_up=None):
+    """Decide the units and up axis of capture frames: as given, else detected, else declared.
+
+    Parameters
+    ----------
+    frames : iterable of (n, 3) float arrays   vertex positions of the frames, file coordinates
+    units : {"auto", "m", "cm", "mm"}          "auto" detects
+    up : {"auto", "y", "z"}                    "auto" detects
+    declared_units, declared_up : str or None  what the dataset's metadata says (manifest
+                                               ``body.units`` / ``body.up``), or None
+
+    Returns
+    -------
+    Convention
+
+    Notes
+    -----
+    With "auto", a confident detection (a human-sized model size, a body clearly taller than
+    deep) wins over the metadata, which is used only when the geometry is ambiguous; every
+    disagreement and every guess is reported in ``warnings``. A given unit or axis is always
+    used, with a warning when the geometry contradicts it.
+    """
+    extents = np.array([np.ptp(np.asarray(V, dtype=np.float64), axis=0) for V in frames], dtype=np.float64)
+    if extents.size == 0:
+        raise ValueError("no frames to decide units and up axis from")
+    size = float(np.median(extents.max(axis=1)))
+    declared_units = None if declared_units in (None, "") else _units(str(declared_units).strip().lower())
+    declared_up = None if declared_up in (None, "") else _up(declared_up)
+    warnings = []
+
+    detected_units, fits = detect_units(size)
+    if units != "auto":
+        chosen_units, units_from = _units(units), "given"
+        if fits and detected_units != chosen_units:
+            warnings.append(f"the model is {size:.4g} {chosen_units} across, not human-sized; "
+                            f"it looks like {detected_units}")
+    elif fits:
+        chosen_units, units_from = detected_units, "detected"
+        if declared_units is not None and declared_units != detected_units:
+            warnings.append(f"the metadata says {declared_units}, but the model is {size:.4g} units across: "
+                            f"using {detected_units} (pass --units {declared_units} to keep the metadata's)")
+    elif declared_units is not None:
+        chosen_units, units_from = declared_units, "metadata"
+    else:
+        chosen_units, units_from = detected_units, "detected"
+        warnings.append(f"the model is {size:.4g} units across, not human-sized in m, cm or mm; guessed "
+                        f"{detected_units} (pass --units to say)")
+
+    detected_up, ratio, confident = detect_up(extents)
+    if up != "auto":
+        chosen_up, up_from = _up(up), "given"
+        if confident and detected_up != chosen_up:
+            warnings.append(f"the body is longer along {detected_up.upper()} than {chosen_up.upper()} "
+                            f"(ratio {max(ratio, 1 / ratio):.2g}); is +{detected_up.upper()} up?")
+    elif confident:
+        chosen_up, up_from = detected_up, "detected"
+        if declared_up is not None and declared_up != detected_up:
+            warnings.append(f"the metadata says +{declared_up.upper()} up, but the body is longer along "
+                            f"{detected_up.upper()}: using +{detected_up.upper()} (pass --up {declared_up} "
+                            "to keep the metadata's)")
+    elif declared_up is not None:
+        chosen_up, up_from = declared_up, "metadata"
+    else:
+        chosen_up, up_from = detected_up, "detected"
+        warnings.append(f"the body's Y and Z extents are alike (ratio {ratio:.2f}); guessed "
+                        f"+{detected_up.upper()} up (pass --up to say)")
+    longest = np.median(extents, axis=0)
+    if longest[0] > UP_RATIO_CONFIDENT * max(longest[1], longest[2]):
+        warnings.append("the body is longest along X; only +Y or +Z up are supported")
+    return Convention(units=chosen_units, up=chosen_up, units_from=units_from, up_from=up_from, size=size,
+                      up_ratio=ratio, warnings=tuple(warnings))
+
+
+__all__ = ["Convention", "HUMAN_SIZE_M", "UNITS_PER_METRE", "UP_AXES", "detect_units", "detect_up",
+           "from_metres_y_up", "resolve_convention", "to_metres_y_up"]
