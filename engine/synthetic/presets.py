@@ -1,10 +1,13 @@
-"""Named capture sets: ``demo`` (everything the demo motion spaces need) and ``tiny`` (tests)."""
+"""Named capture sets: ``demo`` (everything the demo motion spaces need) and ``tiny`` (tests) of the
+procedural body, and ``studio`` / ``studio-tiny`` (``engine.synthetic.studio``: a real body and
+real motion, reconstructed per frame like a multi-view studio)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
 from engine.synthetic.capture import SequenceSpec
+from engine.synthetic.studio.presets import STUDIO_PRESETS
 
 
 @dataclass(frozen=True)
@@ -47,6 +50,7 @@ PRESETS = {
             _gait("walk", 1.0, cycles=1.5), _gait("run", 3.5, cycles=1.5),
             _jump("jump", 0.35, 0.6), _reach("reach", 1.6),
         )),
+    **STUDIO_PRESETS,
 }
 
 

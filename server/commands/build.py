@@ -11,22 +11,27 @@ Examples:
 
 A --source is a capture-dataset sequence directory (its meta.json gives the frame rate and
 whether it is cyclic) or any directory or zip of per-frame meshes (non-cyclic unless --cyclic).
-Cycle lengths, key poses and events are found on the meshes.
+Cycle lengths, key poses and events are found on the meshes. Sources in centimetres or
+millimetres, or with +Z up, are converted to metres with +Y up first (--units, --up; detected by
+default, and said on stderr); the space is in metres, +Y up.
 """
 
 from __future__ import annotations
 
 import json
+import sys
 import time
 import tomllib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from engine.mesh_io import read_mesh, read_sequence
+from engine.mesh_io import read_mesh, read_sequence, resolve_convention, to_metres_y_up
 from engine.motion_space import SourceClip, build_motion_space
 from engine.parameters import MEASURES, Layout
 from server.progress import StageBars
+from server.units import add_units_arguments, declared_convention
 
 LAYOUT_KEYS = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}
 
@@ -43,6 +48,7 @@ def add_arguments(parser):
                         "template/body.obj, else the first source's first frame)")
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate of sources without meta.json")
     parser.add_argument("--cyclic", action="store_true", help="sources without meta.json are cyclic")
+    add_units_arguments(parser)
     parser.add_argument("--force", action="store_true", help="replace an existing output file")
 
 
@@ -155,6 +161,34 @@ def choose_rest(clips, faces, rest_path, template):
     return rest, "resting on the first frame"
 
 
+def sources_to_metres(clips, rest, directories, units="auto", up="auto"):
+    """Sources and rest shape in metres with +Y up, and the sources' convention.
+
+    The metadata consulted when the geometry cannot tell: each source's meta.json and its
+    dataset manifest's ``body`` ("units", "up"; an aligned dataset says m, +Y).
+
+    Returns
+    -------
+    clips : list of SourceClip   rest : (n, 3) float array   convention : engine.mesh_io.Convention
+    """
+    records = []
+    for directory in map(Path, directories):
+        for path, key in ((directory / "meta.json", None), (directory.parent.parent / "manifest.json", "body")):
+            try:
+                record = json.loads(path.read_text()) if path.is_file() else None
+            except (OSError, ValueError):
+                record = None
+            records.append(record.get(key) if key and isinstance(record, dict) else record)
+    declared = declared_convention(records)
+    convention = resolve_convention((V for clip in clips for V in clip.vertices), units, up,
+                                    declared_units=declared[0], declared_up=declared[1])
+    if (convention.units, convention.up) != ("m", "y"):
+        clips = [replace(clip, vertices=to_metres_y_up(clip.vertices, convention.units, convention.up))
+                 for clip in clips]
+        rest = to_metres_y_up(rest, convention.units, convention.up)
+    return clips, rest, convention
+
+
 def run(args):
     if args.spec is None and not args.source:
         raise ValueError("give a spec file or at least two --source sequences")
@@ -181,6 +215,11 @@ def run(args):
     clips, faces = load_sources(directories, fps=args.fps, cyclic=args.cyclic)
     rest_path = args.rest or spec["rest"]
     rest, _ = choose_rest(clips, faces, rest_path, Path(directories[0]).parent.parent / "template" / "body.obj")
+    clips, rest, convention = sources_to_metres(clips, rest, directories, args.units, args.up)
+    converted = "" if (convention.units, convention.up) == ("m", "y") else "; converted to metres, +Y up"
+    print(f"morphspace build: sources in {convention.describe()}{converted}", file=sys.stderr)
+    for warning in convention.warnings:
+        print(f"morphspace build: warning: {warning}", file=sys.stderr)
     bars = StageBars()
     started = time.perf_counter()
     report = build_motion_space(out, clips, faces, name=name, n_phases=args.phases or spec["phases"],

@@ -3,9 +3,12 @@
 Writes a capture dataset (see docs/file-formats.md): for every sequence of the preset, the
 consistent-topology frames, independently re-meshed "unstructured" frames, the ground truth
 (root trajectory, joints, template vertex positions) and the requested and measured parameters,
-plus preview pictures. Example:
+plus preview pictures. The ``studio`` presets use a real body (MakeHuman) and real motion (CMU)
+and reconstruct every frame like a multi-view studio (merged contacts, holes, fragments, noise;
+some sequences written in millimetres and/or Z up). Examples:
 
     morphspace synth --preset demo --out data/captures/demo
+    morphspace synth --preset studio --out data/captures/studio
 """
 
 from __future__ import annotations
@@ -24,19 +27,22 @@ from tqdm import tqdm
 
 from engine.mesh_io.dataset import write_capture_manifest, write_capture_sequence, write_capture_template
 from engine.synthetic import PRESETS, build_body, generate_sequence_data, get_preset
+from engine.synthetic.studio import StudioPreset
 
 
 def add_arguments(parser):
     parser.add_argument("--preset", default="demo", choices=sorted(PRESETS), help="capture set (default demo)")
     parser.add_argument("--out", required=True, type=Path, help="output dataset directory")
-    parser.add_argument("--vertices", type=int, help="body vertex count, 1000..50000 (preset default)")
-    parser.add_argument("--height", type=float, default=1.75, help="body height in metres (default 1.75)")
+    parser.add_argument("--vertices", type=int, help="body vertex count, 1000..50000 (preset default); for the "
+                        "studio presets, the vertex count of each reconstructed frame")
+    parser.add_argument("--height", type=float, help="body height in metres (procedural presets; default 1.75)")
     parser.add_argument("--fps", type=float, help="frames per second (preset default)")
     parser.add_argument("--noise-mm", type=float, help="reconstruction noise of unstructured frames, mm")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="generate only these sequences")
     parser.add_argument("--no-unstructured", action="store_true", help="skip the re-meshed frames")
-    parser.add_argument("--consistent-format", choices=("obj", "ply"), default="obj")
+    parser.add_argument("--consistent-format", choices=("obj", "ply"),
+                        help="consistent frames as obj (default) or ply (default for the studio presets)")
     parser.add_argument("--unstructured-format", choices=("obj", "ply"), default="ply")
     parser.add_argument("--no-previews", action="store_true", help="skip the preview pictures")
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
@@ -62,21 +68,20 @@ def _generate(job):
     body = _body(job["vertices"], job["height"])
     spec = job["spec"]
 
-    def report(done, total):
-        if _PROGRESS is not None:
-            _PROGRESS.put((spec.name, done, total))
+    def progress(done, total):
+        report(spec.name, done, total)
 
     # Progress in frame units: re-meshing counts one per frame, writing two (both versions).
     data = generate_sequence_data(body, spec, fps=job["fps"], noise_mm=job["noise_mm"], seed=job["seed"],
                                   unstructured=job["unstructured"],
-                                  progress=lambda done, total: report(done, 3 * total))
+                                  progress=lambda done, total: progress(done, 3 * total))
     frames = len(data["vertices"])
     offset = frames if job["unstructured"] else 0
     write_capture_sequence(
         job["root"], spec.name, faces=body.F, vertices=data["vertices"], colors=body.colors,
         unstructured=data["unstructured"], truth=data["truth"], meta=data["meta"],
         consistent_format=job["consistent_format"], unstructured_format=job["unstructured_format"],
-        progress=lambda done, total: report(offset + done, offset + total))
+        progress=lambda done, total: progress(offset + done, offset + total))
     if job["previews"]:
         _write_preview(Path(job["root"]) / "previews" / f"{spec.name}.png", body, data)
     return data["meta"]
@@ -109,40 +114,74 @@ def _write_preview(path, body, data):
     Image.fromarray(np.concatenate(images, axis=0)).save(path)
 
 
-def run(args):
-    preset = get_preset(args.preset)
-    vertices = args.vertices or preset.vertices
-    fps = args.fps or preset.fps
-    noise_mm = preset.noise_mm if args.noise_mm is None else args.noise_mm
-    if noise_mm < 0:
-        raise ValueError(f"--noise-mm must be >= 0, got {noise_mm}")
+def report(name, done, total):
+    """In a worker: tell the parent's progress bar that ``done`` of ``total`` units of ``name`` are done."""
+    if _PROGRESS is not None:
+        _PROGRESS.put((name, done, total))
+
+
+def select_sequences(preset, only):
+    """The preset's sequence specs, or only the named ones (a ValueError names unknown ones)."""
     specs = list(preset.sequences)
-    if args.only:
+    if only:
         known = {s.name for s in specs}
-        unknown = [n for n in args.only if n not in known]
+        unknown = [n for n in only if n not in known]
         if unknown:
             raise ValueError(f"unknown sequence(s) {', '.join(unknown)} in preset {preset.name}; "
                              f"known: {', '.join(sorted(known))}")
-        specs = [s for s in specs if s.name in args.only]
-    out = args.out
-    if out.exists() and not args.force:
+        specs = [s for s in specs if s.name in only]
+    return specs
+
+
+def staging_directory(out, force):
+    """A fresh hidden directory next to ``out`` to write into (renamed onto ``out`` when complete)."""
+    if out.exists() and not force:
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
     staging = out.with_name(f".{out.name}.partial-{os.getpid()}")
     if staging.exists():
         shutil.rmtree(staging)
     staging.mkdir(parents=True)
+    return staging
+
+
+def publish(staging, out):
+    """Replace ``out`` by the completed staging directory."""
+    if out.exists():
+        shutil.rmtree(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(staging, out)
+
+
+def run(args):
+    preset = get_preset(args.preset)
+    if isinstance(preset, StudioPreset):
+        from server.commands.synth_studio import run_studio
+
+        return run_studio(args, preset)
+    height = 1.75 if args.height is None else args.height
+    consistent_format = args.consistent_format or "obj"
+    vertices = args.vertices or preset.vertices
+    fps = args.fps or preset.fps
+    noise_mm = preset.noise_mm if args.noise_mm is None else args.noise_mm
+    if noise_mm < 0:
+        raise ValueError(f"--noise-mm must be >= 0, got {noise_mm}")
+    specs = select_sequences(preset, args.only)
+    out = args.out
+    staging = staging_directory(out, args.force)
 
     started = time.perf_counter()
-    body = _body(vertices, args.height)
+    body = _body(vertices, height)
     write_capture_template(staging, body)
-    jobs = [dict(spec=spec, vertices=vertices, height=args.height, fps=fps, noise_mm=noise_mm,
+    jobs = [dict(spec=spec, vertices=vertices, height=height, fps=fps, noise_mm=noise_mm,
                  seed=args.seed * 1000 + i, unstructured=not args.no_unstructured, root=str(staging),
-                 consistent_format=args.consistent_format, unstructured_format=args.unstructured_format,
+                 consistent_format=consistent_format, unstructured_format=args.unstructured_format,
                  previews=not args.no_previews)
             for i, spec in enumerate(specs)]
     metas = {}
     try:
-        metas = _run_jobs(jobs, max(1, args.workers))
+        with worker_pool(args.workers) as pool:
+            results = run_jobs(pool, _generate, jobs)
+        metas = {job["spec"].name: meta for job, meta in zip(jobs, results)}
     except BaseException:
         shutil.rmtree(staging, ignore_errors=True)
         raise
@@ -151,15 +190,12 @@ def run(args):
         "body": {"vertices": int(len(body.V)), "faces": int(len(body.F)), "height": args.height,
                  "model_size": body.size, "up": "+Y", "forward": "+Z", "units": "m"},
         "skeleton": body.skeleton.to_dict(),
-        "consistent_format": args.consistent_format,
+        "consistent_format": consistent_format,
         "unstructured_format": None if args.no_unstructured else args.unstructured_format,
         "sequences": [metas[s.name] for s in specs],
     }
     write_capture_manifest(staging, manifest)
-    if out.exists():
-        shutil.rmtree(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    os.replace(staging, out)
+    publish(staging, out)
     frames = sum(m["frames"] for m in manifest["sequences"])
     print(f"wrote {len(specs)} sequences, {frames} frames, body of {len(body.V)} vertices "
           f"to {out} in {time.perf_counter() - started:.1f} s")
@@ -169,20 +205,37 @@ def run(args):
     return 0
 
 
-def _run_jobs(jobs, workers):
-    """Run jobs in a process pool with one progress bar over all frames written."""
-    context = multiprocessing.get_context("spawn")
-    progress_queue = context.Queue()
-    bar = tqdm(total=0, unit="frame", desc="synth", dynamic_ncols=True, mininterval=0.5)
+class worker_pool:
+    """A spawn-context process pool whose workers report progress to the parent (``report``)."""
+
+    def __init__(self, workers):
+        context = multiprocessing.get_context("spawn")
+        self.queue = context.Queue()
+        self.pool = ProcessPoolExecutor(max_workers=max(1, workers), mp_context=context, initializer=_init_worker,
+                                        initargs=(self.queue,))
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.pool.shutdown(wait=True, cancel_futures=True)
+        return False
+
+
+def run_jobs(pool, function, jobs, desc="synth"):
+    """Run ``function(job)`` for every job on the pool with one progress bar; results in job order.
+
+    Jobs report progress through ``report(name, done, total)``; the bar sums over the names.
+    """
+    bar = tqdm(total=0, unit="frame", desc=desc, dynamic_ncols=True, mininterval=0.5)
     seen = {}
-    metas = {}
-    with ProcessPoolExecutor(max_workers=workers, mp_context=context, initializer=_init_worker,
-                             initargs=(progress_queue,)) as pool:
-        futures = {pool.submit(_generate, job): job["spec"].name for job in jobs}
-        pending = set(futures)
+    futures = {pool.pool.submit(function, job): i for i, job in enumerate(jobs)}
+    results = [None] * len(jobs)
+    pending = set(futures)
+    try:
         while pending:
             try:
-                name, done, total = progress_queue.get(timeout=0.2)
+                name, done, total = pool.queue.get(timeout=0.2)
                 old_done, old_total = seen.get(name, (0, 0))
                 bar.total += total - old_total
                 bar.update(done - old_done)
@@ -192,6 +245,7 @@ def _run_jobs(jobs, workers):
                 pass
             for future in [f for f in pending if f.done()]:
                 pending.discard(future)
-                metas[futures[future]] = future.result()
-    bar.close()
-    return metas
+                results[futures[future]] = future.result()
+    finally:
+        bar.close()
+    return results

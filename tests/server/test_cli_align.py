@@ -8,7 +8,7 @@ import shutil
 import numpy as np
 import pytest
 
-from engine.mesh_io import from_metres_y_up, read_frames, read_mesh, read_sequence, write_ply
+from engine.mesh_io import from_metres_y_up, read_frames, read_mesh, read_sequence, write_obj, write_ply
 from engine.mesh_io.dataset import (
     load_capture_truth,
     read_capture_manifest,
@@ -232,3 +232,28 @@ def test_eval_align_in_millimetres_z_up_scores_as_in_metres(dataset, dataset_mm_
     assert millimetres["model_size_m"] == pytest.approx(metres["model_size_m"])
     assert (millimetres["units"]["units"], millimetres["units"]["up"]) == ("mm", "+Z")
     assert (metres["units"]["units"], metres["units"]["up"]) == ("m", "+Y")
+
+
+def test_build_converts_sources_in_millimetres_z_up(aligned, tmp_path, capsys):
+    spaces = {}
+    for units, up in (("m", "y"), ("mm", "z")):
+        sources = []
+        for name in ("walk", "jog"):
+            copy = tmp_path / units / "sequences" / name
+            sequence = read_sequence(aligned / "sequences" / name / "consistent")
+            for k, V in enumerate(sequence.vertices):
+                write_obj(copy / "consistent" / f"frame_{k:04d}.obj", from_metres_y_up(V, units, up), sequence.faces)
+            meta = json.loads((aligned / "sequences" / name / "meta.json").read_text())
+            meta.update(cyclic=False, units=units, up=f"+{up.upper()}")
+            (copy / "meta.json").write_text(json.dumps(meta))
+            sources += ["--source", str(copy)]
+        spaces[units] = tmp_path / f"{units}.mspace"
+        assert main(["build", *sources, "--out", str(spaces[units]), "--phases", "3"]) == 0
+    err = capsys.readouterr().err
+    assert "sources in units mm (detected" in err and "up +Z (detected" in err and "converted to metres" in err
+    from engine.motion_space import MotionSpace
+
+    with MotionSpace.open(spaces["m"]) as metres, MotionSpace.open(spaces["mm"]) as millimetres:
+        for key in ("sources", "rest", "tet_vertices"):
+            np.testing.assert_allclose(np.asarray(millimetres.container[key]), np.asarray(metres.container[key]),
+                                       atol=1e-6)

@@ -1,0 +1,62 @@
+"""`morphspace synth --preset studio-tiny`: the studio dataset on disk, in the units it declares."""
+
+import json
+
+import numpy as np
+import pytest
+
+from engine.mesh_io import read_frames, read_mesh, read_sequence
+from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
+from engine.surface import SurfaceQuery
+from engine.synthetic.studio.reconstruct import frame_statistics
+from server.cli import main
+
+
+@pytest.fixture(scope="module")
+def studio(tmp_path_factory):
+    out = tmp_path_factory.mktemp("captures") / "studio-tiny"
+    assert main(["synth", "--preset", "studio-tiny", "--out", str(out), "--workers", "2"]) == 0
+    return out
+
+
+def test_layout_manifest_and_declared_units(studio):
+    manifest = read_capture_manifest(studio)
+    assert manifest["preset"] == "studio-tiny" and manifest["consistent_format"] == "ply"
+    assert manifest["body"]["units"] == "m" and manifest["body"]["up"] == "+Y"
+    assert manifest["body"]["model_size"] == pytest.approx(1.666, abs=0.01)  # its height
+    assert set(manifest["body"]["parts"]) == {"body", "skirt", "sleeve_l", "sleeve_r"}
+    template = read_mesh(studio / "template" / "body.obj")
+    assert len(template.vertices) == manifest["body"]["vertices"]
+    declared = {s["name"]: (s["units"], s["up"]) for s in manifest["sequences"]}
+    assert declared == {"walk": ("m", "+Y"), "strikes": ("mm", "+Z"), "contacts": ("m", "+Y")}
+    for name in declared:
+        base = studio / "sequences" / name
+        meta = json.loads((base / "meta.json").read_text())
+        assert len(list((base / "consistent").glob("frame_*.ply"))) == meta["frames"]
+        assert len(list((base / "unstructured").glob("frame_*.ply"))) == meta["frames"]
+        assert len(meta["unstructured_vertex_counts"]) == meta["frames"]
+        assert meta["studio"]["frames_with_holes"] == meta["frames"]
+        assert (studio / "previews" / f"{name}.png").stat().st_size > 50_000
+    assert not (studio / ".work").exists() and not list(studio.parent.glob(".studio-tiny.partial-*"))
+
+
+@pytest.mark.parametrize("name, scale, up", [("walk", 1.0, 1), ("strikes", 1000.0, 2)])
+def test_files_and_truth_share_the_declared_frame(studio, name, scale, up):
+    base = studio / "sequences" / name
+    truth = load_capture_truth(studio, name)
+    consistent = read_sequence(base / "consistent")
+    np.testing.assert_allclose(consistent.vertices, truth["template_positions"], atol=1e-6 * scale)
+    positions = truth["template_positions"]
+    assert positions[..., up].max() == pytest.approx(1.67 * scale, rel=0.06)  # the head is up that axis
+    frames = read_frames(base / "unstructured")
+    for k in (0, len(frames) - 1):
+        V, F = frames[k].vertices, frames[k].faces
+        distance = SurfaceQuery(positions[k], consistent.faces).closest(V)[3]
+        assert 0.001 * scale < np.median(distance) < 0.004 * scale  # 2.5 mm noise, in the file's units
+        stats = frame_statistics(F, len(V))
+        assert stats["boundary_edges"] > 0 and stats["components"] >= 1
+
+
+def test_height_is_refused_for_the_studio(tmp_path, capsys):
+    assert main(["synth", "--preset", "studio-tiny", "--out", str(tmp_path / "x"), "--height", "1.8"]) == 2
+    assert "--height applies to the procedural presets" in capsys.readouterr().err
