@@ -25,7 +25,11 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from engine.mesh_io.dataset import write_capture_manifest, write_capture_sequence, write_capture_template
+from engine.mesh_io.dataset import (
+    write_capture_manifest,
+    write_capture_sequence,
+    write_capture_template,
+)
 from engine.synthetic import PRESETS, build_body, generate_sequence_data, get_preset
 from engine.synthetic.studio import StudioPreset
 

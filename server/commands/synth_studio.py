@@ -38,7 +38,14 @@ from engine.synthetic.studio import (
     to_metres_y_up,
     truth_to_file,
 )
-from server.commands.synth import publish, report, run_jobs, select_sequences, staging_directory, worker_pool
+from server.commands.synth import (
+    publish,
+    report,
+    run_jobs,
+    select_sequences,
+    staging_directory,
+    worker_pool,
+)
 
 CHUNK = 16  # frames per reconstruction job
 WRITERS = {"obj": lambda path, V, F, colors: write_obj(path, V, F, colors=colors, precision=6), "ply": write_ply}

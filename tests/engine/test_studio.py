@@ -204,5 +204,5 @@ def test_contact_poses_merge_limbs(tiny_body):
     from engine.synthetic.studio.sequences import head_marks, reconstruct_frames
 
     truth = {"joint_rotations": motion.rotations, "joint_positions": motion.positions}
-    meshes, stats = reconstruct_frames(tiny_body, V, head_marks(tiny_body, truth), camera, seed=0, frames=[6])
+    _, stats = reconstruct_frames(tiny_body, V, head_marks(tiny_body, truth), camera, seed=0, frames=[6])
     assert stats[0]["merged"] > 0

@@ -8,10 +8,26 @@ holes and open boundaries change from frame to frame, fragments float, noise lie
 normals. Files may be written in millimetres or Z up (``axes``); the ground truth stays metres, Y up.
 """
 
-from engine.synthetic.studio.axes import axes_record, from_metres_y_up, to_file, to_metres_y_up, truth_to_file
-from engine.synthetic.studio.body import PARTS, StudioBody, StudioSkeleton, build_studio_body
+from engine.synthetic.studio.axes import (
+    axes_record,
+    from_metres_y_up,
+    to_file,
+    to_metres_y_up,
+    truth_to_file,
+)
+from engine.synthetic.studio.body import (
+    PARTS,
+    StudioBody,
+    StudioSkeleton,
+    build_studio_body,
+)
 from engine.synthetic.studio.bvh import Bvh, BvhError, forward_kinematics, parse_bvh
-from engine.synthetic.studio.presets import STUDIO, STUDIO_PRESETS, STUDIO_TINY, StudioPreset
+from engine.synthetic.studio.presets import (
+    STUDIO,
+    STUDIO_PRESETS,
+    STUDIO_TINY,
+    StudioPreset,
+)
 from engine.synthetic.studio.reconstruct import StudioCamera, reconstruct_frame
 from engine.synthetic.studio.retarget import SkeletonMotion, retarget
 from engine.synthetic.studio.sequences import (

@@ -101,7 +101,7 @@ def _decimate(V, F, weight_index, weight, target):
         Vd, Fd = fast_simplification.simplify(V, F, target_count=2 * target - 4, agg=agg)
         Vd, Fd = np.asarray(Vd, dtype=float), np.asarray(Fd, dtype=np.int64)
         directed = np.concatenate([Fd[:, [0, 1]], Fd[:, [1, 2]], Fd[:, [2, 0]]])
-        edges, counts = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+        _, counts = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
         if np.all(counts == 2) and len(np.unique(directed, axis=0)) == len(directed) \
                 and len(np.unique(Fd)) == len(Vd):
             break
@@ -193,7 +193,7 @@ def build_studio_body(vertices=FULL_VERTICES, garment_detail=1.0):
 
     soft = np.clip(0.8 * w("pelvis", "spine_01") + 0.6 * w("thigh_l", "thigh_r") + 0.5 * w("spine_02", "spine_03")
                    + 0.4 * w("upperarm_l", "upperarm_r"), 0.0, 1.0) * (part == 0)
-    colors = _colors(V_all, w, part, params)
+    colors = _colors(V_all, w, params)
     return StudioBody(V=V_all, F=np.concatenate(all_F), skeleton=skeleton, weight_index=weight_index,
                       weight=weight, segment=segment, soft_tissue=soft, garment=np.concatenate(lag),
                       colors=colors, part=part)
@@ -207,7 +207,7 @@ def _garment_part(V, F, W, amplitude, u, s):
     return V, F, index, weight, amplitude, u, s
 
 
-def _colors(V, w, part, params):
+def _colors(V, w, params):
     """Skin, a striped top, dark leggings, shoes; a checked skirt and banded sleeves."""
     skin = np.array([0.86, 0.68, 0.56])
     top_a, top_b = np.array([0.20, 0.55, 0.60]), np.array([0.90, 0.90, 0.82])

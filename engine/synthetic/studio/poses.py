@@ -12,7 +12,11 @@ import numpy as np
 
 from engine.rotations import frame_from_direction, rot_x, rot_z
 from engine.synthetic.kinematics import minimum_jerk, two_bone_ik
-from engine.synthetic.studio.retarget import SkeletonMotion, blend_rotations, body_forward_kinematics
+from engine.synthetic.studio.retarget import (
+    SkeletonMotion,
+    blend_rotations,
+    body_forward_kinematics,
+)
 
 SIDES = (("l", 1.0), ("r", -1.0))
 

@@ -14,6 +14,7 @@ fragments, and noise along the normals.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import fast_simplification
 import numpy as np
@@ -115,19 +116,19 @@ def contact_vertices(V_rest, V, *, radius=0.012, rest_gap=0.06):
     return contact
 
 
-_SPHERES = {}
+@lru_cache(maxsize=4)
+def _icosphere(subdivisions):
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    return np.asarray(sphere.vertices), np.asarray(sphere.faces, dtype=np.int64)
 
 
 def _fragment(rng, centre, size, subdivisions=1):
     """A small lumpy closed blob (an icosphere, scaled and dented)."""
-    if subdivisions not in _SPHERES:  # a cache of constant meshes, not state
-        import trimesh
-
-        sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
-        _SPHERES[subdivisions] = (np.asarray(sphere.vertices), np.asarray(sphere.faces, dtype=np.int64))
-    V, F = _SPHERES[subdivisions]
+    V, F = _icosphere(subdivisions)
     V = V * size * rng.uniform(0.5, 1.0, 3)
-    V *= 1.0 + 0.25 * rng.uniform(-1, 1, (len(V), 1))
+    V = V * (1.0 + 0.25 * rng.uniform(-1, 1, (len(V), 1)))
     return V + centre, F
 
 

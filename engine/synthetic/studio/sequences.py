@@ -14,7 +14,11 @@ from engine.synthetic.dynamics import SOFT_TISSUE, Material, secondary_motion
 from engine.synthetic.skinning import skin_dual_quaternion
 from engine.synthetic.studio.axes import axes_record
 from engine.synthetic.studio.poses import pose_sequence
-from engine.synthetic.studio.reconstruct import StudioCamera, contact_vertices, reconstruct_frame
+from engine.synthetic.studio.reconstruct import (
+    StudioCamera,
+    contact_vertices,
+    reconstruct_frame,
+)
 from engine.synthetic.studio.retarget import concatenate, retarget, root_trajectory
 
 LOOSE_GARMENT = Material(frequency=1.5, damping=0.2, cap=0.10)  # skirt and sleeves lag the body
