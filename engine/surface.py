@@ -216,3 +216,48 @@ class SurfaceQuery:
         best = np.argmin(dist, axis=1)
         pick = np.arange(q) * c + best
         return points[pick], flat_faces[pick], bary[pick], dist[np.arange(q), best]
+
+
+def main_components(V, F, *, min_fraction=0.05):
+    """Drop the small disconnected pieces of a surface (floating reconstruction fragments).
+
+    Parameters
+    ----------
+    V : (n, 3) float array
+    F : (m, 3) int array
+    min_fraction : float   a connected piece is kept when its area is at least this fraction of
+                           the largest piece's area
+
+    Returns
+    -------
+    V_kept : (k, 3) float array   the vertices of the kept pieces, in their original order
+    F_kept : (l, 3) int64 array   their faces, re-indexed
+    kept : (k,) int64 array       original index of each kept vertex (``V_kept == V[kept]``)
+
+    Notes
+    -----
+    Multi-view reconstructions leave small blobs around the performer (noise, props' shadows,
+    a studio's edges); as part of a root mesh they would become part of every aligned frame,
+    and as part of a target they attract matches. Pieces connected through a shared vertex
+    count as one.
+    """
+    from scipy.sparse.csgraph import connected_components
+
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    n = len(V)
+    rows = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
+    cols = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
+    count, label = connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)),
+                                        directed=False)
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    piece_area = np.bincount(label[F[:, 0]], weights=area, minlength=count)
+    keep_piece = piece_area >= min_fraction * piece_area.max()
+    keep_face = keep_piece[label[F[:, 0]]]
+    if keep_face.all() and len(np.unique(F)) == n:
+        return V, F, np.arange(n)
+    kept = np.unique(F[keep_face])
+    index = np.full(n, -1, dtype=np.int64)
+    index[kept] = np.arange(len(kept))
+    return V[kept], index[F[keep_face]], kept
+

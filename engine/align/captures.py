@@ -16,6 +16,7 @@ from engine.align.pairwise import AlignmentOptions, PairwiseAligner
 from engine.align.propagation import AlignedFrames, align_tree
 from engine.align.similarity import shape_dissimilarity
 from engine.align.similarity_tree import chain_tree, similarity_tree
+from engine.surface import main_components
 
 
 @dataclass
@@ -87,17 +88,20 @@ def align_captures(meshes, lengths, *, method="tree", root=None, options=None, w
     timings["tree"] = time.perf_counter() - started
     base = meshes[tree.root]
     colours = all(getattr(m, "colors", None) is not None for m in meshes) and use_colors
+    # the root's floating fragments would become part of every aligned frame: leave them out
+    V_root, F_root, kept = main_components(base.vertices, base.faces)
+    C_root = np.asarray(base.colors)[kept] if colours else None
     started = time.perf_counter()
     if tets is None:
-        tets = tetrahedralize(base.vertices, base.faces, resolution=(options or AlignmentOptions()).tet_resolution)
+        tets = tetrahedralize(V_root, F_root, resolution=(options or AlignmentOptions()).tet_resolution)
     timings["tetrahedralize"] = time.perf_counter() - started
-    aligner = PairwiseAligner(base.vertices, base.faces, base.colors if colours else None, tets=tets,
-                              options=options, seed=seed)
+    aligner = PairwiseAligner(V_root, F_root, C_root, tets=tets, options=options, seed=seed)
     started = time.perf_counter()
     aligned = align_tree(aligner, meshes, tree, yaw=similarity.yaw,
                          dissimilarity=similarity.dissimilarity if method == "tree" else None,
                          retries=retries if method == "tree" else 0, workers=workers,
                          progress=(lambda d, t: progress("align", d, t)) if progress else None)
+    aligned.root_kept = kept
     timings["align"] = time.perf_counter() - started
     return CaptureAlignment(similarity=similarity, tree=tree, aligned=aligned, timings=timings, method=method,
                             tets=tets)

@@ -12,7 +12,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from engine.align.shape_histogram import shape_centre
-from engine.surface import _closest_on_triangles, vertex_normals
+from engine.surface import _closest_on_triangles, main_components, vertex_normals
 
 
 class TargetSurface:
@@ -23,14 +23,19 @@ class TargetSurface:
     V : (m, 3) float array
     F : (l, 3) int array
     colors : (m, 3) float array in [0, 1] or None
+
+    Small floating pieces (reconstruction fragments, :func:`engine.surface.main_components`)
+    are left out, so they attract no matches.
     """
 
     def __init__(self, V, F, colors=None):
-        self.V = np.ascontiguousarray(V, dtype=np.float64)
+        V = np.asarray(V, dtype=np.float64)
+        if V.ndim != 2 or V.shape[1] != 3 or len(V) < 4:
+            raise ValueError(f"target vertices must have shape (m >= 4, 3), got {V.shape}")
+        V, F, kept = main_components(V, F)
+        self.V = np.ascontiguousarray(V)
         self.F = np.ascontiguousarray(F, dtype=np.int64)
-        if self.V.ndim != 2 or self.V.shape[1] != 3 or len(self.V) < 4:
-            raise ValueError(f"target vertices must have shape (m >= 4, 3), got {self.V.shape}")
-        self.colors = None if colors is None else np.asarray(colors, dtype=np.float64)
+        self.colors = None if colors is None else np.asarray(colors, dtype=np.float64)[kept]
         self.normals = vertex_normals(self.V, self.F)
         self.tree = cKDTree(self.V)
         self.face_centres = self.V[self.F].mean(axis=1)

@@ -158,7 +158,7 @@ class PairwiseAligner:
     """
 
     def __init__(self, V, F, colors=None, *, tets=None, options=None, seed=0):
-        from engine.tetmesh import tet_barycentric, tet_gradient, tetrahedralize
+        from engine.tetmesh import tet_barycentric, tet_gradient, tet_laplacian, tet_volumes, tetrahedralize
 
         self.options = options or AlignmentOptions()
         self.seed = int(seed)
@@ -187,9 +187,8 @@ class PairwiseAligner:
         self.patch_samples = [patch_samples(labels, count, o.search_samples, rng)
                               for labels, count in zip(self.patch_labels, counts)]
         self._search_rotations = rotation_set(o.search_angles)
-        probe = DeformationSolver(self.V_tet, self.T)
-        self._tet_volume = probe.volumes
-        scale = float(probe.L.diagonal().mean())
+        self._tet_volume = np.abs(tet_volumes(self.V_tet, self.T))
+        scale = float(tet_laplacian(self.V_tet, self.T).diagonal().mean())
         weights = sorted(set(list(o.stiffness[:o.levels]) + [o.final_stiffness]))
         self._solvers = {w: DeformationSolver(self.V_tet, self.T, constraints=self.B,
                                               constraint_weight=np.sqrt(w * scale)) for w in weights}

@@ -35,6 +35,9 @@ class AlignedFrames:
     cpu_seconds : (N,) float array     CPU time of the aligning process per frame (target
                                        surface set-up and all attempts; all its threads), which
                                        other load on the machine does not inflate
+    root_vertices : (n, 3) float array   the root mesh as every frame numbers its vertices (the
+                                       captured root without its floating fragments)
+    root_kept : (n,) int array         index of each in the captured root mesh's vertices
     """
 
     vertices: np.ndarray
@@ -47,6 +50,8 @@ class AlignedFrames:
     retried: np.ndarray
     root: int
     cpu_seconds: np.ndarray = None
+    root_vertices: np.ndarray = None
+    root_kept: np.ndarray = None
 
 
 def partition_tree(parent, order, chunk):
@@ -223,7 +228,8 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
             progress(N, N)  # ticks still in the queue
     return AlignedFrames(vertices=vertices, faces=aligner.F.copy(), residual=residual, residual_max=residual_max,
                          distortion=distortion, seconds=seconds, parent=parent, retried=retried,
-                         root=int(tree.root), cpu_seconds=cpu_seconds)
+                         root=int(tree.root), cpu_seconds=cpu_seconds, root_vertices=aligner.V.copy(),
+                         root_kept=np.arange(len(aligner.V)))
 
 
 def mesh_arrays(mesh, use_colours):

@@ -230,9 +230,9 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
     sequence_of = np.repeat(np.arange(len(sequences)), lengths)
     root_sequence = sequences[int(sequence_of[root])]["name"]
     root_frame = int(root - starts[sequence_of[root]])
-    colors = root_mesh.colors
-    write_obj(out / "template" / "body.obj", root_mesh.vertices, root_mesh.faces, colors=colors)
-    size = model_size(root_mesh.vertices)
+    colors = None if root_mesh.colors is None else np.asarray(root_mesh.colors)[aligned.root_kept]
+    write_obj(out / "template" / "body.obj", aligned.root_vertices, aligned.faces, colors=colors)
+    size = model_size(aligned.root_vertices)
     metas = []
     written = 0
     for k, s in enumerate(sequences):
@@ -282,7 +282,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         "aligned": True, "alignment": {"method": result.method, "root": f"{root_sequence}:{root_frame}",
                                        "options": options_record, "timings_s": result.timings,
                                        "input": convention_record(convention, size)},
-        "body": {"vertices": int(len(root_mesh.vertices)), "faces": int(len(root_mesh.faces)),
+        "body": {"vertices": int(len(aligned.root_vertices)), "faces": int(len(aligned.faces)),
                  "model_size": size, "up": "+Y", "units": "m",
                  "source_units": convention.units, "source_up": convention.up_label},
         "fps": fps, "sequences": metas,
@@ -334,13 +334,13 @@ def run(args):
     t = result.timings
     frames = int(lengths.sum())
     print(f"aligned {frames} frames of {len(sequences)} sequences to {out} in {time.perf_counter() - started:.1f} s "
-          f"({result.method}, root {aligned.root}, {len(meshes[aligned.root].vertices)} vertices)")
+          f"({result.method}, root {aligned.root}, {len(aligned.root_vertices)} vertices)")
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
           f"{result.tree.components} components reconnected), tetrahedralise {t['tetrahedralize']:.1f} s, "
           f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "
           f"{args.workers} workers ({aligned.seconds.sum() / max(frames - 1, 1):.2f} s, "
           f"{aligned.cpu_seconds.sum() / max(frames - 1, 1):.2f} CPU s per frame and aligner)")
-    size = model_size(meshes[aligned.root].vertices)
+    size = model_size(aligned.root_vertices)
     print(f"  input {convention.units}, {convention.up_label} up (written in metres, +Y up); fit residual mean "
           f"{length_text(aligned.residual.mean(), convention, size)}, max "
           f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "

@@ -201,11 +201,11 @@ def run(args):
             results = {}
             for method, result in runs.items():
                 a = result.aligned
-                record, _ = _score(method, a.vertices, root, meshes[root].vertices, truth, template_faces, size,
+                record, _ = _score(method, a.vertices, root, a.root_vertices, truth, template_faces, size,
                                    lengths, names, residual=a.residual, residual_max=a.residual_max,
                                    seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds)
                 report[method] = {**report.get(method, {}), **record}
-                results[method] = (a.vertices, a.faces, meshes[root].vertices)
+                results[method] = (a.vertices, a.faces, a.root_vertices)
             if "sequential" in report:
                 report["sequential_over_tree_mean"] = round(report["sequential"]["mean_mm"]
                                                             / max(report["tree"]["mean_mm"], 1e-9), 2)

@@ -229,7 +229,7 @@ def run_align(payload, reporter):
                                     "units": params.get("units", "auto"), "up": params.get("up", "auto")},
                     progress=reporter.progress, convention=convention)
     aligned = result.aligned
-    size = model_size(meshes[aligned.root].vertices)
+    size = model_size(aligned.root_vertices)
     reporter.log(f"aligned {int(lengths.sum())} frames in {time.perf_counter() - started:.1f} s")
     return {"output": {"type": "dataset", "name": params["output"], "path": out.name},
             "summary": {"dataset": params["output"], "frames": int(lengths.sum()),

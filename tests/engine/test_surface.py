@@ -66,3 +66,20 @@ def test_points_on_the_surface_are_their_own_closest_points(sphere):
     points, _, _, distance = SurfaceQuery(V, F).closest(P)
     assert distance.max() < 1e-12
     np.testing.assert_allclose(points, P, atol=1e-12)
+
+
+def test_main_components_drops_small_floating_pieces_and_keeps_the_order():
+    import trimesh
+
+    from engine.surface import main_components
+
+    body = trimesh.creation.icosphere(subdivisions=2)
+    blob = trimesh.creation.icosphere(subdivisions=1, radius=0.05)
+    V = np.concatenate([blob.vertices + [3.0, 0, 0], body.vertices])
+    F = np.concatenate([blob.faces, body.faces + len(blob.vertices)])
+    V_kept, F_kept, kept = main_components(V, F)
+    np.testing.assert_array_equal(kept, np.arange(len(blob.vertices), len(V)))
+    np.testing.assert_array_equal(V_kept, body.vertices)
+    np.testing.assert_array_equal(F_kept, body.faces)
+    same = main_components(body.vertices, body.faces)  # one piece: given back as it is
+    assert same[0] is not None and len(same[2]) == len(body.vertices)
