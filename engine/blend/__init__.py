@@ -5,7 +5,8 @@
 [0, 1] on the sources' common phase grid. ``MotionSpace`` builds them from a motion-space file.
 """
 
-from engine.blend.hybrid import Corrections, HybridBlender, HybridReport, build_hybrid
+from engine.blend.corrections import Corrections
+from engine.blend.hybrid import HybridBlender, HybridReport, build_hybrid
 from engine.blend.linear import LinearBlender
 from engine.blend.nonlinear import (
     FrameDecomposer,

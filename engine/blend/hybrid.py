@@ -20,95 +20,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from engine.blend.corrections import CorrectionBuilder, Corrections
 from engine.blend.phase import phase_samples
 from engine.blend.simplex import SimplexTree
-
-QUANT_LEVELS = 127  # int8 range used by quantised corrections
-
-
-@dataclass
-class Corrections:
-    """Hierarchical sparse corrections, one entry list per (reference, phase sample).
-
-    Attributes
-    ----------
-    n_phases : int
-    pointer : (R * P + 1,) int64       entries of reference r at phase p: pointer[r*P+p] .. [r*P+p+1]
-    vertex : (E,) uint16 or uint32     vertex of each entry
-    value : (E, 3) int8                quantised residual delta (multiply by ``scale[r*P+p]``)
-    scale : (R * P,) float32           metres per quantisation step, per reference and phase
-
-    Notes
-    -----
-    Quantisation error is at most half a step per component, max |delta| / 254 for that
-    reference and phase; the bisection measures errors with these stored values.
-    """
-
-    n_phases: int
-    pointer: np.ndarray
-    vertex: np.ndarray
-    value: np.ndarray
-    scale: np.ndarray
-
-    @property
-    def n_references(self):
-        return len(self.scale) // self.n_phases
-
-    def nbytes(self):
-        """Storage of the corrections (what the motion-space file holds)."""
-        return self.pointer.nbytes + self.vertex.nbytes + self.value.nbytes + self.scale.nbytes
-
-    def entries(self, r, p):
-        k = r * self.n_phases + p
-        s, e = self.pointer[k], self.pointer[k + 1]
-        return self.vertex[s:e], self.value[s:e], self.scale[k]
-
-    def dense(self, r, n_vertices):
-        """(P, n, 3) float32 residual delta of reference r (for analysis and tests)."""
-        out = np.zeros((self.n_phases, n_vertices, 3), dtype=np.float32)
-        for p in range(self.n_phases):
-            vertex, value, scale = self.entries(r, p)
-            out[p, vertex] = value * scale
-        return out
-
-
-class _CorrectionBuilder:
-    """Accumulates quantised sparse residuals reference by reference."""
-
-    def __init__(self, n_phases, n_vertices):
-        self.n_phases, self.n_vertices = n_phases, n_vertices
-        self.vertex_dtype = np.uint16 if n_vertices <= np.iinfo(np.uint16).max + 1 else np.uint32
-        self.counts, self.vertices, self.values, self.scales = [], [], [], []
-
-    def add(self, delta, threshold):
-        """Store (P, n, 3) residual ``delta`` where |delta| > threshold; returns what is stored."""
-        keep = np.linalg.norm(delta, axis=2) > threshold
-        stored = np.zeros_like(delta, dtype=np.float32)
-        for p in range(self.n_phases):
-            index = np.flatnonzero(keep[p])
-            peak = float(np.abs(delta[p, index]).max()) if len(index) else 0.0
-            scale = np.float32(peak / QUANT_LEVELS if peak > 0 else 1.0)
-            q = np.clip(np.rint(delta[p, index] / scale), -QUANT_LEVELS, QUANT_LEVELS).astype(np.int8)
-            self.counts.append(len(index))
-            self.vertices.append(index.astype(self.vertex_dtype))
-            self.values.append(q)
-            self.scales.append(scale)
-            stored[p, index] = q * scale
-        return stored
-
-    def add_empty(self):
-        self.counts += [0] * self.n_phases
-        self.vertices += [np.zeros(0, self.vertex_dtype)] * self.n_phases
-        self.values += [np.zeros((0, 3), np.int8)] * self.n_phases
-        self.scales += [np.float32(1.0)] * self.n_phases
-
-    def finish(self):
-        pointer = np.concatenate([[0], np.cumsum(self.counts)]).astype(np.int64)
-        return Corrections(n_phases=self.n_phases, pointer=pointer,
-                           vertex=np.concatenate(self.vertices).astype(self.vertex_dtype),
-                           value=np.concatenate(self.values).reshape(-1, 3).astype(np.int8),
-                           scale=np.asarray(self.scales, dtype=np.float32))
-
 
 class HybridBlender:
     """Real-time hybrid blends of N sources on a phase grid.
@@ -269,7 +183,7 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
             cache[key] = np.asarray(nonlinear(w), dtype=np.float64)
         return cache[key]
 
-    store = _CorrectionBuilder(n_phases, n_vertices)
+    store = CorrectionBuilder(n_phases, n_vertices)
     nodal = {}  # reference -> (P, n, 3) represented D (sources: None = zero)
     for r in range(n_sources):
         store.add_empty()

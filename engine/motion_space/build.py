@@ -46,7 +46,8 @@ from engine.timewarp import (
 )
 
 SPACE_FORMAT = "morphspace-motion-space"
-SPACE_VERSION = 2  # 2: root-local time-warped sources, root rates, int8 hierarchical corrections
+SPACE_VERSION = 3  # 2: root-local time-warped sources, root rates, int8 hierarchical corrections;
+                   # 3: correction rows' vertex sets as index lists or bitmasks (corrections_mask)
 
 
 @dataclass
@@ -372,9 +373,8 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
         "nl_quaternions": quaternions, "nl_stretch": stretch, "nl_detail": detail,
         "hybrid_references": tree.references, "hybrid_cells": tree.cells.astype(np.int32),
         "hybrid_children": tree.children.astype(np.int32), "hybrid_split": tree.split.astype(np.int32),
-        "corrections_pointer": corrections.pointer, "corrections_vertex": corrections.vertex,
-        "corrections_value": corrections.value, "corrections_scale": corrections.scale,
     }
+    arrays.update({f"corrections_{key}": value for key, value in corrections.to_arrays().items()})
     if parameter_map is not None:
         arrays.update(parameter_map.to_arrays())
     timings["total_s"] = time.perf_counter() - started

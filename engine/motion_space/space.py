@@ -121,9 +121,9 @@ class MotionSpace:
     @cached_property
     def corrections(self):
         c = self.container
-        return Corrections(n_phases=self.n_phases, pointer=c["corrections_pointer"],
-                           vertex=c["corrections_vertex"], value=c["corrections_value"],
-                           scale=c["corrections_scale"])
+        return Corrections.from_arrays(self.n_phases, self.n_vertices,
+                                       {key: c[f"corrections_{key}"]
+                                        for key in ("pointer", "vertex", "mask", "value", "scale")})
 
     def blender(self, mode):
         """The blender for ``mode`` ("linear", "hybrid" or "nonlinear"), built once."""

@@ -3,7 +3,16 @@
 import numpy as np
 import pytest
 
-from engine.motion_space import MotionSpace, MotionSpaceError, SourceClip, build_motion_space, prepare_sources
+from engine.blend.corrections import Corrections
+from engine.motion_space import (
+    Container,
+    MotionSpace,
+    MotionSpaceError,
+    SourceClip,
+    build_motion_space,
+    prepare_sources,
+    write_container,
+)
 from engine.synthetic import animate, build_body, gait, jump
 
 
@@ -74,6 +83,36 @@ def test_bad_blend_requests_are_clear_errors(space_path, weights, phase, match):
             space.blend(weights, phase)
         with pytest.raises(ValueError, match="unknown blend mode"):
             space.blender("cubic")
+
+
+def test_corrections_round_trip_through_the_file_exactly(space_path, tmp_path):
+    with MotionSpace.open(space_path) as space:
+        corrections = space.corrections
+        stored = {name[len("corrections_"):]: np.asarray(space.container[name])
+                  for name in space.container.names if name.startswith("corrections_")}
+        assert corrections.nbytes() == space.metadata["hybrid"]["correction_bytes"]
+        assert corrections.nbytes() == sum(a.nbytes for a in stored.values())
+        # Re-encoding what was decoded gives the file's arrays back, byte for byte.
+        again = corrections.to_arrays()
+        assert again.keys() == stored.keys()
+        for name, array in stored.items():
+            assert again[name].dtype == array.dtype and again[name].tobytes() == array.tobytes(), name
+        # And the other way: in-memory corrections -> file -> the same corrections.
+        path = write_container(tmp_path / "c.mspace", corrections.to_arrays(), {})
+        with Container.open(path) as container:
+            loaded = Corrections.from_arrays(space.n_phases, space.n_vertices, dict(container))
+            for name in ("pointer", "vertex", "value", "scale"):
+                np.testing.assert_array_equal(getattr(loaded, name), getattr(corrections, name))
+                assert getattr(loaded, name).dtype == getattr(corrections, name).dtype
+
+
+def test_space_from_an_older_version_is_refused(space_path, tmp_path):
+    with Container.open(space_path) as container:
+        metadata = {**container.metadata, "version": 2}
+        old = write_container(tmp_path / "old.mspace", {name: container[name] for name in container}, metadata)
+    with pytest.raises(MotionSpaceError, match=r"version 2 is from an older morphspace; rebuild the space") as error:
+        MotionSpace.open(old)
+    assert str(old) in str(error.value)
 
 
 def test_truncated_space_file_is_a_clear_error(space_path, tmp_path):
