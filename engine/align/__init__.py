@@ -11,6 +11,8 @@ One module per step, in pipeline order:
 ``pairwise``         ``PairwiseAligner(V, F).align(X, target)``      one frame onto another
 ``pieces``           one piece of the tree aligned (with retries), here or in a worker process
 ``propagation``      ``align_tree(aligner, meshes, tree)``           every frame from its parent
+``repair``           ``repair_alignment(aligner, meshes, aligned)``  per-frame confidence; slipped
+                     frames aligned again from the root and trusted frames
 ``captures``         ``align_captures(meshes, lengths)``             all of the above, end to end
 ``evaluation``       ``score_alignment``, the pattern pictures (fig. 2)
 """
@@ -31,6 +33,7 @@ from engine.align.matching import TargetSurface
 from engine.align.pairwise import AlignmentOptions, PairAlignment, PairwiseAligner
 from engine.align.patches import farthest_point_patches
 from engine.align.propagation import AlignedFrames, align_tree, partition_tree
+from engine.align.repair import alignment_confidence, repair_alignment
 from engine.align.rigid import rotation_fit
 from engine.align.shape_histogram import (
     best_rotation,
@@ -81,7 +84,8 @@ __all__ = [
     "AlignmentOptions", "PairAlignment", "PairwiseAligner", "TargetSurface", "farthest_point_patches",
     "rotation_fit",
     # propagation
-    "AlignedFrames", "CaptureAlignment", "align_captures", "align_tree", "partition_tree",
+    "AlignedFrames", "CaptureAlignment", "align_captures", "align_tree", "alignment_confidence", "partition_tree",
+    "repair_alignment",
     # evaluation
     "correspondence_errors", "error_summary", "pattern_colors", "pattern_frames", "pattern_render",
     "pattern_sheet", "score_alignment", "surface_coordinates", "true_positions",

@@ -14,6 +14,7 @@ import numpy as np
 
 from engine.align.pairwise import AlignmentOptions, PairwiseAligner
 from engine.align.propagation import AlignedFrames, align_tree
+from engine.align.repair import alignment_confidence, repair_alignment
 from engine.align.similarity import shape_dissimilarity
 from engine.align.similarity_tree import chain_tree, similarity_tree
 from engine.surface import main_components
@@ -43,7 +44,7 @@ class CaptureAlignment:
 
 
 def align_captures(meshes, lengths, *, method="tree", root=None, options=None, window=2, workers=1,
-                   retries=3, tets=None, use_colors=True, seed=0, similarity=None, progress=None):
+                   retries=3, tets=None, use_colors=True, seed=0, similarity=None, repair=True, progress=None):
     """Shape similarity, tree and alignment of unstructured frames of several sequences.
 
     Parameters
@@ -64,8 +65,10 @@ def align_captures(meshes, lengths, *, method="tree", root=None, options=None, w
     use_colors : bool           use vertex colours as cues when every frame has them
     seed : int
     similarity : ShapeSimilarity or None   reuse an earlier computation on the same frames
+    repair : bool               with the tree: align frames of low confidence again from the
+                                root and trusted similar frames (:mod:`engine.align.repair`)
     progress : callable(stage, done, total) or None
-        stages "histograms", "dissimilarity", "align"
+        stages "histograms", "dissimilarity", "align", "repair"
 
     Returns
     -------
@@ -103,8 +106,28 @@ def align_captures(meshes, lengths, *, method="tree", root=None, options=None, w
                          progress=(lambda d, t: progress("align", d, t)) if progress else None)
     aligned.root_kept = kept
     timings["align"] = time.perf_counter() - started
+    started = time.perf_counter()
+    if method == "tree" and repair:
+        repair_alignment(aligner, meshes, aligned, dissimilarity=similarity.dissimilarity, yaw=similarity.yaw,
+                         candidates=retries, progress=(lambda d, t: progress("repair", d, t)) if progress else None)
+    else:
+        _confidence_only(aligned)
+    timings["repair"] = time.perf_counter() - started
     return CaptureAlignment(similarity=similarity, tree=tree, aligned=aligned, timings=timings, method=method,
                             tets=tets)
+
+
+
+
+def _confidence_only(aligned):
+    """Fill ``confidence`` (and an all-false ``repaired``) without aligning anything again."""
+    from engine.surface import model_size
+
+    aligned.confidence = alignment_confidence(aligned.residual, aligned.distortion_tail,
+                                              model_size(aligned.root_vertices))
+    aligned.confidence[aligned.root] = 1.0
+    aligned.repaired = np.zeros(len(aligned.confidence), dtype=bool)
+    return aligned
 
 
 __all__ = ["CaptureAlignment", "align_captures"]

@@ -41,8 +41,7 @@ def align_piece(aligner, job, tick=None):
     entry_pose (its tet pose or None), candidates (frame indices allowed as retry sources:
     the piece's frames and the entry), similarity (rows of the dissimilarity for the nodes over
     the candidates, or None), yaw_rows (same shape, yaw of node w.r.t. each candidate),
-    retries, retry_factor, history (qualities from earlier pieces), exports (nodes whose pose
-    other pieces need).
+    retries, retry_factor, history (qualities from earlier pieces).
     """
     nodes, parents = job["nodes"], job["parents"]
     poses = {}
@@ -54,7 +53,7 @@ def align_piece(aligner, job, tick=None):
     if job["entry"] >= 0:
         aligned[column[job["entry"]]] = True
     qualities = list(job["history"])
-    out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "seconds": [],
+    out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "tail": [], "seconds": [],
            "cpu_seconds": [], "parent": [], "retried": [], "quality": [], "poses": {}}
     for i, node in enumerate(nodes):
         node = int(node)
@@ -91,14 +90,14 @@ def align_piece(aligner, job, tick=None):
         out["residual"].append(result.residual)
         out["residual_max"].append(result.residual_max)
         out["distortion"].append(result.distortion)
+        out["tail"].append(result.distortion_tail)
         out["seconds"].append(result.seconds)
         out["cpu_seconds"].append(time.process_time() - cpu_started)
         out["parent"].append(p)
         out["retried"].append(retried)
         if parents[i] >= 0:
             out["quality"].append(result.quality)
-        if node in job["exports"]:
-            out["poses"][node] = result.X
+        out["poses"][node] = result.X  # every pose: the repair pass starts frames from trusted ones
         if tick is not None:
             tick()
     return out

@@ -38,6 +38,10 @@ class AlignedFrames:
     root_vertices : (n, 3) float array   the root mesh as every frame numbers its vertices (the
                                        captured root without its floating fragments)
     root_kept : (n,) int array         index of each in the captured root mesh's vertices
+    distortion_tail : (N,) float array see :class:`PairAlignment`
+    confidence : (N,) float array      0..1, see :func:`engine.align.repair.alignment_confidence`
+    repaired : (N,) bool array         frames the repair pass aligned again from other sources
+    poses : dict                       frame -> aligned tet vertices (k, 3) (not written out)
     """
 
     vertices: np.ndarray
@@ -52,6 +56,10 @@ class AlignedFrames:
     cpu_seconds: np.ndarray = None
     root_vertices: np.ndarray = None
     root_kept: np.ndarray = None
+    distortion_tail: np.ndarray = None
+    confidence: np.ndarray = None
+    repaired: np.ndarray = None
+    poses: dict = None
 
 
 def partition_tree(parent, order, chunk):
@@ -137,9 +145,6 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
     members = [[] for _ in heads]
     for node in order:
         members[task_of[node]].append(int(node))
-    exports = [set() for _ in heads]
-    for t, head in enumerate(heads[1:], start=1):
-        exports[task_parent[t]].add(int(tree_parent[head]))
     use_colours = aligner.colors is not None
 
     def job_for(t, history):
@@ -155,13 +160,13 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
             "similarity": None if dissimilarity is None else np.asarray(dissimilarity)[np.ix_(nodes, candidates)],
             "yaw_rows": None if yaw is None else np.asarray(yaw)[np.ix_(nodes, candidates)],
             "retries": int(retries) if dissimilarity is not None else 0, "retry_factor": float(retry_factor),
-            "history": history, "exports": exports[t],
+            "history": history,
         }
 
     n = aligner.n_vertices
     vertices = np.zeros((N, n, 3))
     residual, residual_max = np.zeros(N), np.zeros(N)
-    distortion, seconds, cpu_seconds = np.zeros(N), np.zeros(N), np.zeros(N)
+    distortion, tail, seconds, cpu_seconds = np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N)
     parent = tree_parent.copy()
     retried = np.zeros(N, dtype=bool)
     poses = {}
@@ -186,6 +191,7 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
         vertices[idx] = np.stack(out["V"])
         residual[idx], residual_max[idx] = out["residual"], out["residual_max"]
         distortion[idx], seconds[idx] = out["distortion"], out["seconds"]
+        tail[idx] = out["tail"]
         cpu_seconds[idx] = out["cpu_seconds"]
         parent[idx], retried[idx] = out["parent"], out["retried"]
         poses.update(out["poses"])
@@ -229,7 +235,7 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
     return AlignedFrames(vertices=vertices, faces=aligner.F.copy(), residual=residual, residual_max=residual_max,
                          distortion=distortion, seconds=seconds, parent=parent, retried=retried,
                          root=int(tree.root), cpu_seconds=cpu_seconds, root_vertices=aligner.V.copy(),
-                         root_kept=np.arange(len(aligner.V)))
+                         root_kept=np.arange(len(aligner.V)), distortion_tail=tail, poses=poses)
 
 
 def mesh_arrays(mesh, use_colours):

@@ -36,6 +36,7 @@ import numpy as np
 from tqdm import tqdm
 
 from engine.align import AlignmentOptions, align_captures
+from engine.align.repair import TRUSTED
 from engine.mesh_io import read_frames, write_obj, write_sequence
 from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
@@ -255,6 +256,9 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
             "residual_mean_pct": float(100 * aligned.residual[span].mean() / size),
             "residual_max_pct": float(100 * aligned.residual_max[span].max() / size),
             "retried_frames": int(aligned.retried[span].sum()),
+            "repaired_frames": int(aligned.repaired[span].sum()),
+            "confidence_min": float(aligned.confidence[span].min()),
+            "flagged_frames": [int(i) for i in np.flatnonzero(aligned.confidence[span] < TRUSTED)],
         }
         (base / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
         metas.append(meta)
@@ -269,7 +273,8 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         tree_edges=tree.edges, tree_weights=tree.weights, tree_threshold=np.array(tree.threshold),
         tree_components=np.array(tree.components), parent=aligned.parent,
         residual=aligned.residual, residual_max=aligned.residual_max, distortion=aligned.distortion,
-        seconds=aligned.seconds, retried=aligned.retried,
+        seconds=aligned.seconds, retried=aligned.retried, distortion_tail=aligned.distortion_tail,
+        confidence=aligned.confidence, repaired=aligned.repaired,
         **({} if aligned.cpu_seconds is None else {"cpu_seconds": aligned.cpu_seconds}),
         source_units=np.array(convention.units), source_up=np.array(convention.up_label),
     )
@@ -345,6 +350,9 @@ def run(args):
           f"{length_text(aligned.residual.mean(), convention, size)}, max "
           f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "
           f"{int(aligned.retried.sum())} frames re-aligned from other parents")
+    flagged = int(np.sum(aligned.confidence < TRUSTED))
+    print(f"  confidence: {int(aligned.repaired.sum())} frames repaired (aligned again from the root or trusted "
+          f"frames), {flagged} of {frames} still below {TRUSTED} (listed per sequence in meta.json)")
     return 0
 
 

@@ -26,6 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from engine.align import AlignmentOptions, align_captures, error_summary, pattern_sheet, score_alignment
+from engine.align.repair import TRUSTED
 from engine.mesh_io import read_mesh, read_sequence
 from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
@@ -67,7 +68,7 @@ def _truth(dataset, sequences, lengths):
 
 
 def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, lengths, names, *, residual=None,
-           residual_max=None, seconds=None, retried=None, cpu_seconds=None):
+           residual_max=None, seconds=None, retried=None, cpu_seconds=None, confidence=None, repaired=None):
     errors, summary = score_alignment(aligned_vertices, root, root_vertices, truth, faces, size)
     frames = len(aligned_vertices)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -88,6 +89,13 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
     if retried is not None:
         record["retried_frames"] = int(np.sum(retried))
     frame_mean = errors.mean(axis=1)
+    if confidence is not None:
+        record["repaired_frames"] = int(np.sum(repaired))
+        record["flagged_frames"] = int(np.sum(confidence < TRUSTED))
+        # does the confidence find the bad frames? frames over 3% mean error, and how many are flagged
+        bad = frame_mean > 0.03 * size
+        record["frames_over_3pct"] = int(bad.sum())
+        record["frames_over_3pct_flagged"] = int(np.sum(bad & (confidence < TRUSTED)))
     record["worst_frame_mean_mm"] = round(1000 * float(frame_mean.max()), 2)
     record["worst_frame_mean_pct"] = round(100 * float(frame_mean.max()) / size, 3)
     return record, errors
@@ -203,7 +211,8 @@ def run(args):
                 a = result.aligned
                 record, _ = _score(method, a.vertices, root, a.root_vertices, truth, template_faces, size,
                                    lengths, names, residual=a.residual, residual_max=a.residual_max,
-                                   seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds)
+                                   seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds,
+                                   confidence=a.confidence, repaired=a.repaired)
                 report[method] = {**report.get(method, {}), **record}
                 results[method] = (a.vertices, a.faces, a.root_vertices)
             if "sequential" in report:

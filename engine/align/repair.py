@@ -1,0 +1,113 @@
+"""Finding and repairing frames whose correspondence slipped (limb swaps and slides).
+
+Along a long tree path small errors add up until a whole limb sits on its neighbour's place,
+while the surface fit stays small: the fit alone cannot see it. The aligned solid can: the tets
+of the root that carried the limb are torn where it slid (a hip, a shoulder). So every frame
+gets a confidence from its fit *and* the tail of its distortion (the worst 5% of the solid,
+``PairAlignment.distortion_tail``). Frames below a confidence of one half are aligned again,
+parents first, from other sources: the root itself (a frame aligned straight from the root
+cannot inherit a slip) and the most similar trusted frames; the best result by the same score
+is kept. A frame that no source aligns well stays flagged, with its confidence, never silent.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine.align.matching import TargetSurface
+
+TAIL_SCALE = 4.0       # distortion tail (||F - R||^2 over the worst 5% of the solid) at confidence 1/e
+RESIDUAL_SCALE = 0.01  # mean two-sided fit residual, as a fraction of the model size, at 1/e
+TRUSTED = 0.5          # frames at or above this confidence are trusted sources and left alone
+
+
+def alignment_badness(residual, distortion_tail, model_size):
+    """Badness of aligned frames: fit residual and distortion tail in units of their scales."""
+    return (np.asarray(distortion_tail) / TAIL_SCALE
+            + np.asarray(residual) / (RESIDUAL_SCALE * float(model_size)))
+
+
+def alignment_confidence(residual, distortion_tail, model_size):
+    """Per-frame confidence in 0..1: ``exp(-badness)`` (1 for the root; 1/e at either scale)."""
+    return np.exp(-alignment_badness(residual, distortion_tail, model_size))
+
+
+def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, candidates=2, progress=None):
+    """Align low-confidence frames again from the root and from trusted similar frames.
+
+    Parameters
+    ----------
+    aligner : PairwiseAligner        the one that aligned the frames
+    meshes : sequence of Mesh-like   the captured frames (as for ``align_tree``)
+    aligned : AlignedFrames          from ``align_tree``; updated in place (vertices, residuals,
+                                     distortions, parent, confidence, repaired, poses)
+    dissimilarity : (N, N) array or None   picks the trusted frames most like each flagged one
+    yaw : (N, N) array or None       rotation hints (degrees about +Y) between frames
+    candidates : int                 trusted frames tried besides the root
+    progress : callable(done, total) or None
+
+    Returns
+    -------
+    aligned : AlignedFrames   with ``confidence`` and ``repaired`` filled in
+    """
+    from engine.align.propagation import mesh_arrays
+    from engine.surface import model_size
+
+    size = model_size(aligner.V)
+    root = int(aligned.root)
+    confidence = alignment_confidence(aligned.residual, aligned.distortion_tail, size)
+    confidence[root] = 1.0
+    repaired = np.zeros(len(confidence), dtype=bool)
+    depth_order = _tree_order(aligned.parent, root)
+    flagged = [f for f in depth_order if confidence[f] < TRUSTED]
+    use_colours = aligner.colors is not None
+    for done, frame in enumerate(flagged):
+        trusted = np.flatnonzero(confidence >= TRUSTED)
+        sources = [root]
+        if dissimilarity is not None:
+            others = trusted[(trusted != root) & (trusted != aligned.parent[frame])]
+            others = others[np.argsort(np.asarray(dissimilarity)[frame, others], kind="stable")]
+            sources += [int(s) for s in others[:max(0, int(candidates))]]
+        V, F, C = mesh_arrays(meshes[frame], use_colours)
+        target = TargetSurface(V, F, C)
+        best, best_source = None, None
+        best_badness = alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size)
+        for source in sources:
+            if source == aligned.parent[frame] and source != root:
+                continue
+            hint = None if yaw is None else float(yaw[frame, source])
+            result = aligner.align(aligned.poses[source], target, yaw=hint)
+            badness = alignment_badness(result.residual, result.distortion_tail, size)
+            if badness < best_badness:
+                best, best_source, best_badness = result, source, badness
+        if best is not None:
+            aligned.vertices[frame] = best.V
+            aligned.residual[frame], aligned.residual_max[frame] = best.residual, best.residual_max
+            aligned.distortion[frame], aligned.distortion_tail[frame] = best.distortion, best.distortion_tail
+            aligned.parent[frame] = best_source
+            aligned.poses[frame] = best.X
+            repaired[frame] = True
+            confidence[frame] = float(np.exp(-best_badness))
+        if progress is not None:
+            progress(done + 1, len(flagged))
+    aligned.confidence = confidence
+    aligned.repaired = repaired
+    return aligned
+
+
+def _tree_order(parent, root):
+    """Frames ordered parents before children (breadth first from the root)."""
+    parent = np.asarray(parent)
+    children = [[] for _ in parent]
+    for node, p in enumerate(parent):
+        if p >= 0:
+            children[p].append(node)
+    order, queue = [], [root]
+    while queue:
+        node = queue.pop(0)
+        order.append(node)
+        queue.extend(children[node])
+    return order
+
+
+__all__ = ["alignment_badness", "alignment_confidence", "repair_alignment"]
