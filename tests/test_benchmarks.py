@@ -76,11 +76,19 @@ def check_stream_load(result, stdout):
     assert "frames delivered: mean" in stdout and "params -> first frame" in stdout
 
 
+def check_tetrahedra(rows, stdout):
+    (row,) = rows
+    assert row["surface_vertices"] >= 900 and row["runs"] == 2 and row["identical"] is True
+    assert positive(row["median_s"]) and row["tets"] >= 6 and row["tet_vertices"] >= 8
+    assert "identical bytes" in stdout
+
+
 CHECKS = {
     "blend_scaling.py": check_blend_scaling,
     "similarity_scaling.py": check_similarity_scaling,
     "speed_ground_truth.py": check_speed_ground_truth,
     "stream_load.py": check_stream_load,
+    "tetrahedra.py": check_tetrahedra,
 }
 
 
