@@ -9,7 +9,9 @@ test points of every cell, over all phase samples.
 Storage is hierarchical and sparse. When a cell is split at the midpoint m of its edge (a, b),
 only the part of D_NL(m) that interpolating the edge does not predict is stored:
 delta_m = D_NL(m) - (D(a) + D(b)) / 2, per phase sample, only where |delta_m| exceeds a
-threshold, quantised to 8 bits per component with one scale per reference and phase. For a weight vector w the correction is then the sum over the
+threshold, quantised to 8 bits per component with one scale per reference and phase; then
+entries the bound does not need are pruned (``prune_corrections``). For a weight vector w the
+correction is then the sum over the
 split nodes on w's path down the tree of phi_m(w) delta_m with phi_m = 2 min(lambda_a, lambda_b)
 (the hat function of m), which equals the nodal interpolation of eq. 3 in w's leaf.
 """
@@ -133,7 +135,8 @@ class HybridReport:
 
 
 def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon, keep_threshold=None,
-                 margin=0.9, level=None, max_depth=None, uniform_depth=None, test_weights=None, progress=None):
+                 margin=0.9, level=None, max_depth=None, uniform_depth=None, test_weights=None, prune=True,
+                 progress=None):
     """Reference weights and hierarchical sparse corrections by bisection of the weight simplex.
 
     Parameters
@@ -156,6 +159,10 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         Each cell is tested at those of them inside it and only split if one fails; cells with
         none are never split. Default: a barycentric grid of ``level`` in every cell (the whole
         simplex).
+    prune : bool
+        After the bisection, drop stored entries whose removal keeps every test point (and, on
+        the whole simplex, every reference) within margin * epsilon, or no further off than it
+        was (``prune_corrections``). Same tree, fewer entries.
     progress : callable(message) or None
 
     Returns
@@ -166,8 +173,8 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
 
     Notes
     -----
-    Test errors are measured with the corrections exactly as stored (thresholded, quantised),
-    so the bound holds for what the runtime computes. Non-linear blends are cached by weight.
+    Test errors are measured with the corrections exactly as stored (thresholded, quantised,
+    pruned), so the bound holds for what the runtime computes. Non-linear blends are cached by weight.
     """
     tree = SimplexTree(n_sources)
     max_depth = 8 + (n_sources - 2) if max_depth is None else max_depth
@@ -243,6 +250,15 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         else:
             leaf_errors.append((int(node), worst))
     corrections = store.finish()
+    if prune and uniform_depth is None:
+        # Where the bound is checked: the leaves' test points, and on the whole simplex also the
+        # references (which the bisection takes as exact; pruning must not spoil them).
+        checked = [(node, w) for node, _ in leaf_errors for w in points_in(node)]
+        if test_weights is None:
+            checked += [(-1, w) for w in tree.references[n_sources:]]
+        corrections, worst = prune_corrections(tree, corrections, [w for _, w in checked], linear, exact,
+                                               margin * epsilon, leaf=[node for node, _ in checked])
+        leaf_errors = [(node, worst.get(node, 0.0)) for node, _ in leaf_errors]
     new = len(tree.references) - n_sources
     report = HybridReport(
         epsilon=epsilon, references=new, leaves=len(tree.leaves()), max_depth=int(tree.depth.max()),
@@ -251,3 +267,92 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         stored_fraction=float(len(corrections.vertex)) / max(1, new * n_phases * n_vertices),
         leaf_errors=leaf_errors)
     return tree, corrections, report
+
+
+def path_weights(tree, weights):
+    """[(reference, phi)] of the split nodes on ``weights``' path down the tree (phi > 0):
+    the hat-function weight each stored residual gets in the hybrid blend."""
+    lam = list(np.asarray(weights, dtype=float) / np.sum(weights))
+    node, children, split, split_ref = 0, tree.children, tree.split, tree.split_references()
+    out = []
+    while children[node][0] >= 0:
+        i, j = split[node]
+        li, lj = lam[i], lam[j]
+        if min(li, lj) > 0.0:
+            out.append((int(split_ref[node]), 2.0 * min(li, lj)))
+        if li >= lj:
+            lam[i], lam[j], node = li - lj, 2.0 * lj, children[node][0]
+        else:
+            lam[j], lam[i], node = lj - li, 2.0 * li, children[node][1]
+    return out
+
+
+def prune_corrections(tree, corrections, test_weights, linear, exact, bound, leaf=None):
+    """Drop stored entries the bound does not need.
+
+    An entry (reference r, phase p, vertex v) is dropped when, without it, the hybrid is still
+    within ``bound`` of the exact blend (or no further from it than before, where it already was
+    further) at phase p, vertex v and every test weight r's hat function reaches. Entries are
+    visited reference by reference, the deepest first; every decision sees the ones before.
+
+    Parameters
+    ----------
+    tree : SimplexTree
+    corrections : Corrections
+    test_weights : (T, N) float array   where the bound must hold (references and test points)
+    linear, exact : callable(w) -> (P, n, 3)
+    bound : float
+    leaf : (T,) int list or None        the leaf each test weight reports to (-1: none; default
+                                        the leaf containing it)
+
+    Returns
+    -------
+    corrections : Corrections   the kept entries, values and scales unchanged
+    worst : dict                leaf -> largest error left at its test weights
+
+    Notes
+    -----
+    Dropping entry (r, p, v) changes the hybrid at weight w by exactly -phi_r(w) times the
+    stored value (``path_weights``), so the errors are updated without re-blending.
+    """
+    P, n = corrections.n_phases, corrections.n_vertices
+    R = corrections.n_references
+    phi = np.zeros((len(test_weights), R))
+    for t, w in enumerate(test_weights):
+        for r, weight in path_weights(tree, w):
+            phi[t, r] += weight
+    if leaf is None:
+        leaf = [tree.locate(w)[0] for w in test_weights]
+    error = np.empty((len(test_weights), P, n, 3), dtype=np.float32)  # hybrid - exact
+    for t, w in enumerate(test_weights):
+        error[t] = np.asarray(linear(w), dtype=np.float64) - exact(w)
+        for r in np.flatnonzero(phi[t]):
+            error[t] += phi[t, r] * corrections.dense(r)
+    limit = np.maximum(np.float32(bound), np.linalg.norm(error, axis=3).max(axis=(1, 2)))
+    keep = np.ones(len(corrections.vertex), dtype=bool)
+    for r in range(R - 1, -1, -1):
+        support = np.flatnonzero(phi[:, r])
+        if not len(support):
+            continue
+        for p in range(P):
+            k = r * P + p
+            s, e = corrections.pointer[k], corrections.pointer[k + 1]
+            if e == s:
+                continue
+            vertex = corrections.vertex[s:e].astype(np.intp)
+            value = corrections.value[s:e].astype(np.float32) * corrections.scale[k]
+            before = error[support, p][:, vertex]                                  # (S, c, 3)
+            after = before - phi[support, r, None, None].astype(np.float32) * value
+            fine = np.all(np.linalg.norm(after, axis=2) <= limit[support, None], axis=0)
+            keep[s:e] = ~fine
+            error[np.ix_(support, [p], vertex[fine])] = after[:, None, fine]
+    kept_before = np.concatenate([[0], np.cumsum(keep)])
+    pruned = Corrections(n_phases=P, n_vertices=n, pointer=kept_before[corrections.pointer].astype(np.int64),
+                         vertex=corrections.vertex[keep], value=corrections.value[keep],
+                         scale=corrections.scale)
+    norms = np.linalg.norm(error, axis=3).max(axis=(1, 2))
+    worst = {}
+    for t, node in enumerate(leaf):
+        if node >= 0:
+            worst[node] = max(worst.get(node, 0.0), float(norms[t]))
+    return pruned, worst

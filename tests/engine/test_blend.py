@@ -145,6 +145,37 @@ def test_hierarchical_corrections_equal_nodal_interpolation(space3):
             np.testing.assert_allclose(hybrid.blend(w, 4 / P), expected, atol=2e-6)
 
 
+def test_pruning_drops_only_entries_the_bound_does_not_need(space3):
+    """Pruned corrections are a subset of the thresholded ones and keep every test point (and
+    every reference) within margin * epsilon, measured with the corrections as stored."""
+    sources, linear, nonlinear = space3
+    n, epsilon, margin = sources.shape[2], 0.008, 0.9
+    blends = {}
+
+    def exact(w):  # both builds and the check below share the non-linear blends
+        key = tuple(np.round(w, 12))
+        if key not in blends:
+            blends[key] = nonlinear.blend_all_phases(w)
+        return blends[key]
+
+    args = (linear.blend_all_phases, exact, 3, P, n)
+    tree, full, _ = build_hybrid(*args, epsilon=epsilon, prune=False)
+    pruned_tree, pruned, report = build_hybrid(*args, epsilon=epsilon)
+    np.testing.assert_array_equal(pruned_tree.references, tree.references)  # same bisection
+    assert len(pruned.vertex) < len(full.vertex) and pruned.nbytes() < full.nbytes()
+    np.testing.assert_array_equal(pruned.scale, full.scale)
+    for r in range(full.n_references):  # a subset, values unchanged
+        kept = pruned.dense(r)
+        np.testing.assert_array_equal(kept[np.any(kept != 0, axis=2)], full.dense(r)[np.any(kept != 0, axis=2)])
+    hybrid = HybridBlender(sources, pruned_tree, pruned, cyclic=True)
+    points = [w for leaf in pruned_tree.leaves() for w in pruned_tree.test_points(leaf, 4)]
+    worst = max(np.linalg.norm(np.stack([hybrid.blend(w, p / P) for p in range(P)])
+                               - exact(w / w.sum()), axis=2).max()
+                for w in points + list(pruned_tree.references[3:]))
+    assert worst <= margin * epsilon + 1e-6
+    assert report.max_test_error <= margin * epsilon + 1e-6
+
+
 def test_quantised_corrections_are_within_half_a_step(space3):
     sources, linear, nonlinear = space3
     tree, corrections, _ = build_hybrid(linear.blend_all_phases, nonlinear.blend_all_phases, 3, P,
