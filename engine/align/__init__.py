@@ -14,6 +14,7 @@ One module per step, in pipeline order:
 ``repair``           ``repair_alignment(aligner, meshes, aligned)``  per-frame confidence; slipped
                      frames aligned again from the root and trusted frames
 ``captures``         ``align_captures(meshes, lengths)``             all of the above, end to end
+``facing``           ``body_facing(V)``: the way a body's front faces (feet ahead of ankles)
 ``evaluation``       ``score_alignment``, the pattern pictures (fig. 2)
 """
 
@@ -29,6 +30,7 @@ from engine.align.evaluation import (
     surface_coordinates,
     true_positions,
 )
+from engine.align.facing import body_facing, body_frame
 from engine.align.matching import TargetSurface
 from engine.align.pairwise import AlignmentOptions, PairAlignment, PairwiseAligner
 from engine.align.patches import farthest_point_patches
@@ -87,6 +89,6 @@ __all__ = [
     "AlignedFrames", "CaptureAlignment", "align_captures", "align_tree", "alignment_confidence", "partition_tree",
     "repair_alignment",
     # evaluation
-    "correspondence_errors", "error_summary", "pattern_colors", "pattern_frames", "pattern_render",
+    "body_facing", "body_frame", "correspondence_errors", "error_summary", "pattern_colors", "pattern_frames", "pattern_render",
     "pattern_sheet", "score_alignment", "surface_coordinates", "true_positions",
 ]

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from engine.align.facing import body_facing
+from engine.rotations import rot_y
 from engine.surface import SurfaceQuery
 
 
@@ -105,18 +107,22 @@ def score_alignment(aligned, root, root_vertices, truth, template_faces, model_s
     return errors, error_summary(errors[others] if others.any() else errors, model_size)
 
 
-def pattern_colors(V, *, period=0.1):
+def pattern_colors(V, *, period=0.1, facing=None):
     """A checker fixed on a mesh's rest positions (paper fig. 2 style).
 
-    The checker is projected from the front (cells of ``period`` in x and y about the mesh's
-    centre), so it forms clean squares on the body, with one colour pair on the left half of
-    the rest mesh and another on the right: a cell that slides shows a correspondence error, a
-    left-coloured limb on the right a swap.
+    The checker is projected from the body's own front (cells of ``period`` across the body
+    and up, about the middle of its bounding box), so it forms clean squares on the body,
+    with one colour pair on the body's right half (yellow / blue: the left of a front view)
+    and another on its left (red / green): a cell that slides shows a correspondence error, a
+    limb of the other side's colours a swap.
 
     Parameters
     ----------
-    V : (n, 3) float array   rest (root) vertex positions (+Y up)
+    V : (n, 3) float array   rest (root) vertex positions (metres, +Y up)
     period : float           cell size in metres
+    facing : (3,) array or None   the way the body faces (default:
+                                  :func:`engine.align.facing.body_facing` of ``V``); for a body
+                                  facing +Z the cells are squares in x and y
 
     Returns
     -------
@@ -124,16 +130,19 @@ def pattern_colors(V, *, period=0.1):
                                             aligned frame shows where each root point went
     """
     V = np.asarray(V, dtype=np.float64)
-    centre = 0.5 * (V.min(axis=0) + V.max(axis=0))
-    x, y = V[:, 0] - centre[0], V[:, 1] - centre[1]
+    facing = body_facing(V) if facing is None else np.asarray(facing, dtype=np.float64)
+    left = np.array([facing[2], 0.0, -facing[0]]) / max(np.hypot(facing[0], facing[2]), 1e-300)  # up x facing
+    across = V @ left
+    x = across - 0.5 * (across.min() + across.max())
+    y = V[:, 1] - 0.5 * (V[:, 1].min() + V[:, 1].max())
     checker = (np.floor(x / period).astype(np.int64) + np.floor(y / period).astype(np.int64)) % 2
     side = (x > 0).astype(np.int64)
-    palette = np.array([[0.98, 0.80, 0.25], [0.20, 0.35, 0.80],   # left: yellow / blue
-                        [0.90, 0.30, 0.35], [0.25, 0.65, 0.45]])  # right: red / green
+    palette = np.array([[0.98, 0.80, 0.25], [0.20, 0.35, 0.80],   # body's right: yellow / blue
+                        [0.90, 0.30, 0.35], [0.25, 0.65, 0.45]])  # body's left: red / green
     return palette[2 * side + checker].copy()
 
 
-def pattern_render(frames, F, colors, *, columns=3, size=1100, title=None, azimuth=20.0):
+def pattern_render(frames, F, colors, *, columns=3, size=1100, title=None, azimuth=20.0, facing=None):
     """Render aligned frames on a grid with per-vertex colours fixed on the root mesh.
 
     Parameters
@@ -144,6 +153,9 @@ def pattern_render(frames, F, colors, *, columns=3, size=1100, title=None, azimu
     colors : (n, 3) float array            e.g. :func:`pattern_colors` of the root
     columns : int                          frames per row (two rows)
     size : int                             image width and height in pixels
+    facing : (3,) array or None            the direction to show from the front (``azimuth``
+                                           degrees aside): every frame is turned about +Y by
+                                           the one rotation taking it to +Z (default: +Z, as is)
 
     Returns
     -------
@@ -152,6 +164,9 @@ def pattern_render(frames, F, colors, *, columns=3, size=1100, title=None, azimu
     from engine.render import render_meshes
 
     frames = [np.asarray(V, dtype=np.float64) for V in frames[:2 * columns]]
+    if facing is not None:
+        turn = rot_y(-np.arctan2(facing[0], facing[2]))  # facing -> +Z
+        frames = [V @ turn.T for V in frames]
     width = 1.05 * max(max(float(np.ptp(V[:, 0])) for V in frames), 0.55)
     height = 1.15 * max(float(np.ptp(V[:, 1])) for V in frames)
     meshes = []
@@ -199,7 +214,9 @@ def pattern_sheet(vertices, faces, root, lengths, names=None, *, count=6, title=
     The pattern (:func:`pattern_colors`) is a function of the root mesh's vertex positions; every
     aligned frame shares the root's vertices and faces, so the colours travel with the
     correspondence: a stripe or checker that stays on the same body part in every frame shows
-    the alignment holds, a smeared or jumping one shows where it slipped.
+    the alignment holds, a smeared or jumping one shows where it slipped. The pattern's sides
+    and the view follow the root's own facing (:func:`engine.align.facing.body_facing`): the
+    frames are shown turned so that the root faces the camera.
 
     Parameters
     ----------
@@ -215,7 +232,8 @@ def pattern_sheet(vertices, faces, root, lengths, names=None, *, count=6, title=
     image : (size, size, 3) uint8 array
     """
     vertices = np.asarray(vertices)
-    colors = pattern_colors(vertices[root])
+    facing = body_facing(vertices[root])
+    colors = pattern_colors(vertices[root], facing=facing)
     picks = [k for k in pattern_frames(lengths, count + 1) if k != root][:count]
     frames = [vertices[root]] + [vertices[k] for k in picks]
     if title is None:
@@ -225,7 +243,7 @@ def pattern_sheet(vertices, faces, root, lengths, names=None, *, count=6, title=
         title = (f"pattern fixed on the root mesh ({label(root)}, first), carried by the alignment into\n"
                  + ", ".join(label(k) for k in picks))
     columns = max(1, -(-len(frames) // 2))
-    return pattern_render(frames, faces, colors, columns=columns, size=size, title=title)
+    return pattern_render(frames, faces, colors, columns=columns, size=size, title=title, facing=facing)
 
 
 __all__ = ["correspondence_errors", "score_alignment", "error_summary", "pattern_colors", "pattern_frames",

@@ -1,8 +1,9 @@
 """Scoring against ground truth and the aligned-pattern pictures (paper fig. 2)."""
 
 import numpy as np
+import pytest
 
-from engine.align import pattern_colors, pattern_frames, pattern_sheet
+from engine.align import body_frame, pattern_colors, pattern_frames, pattern_sheet
 from engine.rotations import rot_y
 from engine.synthetic import build_body
 
@@ -35,3 +36,19 @@ def test_pattern_frames_spread_over_many_sequences():
     picks = pattern_frames(lengths, 6)
     sequences = sorted(k // 10 for k in picks)
     assert len(set(sequences)) == 6 and sequences[0] == 0 and sequences[-1] == 13
+
+
+@pytest.mark.parametrize("degrees", [90, 180, -120])
+def test_the_pattern_follows_the_body_turned_about_the_vertical(degrees):
+    body = build_body(1000)
+    turned = body.V @ rot_y(np.radians(degrees)).T
+    colors = pattern_colors(body.V)
+    np.testing.assert_array_equal(pattern_colors(turned), colors)  # every vertex keeps its colour
+    _, left = body_frame(turned)
+    red_green = (colors == [0.90, 0.30, 0.35]).all(axis=1) | (colors == [0.25, 0.65, 0.45]).all(axis=1)
+    across = (turned - turned.mean(axis=0)) @ left
+    assert np.all(across[red_green] > -0.02) and np.all(across[~red_green] < 0.02)  # the body's left is red/green
+    # and the picture shows the turned root from its front, as the unturned one
+    still = pattern_sheet(np.stack([body.V, body.V]), body.F, 0, [2], size=200, title="")
+    again = pattern_sheet(np.stack([turned, turned]), body.F, 0, [2], size=200, title="")
+    assert np.abs(still.astype(float) - again.astype(float)).mean() < 1.0
