@@ -1,18 +1,17 @@
 """The units and up-axis options of the commands and jobs that read captures.
 
-``--units {auto,m,cm,mm}`` and ``--up {auto,y,z}``: the frames are converted to metres with +Y
-up on the way in (``engine.mesh_io.units``), everything downstream works in metres, and the
-outputs record what the files were in. Lengths for people (residuals, errors) are shown in the
-data's units: millimetres for data in metres or millimetres, centimetres for data in
-centimetres, each with its share of the model size.
+``--units {auto,m,cm,mm}`` and ``--up {auto,y,z}``: each sequence's frames are converted to
+metres with +Y up on the way in (``engine.mesh_io.units``; a dataset may mix sequences in
+different units), everything downstream works in metres, and the outputs record what the files
+were in. Lengths for people (residuals, errors) are shown in the data's units: millimetres for
+data in metres or millimetres, centimetres for data in centimetres (millimetres when the
+sequences differ), each with its share of the model size.
 """
 
 from __future__ import annotations
 
-import numpy as np
-
 from engine.mesh_io import Mesh, resolve_convention, to_metres_y_up
-from engine.mesh_io.units import UNITS_PER_METRE, UP_AXES
+from engine.mesh_io.units import UNITS_PER_METRE, UP_AXES, Convention
 
 UNITS_CHOICES = ("auto", "m", "cm", "mm")
 UP_CHOICES = ("auto", "y", "z")
@@ -32,27 +31,28 @@ def add_units_arguments(parser):
 
 
 def declared_convention(records):
-    """The units and up axis the inputs' metadata agree on.
+    """The units and up axis the metadata says, the first record that says each winning.
 
     Parameters
     ----------
-    records : iterable of dict or None   e.g. each sequence's meta.json and its dataset's manifest
-                                         ``body``: their "units" ("m", "cm", "mm") and "up"
-                                         ("+Y", "+Z") entries; other values are ignored
+    records : iterable of dict or None   most specific first, e.g. a sequence's meta.json, then
+                                         its dataset manifest's ``body``: their "units" ("m",
+                                         "cm", "mm") and "up" ("+Y", "+Z"); other values are
+                                         not a claim
 
     Returns
     -------
-    units, up : str or None   None where no record says, or the records disagree
+    units, up : str or None   None where no record says
     """
-    units, up = set(), set()
+    units = up = None
     for record in records:
         if not isinstance(record, dict):
             continue
-        units.add(str(record.get("units", "")).strip().lower())
-        up.add(str(record.get("up", "")).strip().lower().lstrip("+"))
-    units &= set(UNITS_PER_METRE)  # values it cannot mean are not a claim
-    up &= set(UP_AXES)
-    return (units.pop() if len(units) == 1 else None), (up.pop() if len(up) == 1 else None)
+        said_units = str(record.get("units", "")).strip().lower()
+        said_up = str(record.get("up", "")).strip().lower().lstrip("+")
+        units = units or (said_units if said_units in UNITS_PER_METRE else None)
+        up = up or (said_up if said_up in UP_AXES else None)
+    return units, up
 
 
 def meshes_to_metres(meshes, units="auto", up="auto", *, declared=(None, None)):
@@ -83,6 +83,33 @@ def display_unit(convention):
     return DISPLAY_UNIT[convention.units]
 
 
+def common_convention(conventions):
+    """One convention for reporting a run over several sequences: theirs when they all agree on
+    units and up axis, else metres, +Y up (lengths then in mm)."""
+    conventions = list(conventions)
+    if conventions and all((c.units, c.up) == (conventions[0].units, conventions[0].up) for c in conventions):
+        return conventions[0]
+    return Convention(units="m", up="y", units_from="mixed", up_from="mixed")
+
+
+def say_conventions(conventions, names, say, what="input"):
+    """Tell ``say(line)`` what each sequence is in: one line per group of sequences decided alike,
+    then every warning, named after its sequence."""
+    groups = {}
+    for name, convention in zip(names, conventions):
+        key = (convention.units, convention.up, convention.units_from, convention.up_from)
+        groups.setdefault(key, []).append((name, convention))
+    for members in groups.values():
+        first = members[0][1]
+        listed = ", ".join(name for name, _ in members[:4]) + (f" and {len(members) - 4} more" if len(members) > 4
+                                                               else "")
+        converted = "" if (first.units, first.up) == ("m", "y") else "; converted to metres, +Y up"
+        say(f"{what} {listed}: {first.describe()}{converted}")
+    for name, convention in zip(names, conventions):
+        for warning in convention.warnings:
+            say(f"warning: {name}: {warning}")
+
+
 def length_text(metres, convention, size=None, digits=2):
     """A length for people: in the data's display unit, and in % of ``size`` (metres) if given."""
     unit = display_unit(convention)
@@ -92,14 +119,5 @@ def length_text(metres, convention, size=None, digits=2):
     return text
 
 
-def convention_record(convention, size=None):
-    """JSON record of the inputs' convention: units, up, how each was decided, model size (m)."""
-    record = convention.to_metadata()
-    record["display_unit"] = display_unit(convention)
-    if size is not None and np.isfinite(size):
-        record["model_size_m"] = float(size)
-    return record
-
-
-__all__ = ["add_units_arguments", "convention_record", "declared_convention", "display_unit", "length_text",
-           "meshes_to_metres"]
+__all__ = ["add_units_arguments", "common_convention", "declared_convention", "display_unit", "length_text",
+           "meshes_to_metres", "say_conventions"]

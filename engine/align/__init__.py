@@ -89,6 +89,6 @@ __all__ = [
     "AlignedFrames", "CaptureAlignment", "align_captures", "align_tree", "alignment_confidence", "partition_tree",
     "repair_alignment",
     # evaluation
-    "body_facing", "body_frame", "correspondence_errors", "error_summary", "pattern_colors", "pattern_frames", "pattern_render",
-    "pattern_sheet", "score_alignment", "surface_coordinates", "true_positions",
+    "body_facing", "body_frame", "correspondence_errors", "error_summary", "pattern_colors", "pattern_frames",
+    "pattern_render", "pattern_sheet", "score_alignment", "surface_coordinates", "true_positions",
 ]

@@ -42,7 +42,15 @@ from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
 from engine.mesh_io.units import Convention
 from engine.surface import model_size
-from server.units import add_units_arguments, convention_record, declared_convention, length_text, meshes_to_metres
+from server.units import (
+    add_units_arguments,
+    common_convention,
+    display_unit,
+    declared_convention,
+    length_text,
+    meshes_to_metres,
+    say_conventions,
+)
 
 ALIGNMENT_FORMAT = "morphspace-alignment"
 ALIGNMENT_VERSION = 1
@@ -196,29 +204,40 @@ def read_inputs(sequences, progress=None):
     return meshes, np.array(lengths, dtype=np.int64)
 
 
-def convert_inputs(meshes, sequences, units="auto", up="auto", *, say=None):
-    """The frames in metres with +Y up, and the inputs' convention (see ``server.units``).
+def convert_inputs(meshes, sequences, lengths, units="auto", up="auto", *, say=None):
+    """Every sequence's frames in metres with +Y up (see ``server.units``).
 
+    Each sequence is decided on its own frames (a dataset may mix units and axes), its
+    meta.json, then its dataset manifest's ``body``, consulted when the geometry cannot tell;
     ``say(line)`` is told what was decided and any doubt about it.
+
+    Returns
+    -------
+    meshes : list of Mesh                      all frames, converted
+    conventions : list of engine.mesh_io.Convention   one per sequence
     """
-    declared = declared_convention(record for s in sequences for record in s.get("declared", ()))
-    meshes, convention = meshes_to_metres(meshes, units, up, declared=declared)
+    converted, conventions, start = [], [], 0
+    for s, n in zip(sequences, lengths):
+        part, convention = meshes_to_metres(meshes[start:start + n], units, up,
+                                            declared=declared_convention(s.get("declared", ())))
+        converted.extend(part)
+        conventions.append(convention)
+        start += n
     if say is not None:
-        converted = "" if (convention.units, convention.up) == ("m", "y") else "; converted to metres, +Y up"
-        say(f"input {convention.describe()}{converted}")
-        for warning in convention.warnings:
-            say(f"warning: {warning}")
-    return meshes, convention
+        say_conventions(conventions, [s["name"] for s in sequences], say)
+    return converted, conventions
 
 
 def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_record, progress=None,
-                    convention=None):
+                    conventions=None):
     """Write the aligned frames, metadata, arrays and pictures (see the module docstring).
 
-    ``meshes`` are in metres with +Y up; ``convention`` (engine.mesh_io.Convention) says what the
-    input files were in, recorded in the manifest, the meta.json files and alignment.npz.
+    ``meshes`` are in metres with +Y up; ``conventions`` (one engine.mesh_io.Convention per
+    sequence) say what the input files were in, recorded in the meta.json files, alignment.npz
+    and the manifest.
     """
-    convention = convention or Convention()
+    conventions = conventions or [Convention()] * len(sequences)
+    common = common_convention(conventions)
     from PIL import Image
 
     from engine.align import pattern_sheet, similarity_image, tree_image
@@ -250,7 +269,8 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         meta["units"], meta["up"] = "m", "+Y"  # what the written frames are in
         meta["alignment"] = {
             "method": result.method, "root": f"{root_sequence}:{root_frame}",
-            "source": str(s["frames"]), "source_units": convention.units, "source_up": convention.up_label,
+            "source": str(s["frames"]), "source_units": conventions[k].units,
+            "source_up": conventions[k].up_label, "input": conventions[k].to_metadata(),
             "residual_mean_mm": float(1000 * aligned.residual[span].mean()),
             "residual_max_mm": float(1000 * aligned.residual_max[span].max()),
             "residual_mean_pct": float(100 * aligned.residual[span].mean() / size),
@@ -276,7 +296,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         seconds=aligned.seconds, retried=aligned.retried, distortion_tail=aligned.distortion_tail,
         confidence=aligned.confidence, repaired=aligned.repaired,
         **({} if aligned.cpu_seconds is None else {"cpu_seconds": aligned.cpu_seconds}),
-        source_units=np.array(convention.units), source_up=np.array(convention.up_label),
+        source_units=np.array([c.units for c in conventions]), source_up=np.array([c.up_label for c in conventions]),
     )
     names = [s["name"] for s in sequences]
     Image.fromarray(similarity_image(result.similarity.dissimilarity, lengths, names)).save(out / "similarity.png")
@@ -286,10 +306,12 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
     write_capture_manifest(out, {
         "aligned": True, "alignment": {"method": result.method, "root": f"{root_sequence}:{root_frame}",
                                        "options": options_record, "timings_s": result.timings,
-                                       "input": convention_record(convention, size)},
+                                       "input": {s["name"]: c.to_metadata() for s, c in zip(sequences, conventions)},
+                                       "display_unit": display_unit(common)},
         "body": {"vertices": int(len(aligned.root_vertices)), "faces": int(len(aligned.faces)),
                  "model_size": size, "up": "+Y", "units": "m",
-                 "source_units": convention.units, "source_up": convention.up_label},
+                 "source_units": common.units if common.units_from != "mixed" else "mixed",
+                 "source_up": common.up_label if common.up_from != "mixed" else "mixed"},
         "fps": fps, "sequences": metas,
     })
 
@@ -308,8 +330,8 @@ def run(args):
     started = time.perf_counter()
     try:
         meshes, lengths = read_inputs(sequences, progress)
-        meshes, convention = convert_inputs(meshes, sequences, args.units, args.up,
-                                            say=lambda line: tqdm.write(f"morphspace align: {line}", file=sys.stderr))
+        meshes, conventions = convert_inputs(meshes, sequences, lengths, args.units, args.up,
+                                             say=lambda line: tqdm.write(f"morphspace align: {line}", file=sys.stderr))
         root = parse_root(args.root, sequences, lengths)
         options = AlignmentOptions(patches=args.patches, levels=args.levels,
                                    colour_weight=AlignmentOptions().colour_weight if not args.colors else 0.5)
@@ -325,7 +347,7 @@ def run(args):
                             options_record={"patches": args.patches, "levels": args.levels, "window": args.window,
                                             "retries": args.retries, "colors": bool(args.colors), "seed": args.seed,
                                             "units": args.units, "up": args.up},
-                            progress=progress, convention=convention)
+                            progress=progress, conventions=conventions)
         except BaseException:
             shutil.rmtree(staging, ignore_errors=True)
             raise
@@ -346,7 +368,10 @@ def run(args):
           f"{args.workers} workers ({aligned.seconds.sum() / max(frames - 1, 1):.2f} s, "
           f"{aligned.cpu_seconds.sum() / max(frames - 1, 1):.2f} CPU s per frame and aligner)")
     size = model_size(aligned.root_vertices)
-    print(f"  input {convention.units}, {convention.up_label} up (written in metres, +Y up); fit residual mean "
+    convention = common_convention(conventions)
+    given = ("mixed units or axes" if convention.units_from == "mixed"
+             else f"{convention.units}, {convention.up_label} up")
+    print(f"  input {given} (written in metres, +Y up); fit residual mean "
           f"{length_text(aligned.residual.mean(), convention, size)}, max "
           f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "
           f"{int(aligned.retried.sum())} frames re-aligned from other parents")

@@ -31,7 +31,7 @@ from engine.mesh_io import read_mesh, read_sequence, resolve_convention, to_metr
 from engine.motion_space import SourceClip, build_motion_space
 from engine.parameters import MEASURES, Layout
 from server.progress import StageBars
-from server.units import add_units_arguments, declared_convention
+from server.units import add_units_arguments, declared_convention, say_conventions
 
 LAYOUT_KEYS = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}
 
@@ -161,32 +161,41 @@ def choose_rest(clips, faces, rest_path, template):
     return rest, "resting on the first frame"
 
 
-def sources_to_metres(clips, rest, directories, units="auto", up="auto"):
-    """Sources and rest shape in metres with +Y up, and the sources' convention.
+def _json_record(path, key=None):
+    try:
+        record = json.loads(Path(path).read_text()) if Path(path).is_file() else None
+    except (OSError, ValueError):
+        return None
+    return record.get(key) if key and isinstance(record, dict) else record
 
-    The metadata consulted when the geometry cannot tell: each source's meta.json and its
-    dataset manifest's ``body`` ("units", "up"; an aligned dataset says m, +Y).
+
+def sources_to_metres(clips, rest, directories, units="auto", up="auto"):
+    """Sources and rest shape in metres with +Y up, each decided on its own.
+
+    A source is decided on its frames, then (when the geometry cannot tell) its meta.json and
+    its dataset manifest's ``body`` ("units", "up"; an aligned dataset says m, +Y); the rest
+    shape on its own vertices and the manifest's ``body`` (a dataset's template is in the
+    body's units even when some sequences are not).
 
     Returns
     -------
-    clips : list of SourceClip   rest : (n, 3) float array   convention : engine.mesh_io.Convention
+    clips : list of SourceClip   rest : (n, 3) float array
+    conventions : list of engine.mesh_io.Convention   one per source, then the rest shape's
     """
-    records = []
-    for directory in map(Path, directories):
-        for path, key in ((directory / "meta.json", None), (directory.parent.parent / "manifest.json", "body")):
-            try:
-                record = json.loads(path.read_text()) if path.is_file() else None
-            except (OSError, ValueError):
-                record = None
-            records.append(record.get(key) if key and isinstance(record, dict) else record)
-    declared = declared_convention(records)
-    convention = resolve_convention((V for clip in clips for V in clip.vertices), units, up,
-                                    declared_units=declared[0], declared_up=declared[1])
-    if (convention.units, convention.up) != ("m", "y"):
-        clips = [replace(clip, vertices=to_metres_y_up(clip.vertices, convention.units, convention.up))
-                 for clip in clips]
-        rest = to_metres_y_up(rest, convention.units, convention.up)
-    return clips, rest, convention
+    converted, conventions = [], []
+    for clip, directory in zip(clips, map(Path, directories)):
+        body = _json_record(directory.parent.parent / "manifest.json", "body")
+        declared = declared_convention([_json_record(directory / "meta.json"), body])
+        convention = resolve_convention(clip.vertices, units, up, declared_units=declared[0],
+                                        declared_up=declared[1])
+        if (convention.units, convention.up) != ("m", "y"):
+            clip = replace(clip, vertices=to_metres_y_up(clip.vertices, convention.units, convention.up))
+        converted.append(clip)
+        conventions.append(convention)
+    declared = declared_convention([_json_record(Path(directories[0]).parent.parent / "manifest.json", "body")])
+    convention = resolve_convention([rest], units, up, declared_units=declared[0], declared_up=declared[1])
+    conventions.append(convention)
+    return converted, to_metres_y_up(rest, convention.units, convention.up), conventions
 
 
 def run(args):
@@ -215,11 +224,9 @@ def run(args):
     clips, faces = load_sources(directories, fps=args.fps, cyclic=args.cyclic)
     rest_path = args.rest or spec["rest"]
     rest, _ = choose_rest(clips, faces, rest_path, Path(directories[0]).parent.parent / "template" / "body.obj")
-    clips, rest, convention = sources_to_metres(clips, rest, directories, args.units, args.up)
-    converted = "" if (convention.units, convention.up) == ("m", "y") else "; converted to metres, +Y up"
-    print(f"morphspace build: sources in {convention.describe()}{converted}", file=sys.stderr)
-    for warning in convention.warnings:
-        print(f"morphspace build: warning: {warning}", file=sys.stderr)
+    clips, rest, conventions = sources_to_metres(clips, rest, directories, args.units, args.up)
+    say_conventions(conventions, [clip.name for clip in clips] + ["the rest shape"],
+                    lambda line: print(f"morphspace build: {line}", file=sys.stderr), what="source")
     bars = StageBars()
     started = time.perf_counter()
     report = build_motion_space(out, clips, faces, name=name, n_phases=args.phases or spec["phases"],

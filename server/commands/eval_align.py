@@ -33,7 +33,14 @@ from engine.mesh_io.errors import MeshFormatError
 from engine.mesh_io.units import UNITS_PER_METRE, resolve_convention, to_metres_y_up
 from engine.surface import model_size
 from server.commands.align import Progress, convert_inputs, parse_root, read_inputs, resolve_inputs
-from server.units import DISPLAY_PER_METRE, add_units_arguments, convention_record, declared_convention
+from server.units import (
+    DISPLAY_PER_METRE,
+    add_units_arguments,
+    common_convention,
+    declared_convention,
+    display_unit,
+    say_conventions,
+)
 
 
 def add_arguments(parser):
@@ -55,7 +62,8 @@ def add_arguments(parser):
 
 
 def _truth(dataset, sequences, lengths):
-    """Template positions of all frames (concatenated) and the template faces."""
+    """Template positions of each sequence's frames (a list, in the files' units and axes) and
+    the template faces."""
     template = read_mesh(dataset / "template" / "body.obj")
     parts = []
     for s, n in zip(sequences, lengths):
@@ -64,7 +72,12 @@ def _truth(dataset, sequences, lengths):
             raise MeshFormatError(f"{dataset}/sequences/{s['name']}/truth.npz: ground truth for {len(positions)} "
                                   f"frames, the sequence has {n}")
         parts.append(np.asarray(positions[:n], dtype=np.float64))
-    return np.concatenate(parts), template.faces
+    return parts, template.faces
+
+
+def _truth_in_metres(parts, conventions):
+    """The ground truth of all frames (concatenated) in metres, +Y up."""
+    return np.concatenate([to_metres_y_up(P, c.units, c.up) for P, c in zip(parts, conventions)])
 
 
 def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, lengths, names, *, residual=None,
@@ -101,14 +114,39 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
     return record, errors
 
 
-def _model_size(manifest, convention, truth):
-    """Model size in metres: the manifest's (in its body's units, else the data's), else the truth's."""
+def _model_size(manifest, conventions, truth):
+    """Model size in metres: the manifest's (in its body's units, else the sequences' common
+    units), else that of the first frame's ground truth (already in metres)."""
     body = manifest.get("body", {})
     size = float(body.get("model_size") or 0.0)
-    if size > 0:
-        units = body.get("units") if body.get("units") in UNITS_PER_METRE else convention.units
+    common = common_convention(conventions)
+    units = body.get("units") if body.get("units") in UNITS_PER_METRE else (
+        common.units if common.units_from != "mixed" else None)
+    if size > 0 and units is not None:
         return size / UNITS_PER_METRE[units]
     return model_size(truth[0])
+
+
+def _truth_conventions(dataset, manifest, aligned, names, parts, units, up):
+    """Units and up axis of each sequence's ground truth, for scoring an earlier alignment: as
+    given, else detected on the truth, else what the sequence's meta.json, the alignment's
+    record of its input and the dataset manifest say."""
+    def read(path):
+        try:
+            record = json.loads(path.read_text()) if path.is_file() else {}
+        except (OSError, ValueError):
+            record = {}
+        return record if isinstance(record, dict) else {}
+
+    conventions = []
+    for name, positions in zip(names, parts):
+        recorded = read(aligned / "sequences" / name / "meta.json").get("alignment") or {}
+        declared = declared_convention([read(dataset / "sequences" / name / "meta.json"),
+                                        {"units": recorded.get("source_units"), "up": recorded.get("source_up")},
+                                        manifest.get("body")])
+        conventions.append(resolve_convention(positions, units, up, declared_units=declared[0],
+                                              declared_up=declared[1]))
+    return conventions
 
 
 def _load_aligned(directory, dataset_names):
@@ -154,22 +192,18 @@ def run(args):
             dataset_names = [s["name"] for s in manifest.get("sequences", [])]
             vertices, faces, root, root_vertices, names, lengths, extra = _load_aligned(args.aligned, dataset_names)
             sequences = [{"name": n} for n in names]
-            truth, template_faces = _truth(dataset, sequences, lengths)
-            # the ground truth is in the dataset's units; the aligned frames are in metres, +Y up
-            recorded = read_capture_manifest(args.aligned).get("body", {})
-            declared = declared_convention([{"units": recorded.get("source_units"), "up": recorded.get("source_up")},
-                                            manifest.get("body")])
-            convention = resolve_convention(truth, args.units, args.up, declared_units=declared[0],
-                                            declared_up=declared[1])
-            _say(convention)
-            truth = to_metres_y_up(truth, convention.units, convention.up)
-            size = _model_size(manifest, convention, truth)
+            parts, template_faces = _truth(dataset, sequences, lengths)
+            # the ground truth is in the files' units and axes; the aligned frames in metres, +Y up
+            conventions = _truth_conventions(dataset, manifest, args.aligned, names, parts, args.units, args.up)
+            say_conventions(conventions, names, _say_line, what="ground truth")
+            truth = _truth_in_metres(parts, conventions)
+            size = _model_size(manifest, conventions, truth)
             record, _ = _score("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths, names,
                                residual=extra.get("residual"), residual_max=extra.get("residual_max"),
                                seconds=extra.get("seconds"), retried=extra.get("retried"),
                                cpu_seconds=extra.get("cpu_seconds"))
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, aligned=record,
-                          units=convention_record(convention))
+                          **_units_report(names, conventions))
             results = {"aligned": (vertices, faces, root_vertices)}
         else:
             sequences = resolve_inputs([dataset], args.only)
@@ -180,14 +214,14 @@ def run(args):
                 meshes = [meshes[i] for i in keep]
                 lengths = np.minimum(lengths, args.max_frames)
             names = [s["name"] for s in sequences]
-            meshes, convention = convert_inputs(meshes, sequences, args.units, args.up, say=_say_line)
-            truth, template_faces = _truth(dataset, sequences, lengths)
-            truth = to_metres_y_up(truth, convention.units, convention.up)
-            size = _model_size(manifest, convention, truth)
+            meshes, conventions = convert_inputs(meshes, sequences, lengths, args.units, args.up, say=_say_line)
+            parts, template_faces = _truth(dataset, sequences, lengths)
+            truth = _truth_in_metres(parts, conventions)  # in the same units and axes as the frames
+            size = _model_size(manifest, conventions, truth)
             root = parse_root(args.root, sequences, lengths)
             options = AlignmentOptions(colour_weight=0.5 if args.colors else AlignmentOptions().colour_weight)
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names,
-                          units=convention_record(convention))
+                          **_units_report(names, conventions))
             tree_run = align_captures(meshes, lengths, method="tree", root=root, options=options,
                                       workers=args.workers, use_colors=args.colors, seed=args.seed,
                                       progress=progress)
@@ -250,19 +284,18 @@ def _say_line(line):
     tqdm.write(f"morphspace eval-align: {line}", file=sys.stderr)
 
 
-def _say(convention):
-    _say_line(f"ground truth {convention.describe()}")
-    for warning in convention.warnings:
-        _say_line(f"warning: {warning}")
+def _units_report(names, conventions):
+    """Report entries: each sequence's input units and up axis, and the unit lengths are shown in."""
+    return {"input": {name: c.to_metadata() for name, c in zip(names, conventions)},
+            "display_unit": display_unit(common_convention(conventions))}
 
 
 def _print_report(report, out):
-    units = report["units"]
-    unit = units["display_unit"]
+    unit = report["display_unit"]
     scale = DISPLAY_PER_METRE[unit] / 1000.0  # from the records' mm
+    inputs = sorted({f"{r['units']}, {r['up']} up" for r in report["input"].values()})
     print(f"{report['frames']} frames of {len(report['sequences'])} sequences, model size "
-          f"{report['model_size_m']:.3f} m; input in {units['units']} ({units['units_from']}), "
-          f"{units['up']} up ({units['up_from']})")
+          f"{report['model_size_m']:.3f} m; input in {' / '.join(inputs)}; lengths in {unit}")
     if "similarity_seconds" in report:
         print(f"similarity {report['similarity_seconds']:.1f} s, tree {report['tree_seconds']:.3f} s "
               f"(depth max {report['tree']['depth_max']}, mean {report['tree']['depth_mean']})")

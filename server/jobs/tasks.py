@@ -197,7 +197,7 @@ def run_align(payload, reporter):
     from engine.align import AlignmentOptions, align_captures
     from engine.surface import model_size
     from server.commands.align import convert_inputs, parse_root, read_inputs, resolve_inputs, write_alignment
-    from server.units import convention_record
+    from server.units import common_convention, display_unit
 
     params, staging = payload["params"], Path(payload["staging"])
     datasets = Path(payload["data_dir"]) / "datasets"
@@ -214,8 +214,8 @@ def run_align(payload, reporter):
     started = time.perf_counter()
     meshes, lengths = read_inputs(sequences, reporter.progress)
     reporter.log(f"read {int(lengths.sum())} frames of {len(sequences)} sequences")
-    meshes, convention = convert_inputs(meshes, sequences, params.get("units", "auto"), params.get("up", "auto"),
-                                        say=reporter.log)
+    meshes, conventions = convert_inputs(meshes, sequences, lengths, params.get("units", "auto"),
+                                         params.get("up", "auto"), say=reporter.log)
     root = parse_root(params.get("root"), sequences, lengths)
     options = AlignmentOptions(patches=params["patches"], levels=params["levels"])
     result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree", root=root,
@@ -227,7 +227,7 @@ def run_align(payload, reporter):
     write_alignment(out, sequences, meshes, lengths, result, fps=fps,
                     options_record={**{k: params[k] for k in ("patches", "levels", "window", "retries", "seed")},
                                     "units": params.get("units", "auto"), "up": params.get("up", "auto")},
-                    progress=reporter.progress, convention=convention)
+                    progress=reporter.progress, conventions=conventions)
     aligned = result.aligned
     size = model_size(aligned.root_vertices)
     reporter.log(f"aligned {int(lengths.sum())} frames in {time.perf_counter() - started:.1f} s")
@@ -238,7 +238,8 @@ def run_align(payload, reporter):
                         "residual_max_mm": float(1000 * aligned.residual_max.max()),
                         "residual_mean_pct": float(100 * aligned.residual.mean() / size),
                         "residual_max_pct": float(100 * aligned.residual_max.max() / size),
-                        "units": convention_record(convention, size),
+                        "input": {s["name"]: c.to_metadata() for s, c in zip(sequences, conventions)},
+                        "display_unit": display_unit(common_convention(conventions)),
                         "seconds": round(time.perf_counter() - started, 2)}}
 
 

@@ -79,10 +79,12 @@ def aligned(aligned_run):
 
 @pytest.fixture(scope="module")
 def dataset_mm_z_up(dataset, tmp_path_factory):
-    """The same captures in millimetres with +Z up (exact coordinates), with no units in the manifest."""
+    """The same captures with the walk (files and truth) in millimetres, +Z up (exact coordinates),
+    the jog as it was, in metres, +Y up, as a studio may deliver them; nothing says so (the
+    manifest's body stays in metres, +Y up, and says so)."""
     root = tmp_path_factory.mktemp("captures") / "tiny_mm"
     shutil.copytree(dataset, root)
-    for name in ("walk", "jog"):
+    for name in ("walk",):
         base = root / "sequences" / name
         for k, mesh in enumerate(read_frames(base / "unstructured")):
             write_ply(base / "unstructured" / f"frame_{k:04d}.ply", from_metres_y_up(mesh.vertices, "mm", "z"),
@@ -91,7 +93,7 @@ def dataset_mm_z_up(dataset, tmp_path_factory):
         truth["template_positions"] = from_metres_y_up(truth["template_positions"], "mm", "z")
         np.savez(base / "truth.npz", **truth)
     manifest = read_capture_manifest(dataset)
-    manifest["body"] = {"model_size": 1000.0 * manifest["body"]["model_size"]}
+    manifest["body"].update(units="m", up="+Y")
     manifest.pop("format"), manifest.pop("version")
     write_capture_manifest(root, manifest)
     return root
@@ -190,19 +192,22 @@ def test_bad_input_gives_a_clear_error(tmp_path, capsys, dataset):
 
 def test_captures_in_millimetres_z_up_align_as_in_metres_y_up(aligned, aligned_mm_run):
     out, err, stdout = aligned_mm_run
-    assert "units mm (detected" in err and "up +Z (detected" in err and "converted to metres, +Y up" in err
-    for name in ("walk", "jog"):  # written in metres, +Y up: the same numbers as from the metre files
-        # (the files differ only by rounding: x mm = x / 1000 m to the last bit here)
+    assert "input walk: units mm (detected" in err and "up +Z (detected" in err and "converted to metres" in err
+    assert "input jog: units m (detected" in err
+    for name, units, up in (("walk", "mm", "+Z"), ("jog", "m", "+Y")):
+        # written in metres, +Y up: the same numbers as from the metre files (which differ only
+        # by rounding: x mm = x / 1000 m to the last bit here)
         np.testing.assert_allclose(read_sequence(out / "sequences" / name / "consistent").vertices,
                                    read_sequence(aligned / "sequences" / name / "consistent").vertices, atol=1e-9)
         meta = json.loads((out / "sequences" / name / "meta.json").read_text())
         assert (meta["units"], meta["up"]) == ("m", "+Y")
-        assert (meta["alignment"]["source_units"], meta["alignment"]["source_up"]) == ("mm", "+Z")
+        assert (meta["alignment"]["source_units"], meta["alignment"]["source_up"]) == (units, up)
+        assert meta["alignment"]["input"]["units_from"] == "detected"
     manifest = json.loads((out / "manifest.json").read_text())
-    assert (manifest["body"]["source_units"], manifest["body"]["source_up"]) == ("mm", "+Z")
-    assert manifest["alignment"]["input"]["units_from"] == "detected"
+    assert (manifest["body"]["source_units"], manifest["body"]["source_up"]) == ("mixed", "mixed")
+    assert manifest["alignment"]["input"]["walk"]["units"] == "mm"
     with np.load(out / "alignment.npz", allow_pickle=False) as record:
-        assert str(record["source_units"]) == "mm" and str(record["source_up"]) == "+Z"
+        assert record["source_units"].tolist() == ["mm", "m"] and record["source_up"].tolist() == ["+Z", "+Y"]
     # residuals in the data's units and in % of the model size
     assert "fit residual mean" in stdout and " mm (" in stdout and "% of model size" in stdout
 
@@ -222,7 +227,7 @@ def test_given_units_and_up_override_detection(dataset_mm_z_up, tmp_path, capsys
 
 def test_eval_align_in_millimetres_z_up_scores_as_in_metres(dataset, dataset_mm_z_up, aligned, tmp_path, capsys):
     reports = []
-    for data in (dataset, dataset_mm_z_up):  # one alignment, ground truth in m +Y up and in mm +Z up
+    for data in (dataset, dataset_mm_z_up):  # one alignment; the walk's ground truth in m +Y up, then mm +Z up
         assert main(["eval-align", str(data), "--aligned", str(aligned), "--out", str(tmp_path / data.name),
                      "--json"]) == 0
         reports.append(json.loads(capsys.readouterr().out))
@@ -230,8 +235,10 @@ def test_eval_align_in_millimetres_z_up_scores_as_in_metres(dataset, dataset_mm_
     for key in ("mean_mm", "p95_mm", "max_mm", "mean_pct", "p95_pct", "max_pct"):
         assert millimetres["aligned"][key] == pytest.approx(metres["aligned"][key], rel=1e-6, abs=1e-6)
     assert millimetres["model_size_m"] == pytest.approx(metres["model_size_m"])
-    assert (millimetres["units"]["units"], millimetres["units"]["up"]) == ("mm", "+Z")
-    assert (metres["units"]["units"], metres["units"]["up"]) == ("m", "+Y")
+    walk = millimetres["input"]["walk"]
+    assert (walk["units"], walk["up"], millimetres["input"]["jog"]["units"]) == ("mm", "+Z", "m")
+    assert (metres["input"]["walk"]["units"], metres["input"]["walk"]["up"]) == ("m", "+Y")
+    assert millimetres["display_unit"] == metres["display_unit"] == "mm"
 
 
 def test_build_converts_sources_in_millimetres_z_up(aligned, tmp_path, capsys):
@@ -250,7 +257,9 @@ def test_build_converts_sources_in_millimetres_z_up(aligned, tmp_path, capsys):
         spaces[units] = tmp_path / f"{units}.mspace"
         assert main(["build", *sources, "--out", str(spaces[units]), "--phases", "3"]) == 0
     err = capsys.readouterr().err
-    assert "sources in units mm (detected" in err and "up +Z (detected" in err and "converted to metres" in err
+    # (no template next to these copies: the rest shape is the first frame, in the sources' units)
+    assert "source walk, jog, the rest shape: units mm (detected" in err and "up +Z (detected" in err
+    assert "converted to metres" in err
     from engine.motion_space import MotionSpace
 
     with MotionSpace.open(spaces["m"]) as metres, MotionSpace.open(spaces["mm"]) as millimetres:

@@ -253,7 +253,10 @@ def test_align_job_writes_a_buildable_dataset(client, live, dataset_zip):
     assert info["kind"] == "aligned" and info["buildable"] == sorted(SEQUENCES) and info["frames"] == 6
     assert info["templates"] == ["body.obj"]
     assert job["result"]["url"] == "/v1/datasets/raw_aligned" and job["result"]["frames"] == 6
-    units = job["result"]["units"]  # units as asked for, the up axis detected, said in the log
-    assert (units["units"], units["units_from"], units["up"], units["up_from"]) == ("m", "given", "+Y", "detected")
-    assert any("input units m (given" in line and "up +Y (detected" in line for line in job["log"]), job["log"]
+    for name in SEQUENCES:  # units as asked for, the up axis detected, said in the log
+        units = job["result"]["input"][name]
+        assert (units["units"], units["units_from"], units["up"], units["up_from"]) == ("m", "given", "+Y", "detected")
+    assert job["result"]["display_unit"] == "mm"
+    said = [line for line in job["log"] if line.startswith("input fast, slow: units m (given")]
+    assert said and "up +Y (detected" in said[0], job["log"]
     assert 0 < job["result"]["residual_mean_pct"] < 1
