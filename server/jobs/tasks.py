@@ -154,7 +154,8 @@ def check_build_sources(dataset_dir, spec):
 
 def run_build(payload, reporter):
     from engine.motion_space import build_motion_space
-    from server.commands.build import choose_rest, load_sources, read_spec
+    from server.commands.build import choose_rest, load_sources, read_spec, sources_to_metres
+    from server.units import say_conventions
 
     params, staging = payload["params"], Path(payload["staging"])
     dataset_dir = Path(payload["data_dir"]) / "datasets" / params["dataset"]
@@ -169,9 +170,11 @@ def run_build(payload, reporter):
         clips, faces = load_sources(spec["directories"], fps=30.0, cyclic=False, progress=reporter.progress,
                                     log=reporter.log)
         rest, note = choose_rest(clips, faces, spec["rest"], dataset_dir / "template" / "body.obj")
+        clips, rest, conventions = sources_to_metres(clips, rest, spec["directories"])  # units and up: auto
     except ValueError as exc:
         raise JobError(str(exc).replace(str(dataset_dir) + "/", "")) from None
     reporter.log(note.replace(str(dataset_dir) + "/", ""))
+    say_conventions(conventions, [clip.name for clip in clips] + ["the rest shape"], reporter.log, what="source")
     out = staging / f"{params['space']}.mspace"
     epsilon_mm = spec["epsilon_mm"] or 5.0
     report = build_motion_space(out, clips, faces, name=params["space"], n_phases=spec["phases"],

@@ -123,6 +123,7 @@ def test_upload_build_and_the_space_appears(client, live):
     assert job["progress"] == 1 and job["attempts"] == 1 and job["error"] is None
     assert job["result"]["url"] == "/v1/spaces/gaitspace" and job["result"]["n_sources"] == 2
     assert any("published" in line for line in job["log"])
+    assert any(line.startswith("source slow, fast") and "units m (detected" in line for line in job["log"]), job["log"]
     spaces = {s["name"]: s for s in client.get("/v1/spaces").json()["spaces"]}
     assert spaces["gaitspace"]["n_vertices"] == 1000 and spaces["gaitspace"]["parameters"][0]["name"] == "speed"
     assert client.get("/v1/spaces/gaitspace/frame", params={"format": "json", "params": "speed:1.5"}).status_code == 200
