@@ -4,6 +4,8 @@ A procedural humanoid (``build_body``) performs parameterised motions (``motions
 ``motions.jump``, ``motions.reach``); ``animate`` skins it and adds soft-tissue and garment
 dynamics; ``generate_sequence_data`` also re-meshes every frame independently, as a multi-view
 reconstruction would, and keeps the ground truth needed to score alignment and blending.
+``engine.synthetic.studio`` is the harder studio: a real body and real motion capture, each
+frame reconstructed from the volume with merged contacts, holes, fragments and noise.
 """
 
 from engine.synthetic.body import Body, build_body

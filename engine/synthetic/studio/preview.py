@@ -40,7 +40,7 @@ def defect_colors(V, F, colors, V_true, F_true, contact, *, merged_distance=0.01
     labels = sp.csgraph.connected_components(A, directed=False)[1]
     main = np.argmax(np.bincount(labels[F[:, 0]]))
     fragment = labels != main
-    _, faces, _, distance = SurfaceQuery(V_true, F_true).closest(V)
+    _, faces, _, distance = SurfaceQuery(V_true, F_true, k=4).closest(V)
     merged = (distance > merged_distance) | contact[F_true[faces]].any(axis=1)
     out[merged & ~fragment] = MERGED
     out[rim] = HOLE_RIM

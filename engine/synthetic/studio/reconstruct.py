@@ -158,7 +158,7 @@ def reconstruct_frame(V, F, colors, *, camera, seed, thin=None, contact=None, he
     rng = np.random.default_rng(seed)
     h = camera.spacing
     Vr, Fr = surface_volume(V, F, camera, thin)
-    points, faces, bary, distance = SurfaceQuery(V, F).closest(Vr)
+    points, faces, bary, distance = SurfaceQuery(V, F, k=4).closest(Vr)  # Vr is near V: 4 suffice
     snap = np.clip((2.0 * h - distance) / h, 0.0, 1.0)[:, None]
     Vr = Vr + snap * (points - Vr)
     C = np.einsum("qk,qkc->qc", bary, np.asarray(colors)[F[faces]])
