@@ -226,12 +226,13 @@ class worker_pool:
         return False
 
 
-def run_jobs(pool, function, jobs, desc="synth"):
+def run_jobs(pool, function, jobs, desc="synth", total=None):
     """Run ``function(job)`` for every job on the pool with one progress bar; results in job order.
 
-    Jobs report progress through ``report(name, done, total)``; the bar sums over the names.
+    Jobs report progress through ``report(name, done, total)``; the bar sums over the names
+    (its length is ``total`` when known beforehand, else the sum of the reported totals).
     """
-    bar = tqdm(total=0, unit="frame", desc=desc, dynamic_ncols=True, mininterval=0.5)
+    bar = tqdm(total=total or 0, unit="frame", desc=desc, dynamic_ncols=True, mininterval=0.5)
     seen = {}
     futures = {pool.pool.submit(function, job): i for i, job in enumerate(jobs)}
     results = [None] * len(jobs)
@@ -239,11 +240,12 @@ def run_jobs(pool, function, jobs, desc="synth"):
     try:
         while pending:
             try:
-                name, done, total = pool.queue.get(timeout=0.2)
+                name, done, reported = pool.queue.get(timeout=0.2)
                 old_done, old_total = seen.get(name, (0, 0))
-                bar.total += total - old_total
+                if total is None:
+                    bar.total += reported - old_total
                 bar.update(done - old_done)
-                seen[name] = (done, total)
+                seen[name] = (done, reported)
                 bar.set_postfix_str(name)
             except queue.Empty:
                 pass

@@ -164,7 +164,8 @@ def run_studio(args, preset):
             if unstructured_format:
                 chunks = [dict(job, start=start, stop=min(start + CHUNK, meta["frames"]))
                           for job, meta in zip(jobs, metas) for start in range(0, meta["frames"], CHUNK)]
-                chunk_stats = run_jobs(pool, _reconstruct, chunks, desc="reconstruct")
+                chunk_stats = run_jobs(pool, _reconstruct, chunks, desc="reconstruct",
+                                       total=sum(m["frames"] for m in metas))
                 for job, meta in zip(jobs, metas):
                     stats = [st for chunk, part in zip(chunks, chunk_stats) if chunk["spec"] is job["spec"]
                              for st in part]
@@ -173,7 +174,7 @@ def run_studio(args, preset):
                 meta["noise_mm"] = 1000.0 * camera.noise
                 _write_json(sequence_dir(staging, meta["name"]) / "meta.json", meta)
             if not args.no_previews:
-                run_jobs(pool, _preview, jobs, desc="previews")
+                run_jobs(pool, _preview, jobs, desc="previews", total=len(jobs))
         shutil.rmtree(staging / ".work", ignore_errors=True)
         manifest = {
             "preset": preset.name, "seed": args.seed, "fps": fps, "noise_mm": 1000.0 * camera.noise,
