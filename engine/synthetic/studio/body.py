@@ -63,6 +63,10 @@ class StudioBody:
     garment : (n,) float        0..1 garment lag amplitude (garments only)
     colors : (n, 3) float       albedo in [0, 1]
     part : (n,) int             index into PARTS
+    capsules : tuple of (head joint, tail joint, head radius, tail radius)   the legs, which
+                                push the skirt aside
+    clearance : (n,) float      how far a skirt vertex stays outside the leg capsules (its
+                                sheet's offset); 0 elsewhere
     """
 
     V: np.ndarray
@@ -75,6 +79,8 @@ class StudioBody:
     garment: np.ndarray
     colors: np.ndarray
     part: np.ndarray
+    capsules: tuple = ()
+    clearance: np.ndarray | None = None
 
     @property
     def size(self):
@@ -194,9 +200,15 @@ def build_studio_body(vertices=FULL_VERTICES, garment_detail=1.0):
     soft = np.clip(0.8 * w("pelvis", "spine_01") + 0.6 * w("thigh_l", "thigh_r") + 0.5 * w("spine_02", "spine_03")
                    + 0.4 * w("upperarm_l", "upperarm_r"), 0.0, 1.0) * (part == 0)
     colors = _colors(V_all, w, params)
+    legs = [(f"{bone}_{side}", f"{tail}_{side}") for side in "lr" for bone, tail in (("thigh", "calf"), ("calf", "foot"))]
+    capsules = garments.limb_capsules(V_all, lambda bone: w(bone) * (part == 0), skeleton, legs)
+    clearance = np.zeros(len(V_all))
+    skirt = np.flatnonzero(part == 1)
+    outer = np.arange(len(skirt)) < len(skirt) // 2  # the outer sheet comes first
+    clearance[skirt] = np.where(outer, 0.006 + garments.THICKNESS, 0.006)
     return StudioBody(V=V_all, F=np.concatenate(all_F), skeleton=skeleton, weight_index=weight_index,
                       weight=weight, segment=segment, soft_tissue=soft, garment=np.concatenate(lag),
-                      colors=colors, part=part)
+                      colors=colors, part=part, capsules=capsules, clearance=clearance)
 
 
 def _garment_part(V, F, W, amplitude, u, s):

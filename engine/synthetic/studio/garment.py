@@ -173,3 +173,51 @@ def _grid_parameters(rings, sectors):
     s = np.repeat(np.linspace(0.0, 1.0, rings), sectors)
     u = np.tile((np.arange(sectors) + 0.5) / sectors, rings)
     return np.concatenate([u, u]), np.concatenate([s, s])
+
+
+def limb_capsules(V, weight_of_bone, skeleton, bones):
+    """Tapered capsules around limb bones at rest: (head joint, tail joint, head radius, tail radius).
+
+    The radius at each end is the median distance from the bone of the vertices the bone owns
+    near that end (its outer third), plus 5 mm: limbs are not round, and cloth pushed by a limb
+    rests on its widest side.
+    """
+    capsules = []
+    for bone, tail_joint in bones:
+        j, k = skeleton.index(bone), skeleton.index(tail_joint)
+        A, B = skeleton.rest[j], skeleton.rest[k]
+        own = V[weight_of_bone(bone) > 0.5]
+        t = (own - A) @ (B - A) / ((B - A) @ (B - A))
+        d = np.linalg.norm(own - (A + np.clip(t, 0.0, 1.0)[:, None] * (B - A)), axis=1)
+        ends = [(t > 0.0) & (t < 1 / 3), (t > 2 / 3) & (t < 1.0)]
+        r0, r1 = (float(np.median(d[end] if np.any(end) else d)) + 0.005 for end in ends)
+        capsules.append((j, k, r0, r1))
+    return tuple(capsules)
+
+
+def push_out_of_capsules(P, heads, tails, radii, clearance):
+    """Move points out of tapered capsules (cloth pushed aside by the legs).
+
+    Parameters
+    ----------
+    P : (frames, m, 3) float array   garment points (changed in place and returned)
+    heads, tails : (frames, c, 3)    capsule ends per frame
+    radii : (c, 2) float array       radius at the head and at the tail
+    clearance : (m,) float array     how far outside the capsule each point must stay
+
+    Returns
+    -------
+    P : (frames, m, 3) float array
+    """
+    for c in range(heads.shape[1]):
+        A, B = heads[:, c][:, None], tails[:, c][:, None]
+        AB = B - A
+        t = np.clip(np.sum((P - A) * AB, axis=-1) / np.maximum(np.sum(AB * AB, axis=-1), 1e-12), 0.0, 1.0)
+        Q = A + t[..., None] * AB
+        offset = P - Q
+        d = np.linalg.norm(offset, axis=-1)
+        r = radii[c, 0] + t * (radii[c, 1] - radii[c, 0]) + clearance
+        inside = (d < r) & (d > 1e-9)
+        scale = np.where(inside, r / np.maximum(d, 1e-9), 1.0)
+        P = Q + offset * scale[..., None]
+    return P

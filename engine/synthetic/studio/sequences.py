@@ -13,6 +13,7 @@ from engine import measures
 from engine.synthetic.dynamics import SOFT_TISSUE, Material, secondary_motion
 from engine.synthetic.skinning import skin_dual_quaternion
 from engine.synthetic.studio.axes import axes_record
+from engine.synthetic.studio.garment import push_out_of_capsules
 from engine.synthetic.studio.poses import pose_sequence
 from engine.synthetic.studio.reconstruct import (
     StudioCamera,
@@ -63,7 +64,8 @@ def animate_studio(body, motion):
     Skinning (dual quaternions), then a vertical correction per frame that puts the lowest foot
     point where the actor's feet were (on the ground, or as high as the flight) and nothing below
     the floor, then soft tissue and the garments' lag (damped springs driven by the
-    accelerations, starting and ending at rest).
+    accelerations, starting and ending at rest), and last the legs pushing the skirt aside
+    (its points moved out of tapered capsules around the thighs and shins).
 
     Returns
     -------
@@ -88,6 +90,12 @@ def animate_studio(body, motion):
                              {SOFT_TISSUE: body.soft_tissue, LOOSE_GARMENT: body.garment}, periodic=False,
                              before=2 * V[0] - V[1], after=2 * V[-1] - V[-2], world=True)
         V += D
+    if body.capsules:  # the legs push the skirt aside
+        skirt = np.flatnonzero(body.part == 1)
+        heads = positions[:, [c[0] for c in body.capsules]]
+        tails = positions[:, [c[1] for c in body.capsules]]
+        radii = np.array([c[2:] for c in body.capsules])
+        V[:, skirt] = push_out_of_capsules(V[:, skirt], heads, tails, radii, body.clearance[skirt])
     return V, positions
 
 
