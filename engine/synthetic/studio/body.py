@@ -148,50 +148,27 @@ def build_studio_body(vertices=FULL_VERTICES, garment_detail=1.0):
     names = tuple(str(n) for n in data["joint_names"])
     skeleton = StudioSkeleton(names=names, parents=data["joint_parents"].astype(np.int64),
                               rest=data["joint_head"].astype(float), tails=data["joint_tail"].astype(float))
-    J = len(names)
 
     def weights_of(joints):
         index = [names.index(n) for n in joints]
         return np.sum(np.where(np.isin(weight_index, index), weight, 0.0), axis=1)
 
-    parts = [(V, F, weight_index, weight, np.zeros(len(V)), np.zeros(len(V)), np.zeros(len(V)))]
     rings = max(8, int(round(18 * garment_detail)))
     sectors = max(16, int(round(64 * garment_detail)))
-    top = skeleton.position("spine_01")[1] + 0.02
-    Vs, Fs, u, s = garments.skirt(V, weights_of, top=top, hem=skeleton.position("calf_l")[1] - 0.02,
-                                  rings=rings, sectors=sectors)
-    left = np.sin(2 * np.pi * u)   # +1 on the left (+X)
-    hem = s ** 1.2
-    W = np.zeros((len(Vs), J))
-    W[:, names.index("pelvis")] = 1.0 - 0.75 * hem
-    W[:, names.index("thigh_l")] = 0.75 * hem * np.clip(0.5 + 0.5 * left, 0, 1)
-    W[:, names.index("thigh_r")] = 0.75 * hem * np.clip(0.5 - 0.5 * left, 0, 1)
-    W[:, names.index("spine_01")] = 0.3 * (1 - s) ** 4
-    W[:, names.index("pelvis")] -= 0.3 * (1 - s) ** 4
-    parts.append(_garment_part(Vs, Fs, W, s ** 1.5, u, s))
-    for side in ("l", "r"):
-        elbow, wrist = skeleton.position(f"lowerarm_{side}"), skeleton.position(f"hand_{side}")
-        Vg, Fg, u, s = garments.sleeve(V, weights_of, elbow, wrist, rings=max(6, rings // 2),
-                                       sectors=max(12, sectors // 2))
-        W = np.zeros((len(Vg), J))
-        near = np.clip(1.0 - s / 0.15, 0.0, 1.0)
-        W[:, names.index(f"upperarm_{side}")] = 0.5 * near
-        W[:, names.index(f"lowerarm_{side}")] = 1.0 - 0.5 * near
-        parts.append(_garment_part(Vg, Fg, W, s ** 2, u, s))
-    offset, all_V, all_F, all_index, all_weight, soft, lag, part, params = 0, [], [], [], [], [], [], [], []
-    for k, (Vp, Fp, index_p, weight_p, amplitude, u_p, s_p) in enumerate(parts):
-        all_V.append(Vp)
-        all_F.append(Fp + offset)
-        all_index.append(index_p)
-        all_weight.append(weight_p)
-        lag.append(amplitude if k > 0 else np.zeros(len(Vp)))
-        part.append(np.full(len(Vp), k))
-        params.append((u_p, s_p))
-        offset += len(Vp)
-    V_all = np.concatenate(all_V)
-    weight_index, weight = np.concatenate(all_index), np.concatenate(all_weight)
+    parts = [(V, F, weight_index, weight, np.zeros(len(V)), np.zeros(len(V)), np.zeros(len(V))),
+             _skirt_part(V, weights_of, skeleton, rings, sectors)]
+    parts += [_sleeve_part(V, weights_of, skeleton, side, max(6, rings // 2), max(12, sectors // 2))
+              for side in ("l", "r")]
+    # parts: (V, F, weight_index, weight, lag amplitude, u, s), body first
+    offsets = np.cumsum([0] + [len(p[0]) for p in parts])[:-1]
+    V_all = np.concatenate([p[0] for p in parts])
+    F_all = np.concatenate([p[1] + offset for p, offset in zip(parts, offsets)])
+    weight_index = np.concatenate([p[2] for p in parts])
+    weight = np.concatenate([p[3] for p in parts])
+    lag = np.concatenate([p[4] for p in parts])
+    params = [(p[5], p[6]) for p in parts]
+    part = np.concatenate([np.full(len(p[0]), k) for k, p in enumerate(parts)])
     segment = weight_index[np.arange(len(V_all)), np.argmax(weight, axis=1)]
-    part = np.concatenate(part)
 
     def w(*joints):
         index = [names.index(n) for n in joints]
@@ -206,9 +183,37 @@ def build_studio_body(vertices=FULL_VERTICES, garment_detail=1.0):
     skirt = np.flatnonzero(part == 1)
     outer = np.arange(len(skirt)) < len(skirt) // 2  # the outer sheet comes first
     clearance[skirt] = np.where(outer, 0.006 + garments.THICKNESS, 0.006)
-    return StudioBody(V=V_all, F=np.concatenate(all_F), skeleton=skeleton, weight_index=weight_index,
-                      weight=weight, segment=segment, soft_tissue=soft, garment=np.concatenate(lag),
+    return StudioBody(V=V_all, F=F_all, skeleton=skeleton, weight_index=weight_index,
+                      weight=weight, segment=segment, soft_tissue=soft, garment=lag,
                       colors=colors, part=part, capsules=capsules, clearance=clearance)
+
+
+def _skirt_part(V, weights_of, skeleton, rings, sectors):
+    """The skirt, waist to just above the knees; its hem follows the thighs three quarters."""
+    names = skeleton.names
+    top = skeleton.position("spine_01")[1] + 0.02
+    Vs, Fs, u, s = garments.skirt(V, weights_of, top=top, hem=skeleton.position("calf_l")[1] - 0.02,
+                                  rings=rings, sectors=sectors)
+    left = np.sin(2 * np.pi * u)  # +1 on the left (+X)
+    hem = s ** 1.2
+    W = np.zeros((len(Vs), len(names)))
+    W[:, names.index("pelvis")] = 1.0 - 0.75 * hem - 0.3 * (1 - s) ** 4
+    W[:, names.index("spine_01")] = 0.3 * (1 - s) ** 4
+    W[:, names.index("thigh_l")] = 0.75 * hem * np.clip(0.5 + 0.5 * left, 0, 1)
+    W[:, names.index("thigh_r")] = 0.75 * hem * np.clip(0.5 - 0.5 * left, 0, 1)
+    return _garment_part(Vs, Fs, W, s ** 1.5, u, s)
+
+
+def _sleeve_part(V, weights_of, skeleton, side, rings, sectors):
+    """A bell sleeve on one forearm; its top follows the upper arm half way."""
+    names = skeleton.names
+    elbow, wrist = skeleton.position(f"lowerarm_{side}"), skeleton.position(f"hand_{side}")
+    Vg, Fg, u, s = garments.sleeve(V, weights_of, elbow, wrist, rings=rings, sectors=sectors)
+    W = np.zeros((len(Vg), len(names)))
+    near = np.clip(1.0 - s / 0.15, 0.0, 1.0)
+    W[:, names.index(f"upperarm_{side}")] = 0.5 * near
+    W[:, names.index(f"lowerarm_{side}")] = 1.0 - 0.5 * near
+    return _garment_part(Vg, Fg, W, s ** 2, u, s)
 
 
 def _garment_part(V, F, W, amplitude, u, s):

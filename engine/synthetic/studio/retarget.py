@@ -191,7 +191,9 @@ def retarget(skeleton, take, *, fps, start=0.0, stop=None):
     early = rotations[: max(1, int(fps)), 0, :, 2].mean(axis=0)  # the pelvis sways: face its mean over 1 s
     G = rot_y(-np.arctan2(early[0], early[2]))
     rotations = np.einsum("ab,fjbc->fjac", G, rotations)
-    offset = Ph * BVH_UNITS - np.array([Ph[0, 0], hip_height / BVH_UNITS, Ph[0, 2]]) * BVH_UNITS
+    # The pelvis moves as the actor's hip, scaled by the leg lengths, from where it stood in the
+    # T-pose (vertically) and from the take's first frame (horizontally).
+    offset = Ph * BVH_UNITS - np.array([Ph[0, 0] * BVH_UNITS, hip_height, Ph[0, 2] * BVH_UNITS])
     root = skeleton.rest[0] + scale * offset @ G.T
     positions = body_forward_kinematics(skeleton, rotations, root)
     return SkeletonMotion(fps=float(fps), rotations=rotations, positions=positions,
