@@ -2,18 +2,31 @@
 
 from __future__ import annotations
 
-from engine.motion_space import SourceClip, build_motion_space
-from engine.parameters import Layout
-from engine.synthetic import animate, build_body, gait
-
 TINY_VERTICES = 1000
 TINY_FPS = 15.0
+
+
+def parse_arguments(parser, argv, tiny_defaults):
+    """``parser.parse_args(argv)``; with ``--tiny``, ``tiny_defaults`` replace the defaults (options
+    given on the command line still win) and ``--out`` is required, so a tiny run never replaces
+    the recorded results."""
+    args = parser.parse_args(argv)
+    if args.tiny:
+        if args.out is None:
+            parser.error("--tiny needs --out (a tiny run never replaces the recorded results)")
+        parser.set_defaults(**tiny_defaults)
+        args = parser.parse_args(argv)
+    return args
 
 
 def build_tiny_speed_space(path):
     """Build a two-gait speed space at ``path``: a slow walk (0.8 m/s) and a jog (2.8 m/s) of a
     1,000-vertex body at 15 fps straight from the generator, in a speed chain, epsilon 5 mm
     (a few seconds). Returns the body (engine.synthetic.Body)."""
+    from engine.motion_space import SourceClip, build_motion_space  # not for parse_arguments' users
+    from engine.parameters import Layout
+    from engine.synthetic import animate, build_body, gait
+
     body = build_body(TINY_VERTICES)
     clips = []
     for name, speed in (("walk_slow", 0.8), ("jog", 2.8)):

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from _tiny import parse_arguments
 from engine.bench import blend_requests, blend_speed, single_core
 from engine.motion_space import MotionSpace, SourceClip, build_motion_space
 from engine.synthetic import animate, build_body, gait
@@ -66,12 +67,7 @@ def main(argv=None):
     parser.add_argument("--tiny", action="store_true",
                         help="smoke run: 1,000 vertices, 15 fps, 200 and 10 calls; needs --out")
     parser.add_argument("--out", type=Path, help="JSON results (default benchmarks/results/blend_scaling.json)")
-    args = parser.parse_args(argv)
-    if args.tiny:
-        if args.out is None:
-            parser.error("--tiny needs --out (a tiny run never replaces the recorded results)")
-        parser.set_defaults(**TINY)
-        args = parser.parse_args(argv)  # options given on the command line still win
+    args = parse_arguments(parser, argv, TINY)
     out = args.out or Path("benchmarks/results/blend_scaling.json")
     rows = []
     with tempfile.TemporaryDirectory() as workdir:

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from _tiny import parse_arguments
 from engine.align.similarity import dissimilarity_matrix, frame_histograms, temporal_filter
 from engine.align.similarity_tree import similarity_tree
 from engine.mesh_io import read_frames
@@ -61,12 +62,8 @@ def main(argv=None):
     parser.add_argument("--tiny", action="store_true",
                         help="smoke run without a dataset: 60 frames of a generated walk, one worker; needs --out")
     parser.add_argument("--out", type=Path, help="append the result to this JSON list")
-    args = parser.parse_args(argv)
+    args = parse_arguments(parser, argv, TINY)
     if args.tiny:
-        if args.out is None:
-            parser.error("--tiny needs --out (a tiny run never replaces the recorded results)")
-        parser.set_defaults(**TINY)
-        args = parser.parse_args(argv)  # options given on the command line still win
         base = tiny_frames()
     elif args.dataset is None:
         parser.error("give a capture dataset (or --tiny)")

@@ -30,7 +30,7 @@ from engine.mesh_io.dataset import read_capture_manifest
 from engine.motion_space import MotionSpace
 from engine.synthetic import build_body, gait
 
-from _tiny import TINY_FPS, build_tiny_speed_space
+from _tiny import TINY_FPS, build_tiny_speed_space, parse_arguments
 
 
 def compare_speeds(space, body, speeds, fps):
@@ -67,12 +67,8 @@ def main(argv=None):
                         help="smoke run on a speed space built from the generator (1,000 vertices, 15 fps) at 1.8 "
                              "m/s; ignores --space and --captures; needs --out")
     parser.add_argument("--out", type=Path, help="JSON results (default benchmarks/results/speed_ground_truth.json)")
-    args = parser.parse_args(argv)
+    args = parse_arguments(parser, argv, {"speeds": [1.8]})
     if args.tiny:
-        if args.out is None:
-            parser.error("--tiny needs --out (a tiny run never replaces the recorded results)")
-        parser.set_defaults(speeds=[1.8])
-        args = parser.parse_args(argv)  # options given on the command line still win
         with tempfile.TemporaryDirectory(prefix="morphspace-bench-") as workdir:
             path = Path(workdir) / "speed.mspace"
             body = build_tiny_speed_space(path)

@@ -39,6 +39,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from _tiny import parse_arguments
 from _load_clients import client_process, soak_process
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -212,12 +213,7 @@ def main(argv=None):
                         help="smoke run: 4 clients x 30 fps for 4 s in one process, on a 1,000-vertex space "
                              "built for the run unless --space is given; needs --out")
     parser.add_argument("--out", type=Path, help="JSON results (default benchmarks/results/stream_load.json)")
-    args = parser.parse_args(argv)
-    if args.tiny:
-        if args.out is None:
-            parser.error("--tiny needs --out (a tiny run never replaces the recorded results)")
-        parser.set_defaults(**TINY)
-        args = parser.parse_args(argv)  # options given on the command line still win
+    args = parse_arguments(parser, argv, TINY)
     out = args.out or ROOT / "benchmarks" / "results" / "stream_load.json"
 
     data = Path(tempfile.mkdtemp(prefix="morphspace-bench-"))

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from _tiny import parse_arguments
 from engine.synthetic import build_body
 from engine.tetmesh import tetrahedralize
 
@@ -52,13 +53,10 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--vertices", type=int, nargs="+", default=[10000, 40000])
     parser.add_argument("--repeat", type=int, default=5)
-    parser.add_argument("--out", type=Path, default=Path(__file__).parent / "results" / "tetrahedra.json")
+    parser.add_argument("--out", type=Path, help="JSON results (default benchmarks/results/tetrahedra.json)")
     parser.add_argument("--tiny", action="store_true", help="1,000 vertices, 2 runs (needs --out)")
-    args = parser.parse_args(argv)
-    if args.tiny:
-        if "--out" not in (argv or __import__("sys").argv):
-            parser.error("--tiny needs --out (a tiny run does not replace the recorded results)")
-        args.vertices, args.repeat = [1000], 2
+    args = parse_arguments(parser, argv, {"vertices": [1000], "repeat": 2})
+    out = args.out or Path(__file__).parent / "results" / "tetrahedra.json"
     rows = []
     for n in args.vertices:
         row = run_one(n, args.repeat)
@@ -66,8 +64,8 @@ def main(argv=None):
         print(f"{row['surface_vertices']:>7} surface vertices: {row['tets']} tets on {row['tet_vertices']} vertices, "
               f"median {row['median_s']:.3f} s (max {row['max_s']:.3f}) over {row['runs']} runs, "
               f"{'identical' if row['identical'] else 'DIFFERENT'} bytes")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(rows, indent=2) + "\n")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(rows, indent=2) + "\n")
     return 0
 
 

@@ -63,9 +63,10 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     use_colours = aligner.colors is not None
     for done, frame in enumerate(flagged):
         trusted = np.flatnonzero(confidence >= TRUSTED)
-        sources = [root]
+        parent = aligned.parent[frame]
+        sources = [] if parent == root else [root]  # the same source again gives the same result
         if dissimilarity is not None:
-            others = trusted[(trusted != root) & (trusted != aligned.parent[frame])]
+            others = trusted[(trusted != root) & (trusted != parent)]
             others = others[np.argsort(np.asarray(dissimilarity)[frame, others], kind="stable")]
             sources += [int(s) for s in others[:max(0, int(candidates))]]
         V, F, C = mesh_arrays(meshes[frame], use_colours)
@@ -73,8 +74,6 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         best, best_source = None, None
         best_badness = alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size)
         for source in sources:
-            if source == aligned.parent[frame] and source != root:
-                continue
             hint = None if yaw is None else float(yaw[frame, source])
             result = aligner.align(aligned.poses[source], target, yaw=hint)
             badness = alignment_badness(result.residual, result.distortion_tail, size)
