@@ -7,8 +7,11 @@ browser client at ``/``. Nothing happens at import time; ``morphspace serve`` (o
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import gc
 import logging
+import time
 from contextlib import asynccontextmanager
 from pathlib import Path
 
@@ -24,13 +27,19 @@ from server.registry import SpaceRegistry
 from server.scheduler import FrameScheduler
 from server.settings import Settings
 from server.stream import StreamSession, StreamStats
+from server.workers.context import WorkerHeader, local_counters, server_counters
 
 log = logging.getLogger("morphspace.server")
 WEB_CLIENT = Path(__file__).resolve().parent.parent / "web_client" / "static"
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
-    """The morphspace server for ``settings`` (default: from the environment)."""
+def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
+    """The morphspace server for ``settings`` (default: from the environment).
+
+    ``worker``: a server.workers.context.WorkerContext when this is one of several processes
+    (``morphspace serve --workers N``): it publishes its counters for the others, /v1/health
+    reports all of them, and only worker 0 runs the job queue.
+    """
     settings = settings or Settings()
 
     @asynccontextmanager
@@ -38,6 +47,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         for directory in (settings.data_dir, settings.spaces_dir, settings.datasets_dir, settings.work_dir):
             directory.mkdir(parents=True, exist_ok=True)
         await app.state.jobs.start()
+        publisher = stop_listening = None
+        if worker is not None:
+            publisher = asyncio.create_task(worker.publish_forever(lambda: local_counters(app.state)))
+            if worker.runs_jobs:
+                stop_listening = worker.on_wake(asyncio.get_running_loop(), app.state.jobs.wake)
         # Everything loaded so far lives as long as the server: keep it out of the cyclic
         # collector's full passes, which otherwise stall the event loop (and every stream) for
         # ~100 ms now and then (the registry does the same after opening a space).
@@ -45,6 +59,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            if stop_listening is not None:
+                stop_listening()
+            if publisher is not None:
+                publisher.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await publisher
             await app.state.jobs.stop()
             app.state.registry.close()
 
@@ -52,10 +72,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   description="Motion spaces from 4D performance capture: REST for spaces, datasets and jobs; "
                               "a WebSocket stream of blended frames at /v1/stream (see docs/protocol.md).")
     app.state.settings = settings
+    app.state.worker = worker
+    app.state.started_at = time.time()
     app.state.registry = SpaceRegistry(settings.spaces_dir)
     app.state.stream_stats = StreamStats()
     app.state.frame_scheduler = FrameScheduler()
-    app.state.jobs = JobService(settings, app.state.registry)
+    app.state.jobs = JobService(settings, app.state.registry, runs_jobs=worker is None or worker.runs_jobs,
+                                wake_owner=worker.wake_jobs if worker is not None else None)
+    if worker is not None:
+        app.add_middleware(WorkerHeader, index=worker.index)
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
                            allow_headers=["Authorization", "Content-Type"])
@@ -64,12 +89,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(datasets.router, prefix="/v1")
     app.include_router(jobs.router, prefix="/v1")
 
-    @app.get("/v1/health", tags=["server"], summary="Liveness and counters")
+    @app.get("/v1/health", tags=["server"], summary="Liveness and counters of every worker process")
     def health():
-        stats, scheduler = app.state.stream_stats, app.state.frame_scheduler
-        return {"status": "ok", "version": __version__, "spaces": len(app.state.registry.names()),
-                "connections": stats.connections, "frames_sent": stats.frames, "frames_dropped": stats.dropped,
-                "stream_errors": stats.errors, "scheduler": scheduler.counters()}
+        workers, totals, restarts = server_counters(app.state)
+        return {"status": "ok" if all(w["alive"] for w in workers) else "degraded", "version": __version__,
+                "spaces": len(app.state.registry.names()), "connections": totals.get("connections", 0),
+                "frames_sent": totals.get("frames_sent", 0), "frames_dropped": totals.get("frames_dropped", 0),
+                "stream_errors": totals.get("stream_errors", 0), "scheduler": totals.get("scheduler", {}),
+                "worker": worker.index if worker is not None else 0, "restarts": restarts, "workers": workers}
 
     @app.websocket("/v1/stream")
     async def stream(websocket: WebSocket):

@@ -26,6 +26,7 @@ class Settings(BaseSettings):
     cors_origins: list[str] = Field(default_factory=list, description="origins allowed by CORS")
     dask_scheduler: str | None = Field(None, description="Dask scheduler address; local workers if unset")
     job_workers: int = Field(1, ge=1, le=64, description="local worker processes for jobs")
+    workers: int = Field(1, ge=1, le=64, description="server processes sharing the port (morphspace serve)")
     # uploads
     max_upload_bytes: int = Field(512 * 2**20, ge=1, description="largest accepted upload")
     max_upload_files: int = Field(20000, ge=1, description="most files in one dataset")

@@ -3,6 +3,10 @@
 Settings come from the environment (MORPHSPACE_DATA_DIR, MORPHSPACE_TOKEN, MORPHSPACE_CORS_ORIGINS,
 MORPHSPACE_DASK_SCHEDULER, ... see docs/rest.md); the options below override them. The server
 refuses to bind a non-loopback address without a token unless --allow-open-bind is given.
+
+--workers N (Linux) serves from N processes on the same port: the kernel spreads connections over
+them (SO_REUSEPORT), worker 0 runs the job queue, /v1/health adds up every worker's counters, and
+a worker that ends is started again (server/workers/supervisor.py).
 """
 
 from __future__ import annotations
@@ -14,6 +18,8 @@ def add_arguments(parser):
     parser.add_argument("--data-dir", type=Path, help="data directory (spaces/, datasets/, jobs.sqlite)")
     parser.add_argument("--host", help="address to bind (default 127.0.0.1)")
     parser.add_argument("--port", type=int, help="port (default 8000)")
+    parser.add_argument("--workers", type=int,
+                        help="server processes sharing the port (default 1; MORPHSPACE_WORKERS)")
     parser.add_argument("--dask-scheduler", help="run jobs on this Dask scheduler (tcp://host:8786)")
     parser.add_argument("--allow-open-bind", action="store_true",
                         help="serve a non-loopback address without a token")
@@ -21,21 +27,44 @@ def add_arguments(parser):
 
 
 def run(args):
-    import uvicorn
-
-    from server.app import create_app
     from server.settings import Settings, check_bind
 
     overrides = {k: v for k, v in {"data_dir": args.data_dir, "host": args.host, "port": args.port,
-                                   "dask_scheduler": args.dask_scheduler}.items() if v is not None}
+                                   "dask_scheduler": args.dask_scheduler, "workers": args.workers}.items()
+                 if v is not None}
     if args.allow_open_bind:
         overrides["allow_open_bind"] = True
     settings = Settings(**overrides)
     check_bind(settings, settings.host)
+    if settings.workers > 1:
+        return _run_workers(overrides, args.log_level)
+    import uvicorn
+
+    from server.app import create_app
+
     app = create_app(settings)
     print(f"morphspace: serving {settings.spaces_dir} on http://{settings.host}:{settings.port}/ "
           f"(browser client at /, API docs at /docs)", flush=True)
-    uvicorn.run(app, host=settings.host, port=settings.port, ws="websockets-sansio",
-                ws_max_size=max(1 << 20, settings.stream_max_message * 4), log_level=args.log_level,
-                timeout_graceful_shutdown=5)
+    uvicorn.run(app, **uvicorn_options(settings, args.log_level), host=settings.host, port=settings.port)
     return 0
+
+
+def uvicorn_options(settings, log_level):
+    return {"ws": "websockets-sansio", "ws_max_size": max(1 << 20, settings.stream_max_message * 4),
+            "log_level": log_level, "timeout_graceful_shutdown": 5}
+
+
+def _run_workers(overrides, log_level):
+    """Serve from several processes: replace this process by the supervisor in a fresh
+    interpreter (``python -m server.workers``), which forks the workers without numpy, the
+    engine or their threads in it. The settings travel in the environment."""
+    import os
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        raise ValueError("--workers above 1 needs Linux (SO_REUSEPORT and PR_SET_PDEATHSIG)")
+    for key, value in overrides.items():
+        os.environ[f"MORPHSPACE_{key.upper()}"] = str(value)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os.execv(sys.executable, [sys.executable, "-m", "server.workers", "--log-level", log_level])

@@ -72,8 +72,14 @@ class _Running:
 
 
 class JobService:
-    def __init__(self, settings, registry):
+    """The job queue of one server process. ``runs_jobs=False`` (the other workers of
+    ``morphspace serve --workers N``): create, list, read and cancel through the shared store
+    only; ``wake_owner()`` then tells the process that runs the queue to look at the store."""
+
+    def __init__(self, settings, registry, *, runs_jobs=True, wake_owner=None):
         self.settings, self.registry = settings, registry
+        self.runs_jobs, self.wake_owner = runs_jobs, wake_owner
+        self._check_cancels = False
         self.owner = uuid.uuid4().hex
         self.host = socket.gethostname()
         self.pid = os.getpid()
@@ -90,6 +96,8 @@ class JobService:
         for directory in (settings.data_dir, settings.work_dir, self.jobs_dir):
             directory.mkdir(parents=True, exist_ok=True)
         self.store = JobStore(settings.jobs_db)
+        if not self.runs_jobs:
+            return
         if settings.dask_scheduler:
             self.executor = DaskExecutor(settings.dask_scheduler)
         else:
@@ -104,6 +112,10 @@ class JobService:
 
     async def stop(self):
         if self.store is None:
+            return
+        if not self.runs_jobs:
+            self.store.close()
+            self.store = None
             return
         self._stopping = True
         if self._loop_task is not None:
@@ -189,6 +201,11 @@ class JobService:
             await self._stop_job(job_id)
             with contextlib.suppress(asyncio.TimeoutError, asyncio.CancelledError):
                 await asyncio.wait_for(asyncio.shield(state.task), wait)
+        elif not self.runs_jobs:  # the queue's worker stops it: wait for the record to say so
+            self._kick()
+            deadline = time.monotonic() + wait
+            while self.store.get(job_id)["status"] not in FINAL and time.monotonic() < deadline:
+                await asyncio.sleep(0.05)
         return self.store.get(job_id)
 
     async def _stop_job(self, job_id):
@@ -199,8 +216,16 @@ class JobService:
 
     # --- the dispatcher -------------------------------------------------------------------------
     def _kick(self):
-        if self._wake is not None:
+        if not self.runs_jobs:
+            if self.wake_owner is not None:
+                self.wake_owner()
+        elif self._wake is not None:
             self._wake.set()
+
+    def wake(self):
+        """Another process changed the store (queued a job, asked for a cancel): look now."""
+        self._check_cancels = True
+        self._kick()
 
     async def _dispatch_loop(self):
         last_scan = time.monotonic()
@@ -210,6 +235,9 @@ class JobService:
                     last_scan = time.monotonic()
                     self.store.heartbeat(self.owner, list(self.running))
                     self._recover_orphans()
+                    self._check_cancels = True
+                if self._check_cancels:
+                    self._check_cancels = False
                     await self._honour_cancel_requests()
                 while len(self.running) < self.executor.capacity():
                     job = self.store.claim(self.owner, self.host, self.pid, self.executor.name)
@@ -299,7 +327,7 @@ class JobService:
         staging.mkdir(parents=True)
         payload = {"id": job_id, "kind": job["kind"], "attempt": job["attempts"], "params": job["params"],
                    "data_dir": str(self.settings.data_dir.resolve()), "staging": str(staging.resolve())}
-        state.log.append(f"attempt {job['attempts']} started on {self.executor.name} executor")
+        state.log.append(f"attempt {job['attempts']} started on {self.executor.name} executor (server pid {self.pid})")
         status, result, error = "failed", None, None
         try:
             output = await self.executor.run(job, payload, lambda message: self._on_message(state, message))

@@ -67,8 +67,9 @@ def free_port():
 class LiveServer:
     """A ``morphspace serve`` subprocess on 127.0.0.1."""
 
-    def __init__(self, data_dir, env=None):
+    def __init__(self, data_dir, env=None, args=()):
         self.data_dir = Path(data_dir)
+        self.args = list(args)  # more `morphspace serve` options (e.g. --workers 2)
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
         self.ws_url = f"ws://127.0.0.1:{self.port}/v1/stream"
@@ -81,7 +82,7 @@ class LiveServer:
         with open(self.log, "ab") as log:
             self.process = subprocess.Popen(
                 [sys.executable, "-m", "server.cli", "serve", "--data-dir", str(self.data_dir),
-                 "--port", str(self.port), "--log-level", "warning"],
+                 "--port", str(self.port), "--log-level", "warning", *self.args],
                 stdout=log, stderr=subprocess.STDOUT, env=self.env, start_new_session=True)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:

@@ -1,0 +1,1 @@
+"""Serving from several processes: ``morphspace serve --workers N`` (see supervisor.py)."""

@@ -1,0 +1,201 @@
+"""``morphspace serve --workers 2`` for real: streams served by both processes, health adding
+them up, jobs run once by the queue's worker, a killed worker started again and reported, and no
+process outliving the supervisor."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import signal
+import sys
+import time
+
+import httpx
+import pytest
+from conftest import LiveServer, data_dir_with_spaces
+from test_jobs import AUTH, TOKEN, build_request, capture_zip, pid_alive, wait_dead, wait_for
+from test_stream import run
+
+from server.client import StreamClient
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="--workers needs Linux")
+FINAL = ("succeeded", "failed", "cancelled")
+
+
+def health(server):
+    return httpx.get(server.url + "/v1/health", timeout=10).json()
+
+
+def wait_health(server, until, timeout=30.0):
+    """Poll /v1/health until ``until(record)``; fails after ``timeout`` s."""
+    deadline, record = time.monotonic() + timeout, None
+    while time.monotonic() < deadline:
+        with contextlib.suppress(httpx.HTTPError):
+            record = health(server)
+            if until(record):
+                return record
+        time.sleep(0.1)
+    raise AssertionError(f"health did not get there in {timeout} s: {record}")
+
+
+def all_alive(record):
+    return len(record["workers"]) == 2 and all(w["alive"] for w in record["workers"])
+
+
+@pytest.fixture(scope="module")
+def two_workers(built_spaces, tmp_path_factory):
+    data = data_dir_with_spaces(tmp_path_factory.mktemp("workers-data"), built_spaces)
+    with LiveServer(data, env={"MORPHSPACE_TOKEN": TOKEN}, args=["--workers", "2"]) as live:
+        wait_health(live, all_alive)
+        yield live
+
+
+def stream_many(server, clients, frames):
+    """Open ``clients`` streams at once, read ``frames`` frames on each, then look at /v1/health
+    while every one is still open. Returns (frames read per client, health)."""
+    async def one(ready, release):
+        async with StreamClient.connect(server.ws_url, "speed", codec="q16", rate=30) as client:
+            got = [await client.next_frame() for _ in range(frames)]
+            ready.release()
+            await release.wait()
+            return len(got)
+
+    async def go():
+        ready, release = asyncio.Semaphore(0), asyncio.Event()
+        tasks = [asyncio.create_task(one(ready, release)) for _ in range(clients)]
+        for _ in range(clients):
+            await ready.acquire()
+        await asyncio.sleep(0.6)  # a publication interval and more: every worker has published
+        record = await asyncio.to_thread(health, server)
+        release.set()
+        return await asyncio.gather(*tasks), record
+
+    return run(go())
+
+
+def test_streams_are_served_by_both_workers_and_health_adds_them_up(two_workers):
+    before = health(two_workers)
+    counts, during = stream_many(two_workers, clients=16, frames=5)
+    assert counts == [5] * 16
+    workers = during["workers"]
+    assert [w["index"] for w in workers] == [0, 1] and len({w["pid"] for w in workers}) == 2
+    assert during["connections"] == sum(w["connections"] for w in workers) == 16
+    assert all(w["connections"] >= 1 for w in workers), workers  # the kernel spread them over both
+    assert during["frames_sent"] == sum(w["frames_sent"] for w in workers)
+    assert during["frames_sent"] - before["frames_sent"] >= 16 * 5
+    assert during["scheduler"]["frames"] == sum(w["scheduler"]["frames"] for w in workers)
+    after = wait_health(two_workers, lambda r: r["connections"] == 0)
+    assert after["status"] == "ok" and after["restarts"] == 0
+    assert after["frames_sent"] >= during["frames_sent"]
+
+
+def test_http_requests_reach_both_workers(two_workers):
+    answered = set()
+    for _ in range(60):  # a new connection each time: the kernel picks a worker by its port
+        r = httpx.get(two_workers.url + "/v1/spaces", timeout=10)
+        assert r.status_code == 200 and {s["name"] for s in r.json()["spaces"]} == {"speed", "jump"}
+        answered.add(r.headers["x-morphspace-worker"])
+        if len(answered) == 2:
+            break
+    assert answered == {"0", "1"}
+
+
+def test_jobs_queued_at_either_worker_run_once_in_worker_0(two_workers):
+    with httpx.Client(base_url=two_workers.url, timeout=30.0) as client:
+        r = client.post("/v1/datasets", params={"name": "gaits"}, content=capture_zip(),
+                        headers={**AUTH, "Content-Type": "application/zip"})
+        assert r.status_code == 201, r.text
+    jobs, answered = [], set()
+    for k in range(12):  # new connections until both workers have queued at least two jobs
+        with httpx.Client(base_url=two_workers.url, timeout=30.0) as client:
+            r = client.post("/v1/jobs", json={"kind": "ingest", "dataset": "gaits", "output": f"clean_{k}"},
+                            headers=AUTH)
+        assert r.status_code == 202, r.text
+        jobs.append(r.json()["id"])
+        answered.add(r.headers["x-morphspace-worker"])
+        if k >= 3 and answered == {"0", "1"}:
+            break
+    assert answered == {"0", "1"}
+    owner = health(two_workers)["workers"][0]["pid"]
+    with httpx.Client(base_url=two_workers.url, timeout=30.0) as client:
+        for job_id in jobs:
+            job = wait_for(client, job_id, lambda j: j["status"] in FINAL, timeout=120)
+            assert job["status"] == "succeeded", job
+            assert job["attempts"] == 1, job
+            started = [line for line in job["log"] if " started on " in line]
+            assert started == [f"attempt 1 started on local executor (server pid {owner})"], job["log"]
+
+
+def test_a_queued_job_is_cancelled_from_either_worker(two_workers):
+    """A running job cancelled through whichever worker answers: the owner stops it."""
+    with httpx.Client(base_url=two_workers.url, timeout=30.0) as client:
+        if client.get("/v1/datasets/gaits").status_code == 404:
+            client.post("/v1/datasets", params={"name": "gaits"}, content=capture_zip(),
+                        headers={**AUTH, "Content-Type": "application/zip"}).raise_for_status()
+        spec = {"sources": ["slow", "fast"], "phases": 8, "epsilon_mm": 10.0,
+                "parameters": {"layout": "chain", "chain": ["slow", "fast"], "measures": ["speed"], "resolution": 5}}
+        job = client.post("/v1/jobs", json={"kind": "build", "dataset": "gaits", "space": "never", "spec": spec},
+                          headers=AUTH).json()
+        job = wait_for(client, job["id"], lambda j: j["status"] == "running" and (j["worker"] or {}).get("pid"))
+    for _ in range(40):  # cancel through worker 1 (new connections until it answers)
+        with httpx.Client(base_url=two_workers.url, timeout=30.0) as client:
+            r = client.get("/v1/health")
+            if r.headers["x-morphspace-worker"] != "1":
+                continue
+            r = client.post(f"/v1/jobs/{job['id']}/cancel", headers=AUTH)
+            if r.headers["x-morphspace-worker"] == "1":
+                break
+    assert r.headers["x-morphspace-worker"] == "1"
+    assert r.status_code == 200 and r.json()["status"] == "cancelled", r.text
+    assert wait_dead(job["worker"]["pid"])
+    assert not (two_workers.data_dir / "spaces" / "never.mspace").exists()
+
+
+def test_a_killed_worker_is_started_again_and_reported(built_spaces, tmp_path):
+    data = data_dir_with_spaces(tmp_path / "data", built_spaces)
+    with LiveServer(data, env={"MORPHSPACE_TOKEN": TOKEN}, args=["--workers", "2"]) as live:
+        record = wait_health(live, all_alive)
+        stream_many(live, clients=8, frames=3)
+        sent = wait_health(live, lambda r: r["connections"] == 0)["frames_sent"]
+        with httpx.Client(base_url=live.url, timeout=30.0) as client:
+            client.post("/v1/datasets", params={"name": "gaits"}, content=capture_zip(),
+                        headers={**AUTH, "Content-Type": "application/zip"}).raise_for_status()
+            job = client.post("/v1/jobs", json=build_request("after_kill"), headers=AUTH).json()
+            job = wait_for(client, job["id"], lambda j: j["status"] == "running" and (j["worker"] or {}).get("pid"))
+        first_owner = record["workers"][0]["pid"]
+        for index in (1, 0):  # a streaming worker, then the job queue's in the middle of a build
+            pid = record["workers"][index]["pid"]
+            os.kill(pid, signal.SIGKILL)
+            record = wait_health(live, lambda r: all_alive(r) and r["workers"][index]["pid"] != pid)
+            restarted = record["workers"][index]
+            assert restarted["restarts"] == 1 and f"pid {pid} was killed by SIGKILL" in restarted["last_exit"]
+            assert record["frames_sent"] >= sent  # the dead worker's counters are kept
+        assert record["restarts"] == 2 and record["status"] == "ok"
+        assert wait_dead(job["worker"]["pid"]), "the job's process outlived its server worker"
+        counts, _ = stream_many(live, clients=4, frames=3)  # both serve again
+        assert counts == [3] * 4
+        with httpx.Client(base_url=live.url, timeout=30.0) as client:  # the new worker 0 runs the job again
+            job = wait_for(client, job["id"], lambda j: j["status"] in FINAL, timeout=180)
+        assert job["status"] == "succeeded" and job["attempts"] == 2, job
+        started = [line for line in job["log"] if " started on " in line]
+        assert started == [f"attempt 1 started on local executor (server pid {first_owner})",
+                           f"attempt 2 started on local executor (server pid {record['workers'][0]['pid']})"], job
+        assert any("interrupted" in line for line in job["log"]), job["log"]
+        pids = [w["pid"] for w in health(live)["workers"]]
+    assert all(wait_dead(pid) for pid in pids), "a worker outlived the supervisor's stop"
+
+
+def test_workers_end_with_a_killed_supervisor(built_spaces, tmp_path):
+    data = data_dir_with_spaces(tmp_path / "data", built_spaces, names=("speed",))
+    live = LiveServer(data, args=["--workers", "2"]).start()
+    try:
+        pids = [w["pid"] for w in wait_health(live, all_alive)["workers"]]
+        os.kill(live.process.pid, signal.SIGKILL)
+        live.process.wait(10)
+        assert all(wait_dead(pid) for pid in pids), "a worker outlived its supervisor"
+    finally:
+        live.stop()
+        for pid in pids:
+            if pid_alive(pid):
+                os.kill(pid, signal.SIGKILL)
