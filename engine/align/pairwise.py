@@ -78,6 +78,9 @@ class AlignmentOptions:
     search_angles : tuple       rotation angles tried about each axis (degrees, both signs)
     search_samples : int        vertices per patch used to score hypotheses
     search_cap : float          distance (m) at which a sample counts as unmatched
+    orientation_margin : float  a rigid start facing more than 90 degrees away from the best
+                                one whose fit score is within this factor of the best's is
+                                aligned from too (front-back ambiguity, see ``_rigid_starts``)
     tet_resolution : float      lattice cells along the model size when the root is
                                 tetrahedralised here (``engine.tetmesh.tetrahedralize``)
     """
@@ -104,6 +107,7 @@ class AlignmentOptions:
     search_samples: int = 24
     search_cap: float = 0.05
     tet_resolution: float = 48.0
+    orientation_margin: float = 1.25
 
 
 @dataclass
@@ -121,6 +125,9 @@ class PairAlignment:
     distortion_tail : float     the same over the worst 5% of the solid's volume (a torn hip
                                 or shoulder where a limb slid onto another's place)
     seconds : float
+    colour_distance : float     median RGB distance between the root's vertex colours and the
+                                target's where they landed (NaN when either has no colours)
+    orientations : int          rigid starts aligned from (2 when front and back were ambiguous)
     """
 
     V: np.ndarray
@@ -130,6 +137,8 @@ class PairAlignment:
     distortion: float = 0.0
     distortion_tail: float = 0.0
     seconds: float = 0.0
+    colour_distance: float = float("nan")
+    orientations: int = 1
 
     @property
     def quality(self):
@@ -227,8 +236,16 @@ class PairwiseAligner:
         PairAlignment
         """
         started = time.perf_counter()
+        starts = self._rigid_starts(np.asarray(X_source, dtype=np.float64), target, yaw)
+        results = [self._fit(X, target) for X in starts]
+        best = min(results, key=lambda r: self._orientation_score(r, target))
+        best.seconds = time.perf_counter() - started
+        best.orientations = len(starts)
+        return best
+
+    def _fit(self, X, target):
+        """Coarse-to-fine patch matching and deformation from a rigidly placed pose X."""
         o = self.options
-        X = self._rigid_start(np.asarray(X_source, dtype=np.float64), target, yaw)
         R = rotation_fit(self._gradients(X), self._eye, iterations=8)
         prior = R.copy()
         use_colour = self.colors is not None and target.colors is not None and o.colour_weight > 0
@@ -254,7 +271,26 @@ class PairwiseAligner:
         per_tet = np.sum((F - R) ** 2, axis=(1, 2))
         distortion = float(self._tet_volume @ per_tet / self._tet_volume.sum())
         return PairAlignment(V=V, X=X, residual=residual, residual_max=residual_max, distortion=distortion,
-                             distortion_tail=self._tail(per_tet), seconds=time.perf_counter() - started)
+                             distortion_tail=self._tail(per_tet), colour_distance=self._colour_distance(V, target))
+
+    def _colour_distance(self, V, target):
+        """Median RGB distance between the root's colours and the target's where V lands (NaN without colours)."""
+        if self.colors is None or target.colors is None:
+            return float("nan")
+        _, _, face = target.closest(V)
+        there = target.colors[target.F[face]].mean(axis=1)
+        return float(np.median(np.linalg.norm(there - self.colors, axis=1)))
+
+    def _orientation_score(self, result, target):
+        """Which of the results from different orientations to keep (lower is better).
+
+        The appearance decides when both meshes carry colours (a body turned front to back
+        fits a loose garment's surface as well as the right way round, but its face lands on
+        the back of the head); otherwise the fit: distortion plus residual.
+        """
+        if np.isfinite(result.colour_distance):
+            return result.colour_distance
+        return result.quality
 
     def _tail(self, per_tet, fraction=0.05):
         """Volume-weighted mean of ``per_tet`` over the worst ``fraction`` of the solid's volume.
@@ -295,8 +331,16 @@ class PairwiseAligner:
         both = np.concatenate([forward, backward])
         return float(both.mean()), float(both.max())
 
-    def _rigid_start(self, X, target, yaw):
-        """Best rigid motion of X onto the target, trying the hinted turn and none."""
+    def _rigid_starts(self, X, target, yaw):
+        """Rigid placements of X on the target to align from: the best, and a turned-round rival.
+
+        The turn hinted by the shape histograms and no turn are both refined by point-to-plane
+        ICP. A loose garment makes a body nearly symmetric front to back, and so are its
+        histograms: the hint is often off by 180 degrees and the turned-round fit scores about
+        as well as the right one. When the two refined placements face more than 90 degrees
+        apart and the worse scores within ``orientation_margin`` of the better, both are
+        returned and the caller aligns from each (:meth:`_orientation_score` decides).
+        """
         o = self.options
         S = self.B @ X
         centre = shape_centre(S, self.F, closed=self.closed)
@@ -306,7 +350,7 @@ class PairwiseAligner:
         candidates = [0.0]
         if yaw is not None and np.isfinite(yaw) and abs(yaw) > 2.0:
             candidates.append(float(yaw))
-        best = None
+        fits = []
         for angle in candidates:
             R0 = rot_y(np.radians(angle))
             t0 = target.centre - R0 @ centre
@@ -323,11 +367,15 @@ class PairwiseAligner:
                 R, t = dR @ R, dR @ t + dt
             P = S[sample] @ R.T + t
             d = target.closest(P)[1]
-            score = float(np.mean(np.minimum(d, np.percentile(d, 90))))
-            if best is None or score < best[0]:
-                best = (score, R, t)
-        _, R, t = best
-        return X @ R.T + t
+            fits.append((float(np.mean(np.minimum(d, np.percentile(d, 90)))), R, t))
+        fits.sort(key=lambda fit: fit[0])
+        starts = [X @ fits[0][1].T + fits[0][2]]
+        if len(fits) > 1 and fits[1][0] <= o.orientation_margin * fits[0][0]:
+            front = np.array([0.0, 0.0, 1.0])
+            a, b = fits[0][1] @ front, fits[1][1] @ front
+            if a[0] * b[0] + a[2] * b[2] < 0.0:  # more than 90 degrees apart about +Y
+                starts.append(X @ fits[1][1].T + fits[1][2])
+        return starts
 
     def _match_patches(self, S, target, labels, count, use_colour, level=None):
         """Rigidly match every patch to the target; returns per-vertex goals and confidences.
