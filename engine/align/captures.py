@@ -8,7 +8,7 @@ along the tree. The CLI (``morphspace align``, ``eval-align``) and the align job
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -62,7 +62,9 @@ def align_captures(meshes, lengths, *, method="tree", root=None, options=None, w
                                 independent pieces of the tree
     retries : int               see :func:`engine.align.propagation.align_tree`
     tets : (V_tet, T) or None   a tet mesh of the root (default: tetrahedralised here)
-    use_colors : bool           use vertex colours as cues when every frame has them
+    use_colors : bool           also use vertex colours as local matching cues (``options.colour_weight``;
+                                without it the weight is 0); when every frame has colours they
+                                always decide between a body and the same body turned front to back
     seed : int
     similarity : ShapeSimilarity or None   reuse an earlier computation on the same frames
     repair : bool               with the tree: align frames of low confidence again from the
@@ -90,13 +92,18 @@ def align_captures(meshes, lengths, *, method="tree", root=None, options=None, w
         tree = chain_tree(lengths, tree.root)
     timings["tree"] = time.perf_counter() - started
     base = meshes[tree.root]
-    colours = all(getattr(m, "colors", None) is not None for m in meshes) and use_colors
+    # colours, when every frame has them, always settle front-back ambiguities (PairwiseAligner
+    # ._orientation_score); ``use_colors`` adds them as local matching cues (options.colour_weight)
+    colours = all(getattr(m, "colors", None) is not None for m in meshes)
+    options = options or AlignmentOptions()
+    if not use_colors and options.colour_weight:
+        options = replace(options, colour_weight=0.0)
     # the root's floating fragments would become part of every aligned frame: leave them out
     V_root, F_root, kept = main_components(base.vertices, base.faces)
     C_root = np.asarray(base.colors)[kept] if colours else None
     started = time.perf_counter()
     if tets is None:
-        tets = tetrahedralize(V_root, F_root, resolution=(options or AlignmentOptions()).tet_resolution)
+        tets = tetrahedralize(V_root, F_root, resolution=options.tet_resolution)
     timings["tetrahedralize"] = time.perf_counter() - started
     aligner = PairwiseAligner(V_root, F_root, C_root, tets=tets, options=options, seed=seed)
     started = time.perf_counter()
