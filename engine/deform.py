@@ -160,6 +160,7 @@ class DeformationSolver:
             self._factor = spla.splu(A.tocsc(), permc_spec="MMD_AT_PLUS_A",
                                      options={"SymmetricMode": True})
         self._rhs = np.empty((k, 3))
+        self._GtD_components = None  # built by the first solve_components
         self._pin_rhs = None if not self._free else self._BtW2 @ self._pin_target
 
     def solve(self, target_gradients, constraint_positions=None, *, centroid=None, out=None):
@@ -203,6 +204,10 @@ class DeformationSolver:
                 raise ValueError(f"constraint_positions must have shape ({self.n_constraints}, 3), "
                                  f"got {x_c.shape}")
             rhs += self._BtW2 @ x_c
+        return self._solve_rhs(rhs, centroid, out)
+
+    def _solve_rhs(self, rhs, centroid, out):
+        """A^{-1} rhs into ``out``; the unconstrained solver then places the centroid."""
         if out is None:
             out = np.empty((self.n_vertices, 3))
         elif out.shape != (self.n_vertices, 3) or out.dtype != np.float64 or not out.flags.c_contiguous:
@@ -217,6 +222,40 @@ class DeformationSolver:
                 raise ValueError(f"centroid must have shape (3,), got {target.shape}")
             out += target - self._centroid_weights @ out
         return out
+
+    def solve_components(self, F, *, centroid=None, out=None):
+        """:meth:`solve` for the unconstrained solver with the targets given component-major.
+
+        Parameters
+        ----------
+        F : (3, 3, t) float64 C-contiguous array
+            ``F[i, j]`` is entry (i, j) of every tet's target deformation gradient (the same
+            targets as ``solve(stacked_gradients(F.transpose(2, 0, 1)))``). This is the layout
+            a blend computes in (one contiguous row per entry), so the (t, 3, 3) interleaving
+            copy is never made: ``G^T D g`` is three sparse products with the gradient
+            operator's columns permuted to match.
+        centroid, out : as for :meth:`solve`
+
+        Returns
+        -------
+        X : (k, 3) float64 array   tet vertex positions, equal to :meth:`solve`'s to rounding
+        """
+        if not self._free:
+            raise ValueError("solve_components is for the unconstrained solver")
+        F = np.asarray(F, dtype=np.float64)
+        if F.shape != (3, 3, self.n_tets) or not F.flags.c_contiguous:
+            raise ValueError(f"F must be a C-contiguous (3, 3, {self.n_tets}) array, got {F.shape}")
+        if self._GtD_components is None:
+            t = self.n_tets
+            # column j * t + i of the permuted operator is column 3 i + j of G^T D
+            order = (3 * np.arange(t)[None, :] + np.arange(3)[:, None]).ravel()
+            self._GtD_components = self._GtD.tocsr()[:, order].tocsr()
+        rows = F.reshape(3, -1)
+        rhs = self._rhs
+        for i in range(3):
+            rhs[:, i] = self._GtD_components @ rows[i]
+        rhs += self._pin_rhs
+        return self._solve_rhs(rhs, centroid, out)
 
 
 def _constraint_matrix(constraints, k):

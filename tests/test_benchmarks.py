@@ -34,15 +34,20 @@ def check_blend_scaling(rows, stdout):
     (row,) = rows
     assert row["vertices"] == 1000 and row["tets"] > 0 and row["phases"] > 0
     assert positive(row["build_s"]["total_s"])
+    assert row["threads"] == 1 and non_negative(row["load_average"])
     for mode, calls in (("linear", 200), ("hybrid", 200), ("nonlinear", 10)):
         figures = row["modes"][mode]
         assert figures["calls"] == calls
-        assert all(positive(figures[k]) for k in ("frames_per_second", "median_us", "p95_us")), (mode, figures)
+        assert all(positive(figures[k]) for k in ("frames_per_second", "cpu_frames_per_second", "median_us",
+                                                  "p95_us")), (mode, figures)
+        player = row["player"][mode]
+        assert player["settled"]["steps"] == (100 if mode != "nonlinear" else 30) and player["steered"]["steps"] >= 30
+        assert positive(player["settled"]["frames_per_second"]) and positive(player["steered"]["frames_per_second"])
     hybrid = row["hybrid"]
     assert hybrid["references"] >= 1 and non_negative(hybrid["max_test_error_mm"])
     assert non_negative(hybrid["correction_share_of_sources"]) and hybrid["correction_share_of_sources"] < 1
     assert positive(hybrid["source_mb"])
-    assert "1000 vertices" in stdout and "non-linear" in stdout and "corrections" in stdout
+    assert "1000 vertices" in stdout and "nonlinear" in stdout and "corrections" in stdout and "one core" in stdout
 
 
 def check_similarity_scaling(records, stdout):

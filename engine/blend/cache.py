@@ -25,6 +25,7 @@ import time
 from collections import OrderedDict
 
 import numpy as np
+from scipy.linalg.blas import saxpy
 
 from engine.blend.phase import phase_of_sample, phase_samples
 
@@ -60,8 +61,12 @@ class PhaseTable:
         p0, _, a = phase_samples(phase, self.n_phases, self.cyclic)
         V = np.empty((self.n_vertices, 3), dtype=np.float32) if out is None else out
         flat = V.reshape(-1)
-        np.multiply(self.delta[p0], np.float32(a), out=flat)
-        flat += self.rows[p0]
+        np.copyto(flat, self.rows[p0])
+        if a != 0.0:
+            if flat.dtype == np.float32 and flat.flags.c_contiguous:
+                saxpy(self.delta[p0], flat, a=a)  # in place, one pass
+            else:
+                flat += self.delta[p0] * np.float32(a)
         return V
 
     def rows_at(self, phases, out=None):
@@ -124,9 +129,13 @@ class PhaseTableBlender:
         self.hits = self.misses = self.builds = 0
 
     def table(self, weights):
-        """(P, n, 3) float32 blends at every phase sample for ``weights``."""
-        return np.stack([self.blender.blend(weights, phase_of_sample(p, self.n_phases, self.cyclic))
-                         for p in range(self.n_phases)]).astype(np.float32, copy=False)
+        """(P, n, 3) float32 blends at every phase sample for ``weights`` (each blended in place
+        into its row: no per-sample copies, no stacking)."""
+        n_vertices = self.blender.n_vertices
+        rows = np.empty((self.n_phases, n_vertices, 3), dtype=np.float32)
+        for p in range(self.n_phases):
+            self.blender.blend(weights, phase_of_sample(p, self.n_phases, self.cyclic), out=rows[p])
+        return rows
 
     def lookup(self, weights):
         """The PhaseTable for ``weights``, or None while they have not recurred ``after`` times.

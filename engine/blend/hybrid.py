@@ -21,10 +21,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg.blas import saxpy
 
 from engine.blend.corrections import CorrectionBuilder, Corrections
+from engine.blend.linear import blend_rows
 from engine.blend.phase import phase_samples
 from engine.blend.simplex import SimplexTree
+
 
 class HybridBlender:
     """Real-time hybrid blends of N sources on a phase grid.
@@ -39,15 +42,16 @@ class HybridBlender:
     corrections : Corrections
     cyclic : bool
     dense_above : int or None   (reference, phase) corrections listing more vertices than this
-                                are also kept dense: adding a dense row is two contiguous passes,
-                                cheaper than scattering that many entries (default n / 60)
+                                are also kept dense: adding a dense row is one contiguous BLAS
+                                pass (saxpy), cheaper than scattering that many entries
+                                (default n / 60)
     dense_budget : int          bytes of dense rows at most (the largest corrections first)
     """
 
     def __init__(self, sources, tree, corrections, cyclic, *, dense_above=None, dense_budget=64 << 20):
         self.sources = sources
         self.n_phases, self.n_sources, self.n_vertices = sources.shape[:3]
-        self._flat = sources.reshape(self.n_phases, self.n_sources, -1)
+        self._flat = np.ascontiguousarray(sources, dtype=np.float32).reshape(self.n_phases, self.n_sources, -1)
         self.cyclic = bool(cyclic)
         self.tree = tree
         self.corrections = corrections
@@ -55,14 +59,13 @@ class HybridBlender:
         self._children = tree.children.tolist()
         self._split = tree.split.tolist()
         self._split_ref = tree.split_references().tolist()
-        # Flat (x, y, z) indices of every correction entry, so np.add.at works on a flat buffer.
+        # Flat (x, y, z) indices of every correction entry, so a row scatters into a flat buffer.
         v = corrections.vertex.astype(np.intp)
         self._flat_index = (3 * v[:, None] + np.arange(3)).ravel()
         self._pointer = corrections.pointer.tolist()
         self._value = corrections.value.reshape(-1)
         self._scale = corrections.scale.tolist()
         self._buffer = np.empty(self.n_vertices * 3, dtype=np.float32)
-        self._scratch = np.empty(self.n_vertices * 3, dtype=np.float32)
         self._dense = self._dense_rows(self.n_vertices // 60 if dense_above is None else dense_above, dense_budget)
 
     def _dense_rows(self, above, budget):
@@ -82,8 +85,7 @@ class HybridBlender:
         k = r * self.n_phases + p
         row = self._dense.get(k)
         if row is not None:
-            np.multiply(row, np.float32(coefficient), out=self._scratch)
-            flat += self._scratch
+            saxpy(row, flat, a=coefficient)  # in place: one pass over the row
             return
         s, e = self._pointer[k], self._pointer[k + 1]
         if e > s:
@@ -97,9 +99,9 @@ class HybridBlender:
         lam = w / w.sum()
         p0, p1, a = phase_samples(phase, self.n_phases, self.cyclic)
         flat = self._buffer if out is None else out.reshape(-1)
-        c = lam.astype(np.float32)
-        np.dot(c * np.float32(1.0 - a), self._flat[p0], out=flat)
-        flat += np.dot(c * np.float32(a), self._flat[p1])
+        if flat.dtype != np.float32 or not flat.flags.c_contiguous:
+            raise ValueError("out must be a C-contiguous float32 (n, 3) array")
+        blend_rows(self._flat, lam, p0, p1, a, flat)
         node, children, split = 0, self._children, self._split
         lam = lam.tolist()
         while children[node][0] >= 0:
@@ -108,8 +110,10 @@ class HybridBlender:
             phi = 2.0 * min(li, lj)
             if phi > 0.0:
                 r = self._split_ref[node]
-                self._add(flat, r, p0, phi * (1.0 - a))
-                self._add(flat, r, p1, phi * a)
+                if a != 1.0:
+                    self._add(flat, r, p0, phi * (1.0 - a))
+                if a != 0.0:
+                    self._add(flat, r, p1, phi * a)
             if li >= lj:
                 lam[i], lam[j] = li - lj, 2.0 * lj
                 node = children[node][0]

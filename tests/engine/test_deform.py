@@ -145,6 +145,22 @@ def test_stacked_gradients_match_the_gradient_operator(mesh):
     np.testing.assert_allclose(stacked_gradients(deformation_gradients(V, X, T)), solver.G @ X, atol=1e-12)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_component_major_targets_solve_like_stacked_ones(mesh, backend):
+    """solve_components(F[i, j] rows) == solve(stacked_gradients(F)), and only without constraints."""
+    V, T = mesh
+    F = np.random.default_rng(7).normal(size=(len(T), 3, 3))
+    solver = DeformationSolver(V, T, backend=backend)
+    rows = np.ascontiguousarray(F.transpose(1, 2, 0))  # rows[i, j] = F[:, i, j]
+    out = np.empty((len(V), 3))
+    assert solver.solve_components(rows, out=out) is out
+    np.testing.assert_allclose(out, solver.solve(stacked_gradients(F)), atol=1e-12)
+    with pytest.raises(ValueError, match=r"\(3, 3, "):
+        solver.solve_components(rows[:, :, :-1])
+    with pytest.raises(ValueError, match="unconstrained"):
+        DeformationSolver(V, T, [0, 1, 2]).solve_components(rows)
+
+
 def test_backends_agree(mesh):
     if len(BACKENDS) < 2:
         pytest.skip("cholespy is not installed")

@@ -1,0 +1,173 @@
+"""Source frames in blendable form: the volumetric embedding and the per-frame decomposition
+(Casas et al. 2012, section 4.1), done once per source frame when a space is built.
+
+The rest surface is embedded in a tetrahedral mesh (``VolumetricEmbedding``). Each source frame
+is decomposed (``FrameDecomposer``): the tet vertices are fitted to the frame's surface, each
+tet's deformation gradient is split by polar decomposition into a rotation (quaternion) and a
+symmetric stretch, and what the embedded tet mesh does not reproduce of the surface (its fine
+detail) is stored per vertex in the local frame of its tet's rotation. ``NonlinearBlender``
+(``engine.blend.nonlinear``) blends the decompositions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+
+from engine.deform import DeformationSolver
+from engine.tetmesh import (
+    deformation_gradients,
+    polar_decomposition,
+    rotations_to_quaternions,
+    tet_barycentric,
+    tet_laplacian,
+    tetrahedralize,
+)
+
+SYMMETRIC = ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2))  # stretch storage order
+
+
+@dataclass(frozen=True)
+class VolumetricEmbedding:
+    """A rest surface embedded in a tetrahedral mesh.
+
+    Attributes
+    ----------
+    V_tet : (k, 3) float array       rest tet vertices
+    T : (t, 4) int array             tetrahedra
+    surface_tet : (n, ) int array    the tet each surface vertex is embedded in
+    surface_bary : (n, 4) float      its barycentric coordinates there (may extrapolate slightly)
+    """
+
+    V_tet: np.ndarray
+    T: np.ndarray
+    surface_tet: np.ndarray
+    surface_bary: np.ndarray
+
+    @classmethod
+    def from_surface(cls, V, F, **tetrahedralize_options):
+        """Tetrahedralise a rest surface (holes are capped) and embed its vertices.
+
+        ``tetrahedralize_options`` go to :func:`engine.tetmesh.tetrahedralize` (resolution,
+        cell, min_inside). Deterministic: the same surface gives the same embedding.
+        """
+        V_tet, T = tetrahedralize(V, F, **tetrahedralize_options)
+        tet, bary, _ = tet_barycentric(V, V_tet, T)
+        return cls(V_tet=V_tet, T=T, surface_tet=np.asarray(tet, dtype=np.int64), surface_bary=bary)
+
+    @property
+    def B(self):
+        """(n, k) csr_matrix: surface vertices as combinations of tet vertices."""
+        n = len(self.surface_tet)
+        rows = np.repeat(np.arange(n), 4)
+        return sp.csr_matrix((self.surface_bary.ravel(), (rows, self.T[self.surface_tet].ravel())),
+                             shape=(n, len(self.V_tet)))
+
+
+def _stretch_to_vector(S):
+    return np.stack([S[..., i, j] for i, j in SYMMETRIC], axis=-1)
+
+
+@dataclass(frozen=True)
+class FrameDecomposition:
+    """One source frame in blendable form.
+
+    Attributes
+    ----------
+    quaternions : (t, 4) float array   per-tet rotation (w, x, y, z)
+    stretch : (t, 6) float array       per-tet symmetric stretch (xx, yy, zz, xy, xz, yz)
+    detail : (n, 3) float array        surface residual in the local frame of its tet's rotation
+    """
+
+    quaternions: np.ndarray
+    stretch: np.ndarray
+    detail: np.ndarray
+
+
+class FrameDecomposer:
+    """Fits the tet mesh to surface frames and decomposes them (done once per source frame).
+
+    ``decomposer = FrameDecomposer(embedding)`` factors the fitting system once;
+    ``decomposer.decompose(S)`` handles one frame.
+
+    Parameters
+    ----------
+    embedding : VolumetricEmbedding
+    fit_weight : float      weight of the surface constraints relative to the Laplacian's scale
+    iterations : int        as-rigid-as-possible refinements of the interior (rotation targets)
+
+    Notes
+    -----
+    The fit minimises ||G X - G_target||_D^2 + w^2 ||B X - S||^2 (eq. 2), first with the
+    frame's best-fitting global rotation as every tet's target (so a rigid motion is fitted
+    exactly), then with the rotations of the previous fit (local/global ARAP steps), so
+    interior tets follow the surface rigidly where they can.
+    """
+
+    def __init__(self, embedding, *, fit_weight=30.0, iterations=2):
+        self.embedding = embedding
+        self.B = embedding.B
+        L = tet_laplacian(embedding.V_tet, embedding.T)
+        self.weight = float(np.sqrt(fit_weight * L.diagonal().mean()))
+        self.solver = DeformationSolver(embedding.V_tet, embedding.T, constraints=self.B,
+                                        constraint_weight=self.weight)
+        self.iterations = int(iterations)
+        self.rest_surface = np.asarray(self.B @ embedding.V_tet)
+
+    def fit(self, S):
+        """Tet vertex positions (k, 3) fitted to surface frame S (n, 3)."""
+        T, V_tet = self.embedding.T, self.embedding.V_tet
+        X = self.solver.solve(_stacked(np.broadcast_to(_best_rotation(self.rest_surface, S), (len(T), 3, 3))), S)
+        for _ in range(self.iterations):
+            R, _ = polar_decomposition(deformation_gradients(V_tet, X, T))
+            X = self.solver.solve(_stacked(R @ _rest_frames(len(T))), S)
+        return X
+
+    def decompose(self, S):
+        """Fit the tet mesh to S and split it into rotations, stretches and local detail."""
+        S = np.asarray(S, dtype=np.float64)
+        emb = self.embedding
+        X = self.fit(S)
+        F = deformation_gradients(emb.V_tet, X, emb.T)
+        R, Sy = polar_decomposition(F)
+        q = rotations_to_quaternions(R)
+        residual = S - self.B @ X
+        R_surface = R[emb.surface_tet]
+        detail = np.einsum("nba,nb->na", R_surface, residual)  # R^T r
+        return FrameDecomposition(quaternions=q, stretch=_stretch_to_vector(Sy), detail=detail)
+
+
+def _best_rotation(P, Q):
+    """Rotation R minimising sum |R (p - mean p) - (q - mean q)|^2 (Kabsch)."""
+    H = (P - P.mean(axis=0)).T @ (Q - Q.mean(axis=0))
+    U, _, Vt = np.linalg.svd(H)
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    return Vt.T @ D @ U.T
+
+
+def _rest_frames(t):
+    return np.broadcast_to(np.eye(3), (t, 3, 3))
+
+
+def _stacked(F):
+    return np.ascontiguousarray(np.swapaxes(F, 1, 2)).reshape(-1, 3)
+
+
+def decompose_frames(decomposer, frames, progress=None):
+    """Decompose (m, n, 3) surface frames; returns stacked float32 (quaternions, stretch, detail)."""
+    m = len(frames)
+    first = decomposer.decompose(frames[0])
+    q = np.empty((m,) + first.quaternions.shape, dtype=np.float32)
+    s = np.empty((m,) + first.stretch.shape, dtype=np.float32)
+    d = np.empty((m,) + first.detail.shape, dtype=np.float32)
+    for i in range(m):
+        dec = first if i == 0 else decomposer.decompose(frames[i])
+        q[i], s[i], d[i] = dec.quaternions, dec.stretch, dec.detail
+        if progress is not None:
+            progress(i + 1, m)
+    return q, s, d
+
+
+__all__ = ["SYMMETRIC", "VolumetricEmbedding", "FrameDecomposition", "FrameDecomposer", "decompose_frames"]
