@@ -154,7 +154,8 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
                        "p99": percentile(transit, 99)},
         "server_cpu_cores": cpu,
         "server_rss_mb": {"start": rss_start, "after_load": rss_mb(server_pid)},
-        "server_counters": dict({k: v - before["scheduler"].get(k, 0) for k, v in health["scheduler"].items()},
+        "server_counters": dict({k: v if k.endswith("_max") else v - before["scheduler"].get(k, 0)  # peaks as they are
+                                 for k, v in health["scheduler"].items()},
                                 frames_dropped=health["frames_dropped"] - before["frames_dropped"]),
         # the whole machine over the run: cores busy (server, clients, kernel), idle, stolen by the host
         "machine_cores": {"busy": busy / elapsed, "idle": idle / elapsed, "steal": steal / elapsed},
@@ -175,7 +176,8 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     counters = result["server_counters"]
     print(f"  server: {cpu:.2f} cores, RSS {rss_start:.0f} -> {result['server_rss_mb']['after_load']:.0f} MB; "
           f"{counters.get('table_frames', 0)} of {counters.get('frames', 0)} frames from phase tables, "
-          f"{counters.get('busy_sends', 0)} sends found a full transport, {counters['frames_dropped']} ticks "
+          f"{counters.get('transport_full', 0)} due frames skipped for a full transport (at most "
+          f"{counters.get('transport_bytes_max', 0) / 1024:.0f} KB held for one connection), {counters['frames_dropped']} ticks "
           f"dropped (a frame more than a period late)")
     print(f"  machine: {busy / elapsed:.2f} cores busy, {idle / elapsed:.2f} idle, {steal / elapsed:.2f} stolen "
           f"by the host (of {os.cpu_count()}); reference Python loop {reference_before:.0f} ms before, "

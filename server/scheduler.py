@@ -10,10 +10,11 @@ client message makes a frame urgent). Per tick:
   straight from the table in codec units (``Quantiser.table``), so their integers need one
   truncating cast;
 - moving weights, the non-linear mode and heatmaps blend one client at a time;
-- frames are written without a task switch: the ASGI send is started by hand and, when the
-  transport accepts it at once (the usual case), it completes in the call. A transport above its
-  high-water mark suspends the send; then it finishes in a task of its own and only that
-  connection waits (latest-wins: its missed frames are counted in ``dropped``, never queued).
+- frames are written without a task switch: the ASGI send is run by hand and completes in the
+  call, because a frame is only written into a transport that has taken everything before it
+  (the session checks before it blends; a connection whose transport still holds bytes skips
+  the tick, counted in its ``dropped``: latest-wins, never queued). A send that would wait
+  anyway is abandoned: that frame is dropped.
 
 All of it runs on the event loop thread: the engine's blenders keep scratch buffers and the
 work per frame is a few tens of microseconds.
@@ -33,39 +34,27 @@ MAX_BATCH = 32    # frames per tick at most; then the loop reads sockets before 
 URGENT = -math.inf
 
 
-async def _finish(coro, future):
-    """Run a coroutine that was started by hand (``coro.send(None)``) and suspended on
-    ``future`` to its end, as a Task would have."""
-    try:
-        while True:
-            if future is None:  # a bare yield (asyncio.sleep(0))
-                await asyncio.sleep(0)
-            else:
-                try:
-                    await future
-                except asyncio.CancelledError:
-                    if not future.done():
-                        raise  # this task was cancelled: close the coroutine below
-                except Exception:  # noqa: BLE001 - the coroutine reads the outcome itself on resume
-                    pass
-            future = coro.send(None)
-    except StopIteration:
-        return
+def send_now(coro):
+    """Run a send coroutine ``coro`` in the caller. True when it completed in the call (its
+    exceptions propagate); False when it would have waited (for a full transport): it is then
+    closed, which abandons that send.
 
-
-def start_now(coro):
-    """Run ``coro`` until it first suspends. Returns None when it completed in the call (its
-    exceptions propagate), else a Task finishing it."""
+    Notes
+    -----
+    A coroutine started by hand cannot be handed on to a Task once it has suspended: the future
+    it yielded is marked as awaited, and awaiting it again raises RuntimeError("await wasn't
+    used with future") (the bug behind issue 13's stalled streams). Latest-wins wants the frame
+    dropped anyway.
+    """
     try:
-        future = coro.send(None)
+        coro.send(None)
     except StopIteration:
-        return None
+        return True
     except BaseException:
         coro.close()
         raise
-    task = asyncio.get_running_loop().create_task(_finish(coro, future))
-    task.add_done_callback(lambda _: coro.close())  # cancelled (even before it ran): close it too
-    return task
+    coro.close()
+    return False
 
 
 class FrameScheduler:
@@ -76,10 +65,11 @@ class FrameScheduler:
     session and ends when the last one leaves.
 
     A session (server.stream.StreamSession) provides ``version`` (int, bumped here), ``closed``,
-    ``busy`` (a send in flight), ``player`` (its ``phase`` is read), ``payload`` (set here),
-    ``advance(now)`` -> bool (step its player; False: no frame now), ``frame_source()`` ->
-    (table or None, codec), ``send_frame(payload)`` where payload is the encoded vertices or None
-    (blend this one alone), ``after_frame()`` (schedule the next one) and ``fail(exc)``.
+    ``player`` (its ``phase`` is read), ``payload`` (set here), ``advance(now)`` -> bool (step
+    its player; False: no frame now, and the session reschedules itself if it wants one),
+    ``frame_source()`` -> (table or None, codec), ``send_frame(payload)`` where payload is the
+    encoded vertices or None (blend this one alone), ``after_frame()`` (schedule the next one)
+    and ``fail(exc)``. Sessions count ``transport_full`` and raise ``transport_bytes_max`` here.
     """
 
     def __init__(self):
@@ -92,12 +82,14 @@ class FrameScheduler:
         self.ticks = 0           # ticks that produced frames
         self.frames = 0          # frames written
         self.table_frames = 0    # of which interpolated from a phase table
-        self.busy_sends = 0      # sends that found the transport full
+        self.transport_full = 0  # due frames skipped because the transport still held bytes
+        self.transport_bytes_max = 0  # the most one connection's transport held after a frame
 
     def counters(self):
-        """Ticks, frames, frames from phase tables, sends that found a full transport."""
+        """Ticks, frames, frames from phase tables, frames skipped for a full transport, the
+        most bytes one connection's transport held."""
         return {"ticks": self.ticks, "frames": self.frames, "table_frames": self.table_frames,
-                "busy_sends": self.busy_sends}
+                "transport_full": self.transport_full, "transport_bytes_max": self.transport_bytes_max}
 
     def add(self, session):
         self._sessions.add(session)
@@ -128,7 +120,7 @@ class FrameScheduler:
                 heap = self._heap
                 while heap and heap[0][0] <= now + 0.5 * TICK and len(batch) < MAX_BATCH:
                     _, _, version, session = heapq.heappop(heap)
-                    if version == session.version and not session.closed and not session.busy:
+                    if version == session.version and not session.closed:
                         batch.append(session)
                 if batch:
                     self.ticks += 1
@@ -197,8 +189,5 @@ class FrameScheduler:
                 continue
             self.frames += 1
             session.payload = None
-            if session.busy:
-                self.busy_sends += 1
-            else:
-                session.after_frame()
+            session.after_frame()
 

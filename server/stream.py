@@ -2,13 +2,15 @@
 
 A connection is a task receiving, checking and applying client messages; its frames are
 produced by the server's FrameScheduler (server/scheduler.py), which steps every connection's
-Player on its own clock in shared ticks and writes the frames. Latest-wins: a frame is computed
-only when it is due *and* the previous one has been handed to the transport (uvicorn pauses the
-send while its buffer is above the high-water mark), and with a client ``window`` also only while
-fewer than ``window`` frames are unacknowledged. Ticks missed meanwhile are counted in
-``dropped``, never queued, so a slow client gets fewer, fresh frames and never delays anyone
-else. A message that changes what the client sees (params, mode, seek, reset, resume) makes the
-next frame due at once, so it reflects the change within one blend.
+Player on its own clock in shared ticks and writes the frames. Latest-wins, down to the socket:
+a frame is computed only when it is due *and* the connection's transport has taken every byte
+written before (server/transport.py: the kernel holds at most ``UNSENT_LIMIT`` bytes unsent), and
+with a client ``window`` also only while fewer than ``window`` frames are unacknowledged. Ticks
+missed meanwhile are counted in ``dropped``, never queued, so a slow client gets fewer, fresh
+frames, the first frame after a stall of any length is fresh, and nobody else waits. A
+connection that has taken no due frame for ``stream_stall_timeout`` seconds is closed with code
+1008 (``CLOSE_STALLED``). A message that changes what the client sees (params, mode, seek,
+reset, resume) makes the next frame due at once, so it reflects the change within one blend.
 
 All blending runs on the event loop thread (the engine's blenders keep scratch buffers); only
 the slow one-off set-up (opening a space, building the non-linear solver) goes to a thread.
@@ -26,10 +28,14 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from engine.player import Player
 from server import protocol as P
 from server.registry import BrokenSpace, UnknownSpace
-from server.scheduler import URGENT, start_now
+from server.scheduler import URGENT, send_now
+from server.transport import GAUGE
 
 log = logging.getLogger("morphspace.stream")
 MAX_DT = 0.25  # a stalled connection does not jump the clock by more than this per frame
+CLOSE_STALLED = 1008  # WebSocket close code: the client took no frame for stream_stall_timeout seconds
+CLOSE_GRACE = 5.0     # seconds a closing client has to read the close frame before the TCP connection drops
+RETRY = 0.01          # seconds between looks at a full transport holding back an urgent frame
 
 
 class TokenBucket:
@@ -82,11 +88,11 @@ class StreamSession:
         self.urgent = False
         self.closed = False
         self.ready = False      # the topology has gone out: frames may follow
-        self.busy = False       # a frame's send is suspended on a full transport
         self.version = 0        # the scheduler's bookkeeping
         self.payload = None     # encoded vertices the scheduler prepared for the next frame
         self.quantiser = None
-        self._send_task = None
+        self.gauge = (websocket.scope.get("extensions") or {}).get(GAUGE)  # None under other servers
+        self._stalled_since = None  # loop time since which due frames could not be written
         self._last_step = None
         self._next_due = 0.0
 
@@ -99,10 +105,30 @@ class StreamSession:
         try:
             await self.ws.send_bytes(message if isinstance(message, bytes) else P.to_wire(message))
         except (WebSocketDisconnect, OSError, RuntimeError):
-            self._close()
+            self._shut(1011, "sending failed")
 
     def _close(self):
         self.closed = True
+
+    def _shut(self, code, reason):
+        """End the connection from the server's side: a close frame with ``code``, and the TCP
+        connection dropped if the client has not read it ``CLOSE_GRACE`` seconds later."""
+        if self.closed:
+            return
+        self.closed = True
+        asyncio.get_running_loop().create_task(self._close_socket(code, reason))
+
+    async def _close_socket(self, code, reason):
+        try:
+            await asyncio.wait_for(self.ws.close(code=code, reason=reason), CLOSE_GRACE)
+        except asyncio.TimeoutError:  # the transport never drained enough to take the close frame
+            if self.gauge is not None:
+                self.gauge.abort()
+            return
+        except (WebSocketDisconnect, OSError, RuntimeError):  # already gone
+            return
+        if self.gauge is not None:  # a no-op once the closing handshake has completed
+            asyncio.get_running_loop().call_later(CLOSE_GRACE, self.gauge.abort)
 
     async def error(self, code, message, ref=None, seq=None):
         self.stats.errors += 1
@@ -132,8 +158,6 @@ class StreamSession:
             self.scheduler.remove(self)
             self.stats.connections -= 1
             self.stats.dropped += self.dropped
-            if self._send_task is not None:
-                self._send_task.cancel()
 
     async def _receive_loop(self):
         try:
@@ -198,7 +222,7 @@ class StreamSession:
             self.paused = True
         elif isinstance(m, P.Resume):
             self.paused = False
-            self._last_step = None
+            self._last_step = self._stalled_since = None
         elif isinstance(m, P.Seek):
             if not 0.0 <= m.phase <= 1.0:
                 raise P.ProtocolError("invalid_field", f"seek.phase must be in [0, 1], got {m.phase}", "seek", m.seq)
@@ -293,6 +317,7 @@ class StreamSession:
                     "burst": s.stream_burst, "max_fps": s.stream_max_fps}))
         self.seq = self.acked_frame = 0
         self.waiting_ack = False
+        self._stalled_since = None
         self._next_due = asyncio.get_running_loop().time()
         self.ready = True
         self._poke(m.seq)
@@ -383,7 +408,12 @@ class StreamSession:
                 return False
             if self.window > 0 and self.seq - self.acked_frame >= self.window:
                 self.waiting_ack = True  # the next ack reschedules
+                if not self._stalled(now):  # or else, the stall timeout
+                    self.scheduler.schedule(self, self._stalled_since + self.settings.stream_stall_timeout)
                 return False
+        if self.gauge is not None and not self.gauge.ready():
+            self._transport_full(now, streaming)
+            return False
         self.urgent = False
         dt = 0.0
         if streaming:
@@ -399,6 +429,35 @@ class StreamSession:
             self._last_step = now
         self.player.advance(dt)
         return True
+
+    def _stalled(self, now):
+        """A due frame cannot be written at loop time ``now``: start (or check) the stall clock;
+        True when it ran out and the connection is being closed."""
+        if self._stalled_since is None:
+            self._stalled_since = now
+        timeout = self.settings.stream_stall_timeout
+        if now - self._stalled_since < timeout:
+            return False
+        log.info("stream: closing a connection to %s that took no frame for %.0f s", self.space_name, timeout)
+        self._shut(CLOSE_STALLED, f"stalled: no frame could be delivered for {timeout:g} s")
+        return True
+
+    def _transport_full(self, now, streaming):
+        """The transport still holds earlier bytes: skip this tick (counted in ``dropped``) and
+        look again at the next one (an urgent frame sooner). Only a streaming connection can
+        stall: a paused one waits for its reader as long as keepalive pings are answered."""
+        self.scheduler.transport_full += 1
+        if streaming and self._stalled(now):
+            return
+        due = now + RETRY
+        if streaming:
+            if not self.urgent or now >= self._next_due:  # grid ticks have passed: skip them
+                period = 1.0 / self.rate
+                missed = max(0, int((now - self._next_due) / period)) + 1  # this tick and any before it
+                self.dropped += missed
+                self._next_due += missed * period
+            due = min(due, self._next_due) if self.urgent else self._next_due
+        self.scheduler.schedule(self, due)
 
     def frame_source(self):
         """(phase table or None, codec): a table when this frame is one interpolation of it
@@ -427,20 +486,19 @@ class StreamSession:
                                  weights=player.weights, root=player.position, heading=player.heading,
                                  vertices=payload, finished=player.finished, error_um=error_um, error_max=error_max)
         try:
-            task = start_now(self.ws.send_bytes(data))
+            sent = send_now(self.ws.send_bytes(data))
         except (WebSocketDisconnect, OSError, RuntimeError):
-            self._close()
+            self._shut(1011, "sending failed")
             return
-        if task is not None:  # the transport is full: this connection waits, nobody else
-            self.busy, self._send_task = True, task
-            task.add_done_callback(self._sent)
-
-    def _sent(self, task):
-        self.busy, self._send_task = False, None
-        if task.cancelled() or task.exception() is not None:
-            self._close()
+        if not sent:  # it would have waited for the transport (no gauge): dropped, not queued
+            self.dropped += 1
+            self._stalled(asyncio.get_running_loop().time())
             return
-        self.after_frame()
+        self._stalled_since = None
+        if self.gauge is not None:
+            held = self.gauge.held()
+            if held > self.scheduler.transport_bytes_max:
+                self.scheduler.transport_bytes_max = held
 
     def after_frame(self):
         """Ask the scheduler for the next frame (now if one is urgent)."""

@@ -81,6 +81,17 @@ def check_stream_load(result, stdout):
     assert "frames delivered: mean" in stdout and "params -> first frame" in stdout
 
 
+def check_stream_stall(result, stdout):
+    assert result["stalls"] == [0.5, 1.0] and len(result["records"]) == 8
+    for stall in ("0.5", "1.0"):
+        summary = result["by_stall"][stall]
+        assert summary["clients"] == 4 and summary["recovered"] == 4 and summary["closed"] == 0
+        assert positive(summary["first_fresh_ms_median"]) and summary["first_fresh_ms_max"] >= summary["first_fresh_ms_median"]
+    assert 0 < result["transport_bytes_max"] <= 256 * 1024
+    assert non_negative(result["kernel_send_queue_max"])
+    assert "first fresh frame after reading resumes" in stdout and "bytes held for one connection" in stdout
+
+
 def check_tetrahedra(rows, stdout):
     (row,) = rows
     assert row["surface_vertices"] >= 900 and row["runs"] == 2 and row["identical"] is True
@@ -93,6 +104,7 @@ CHECKS = {
     "similarity_scaling.py": check_similarity_scaling,
     "speed_ground_truth.py": check_speed_ground_truth,
     "stream_load.py": check_stream_load,
+    "stream_stall.py": check_stream_stall,
     "tetrahedra.py": check_tetrahedra,
 }
 

@@ -21,6 +21,9 @@ def add_arguments(parser):
     parser.add_argument("--workers", type=int,
                         help="server processes sharing the port (default 1; MORPHSPACE_WORKERS)")
     parser.add_argument("--dask-scheduler", help="run jobs on this Dask scheduler (tcp://host:8786)")
+    parser.add_argument("--stall-timeout", type=float, metavar="SECONDS",
+                        help="close a stream connection that takes no frame for this long, with code 1008 "
+                             "(default 60; MORPHSPACE_STREAM_STALL_TIMEOUT)")
     parser.add_argument("--allow-open-bind", action="store_true",
                         help="serve a non-loopback address without a token")
     parser.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
@@ -30,8 +33,8 @@ def run(args):
     from server.settings import Settings, check_bind
 
     overrides = {k: v for k, v in {"data_dir": args.data_dir, "host": args.host, "port": args.port,
-                                   "dask_scheduler": args.dask_scheduler, "workers": args.workers}.items()
-                 if v is not None}
+                                   "dask_scheduler": args.dask_scheduler, "workers": args.workers,
+                                   "stream_stall_timeout": args.stall_timeout}.items() if v is not None}
     if args.allow_open_bind:
         overrides["allow_open_bind"] = True
     settings = Settings(**overrides)
@@ -50,7 +53,13 @@ def run(args):
 
 
 def uvicorn_options(settings, log_level):
-    return {"ws": "websockets-sansio", "ws_max_size": max(1 << 20, settings.stream_max_message * 4),
+    from server.stream import CLOSE_GRACE
+    from server.transport import StreamProtocol  # uvicorn's sans-I/O WebSocket protocol, bounded
+
+    # keepalive pings must not close a stalled stream before its own timeout does (a client that
+    # reads nothing cannot answer them)
+    return {"ws": StreamProtocol, "ws_max_size": max(1 << 20, settings.stream_max_message * 4),
+            "ws_ping_timeout": max(20.0, settings.stream_stall_timeout + CLOSE_GRACE),
             "log_level": log_level, "timeout_graceful_shutdown": 5}
 
 

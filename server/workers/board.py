@@ -18,8 +18,8 @@ The block holds blobs of at most ``BLOB`` bytes, each with one writer:
 
 A blob is JSON behind a sequence lock: the writer makes the sequence odd, writes, makes it even;
 a reader copies the bytes and retries when the sequence was odd or changed meanwhile. Counters are
-summed key by key (nested dicts too), so a counter added to the stream statistics or the
-scheduler is aggregated without a change here.
+summed key by key (nested dicts too; a key ending in ``_max`` is a peak and takes the largest),
+so a counter added to the stream statistics or the scheduler is aggregated without a change here.
 """
 
 from __future__ import annotations
@@ -113,14 +113,16 @@ class CounterBoard:
 
 
 def add_counters(a, b, skip=()):
-    """``a`` + ``b`` key by key: numbers add, dicts recurse; keys in ``skip`` are left out of
-    ``b``. Neither argument is changed."""
+    """``a`` + ``b`` key by key: numbers add (keys ending in ``_max``: the larger), dicts recurse;
+    keys in ``skip`` are left out of ``b``. Neither argument is changed."""
     out = dict(a)
     for key, value in b.items():
         if key in skip or isinstance(value, bool):
             continue
         if isinstance(value, dict):
             out[key] = add_counters(out.get(key, {}), value, skip)
+        elif isinstance(value, (int, float)) and key.endswith("_max"):  # a peak: the largest, not a sum
+            out[key] = max(out.get(key, value), value)
         elif isinstance(value, (int, float)):
             out[key] = out.get(key, 0) + value
     return out

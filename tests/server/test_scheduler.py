@@ -1,11 +1,11 @@
-"""start_now runs a send in the caller when the transport takes it, in a task when it must wait."""
+"""send_now runs a send in the caller when the transport takes it, and abandons it when it would wait."""
 
 import asyncio
 import concurrent.futures
 
 import pytest
 
-from server.scheduler import start_now
+from server.scheduler import send_now
 
 
 def run(main):
@@ -22,66 +22,39 @@ def test_a_coroutine_that_does_not_wait_completes_in_the_call():
         async def send():
             done.append(1)
 
-        assert start_now(send()) is None
+        assert send_now(send()) is True
         assert done == [1]
 
     run(main)
 
 
-def test_a_coroutine_that_waits_finishes_in_a_task_with_its_result_seen_by_it():
+def test_a_coroutine_that_would_wait_is_abandoned_and_closed():
     async def main():
-        gate = asyncio.get_running_loop().create_future()
-        seen = []
+        full = asyncio.Event()   # a transport above its high-water mark
+        steps = []
 
         async def send():
-            seen.append(await gate)
-            await asyncio.sleep(0)          # a bare yield on the way
-            seen.append("after")
+            try:
+                await full.wait()
+                steps.append("written")
+            finally:
+                steps.append("closed")
 
-        task = start_now(send())
-        assert isinstance(task, asyncio.Task) and seen == []
-        gate.set_result("open")
-        await asyncio.wait_for(task, 1.0)
-        assert seen == ["open", "after"]
+        assert send_now(send()) is False
+        assert steps == ["closed"]
+        full.set()
+        await asyncio.sleep(0.01)
+        assert steps == ["closed"]   # nothing was left behind to write it later
 
     run(main)
 
 
-def test_errors_before_and_after_waiting_reach_the_caller():
+def test_errors_reach_the_caller():
     async def main():
         async def fails_at_once():
             raise ConnectionResetError("gone")
 
         with pytest.raises(ConnectionResetError):
-            start_now(fails_at_once())
-
-        gate = asyncio.get_running_loop().create_future()
-
-        async def fails_later():
-            await gate
-
-        task = start_now(fails_later())
-        gate.set_exception(ConnectionResetError("gone later"))
-        with pytest.raises(ConnectionResetError, match="gone later"):
-            await asyncio.wait_for(task, 1.0)
-
-    run(main)
-
-
-def test_cancelling_the_task_closes_the_waiting_coroutine():
-    async def main():
-        closed = []
-
-        async def send():
-            try:
-                await asyncio.Event().wait()
-            finally:
-                closed.append(True)
-
-        task = start_now(send())
-        task.cancel()
-        with pytest.raises(asyncio.CancelledError):
-            await task
-        assert closed == [True]
+            send_now(fails_at_once())
 
     run(main)

@@ -283,8 +283,9 @@ def test_a_slow_client_does_not_slow_a_fast_one(server, window):
         assert stale <= window + 1
         assert fresh["dropped"] >= 120   # most of 3 s x 60 ticks were skipped, and said so
     else:
-        # without acks only the sockets' buffers bound what is queued; the server never blocks
-        assert stale < 3.0 * 60 + 60
+        # without acks the server holds a few frames at most; the client's own socket buffers the rest
+        assert stale < 3.0 * 60 / 2
+        assert fresh["dropped"] >= 60
 
 
 def test_heatmap_frames_carry_the_distance_from_the_nonlinear_blend(server, speed_space):

@@ -1,0 +1,96 @@
+"""What a stream connection sees of its transport: ``StreamProtocol`` and ``TransportGauge``.
+
+Latest-wins has to hold down to the socket: a frame written into a transport that still holds
+an earlier one waits behind it, and a client that stops reading for seconds would get seconds of
+stale frames first when it reads again. So the server writes a frame only into an empty
+transport, and bounds what the kernel holds:
+
+- ``StreamProtocol`` is uvicorn's sans-I/O WebSocket protocol (``morphspace serve`` runs it)
+  with two additions: it sets ``TCP_NOTSENT_LOWAT`` on each connection's socket, so the kernel
+  takes new bytes only while fewer than ``UNSENT_LIMIT`` wait unsent (the rest stays in the
+  asyncio transport, where the server sees it), and it hands the stream a ``TransportGauge``
+  in the connection's ASGI scope (``scope["extensions"][GAUGE]``).
+- ``TransportGauge.ready()`` is true when the transport has taken everything written so far;
+  ``held()`` is what the server holds for the connection: the asyncio buffer plus the kernel's
+  send queue (sent and unacknowledged, or unsent: ``SIOCOUTQ``).
+
+Under another ASGI server there is no gauge; the stream then relies on the send itself: a send
+that would wait for a full transport is abandoned (the frame is dropped, never queued).
+"""
+
+from __future__ import annotations
+
+import fcntl
+import logging
+import socket
+import termios
+
+from uvicorn.protocols.websockets.websockets_sansio_impl import WebSocketsSansIOProtocol
+
+log = logging.getLogger("morphspace.stream")
+GAUGE = "morphspace.transport"
+UNSENT_LIMIT = 32 * 1024          # bytes the kernel may hold unsent per connection (TCP_NOTSENT_LOWAT)
+_NOTSENT_LOWAT = getattr(socket, "TCP_NOTSENT_LOWAT", None)
+_OUTQ = getattr(termios, "TIOCOUTQ", None)  # == SIOCOUTQ on Linux: bytes in a TCP socket's send queue
+
+
+class TransportGauge:
+    """How full one connection's transport is (see the module docstring)."""
+
+    def __init__(self, protocol):
+        self._protocol = protocol
+        self._transport = protocol.transport
+        sock = self._transport.get_extra_info("socket")
+        self._fd = sock.fileno() if sock is not None and _OUTQ is not None else -1
+        self._word = bytearray(4)
+        self.peak = 0   # the most ``held()`` has returned
+
+    def ready(self):
+        """True when a frame written now would not wait behind earlier bytes in the transport."""
+        transport = self._transport
+        return (transport.get_write_buffer_size() == 0 and self._protocol.writable.is_set()
+                and not transport.is_closing())
+
+    def held(self):
+        """Bytes the server holds for this connection: the transport's buffer plus the kernel's
+        send queue (0 where the kernel cannot say). Updates ``peak``."""
+        total = self._transport.get_write_buffer_size()
+        if self._fd >= 0:
+            try:
+                fcntl.ioctl(self._fd, _OUTQ, self._word)
+                total += int.from_bytes(self._word, "little")
+            except OSError:   # the socket has closed meanwhile
+                pass
+        if total > self.peak:
+            self.peak = total
+        return total
+
+    def abort(self):
+        """Drop the TCP connection at once, unsent bytes and all (a client that reads nothing)."""
+        self._transport.abort()
+
+
+def limit_unsent(transport):
+    """Set TCP_NOTSENT_LOWAT on ``transport``'s socket (where the platform has it)."""
+    sock = transport.get_extra_info("socket")
+    if sock is None or _NOTSENT_LOWAT is None:
+        return
+    try:
+        sock.setsockopt(socket.IPPROTO_TCP, _NOTSENT_LOWAT, UNSENT_LIMIT)
+    except OSError as exc:  # not TCP (a Unix socket), or refused: the asyncio bound still holds
+        log.debug("stream: TCP_NOTSENT_LOWAT not set: %s", exc)
+
+
+class StreamProtocol(WebSocketsSansIOProtocol):
+    """uvicorn's sans-I/O WebSocket protocol, with the kernel's unsent bytes bounded and a
+    ``TransportGauge`` in each connection's scope (``uvicorn.run(app, ws=StreamProtocol)``)."""
+
+    def connection_made(self, transport):
+        super().connection_made(transport)
+        limit_unsent(transport)
+
+    def handle_connect(self, event):
+        super().handle_connect(event)
+        scope = getattr(self, "scope", None)
+        if scope is not None:  # the handshake was accepted: the ASGI task has not run yet
+            scope["extensions"][GAUGE] = TransportGauge(self)
