@@ -2,51 +2,77 @@
 
 Every WebSocket message is a msgpack map with a ``type`` field. The messages are the frozen
 dataclasses below: ``CLIENT_MESSAGES`` (browser or engine -> server) and ``SERVER_MESSAGES``.
-Each field carries its wire kind and a one-line description in its metadata; docs/protocol.md
-and web_client/static/protocol.js are checked against these definitions by tests
-(``python -m server.protocol --js`` writes the JavaScript table).
+Each field carries its wire kind, its range and a one-line description in its metadata, and
+decoding checks them from there; docs/protocol.md (its message tables, error codes and their
+order, close codes) and web_client/static/protocol.js are rendered from these definitions by
+server/protocol_docs.py and checked against them by tests.
 
-Arrays travel as raw little-endian bytes (msgpack ``bin``): faces as uint32 triples, vertices as
-float32 triples or, with the ``q16`` codec, uint16 triples quantised over the topology's
-``bounds``: ``v = bounds_min + q * (bounds_max - bounds_min) / 65535``.
+Arrays travel as raw little-endian bytes (msgpack ``bin``): faces as uint32 triples, vertices in
+one of the codecs of server/codecs.py (re-exported here).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
-import sys
 from dataclasses import dataclass, field
 
 import msgpack
-import numpy as np
 
 from engine.player import MODES  # the blend modes a client may ask for
+from server.codecs import Quantiser, decode_vertices, encode_vertices, quantisation_error  # noqa: F401 (re-exported)
 
 PROTOCOL_VERSION = 1
 CODECS = ("f32", "q16")
+INT_LIMIT = 2**53  # integers travel as JSON-safe numbers: |n| <= 2^53
 
 # wire kinds: how a field is checked and documented
 KINDS = {
     "str": "string",
-    "int": "integer",
+    "int": "integer (-2^53 to 2^53)",
     "float": "number (finite)",
     "bool": "boolean",
     "params": "map of parameter name -> number",
+    "numbers": "map of name -> number",
     "floats": "array of numbers",
     "strs": "array of strings",
     "bytes": "binary (msgpack bin)",
     "objects": "array of maps",
 }
 
+# the keys of each topology.parameters entry and of topology.limits, in order
+PARAMETER_KEYS = ("name", "unit", "min", "max", "default", "value")
+LIMITS = {"max_message": "bytes", "max_rate": "messages/s", "burst": "messages", "max_fps": "frames/s",
+          "stall_timeout": "s"}
 
-def wire(kind, doc, *, default=dataclasses.MISSING, optional=False):
-    """A message field: its wire ``kind`` (a KINDS key), description, and default if optional."""
-    metadata = {"kind": kind, "doc": doc, "optional": optional or default is not dataclasses.MISSING}
+
+def wire(kind, doc, *, default=dataclasses.MISSING, optional=False, low=None, high=None, one_of=None,
+         choices=None):
+    """A message field: its wire ``kind`` (a KINDS key), description, default if optional, the
+    range ``[low, high]`` decoding enforces (``high`` may name a ``topology.limits`` key), the
+    ``choices`` a string must be one of, and ``one_of``: a group of optional fields of which a
+    message must carry exactly one."""
+    metadata = {"kind": kind, "doc": doc, "optional": optional or default is not dataclasses.MISSING,
+                "low": low, "high": high, "one_of": one_of, "choices": choices}
     if default is dataclasses.MISSING and optional:
         default = None
     return field(default=default, metadata=metadata)
+
+
+def spring_times(fractions=(0.5, 0.9, 0.99)):
+    """Times, in units of the smoothing time constant, at which the player's critically damped
+    spring (engine.player) has covered ``fractions`` of a step: ``1 - (1 + x) exp(-x) = f``."""
+    out = []
+    for f in fractions:
+        lo, hi = 0.0, 50.0
+        for _ in range(100):
+            mid = (lo + hi) / 2
+            lo, hi = (mid, hi) if 1 - (1 + mid) * math.exp(-mid) < f else (lo, mid)
+        out.append(round((lo + hi) / 2, 2))
+    return out
+
+
+_SPRING = spring_times()
 
 
 class ProtocolError(ValueError):
@@ -64,12 +90,18 @@ class Hello:
     """Start (or switch) streaming a motion space. The server answers with Topology, then frames."""
     type = "hello"
     space: str = wire("str", "motion space name (GET /v1/spaces lists them)")
-    codec: str = wire("str", "vertex codec: 'f32' (float32) or 'q16' (16-bit quantised over bounds)", default="f32")
-    rate: float = wire("float", "frames per second wanted (0 < rate <= server limit, default 60); 0 = pull only", default=60.0)
-    mode: str = wire("str", "blend mode: 'linear', 'hybrid' or 'nonlinear'", default="hybrid")
+    codec: str = wire("str", "vertex codec: 'f32' (float32) or 'q16' (16-bit quantised over bounds)", default="f32",
+                      choices=CODECS)
+    rate: float = wire("float", "frames per second wanted; 0 = pull only (no streamed frames at all)", default=60.0,
+                       low=0.0, high="max_fps")
+    mode: str = wire("str", "blend mode", default="hybrid", choices=MODES)
     params: dict = wire("params", "initial parameters (default: the middle of each range)", optional=True)
-    smoothing: float = wire("float", "seconds of parameter smoothing (critically damped; 0 = none)", default=0.25)
-    window: int = wire("int", "frames in flight before the server waits for Ack (0 = no acks, TCP backpressure only)", default=0)
+    smoothing: float = wire("float", "time constant (s) of the critically damped spring that moves the parameters "
+                            "to a new request: 50% / 90% / 99% of the way after "
+                            f"{_SPRING[0]} / {_SPRING[1]} / {_SPRING[2]} x smoothing; 0 = at once", default=0.25,
+                            low=0.0, high=10.0)
+    window: int = wire("int", "frames in flight before the server waits for Ack (0 = no acks, TCP backpressure only)",
+                       default=0, low=0, high=64)
     heatmap: bool = wire("bool", "send each frame's per-vertex distance from the non-linear blend", default=False)
     seq: int = wire("int", "client sequence number, echoed as the frames' ack", default=0)
 
@@ -87,7 +119,7 @@ class Params:
 class Mode:
     """Switch the blend mode (compare linear / hybrid / non-linear live)."""
     type = "mode"
-    mode: str = wire("str", "'linear', 'hybrid' or 'nonlinear'")
+    mode: str = wire("str", "blend mode", choices=MODES)
     seq: int = wire("int", "client sequence number", default=0)
 
 
@@ -95,7 +127,7 @@ class Mode:
 class Rate:
     """Change the frame rate."""
     type = "rate"
-    rate: float = wire("float", "frames per second (0 = pull only)")
+    rate: float = wire("float", "frames per second (0 = pull only: no streamed frames)", low=0.0, high="max_fps")
     seq: int = wire("int", "client sequence number", default=0)
 
 
@@ -117,13 +149,13 @@ class Resume:
 class Seek:
     """Jump to a phase of the cycle (or clip); the root stays where it is."""
     type = "seek"
-    phase: float = wire("float", "phase in [0, 1]")
+    phase: float = wire("float", "phase of the cycle or clip; the next frame shows exactly this phase", low=0.0, high=1.0)
     seq: int = wire("int", "client sequence number", default=0)
 
 
 @dataclass(frozen=True)
 class Reset:
-    """Back to phase 0 at the origin, facing +Z."""
+    """Back to phase 0 at the origin, facing +Z (the next frame shows exactly that: time 0)."""
     type = "reset"
     seq: int = wire("int", "client sequence number", default=0)
 
@@ -146,16 +178,17 @@ class Pull:
     type = "pull"
     id: int = wire("int", "request id, echoed as the frame's pull_id")
     params: dict = wire("params", "parameter name -> value (missing ones: the stream's current request)", optional=True)
-    time: float = wire("float", "seconds since the start of the cycle or clip (>= 0)", optional=True)
-    phase: float = wire("float", "or the phase in [0, 1] directly", optional=True)
-    mode: str = wire("str", "blend mode (default: the stream's)", optional=True)
+    time: float = wire("float", "seconds since the start of the cycle or clip", optional=True, low=0.0, high=86400.0,
+                       one_of="when")
+    phase: float = wire("float", "or the phase directly", optional=True, low=0.0, high=1.0, one_of="when")
+    mode: str = wire("str", "blend mode (default: the stream's)", optional=True, choices=MODES)
 
 
 @dataclass(frozen=True)
 class Ack:
     """Acknowledge a frame (needed only when Hello asked for a window)."""
     type = "ack"
-    frame: int = wire("int", "seq of the newest frame received")
+    frame: int = wire("int", "seq of the newest frame received", low=0)
 
 
 # ---------------------------------------------------------------- server -> client
@@ -173,7 +206,8 @@ class Topology:
     bounds_min: list = wire("floats", "q16 box minimum corner (m, root-local)")
     bounds_max: list = wire("floats", "q16 box maximum corner (m, root-local)")
     quantisation_error: float = wire("float", "largest position error the codec adds (m); 0 for f32")
-    parameters: list = wire("objects", "per parameter {name, unit, min, max, value}")
+    parameters: list = wire("objects", "per parameter {" + ", ".join(PARAMETER_KEYS) + "}: value is the current "
+                            "request, default the middle of the range")
     sources: list = wire("strs", "source sequence names, in weight order")
     durations: list = wire("floats", "seconds per source (one cycle or the clip)")
     cyclic: bool = wire("bool", "the motion loops")
@@ -181,7 +215,7 @@ class Topology:
     modes: list = wire("strs", "available blend modes")
     rate: float = wire("float", "frames per second the server will send")
     model_size: float = wire("float", "largest extent of the rest mesh (m)")
-    limits: dict = wire("params", "max_message (bytes), max_rate (messages/s), burst, max_fps")
+    limits: dict = wire("numbers", ", ".join(f"{k} ({unit})" for k, unit in LIMITS.items()))
 
 
 @dataclass(frozen=True)
@@ -234,13 +268,43 @@ ERROR_CODES = {
     "invalid_field": "a field is missing, of the wrong kind, non-finite or out of range",
     "unknown_space": "no motion space of that name",
     "not_playable": "the space has no parameter map",
-    "not_ready": "a message other than hello before the first hello",
-    "too_large": "the message exceeds the per-connection size limit",
+    "not_ready": "a message other than hello (or ack) before the first hello",
+    "too_large": "the message exceeds `limits.max_message` bytes",
     "rate_limited": "more messages than the per-connection rate allows; the message was dropped",
     "invalid_params": "unknown parameter names or non-finite values",
     "server_busy": "the server has as many connections as it accepts",
     "internal": "the server failed to act on a valid message (reported, connection kept)",
 }
+
+# The order of a client message's checks: the first that fails answers (a message failing two
+# checks gets the earlier one's error).
+CHECK_ORDER = (
+    ("rate_limited", "the connection's message budget"),
+    ("too_large", "the message's size"),
+    ("malformed", "msgpack (or JSON text) holding a map with a string `type`"),
+    ("unknown_type", "the `type`"),
+    ("invalid_field", "every field: present if required, no unknown ones, its kind, finite, in its range or "
+                      "among its choices, exactly one of a `one of` group (non-finite parameter values: "
+                      "`invalid_params`)"),
+    ("not_ready", "a `hello` first (an `ack` before it is ignored)"),
+    ("unknown_space", "the space (then `not_playable`), for `hello`"),
+    ("invalid_params", "parameter names, for `hello`, `params` and `pull`"),
+)
+
+# WebSocket close codes the server sends (the connection ends; see docs/protocol.md)
+CLOSE_STALLED, CLOSE_TOO_BIG, CLOSE_INTERNAL, CLOSE_BUSY = 1008, 1009, 1011, 1013
+CLOSE_CODES = {
+    CLOSE_STALLED: "the client took no due frame for `stall_timeout` seconds (reason `stalled: ...`)",
+    CLOSE_TOO_BIG: "a message over max(1 MiB, 4 x `max_message`): refused by the WebSocket layer itself",
+    CLOSE_INTERNAL: "the server failed to produce a frame (after an `internal` error) or to send",
+    CLOSE_BUSY: "the server has as many connections as it accepts (after a `server_busy` error)",
+}
+
+
+def websocket_max_size(max_message):
+    """Bytes of the largest message the WebSocket layer accepts before closing with 1009."""
+    return max(1 << 20, 4 * max_message)
+
 
 CLIENT_MESSAGES = {m.type: m for m in (Hello, Params, Mode, Rate, Pause, Resume, Seek, Reset, Heatmap, Pull, Ack)}
 SERVER_MESSAGES = {m.type: m for m in (Topology, Frame, Notice, Error)}
@@ -254,89 +318,7 @@ def fields_of(message):
     return rows
 
 
-# ---------------------------------------------------------------- decoding and encoding
-
-def _check(kind, name, value, ref, seq):
-    def bad(what):
-        raise ProtocolError("invalid_field", f"{ref}.{name}: {what}", ref=ref, seq=seq)
-    if kind == "str":
-        if not isinstance(value, str):
-            bad(f"expected a string, got {type(value).__name__}")
-        if len(value) > 256:
-            bad("longer than 256 characters")
-        return value
-    if kind == "bool":
-        if not isinstance(value, bool):
-            bad(f"expected true or false, got {type(value).__name__}")
-        return value
-    if kind == "int":
-        if isinstance(value, bool) or not isinstance(value, int):
-            bad(f"expected an integer, got {type(value).__name__}")
-        if not -2**53 <= value <= 2**53:
-            bad("integer out of range")
-        return value
-    if kind == "float":
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            bad(f"expected a number, got {type(value).__name__}")
-        if not math.isfinite(value):
-            bad(f"must be finite, got {value}")
-        return float(value)
-    if kind == "params":
-        if not isinstance(value, dict):
-            bad(f"expected a map of name -> number, got {type(value).__name__}")
-        if len(value) > 64:
-            bad("more than 64 entries")
-        out = {}
-        for key, number in value.items():
-            if not isinstance(key, str):
-                bad("parameter names must be strings")
-            if isinstance(number, bool) or not isinstance(number, (int, float)):
-                bad(f"{key!r} must be a number, got {type(number).__name__}")
-            if not math.isfinite(number):
-                raise ProtocolError("invalid_params", f"{ref}.{name}: {key} must be finite, got {number}",
-                                    ref=ref, seq=seq)
-            out[key] = float(number)
-        return out
-    raise AssertionError(f"no client decoding for kind {kind}")
-
-
-def decode_client(data, max_bytes=None):
-    """A client message object from raw WebSocket data (bytes, or text holding JSON).
-
-    Raises ProtocolError naming the problem: malformed data, an unknown ``type``, missing or
-    invalid fields, unknown extra fields.
-    """
-    if max_bytes is not None and len(data) > max_bytes:
-        raise ProtocolError("too_large", f"message of {len(data)} bytes exceeds the limit of {max_bytes}")
-    try:
-        if isinstance(data, str):
-            raw = json.loads(data)
-        else:
-            raw = msgpack.unpackb(data, raw=False, strict_map_key=True, max_bin_len=0, max_ext_len=0)
-    except (ValueError, msgpack.UnpackException, msgpack.ExtraData, TypeError, RecursionError) as exc:
-        raise ProtocolError("malformed", f"not a msgpack (or JSON text) message ({type(exc).__name__}: {exc})") from None
-    if not isinstance(raw, dict) or not isinstance(raw.get("type"), str):
-        raise ProtocolError("malformed", "a message must be a map with a string 'type' field")
-    kind = raw["type"]
-    seq = raw.get("seq") if isinstance(raw.get("seq"), int) and not isinstance(raw.get("seq"), bool) else None
-    cls = CLIENT_MESSAGES.get(kind)
-    if cls is None:
-        raise ProtocolError("unknown_type", f"unknown message type {kind[:64]!r}; expected one of "
-                            f"{', '.join(CLIENT_MESSAGES)}", ref=kind[:64], seq=seq)
-    known = {f.name: f for f in dataclasses.fields(cls)}
-    extra = sorted(set(raw) - set(known) - {"type"})
-    if extra:
-        raise ProtocolError("invalid_field", f"{kind}: unknown field(s) {', '.join(map(str, extra))[:200]}",
-                            ref=kind, seq=seq)
-    values = {}
-    for name, f in known.items():
-        if name not in raw or raw[name] is None:
-            if not f.metadata["optional"]:
-                raise ProtocolError("invalid_field", f"{kind}.{name} is required", ref=kind, seq=seq)
-            continue
-        values[name] = _check(f.metadata["kind"], name, raw[name], kind, seq)
-    return cls(**values)
-
+# ---------------------------------------------------------------- encoding
 
 _FIELD_NAMES = {}
 
@@ -367,109 +349,3 @@ def decode_server(data):
         raise ProtocolError("malformed", f"unknown server message {raw!r:.80}")
     names = {f.name for f in dataclasses.fields(cls)}
     return cls(**{k: v for k, v in raw.items() if k in names})
-
-
-# ---------------------------------------------------------------- vertex codecs
-
-def quantisation_error(bounds):
-    """Largest distance (m) between a point in ``bounds`` and its q16 reconstruction: half a
-    step along each axis."""
-    step = (np.asarray(bounds[1], dtype=np.float64) - np.asarray(bounds[0], dtype=np.float64)) / 65535.0
-    return float(np.linalg.norm(step / 2))
-
-
-class Quantiser:
-    """The q16 codec over a box: ``q = round((v - lo) * 65535 / (hi - lo))`` per axis, clamped
-    to [0, 65535].
-
-    ``Quantiser(bounds, n_vertices).encode(V)`` is the hot path: the per-axis scale and offset
-    are tiled over the flat (x, y, z, x, ...) array once, so every step is one contiguous pass.
-    ``scale`` and ``offset`` (3,) float32 map metres to the codec's units *before* rounding
-    (``offset`` includes the + 0.5 of round-to-nearest): ``floor(v * scale + offset)``.
-    """
-
-    def __init__(self, bounds, n_vertices):
-        lo, hi = np.asarray(bounds[0], dtype=np.float32), np.asarray(bounds[1], dtype=np.float32)
-        self.scale = (np.float32(65535.0) / np.maximum(hi - lo, np.float32(1e-12))).astype(np.float32)
-        self.offset = (np.float32(0.5) - lo * self.scale).astype(np.float32)
-        self.n_vertices = int(n_vertices)
-        self._scale = np.tile(self.scale, self.n_vertices)
-        self._offset = np.tile(self.offset, self.n_vertices)
-        self._q = np.empty(3 * self.n_vertices, dtype=np.float32)
-        self.key = ("q16", self.scale.tobytes(), self.offset.tobytes())
-
-    def encode(self, V):
-        """Raw little-endian uint16 bytes of (n, 3) vertices."""
-        q = self._q
-        np.multiply(np.asarray(V, dtype=np.float32).reshape(-1), self._scale, out=q)
-        np.add(q, self._offset, out=q)
-        np.maximum(q, np.float32(0.0), out=q)
-        np.minimum(q, np.float32(65535.0), out=q)
-        return q.astype("<u2").tobytes()
-
-    def table(self, table):
-        """A PhaseTable (engine.blend.cache) in codec units: interpolating its rows and
-        truncating to uint16 gives the encoded frame."""
-        return table.scaled(self.scale, self.offset, 0.0, 65535.0, key=self.key)
-
-
-def encode_vertices(V, codec, bounds):
-    """Raw little-endian bytes of (n, 3) vertices in ``codec``; q16 clamps to ``bounds``."""
-    if codec == "f32":
-        return np.ascontiguousarray(V, dtype="<f4").tobytes()
-    return Quantiser(bounds, len(V)).encode(V)
-
-
-def decode_vertices(data, codec, n_vertices, bounds_min=None, bounds_max=None):
-    """(n, 3) float32 vertices from a frame's bytes (the inverse of encode_vertices)."""
-    if codec == "f32":
-        return np.frombuffer(data, dtype="<f4").reshape(n_vertices, 3)
-    lo = np.asarray(bounds_min, dtype=np.float32)
-    hi = np.asarray(bounds_max, dtype=np.float32)
-    q = np.frombuffer(data, dtype="<u2").reshape(n_vertices, 3).astype(np.float32)
-    return lo + q * ((hi - lo) / np.float32(65535.0))
-
-
-# ---------------------------------------------------------------- documentation tables
-
-def markdown_table(message):
-    """The field table of one message as docs/protocol.md shows it (a test compares them)."""
-    defaults = {f.name: f.default for f in dataclasses.fields(message)}
-    rows = ["| field | kind | required | meaning |", "|---|---|---|---|"]
-    for name, kind, optional, doc in fields_of(message):
-        default = defaults.get(name)
-        required = "yes" if not optional else ("no" if default is None else f"no (default `{json.dumps(default)}`)")
-        rows.append(f"| `{name}` | {KINDS[kind]} | {required} | {doc.replace('|', '/')} |")
-    return "\n".join(rows)
-
-
-# ---------------------------------------------------------------- JavaScript table
-
-def javascript():
-    """web_client/static/protocol.js: the message table the browser client builds its messages from."""
-    def table(messages):
-        return {t: [name for name, *_ in fields_of(cls)] for t, cls in messages.items()}
-    lines = [
-        "// Generated from server/protocol.py by `python -m server.protocol --js`; do not edit.",
-        "// A test checks that this file matches the server's message definitions.",
-        f"export const PROTOCOL_VERSION = {PROTOCOL_VERSION};",
-        f"export const CODECS = {json.dumps(list(CODECS))};",
-        f"export const MODES = {json.dumps(list(MODES))};",
-        f"export const CLIENT_MESSAGES = {json.dumps(table(CLIENT_MESSAGES), indent=2)};",
-        f"export const SERVER_MESSAGES = {json.dumps(table(SERVER_MESSAGES), indent=2)};",
-        f"export const ERROR_CODES = {json.dumps(list(ERROR_CODES))};",
-        "",
-    ]
-    return "\n".join(lines)
-
-
-if __name__ == "__main__":
-    if sys.argv[1:] == ["--js"]:
-        sys.stdout.write(javascript())
-    elif sys.argv[1:] == ["--markdown"]:
-        for table in (CLIENT_MESSAGES, SERVER_MESSAGES):
-            for kind, message in table.items():
-                print(f"### `{kind}`\n\n{markdown_table(message)}\n")
-    else:
-        print("usage: python -m server.protocol --js | --markdown", file=sys.stderr)
-        sys.exit(2)

@@ -9,7 +9,7 @@ with a client ``window`` also only while fewer than ``window`` frames are unackn
 missed meanwhile are counted in ``dropped``, never queued, so a slow client gets fewer, fresh
 frames, the first frame after a stall of any length is fresh, and nobody else waits. A
 connection that has taken no due frame for ``stream_stall_timeout`` seconds is closed with code
-1008 (``CLOSE_STALLED``). A message that changes what the client sees (params, mode, seek,
+1008 (``protocol.CLOSE_STALLED``). A message that changes what the client sees (params, mode, seek,
 reset, resume) makes the next frame due at once, so it reflects the change within one blend.
 
 All blending runs on the event loop thread (the engine's blenders keep scratch buffers); only
@@ -27,13 +27,13 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from engine.player import Player
 from server import protocol as P
+from server.decoding import decode_client
 from server.registry import BrokenSpace, UnknownSpace
 from server.scheduler import URGENT, send_now
 from server.transport import GAUGE
 
 log = logging.getLogger("morphspace.stream")
 MAX_DT = 0.25  # a stalled connection does not jump the clock by more than this per frame
-CLOSE_STALLED = 1008  # WebSocket close code: the client took no frame for stream_stall_timeout seconds
 CLOSE_GRACE = 5.0     # seconds a closing client has to read the close frame before the TCP connection drops
 RETRY = 0.01          # seconds between looks at a full transport holding back an urgent frame
 
@@ -92,6 +92,9 @@ class StreamSession:
         self.payload = None     # encoded vertices the scheduler prepared for the next frame
         self.quantiser = None
         self.gauge = (websocket.scope.get("extensions") or {}).get(GAUGE)  # None under other servers
+        self._limits = {"max_message": settings.stream_max_message, "max_rate": settings.stream_max_rate,
+                        "burst": settings.stream_burst, "max_fps": settings.stream_max_fps,
+                        "stall_timeout": settings.stream_stall_timeout}  # topology.limits, P.LIMITS order
         self._stalled_since = None  # loop time since which due frames could not be written
         self._last_step = None
         self._next_due = 0.0
@@ -105,7 +108,7 @@ class StreamSession:
         try:
             await self.ws.send_bytes(message if isinstance(message, bytes) else P.to_wire(message))
         except (WebSocketDisconnect, OSError, RuntimeError):
-            self._shut(1011, "sending failed")
+            self._shut(P.CLOSE_INTERNAL, "sending failed")
 
     def _close(self):
         self.closed = True
@@ -135,10 +138,11 @@ class StreamSession:
         await self._send(P.Error(code=code, message=message, ref=ref, seq=seq))
 
     def _poke(self, seq=0):
-        """Make the next frame due at once, acknowledging client message ``seq``."""
+        """Make the next frame due at once, acknowledging client message ``seq`` (a pull-only
+        connection, rate 0, gets no streamed frame: its next pull carries the ack)."""
         self.ack = max(self.ack, seq)
         self.urgent = True
-        if self.ready and not self.closed:
+        if self.ready and not self.closed and self.rate > 0:
             self.scheduler.schedule(self, URGENT)
 
     # ------------------------------------------------------------ connection
@@ -148,7 +152,7 @@ class StreamSession:
         if self.stats.connections >= self.settings.stream_max_clients:
             await self.error("server_busy", f"the server streams to at most {self.settings.stream_max_clients} "
                                             "clients at once; try again later")
-            await self.ws.close(code=1013)
+            await self.ws.close(code=P.CLOSE_BUSY)
             return
         self.stats.connections += 1
         self.scheduler.add(self)
@@ -177,7 +181,7 @@ class StreamSession:
     async def _on_data(self, data):
         message = failure = None
         try:
-            message = P.decode_client(data, self.settings.stream_max_message)
+            message = decode_client(data, self.settings.stream_max_message, self._limits)
         except P.ProtocolError as exc:
             failure = exc
         if not self.bucket.take(0.25 if isinstance(message, P.Ack) else 1.0):
@@ -212,10 +216,10 @@ class StreamSession:
         if isinstance(m, P.Params):
             self._set_params(m.params, m.immediate, m.seq, m.type)
         elif isinstance(m, P.Mode):
-            await self._prepare_mode(m.mode, m)
+            await self._prepare_mode(m.mode)
             self.player.set_mode(m.mode)
         elif isinstance(m, P.Rate):
-            self._set_rate(m.rate, m)
+            self.rate = m.rate
             self._next_due = asyncio.get_running_loop().time()
             self._last_step = None
         elif isinstance(m, P.Pause):
@@ -224,30 +228,20 @@ class StreamSession:
             self.paused = False
             self._last_step = self._stalled_since = None
         elif isinstance(m, P.Seek):
-            if not 0.0 <= m.phase <= 1.0:
-                raise P.ProtocolError("invalid_field", f"seek.phase must be in [0, 1], got {m.phase}", "seek", m.seq)
             self.player.seek(m.phase)
+            self._last_step = None  # the next frame shows exactly this phase; the clock runs on from it
         elif isinstance(m, P.Reset):
             self.player.reset()
+            self._last_step = None
         elif isinstance(m, P.Heatmap):
             if m.on:
-                await self._prepare_mode("nonlinear", m)
+                await self._prepare_mode("nonlinear")
             self.heatmap = m.on
         elif isinstance(m, P.Pull):
             return await self._pull(m)
         self._poke(m.seq)
 
-    def _set_rate(self, rate, m):
-        limit = self.settings.stream_max_fps
-        if not 0.0 <= rate <= limit:
-            raise P.ProtocolError("invalid_field", f"{m.type}.rate must be in [0, {limit:g}] frames per second, "
-                                                   f"got {rate:g}", m.type, m.seq)
-        self.rate = rate
-
-    async def _prepare_mode(self, mode, m):
-        if mode not in P.MODES:
-            raise P.ProtocolError("invalid_field", f"{m.type}.mode: unknown blend mode {mode!r}; choose one of "
-                                                   f"{', '.join(P.MODES)}", m.type, getattr(m, "seq", None))
+    async def _prepare_mode(self, mode):
         space = self.player.space if self.player is not None else None
         if space is not None:
             await asyncio.to_thread(space.blender, mode)  # the non-linear solver factorises once
@@ -264,18 +258,6 @@ class StreamSession:
                 self._send(P.Notice(code="clamped", message=solution.message, seq=seq)))
 
     async def _hello(self, m):
-        if m.codec not in P.CODECS:
-            raise P.ProtocolError("invalid_field", f"hello.codec: unknown codec {m.codec!r}; choose one of "
-                                                   f"{', '.join(P.CODECS)}", "hello", m.seq)
-        if m.mode not in P.MODES:
-            raise P.ProtocolError("invalid_field", f"hello.mode: unknown blend mode {m.mode!r}; choose one of "
-                                                   f"{', '.join(P.MODES)}", "hello", m.seq)
-        self._set_rate(m.rate, m)
-        if not 0.0 <= m.smoothing <= 10.0:
-            raise P.ProtocolError("invalid_field", f"hello.smoothing must be in [0, 10] seconds, got {m.smoothing}",
-                                  "hello", m.seq)
-        if not 0 <= m.window <= 64:
-            raise P.ProtocolError("invalid_field", f"hello.window must be in [0, 64], got {m.window}", "hello", m.seq)
         try:
             space = await asyncio.to_thread(self.registry.get, m.space)
         except UnknownSpace as exc:
@@ -296,15 +278,15 @@ class StreamSession:
                                                         f"{m.space} has {', '.join(player.names)}", "hello", m.seq)
             player.set_params(m.params, immediate=True)
         self.ready = False  # no frames until the new topology has gone out
-        self.player, self.space_name = player, m.space
+        self.player, self.space_name, self.rate = player, m.space, m.rate
         self.codec, self.window, self.heatmap = m.codec, m.window, m.heatmap
         description = self.registry.describe(m.space)
         self.bounds = np.asarray(description["bounds"], dtype=np.float32)
         self.paused, self._last_step = False, None
         self.quantiser = P.Quantiser(self.bounds, space.n_vertices) if m.codec == "q16" else None
         current = dict(zip(player.names, player.requested.tolist()))
-        parameters = [dict(p, value=current[p["name"]]) for p in description["parameters"]]
-        s = self.settings
+        parameters = [{key: dict(p, value=current[p["name"]])[key] for key in P.PARAMETER_KEYS}
+                      for p in description["parameters"]]
         await self._send(P.Topology(
             protocol=P.PROTOCOL_VERSION, space=m.space, n_vertices=int(space.n_vertices),
             n_faces=int(len(space.faces)), faces=np.ascontiguousarray(space.faces, dtype="<u4").tobytes(),
@@ -313,8 +295,7 @@ class StreamSession:
             parameters=parameters, sources=space.source_names, durations=space.durations().tolist(),
             cyclic=bool(space.cyclic), mode=m.mode, modes=list(P.MODES), rate=self.rate,
             model_size=float(space.model_size),
-            limits={"max_message": s.stream_max_message, "max_rate": s.stream_max_rate,
-                    "burst": s.stream_burst, "max_fps": s.stream_max_fps}))
+            limits=dict(self._limits)))
         self.seq = self.acked_frame = 0
         self.waiting_ack = False
         self._stalled_since = None
@@ -323,14 +304,8 @@ class StreamSession:
         self._poke(m.seq)
 
     async def _pull(self, m):
-        if (m.time is None) == (m.phase is None):
-            raise P.ProtocolError("invalid_field", "pull: give exactly one of time (s) or phase", "pull", m.id)
-        if m.time is not None and not 0.0 <= m.time <= 86400.0:
-            raise P.ProtocolError("invalid_field", f"pull.time must be in [0, 86400] s, got {m.time}", "pull", m.id)
-        if m.phase is not None and not 0.0 <= m.phase <= 1.0:
-            raise P.ProtocolError("invalid_field", f"pull.phase must be in [0, 1], got {m.phase}", "pull", m.id)
         mode = m.mode or self.player.mode
-        await self._prepare_mode(mode, m)
+        await self._prepare_mode(mode)
         player = self.player
         names = player.names
         unknown = sorted(set(m.params or {}) - set(names))
@@ -399,7 +374,7 @@ class StreamSession:
 
     def advance(self, now):
         """Step the player for a frame at loop time ``now``; False when none is to be sent."""
-        if not self.ready or self.player is None:
+        if not self.ready or self.player is None or self.rate <= 0:
             return False
         urgent = self.urgent
         streaming = not self.paused and self.rate > 0
@@ -439,7 +414,7 @@ class StreamSession:
         if now - self._stalled_since < timeout:
             return False
         log.info("stream: closing a connection to %s that took no frame for %.0f s", self.space_name, timeout)
-        self._shut(CLOSE_STALLED, f"stalled: no frame could be delivered for {timeout:g} s")
+        self._shut(P.CLOSE_STALLED, f"stalled: no frame could be delivered for {timeout:g} s")
         return True
 
     def _transport_full(self, now, streaming):
@@ -488,7 +463,7 @@ class StreamSession:
         try:
             sent = send_now(self.ws.send_bytes(data))
         except (WebSocketDisconnect, OSError, RuntimeError):
-            self._shut(1011, "sending failed")
+            self._shut(P.CLOSE_INTERNAL, "sending failed")
             return
         if not sent:  # it would have waited for the transport (no gauge): dropped, not queued
             self.dropped += 1
@@ -520,6 +495,6 @@ class StreamSession:
         try:
             await self.ws.send_bytes(P.to_wire(P.Error(code="internal", message=f"the server failed to produce a "
                                                        f"frame: {type(exc).__name__}: {exc}")))
-            await self.ws.close(code=1011)
+            await self.ws.close(code=P.CLOSE_INTERNAL)
         except (WebSocketDisconnect, OSError, RuntimeError):
             pass

@@ -53,12 +53,13 @@ def run(args):
 
 
 def uvicorn_options(settings, log_level):
+    from server.protocol import websocket_max_size
     from server.stream import CLOSE_GRACE
     from server.transport import StreamProtocol  # uvicorn's sans-I/O WebSocket protocol, bounded
 
     # keepalive pings must not close a stalled stream before its own timeout does (a client that
     # reads nothing cannot answer them)
-    return {"ws": StreamProtocol, "ws_max_size": max(1 << 20, settings.stream_max_message * 4),
+    return {"ws": StreamProtocol, "ws_max_size": websocket_max_size(settings.stream_max_message),
             "ws_ping_timeout": max(20.0, settings.stream_stall_timeout + CLOSE_GRACE),
             "log_level": log_level, "timeout_graceful_shutdown": 5}
 

@@ -8,15 +8,16 @@ import re
 from pathlib import Path
 
 from server import protocol as P
+from server import protocol_docs as D
 
 STATIC = Path(__file__).resolve().parents[2] / "web_client" / "static"
 
 
 def test_committed_protocol_js_matches_the_server_definitions():
     committed = (STATIC / "protocol.js").read_text()
-    assert committed == P.javascript(), (
+    assert committed == D.javascript(), (
         "web_client/static/protocol.js is stale: run "
-        "`.venv/bin/python -m server.protocol --js > web_client/static/protocol.js`")
+        "`.venv/bin/python -m server.protocol_docs --js > web_client/static/protocol.js`")
 
 
 def test_the_page_sends_only_messages_the_server_defines():

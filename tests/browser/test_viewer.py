@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from server import protocol as P
+from server.decoding import decode_client
 
 
 def character_pixels(rgb):
@@ -36,11 +37,11 @@ def check_messages_decode_on_the_server(page):
           refused,
         };
     }""")
-    hello = P.decode_client(bytes(built["hello"]))
+    hello = decode_client(bytes(built["hello"]))
     assert hello == P.Hello(space="speed", codec="q16", rate=30.0, mode="linear", heatmap=True,
                             params={"speed": 1.25}, smoothing=0.0, window=3, seq=1)
-    assert P.decode_client(bytes(built["params"])) == P.Params(params={"speed": 2.0}, seq=7)
-    assert P.decode_client(bytes(built["ack"])) == P.Ack(frame=12)
+    assert decode_client(bytes(built["params"])) == P.Params(params={"speed": 2.0}, seq=7)
+    assert decode_client(bytes(built["ack"])) == P.Ack(frame=12)
     assert "params has no field \"bogus\"" in built["refused"]
 
 

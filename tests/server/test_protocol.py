@@ -11,19 +11,21 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from server import protocol as P
+from server import protocol_docs as D
+from server.decoding import decode_client
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "protocol.md"
 
 
 def test_a_full_hello_decodes_to_its_dataclass():
-    m = P.decode_client(msgpack.packb({"type": "hello", "space": "walk", "codec": "q16", "rate": 30,
+    m = decode_client(msgpack.packb({"type": "hello", "space": "walk", "codec": "q16", "rate": 30,
                                        "params": {"speed": 2}, "window": 2, "seq": 4}))
     assert m == P.Hello(space="walk", codec="q16", rate=30.0, params={"speed": 2.0}, window=2, seq=4)
     assert isinstance(m.rate, float) and isinstance(m.params["speed"], float)
 
 
 def test_json_text_decodes_like_msgpack():
-    assert P.decode_client('{"type": "seek", "phase": 0.5, "seq": 2}') == P.Seek(phase=0.5, seq=2)
+    assert decode_client('{"type": "seek", "phase": 0.5, "seq": 2}') == P.Seek(phase=0.5, seq=2)
 
 
 @pytest.mark.parametrize("raw, code", [
@@ -39,14 +41,14 @@ def test_json_text_decodes_like_msgpack():
 ])
 def test_invalid_messages_name_the_problem(raw, code):
     with pytest.raises(P.ProtocolError) as info:
-        P.decode_client(msgpack.packb(raw, strict_types=False))
+        decode_client(msgpack.packb(raw, strict_types=False))
     assert info.value.code == code
     assert info.value.message
 
 
 def test_the_size_limit_comes_first():
     with pytest.raises(P.ProtocolError, match="exceeds the limit") as info:
-        P.decode_client(b"\x80" * 2000, max_bytes=1000)
+        decode_client(b"\x80" * 2000, max_bytes=1000)
     assert info.value.code == "too_large"
 
 
@@ -54,7 +56,7 @@ def test_the_size_limit_comes_first():
 @given(st.binary(max_size=200))
 def test_random_bytes_never_raise_anything_but_protocol_errors(data):
     try:
-        P.decode_client(data)
+        decode_client(data)
     except P.ProtocolError as exc:
         assert exc.code in P.ERROR_CODES
 
@@ -67,7 +69,7 @@ def test_random_bytes_never_raise_anything_but_protocol_errors(data):
                        max_size=5))
 def test_random_maps_never_raise_anything_but_protocol_errors(raw):
     try:
-        P.decode_client(msgpack.packb(raw))
+        decode_client(msgpack.packb(raw))
     except P.ProtocolError as exc:
         assert exc.code in P.ERROR_CODES
 
@@ -104,9 +106,69 @@ def test_the_protocol_doc_shows_every_message_as_defined():
     for table in (P.CLIENT_MESSAGES, P.SERVER_MESSAGES):
         for kind, message in table.items():
             assert f"### `{kind}`" in doc, f"docs/protocol.md lacks a section for {kind}"
-            assert P.markdown_table(message) in doc, \
-                f"docs/protocol.md's table for {kind} differs from server/protocol.py (python -m server.protocol --markdown)"
+            assert D.markdown_section(message) in doc, \
+                f"docs/protocol.md's section for {kind} differs from server/protocol.py (python -m server.protocol_docs --markdown)"
     documented = set(re.findall(r"^### `([a-z_]+)`", doc, flags=re.M))
     assert documented == set(P.CLIENT_MESSAGES) | set(P.SERVER_MESSAGES)
-    for code in P.ERROR_CODES:
-        assert f"| `{code}` |" in doc
+    assert D.markdown_errors() in doc, "docs/protocol.md's error codes or their order differ from server/protocol.py"
+    assert D.markdown_close_codes() in doc, "docs/protocol.md's close codes differ from server/protocol.py"
+
+
+@pytest.mark.parametrize("raw", [
+    {"type": "pull", "id": 1, "time": 86400.5},
+    {"type": "pull", "id": 1, "phase": 1.01},
+    {"type": "pull", "id": 1, "time": 1.0, "phase": 0.5},      # exactly one of time, phase
+    {"type": "pull", "id": 1, "params": {"speed": 1.0}},
+    {"type": "hello", "space": "s", "window": 65},
+    {"type": "hello", "space": "s", "window": -1},
+    {"type": "hello", "space": "s", "smoothing": 10.5},
+    {"type": "hello", "space": "s", "rate": -1},
+    {"type": "hello", "space": "s", "codec": "png"},
+    {"type": "mode", "mode": "cubic"},
+    {"type": "seek", "phase": -0.1},
+    {"type": "ack", "frame": -1},
+    {"type": "params", "params": {"speed": 2 ** 60}},
+])
+def test_ranges_choices_and_groups_in_the_definitions_are_enforced(raw):
+    with pytest.raises(P.ProtocolError) as info:
+        decode_client(msgpack.packb(raw))
+    assert info.value.code == "invalid_field" and info.value.ref == raw["type"]
+    if raw["type"] == "pull":
+        assert info.value.seq == 1   # a pull's errors carry its id
+
+
+def test_a_range_bound_naming_a_limit_is_read_from_the_limits():
+    hello = msgpack.packb({"type": "hello", "space": "s", "rate": 100})
+    assert decode_client(hello).rate == 100.0
+    assert decode_client(hello, limits={"max_fps": 120}).rate == 100.0
+    with pytest.raises(P.ProtocolError, match=r"max_fps\] = 30, got 100"):
+        decode_client(hello, limits={"max_fps": 30})
+
+
+@pytest.mark.parametrize("value", [b"speed", msgpack.ExtType(5, b"x"), msgpack.Timestamp(1, 0)])
+def test_bin_and_ext_values_in_fields_are_invalid_fields_not_malformed(value):
+    with pytest.raises(P.ProtocolError, match="hello.space: expected string, got msgpack") as info:
+        decode_client(msgpack.packb({"type": "hello", "space": value}))
+    assert info.value.code == "invalid_field"
+    with pytest.raises(P.ProtocolError) as info:
+        decode_client(msgpack.packb({"type": b"hello", "space": "x"}))
+    assert info.value.code == "malformed"
+
+
+def test_the_smoothing_milestones_in_the_doc_are_the_players_spring():
+    from engine.player import _critically_damped
+
+    tau = 0.25
+    for fraction, factor in zip((0.5, 0.9, 0.99), P.spring_times()):
+        x, v = _critically_damped(np.zeros(1), np.zeros(1), np.ones(1), factor * tau, tau)
+        assert x[0] == pytest.approx(fraction, abs=0.002)
+    assert "50% / 90% / 99% of the way after 1.68 / 3.89 / 6.64 x smoothing" in D.markdown_table(P.Hello)
+
+
+def test_serve_gives_the_websocket_layer_the_documented_size_limit():
+    from server.commands.serve import uvicorn_options
+    from server.settings import Settings
+
+    for max_message in (1024, 64 * 1024, 1 << 20):
+        options = uvicorn_options(Settings(stream_max_message=max_message), "warning")
+        assert options["ws_max_size"] == P.websocket_max_size(max_message) == max(1 << 20, 4 * max_message)

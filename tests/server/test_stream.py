@@ -143,10 +143,91 @@ def test_mode_switch_pause_seek_reset(server, speed_space):
     assert nl.mode == "nonlinear" and lin.mode == "linear"
     np.testing.assert_allclose(nl.vertices, expected_local(speed_space, nl, "nonlinear"), atol=2e-5)
     np.testing.assert_allclose(lin.vertices, expected_local(speed_space, lin, "linear"), atol=1e-6)
-    assert sought.phase == pytest.approx(0.25)
+    assert sought.phase == pytest.approx(0.25, abs=1e-12)
     assert resumed[-1].time > sought.time
-    # the clock runs on: the reset frame is a few milliseconds past the origin
-    assert reset.phase < 0.05 and np.linalg.norm(reset.root) < 0.05 and reset.time < 0.1
+
+
+def test_seek_and_reset_while_playing_land_exactly_on_their_target(server):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", rate=60) as c:
+            for _ in range(10):
+                await c.next_frame()
+            sought = await c.next_frame(after=await c.seek(0.4))
+            later = await c.next_frame()
+            reset = await c.next_frame(after=await c.reset())
+            return sought, later, reset
+    sought, later, reset = run(go())
+    assert sought.phase == pytest.approx(0.4, abs=1e-12)
+    assert later.phase >= sought.phase                      # and the clock runs on from there
+    assert reset.phase == 0.0 and reset.time == 0.0 and reset.heading == 0.0
+    assert np.array_equal(reset.root, np.zeros(3))
+
+
+def test_rate_0_sends_no_streamed_frame_and_pulls_carry_the_acks(server):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", rate=0) as c:
+            seq = await c.set_params(speed=1.5)
+            await asyncio.sleep(0.5)
+            streamed = c._latest
+            pulled = await c.pull(time=0.5)
+            return c.topology, seq, streamed, pulled
+    topology, seq, streamed, pulled = run(go())
+    assert topology.rate == 0.0
+    assert streamed is None
+    assert pulled.pull_id == 1 and pulled.ack >= seq and pulled.requested["speed"] == pytest.approx(1.5)
+
+
+def test_the_topology_carries_the_documented_parameter_and_limit_keys(server):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", rate=10) as c:
+            return c.topology
+    topology = run(go())
+    assert [list(p) for p in topology.parameters] == [list(P.PARAMETER_KEYS)]
+    (speed,) = topology.parameters
+    assert speed["min"] < speed["default"] < speed["max"]
+    assert list(topology.limits) == list(P.LIMITS)
+    assert topology.limits["stall_timeout"] == 60.0
+
+
+def test_smoothing_follows_the_documented_spring(server):
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", rate=60, smoothing=0.25) as c:
+            lo, hi = c.topology.parameters[0]["min"], c.topology.parameters[0]["max"]
+            start = (await c.next_frame(after=await c.set_params(speed=lo, immediate=True))).requested["speed"]
+            paused = await c.next_frame(after=await c.pause())
+            await c.set_params(speed=hi)                      # the spring waits for the clock
+            frames = [await c.next_frame(after=await c.resume())]
+            while frames[-1].time - paused.time < 0.5:
+                frames.append(await c.next_frame())
+            return start, hi, paused, frames
+    start, hi, paused, frames = run(go())
+    for f in frames:
+        x = (f.time - paused.time) / 0.25
+        progress = (f.requested["speed"] - start) / (hi - start)
+        assert progress == pytest.approx(1 - (1 + x) * math.exp(-x), abs=1e-6), f.time - paused.time
+
+
+def test_a_field_error_comes_before_not_ready_as_documented(server):
+    async def go():
+        async with websockets.connect(server.ws_url) as ws:
+            await ws.send(msgpack.packb({"type": "seek", "phase": 5.0, "seq": 1}))
+            first = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
+            await ws.send(msgpack.packb({"type": "seek", "phase": 0.5, "seq": 2}))
+            second = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
+            return first, second
+    first, second = run(go())
+    assert (first["code"], first["seq"]) == ("invalid_field", 1)
+    assert (second["code"], second["seq"]) == ("not_ready", 2)
+
+
+def test_a_message_over_the_websocket_limit_closes_with_1009(server):
+    async def go():
+        async with websockets.connect(server.ws_url, max_size=2**26) as ws:
+            await ws.send(b"\x80" * (P.websocket_max_size(65536) + 1))
+            with pytest.raises(websockets.ConnectionClosed) as closed:
+                await asyncio.wait_for(ws.recv(), 5)
+            return closed.value.rcvd.code
+    assert run(go()) == P.CLOSE_TOO_BIG
 
 
 def test_pull_is_the_frame_at_those_params_and_time(server, speed_space):
@@ -211,6 +292,8 @@ async def raw_session(url, messages, *, hello=True, settle=0.3, pack=msgpack.pac
     ({"type": "pull", "id": 1}, "invalid_field"),
     ({"type": "hello", "space": "../../etc/passwd"}, "unknown_space"),
     ({"type": "hello", "space": "speed", "codec": "png"}, "invalid_field"),
+    ({"type": "hello", "space": b"speed"}, "invalid_field"),      # a bin value where a string belongs
+    ({"type": "pull", "id": 1, "time": 1.0, "phase": 0.5}, "invalid_field"),
     (b"x" * (70 * 1024), "too_large"),
 ])
 def test_bad_messages_get_an_error_and_the_stream_goes_on(server, message, code):

@@ -1,4 +1,4 @@
-// Generated from server/protocol.py by `python -m server.protocol --js`; do not edit.
+// Generated from server/protocol.py by `python -m server.protocol_docs --js`; do not edit.
 // A test checks that this file matches the server's message definitions.
 export const PROTOCOL_VERSION = 1;
 export const CODECS = ["f32", "q16"];
