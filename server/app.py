@@ -74,7 +74,7 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
     app.state.settings = settings
     app.state.worker = worker
     app.state.started_at = time.time()
-    app.state.registry = SpaceRegistry(settings.spaces_dir)
+    app.state.registry = SpaceRegistry(settings.spaces_dir, derived=settings.derived_dir)
     app.state.stream_stats = StreamStats()
     app.state.frame_scheduler = FrameScheduler()
     app.state.jobs = JobService(settings, app.state.registry, runs_jobs=worker is None or worker.runs_jobs,

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.motion_space.container import MotionSpaceError
+from engine.motion_space.derived import DerivedStore
 from engine.motion_space.space import MotionSpace
 from engine.player import MODES
 
@@ -53,10 +54,15 @@ def quantisation_box(space, margin=0.1):
 
 
 class SpaceRegistry:
-    """Opens motion spaces from ``directory`` on demand and keeps them open while unchanged."""
+    """Opens motion spaces from ``directory`` on demand and keeps them open while unchanged.
 
-    def __init__(self, directory):
+    ``derived``: a directory for the arrays the blenders derive from each space (DerivedStore),
+    mapped so that the server's worker processes share them; None: each process makes its own.
+    """
+
+    def __init__(self, directory, derived=None):
         self.directory = Path(directory)
+        self.derived = DerivedStore(derived) if derived is not None else None
         self._entries = {}
         self._lock = threading.Lock()
 
@@ -84,7 +90,7 @@ class SpaceRegistry:
             if entry is not None and entry.stamp == stamp:
                 return entry
         try:
-            space = MotionSpace.open(path)
+            space = MotionSpace.open(path, derived=self.derived)
         except (MotionSpaceError, OSError, ValueError, KeyError) as exc:
             raise BrokenSpace(f"motion space {name!r} cannot be read: {exc}") from exc
         entry = _Entry(stamp=stamp, space=space, bounds=quantisation_box(space))

@@ -3,7 +3,8 @@
 ``Settings()`` reads e.g. ``MORPHSPACE_DATA_DIR=/srv/morphspace MORPHSPACE_TOKEN=...``; tests build
 ``Settings(data_dir=tmp_path, ...)`` directly. Paths the API can reach all live under
 ``data_dir``: ``spaces/`` (motion spaces), ``datasets/`` (uploaded captures), ``jobs.sqlite``
-and ``work/`` (job scratch space).
+and ``work/`` (job scratch space, and ``work/derived/``: arrays the blenders derive from the
+spaces, shared by the server's processes).
 """
 
 from __future__ import annotations
@@ -51,6 +52,10 @@ class Settings(BaseSettings):
     @property
     def work_dir(self) -> Path:
         return self.data_dir / "work"
+
+    @property
+    def derived_dir(self) -> Path:
+        return self.work_dir / "derived"
 
     @property
     def jobs_db(self) -> Path:

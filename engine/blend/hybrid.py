@@ -29,6 +29,32 @@ from engine.blend.phase import phase_samples
 from engine.blend.simplex import SimplexTree
 
 
+def hybrid_layout(corrections, n_vertices, dense_above=None, dense_budget=64 << 20):
+    """The arrays HybridBlender adds corrections from, beside the corrections themselves.
+
+    corrections : Corrections;  n_vertices : int
+    dense_above : int or None   rows listing more vertices than this are also kept dense
+                                (default n / 60); dense_budget : int, bytes of dense rows at most
+    Returns
+    layout : dict   ``flat_index`` (3 E,) intp: the flat (x, y, z) indices of every entry;
+                    ``dense_keys`` (K,) int64 (reference, phase) rows kept dense, the largest
+                    first, and ``dense_rows`` (K, 3 n) float32 their scaled corrections
+    """
+    above = n_vertices // 60 if dense_above is None else dense_above
+    v = np.asarray(corrections.vertex).astype(np.intp)
+    flat_index = (3 * v[:, None] + np.arange(3)).ravel()
+    pointer = np.asarray(corrections.pointer, dtype=np.int64)
+    counts = np.diff(pointer)
+    order = np.argsort(-counts, kind="stable")[:dense_budget // (12 * n_vertices)]
+    keys = order[counts[order] > above]
+    value = np.asarray(corrections.value).reshape(-1)
+    rows = np.zeros((len(keys), 3 * n_vertices), dtype=np.float32)
+    for row, k in zip(rows, keys):
+        s, e = pointer[k], pointer[k + 1]
+        row[flat_index[3 * s:3 * e]] = value[3 * s:3 * e] * np.float32(corrections.scale[k])
+    return {"flat_index": flat_index, "dense_keys": keys.astype(np.int64), "dense_rows": rows}
+
+
 class HybridBlender:
     """Real-time hybrid blends of N sources on a phase grid.
 
@@ -48,7 +74,8 @@ class HybridBlender:
     dense_budget : int          bytes of dense rows at most (the largest corrections first)
     """
 
-    def __init__(self, sources, tree, corrections, cyclic, *, dense_above=None, dense_budget=64 << 20):
+    def __init__(self, sources, tree, corrections, cyclic, *, dense_above=None, dense_budget=64 << 20,
+                 layout=None):
         self.sources = sources
         self.n_phases, self.n_sources, self.n_vertices = sources.shape[:3]
         self._flat = np.ascontiguousarray(sources, dtype=np.float32).reshape(self.n_phases, self.n_sources, -1)
@@ -59,27 +86,17 @@ class HybridBlender:
         self._children = tree.children.tolist()
         self._split = tree.split.tolist()
         self._split_ref = tree.split_references().tolist()
-        # Flat (x, y, z) indices of every correction entry, so a row scatters into a flat buffer.
-        v = corrections.vertex.astype(np.intp)
-        self._flat_index = (3 * v[:, None] + np.arange(3)).ravel()
         self._pointer = corrections.pointer.tolist()
         self._value = corrections.value.reshape(-1)
         self._scale = corrections.scale.tolist()
         self._buffer = np.empty(self.n_vertices * 3, dtype=np.float32)
-        self._dense = self._dense_rows(self.n_vertices // 60 if dense_above is None else dense_above, dense_budget)
-
-    def _dense_rows(self, above, budget):
-        """{(reference, phase) index: (n * 3,) float32 scaled correction} for the big ones."""
-        counts = np.diff(np.asarray(self.corrections.pointer, dtype=np.int64))
-        dense = {}
-        for k in np.argsort(-counts, kind="stable")[:budget // (12 * self.n_vertices)]:
-            if counts[k] <= above:
-                break
-            s, e = self._pointer[k], self._pointer[k + 1]
-            row = np.zeros(self.n_vertices * 3, dtype=np.float32)
-            row[self._flat_index[3 * s:3 * e]] = self._value[3 * s:3 * e] * np.float32(self._scale[k])
-            dense[int(k)] = row
-        return dense
+        # Flat (x, y, z) indices of every correction entry (a row scatters into a flat buffer)
+        # and the dense rows. ``layout``: hybrid_layout's arrays made beforehand, e.g. mapped
+        # from a file several processes share (engine/motion_space/derived.py); only read.
+        if layout is None:
+            layout = hybrid_layout(corrections, self.n_vertices, dense_above, dense_budget)
+        self._flat_index = layout["flat_index"]
+        self._dense = dict(zip(layout["dense_keys"].tolist(), layout["dense_rows"]))
 
     def _add(self, flat, r, p, coefficient):
         k = r * self.n_phases + p

@@ -28,6 +28,18 @@ from engine.deform import DeformationSolver
 _STRETCH_ENTRIES = np.array([[SYMMETRIC.index((min(i, j), max(i, j))) for j in range(3)] for i in range(3)]).ravel()
 
 
+def component_major_layout(quaternions, stretch, detail):
+    """The arrays NonlinearBlender blends from, in the order its hot path reads them.
+
+    quaternions : (m, t, 4), stretch : (m, t, 6), detail : (m, n, 3) float arrays
+    Returns
+    layout : dict   ``quaternions`` (m, 4, t), ``stretch`` (m, 6, t), ``detail`` (m, 3, n)
+                    C-contiguous float32 arrays
+    """
+    return {"quaternions": _component_major(quaternions), "stretch": _component_major(stretch),
+            "detail": _component_major(detail)}
+
+
 def _component_major(A):
     """(m, k, c) float32 copy of an (m, c, k) array: components as contiguous rows."""
     return np.ascontiguousarray(np.swapaxes(np.asarray(A, dtype=np.float32), 1, 2))
@@ -110,13 +122,14 @@ class NonlinearBlender:
 
     RECENT = 4  # blends before the solve kept (a player at fixed weights reuses its two samples)
 
-    def __init__(self, embedding, quaternions, stretch, detail, surfaces):
+    def __init__(self, embedding, quaternions, stretch, detail, surfaces, layout=None):
         self.embedding = embedding
         self.quaternions, self.stretch, self.detail = quaternions, stretch, detail  # as given
-        # Component-major copies, (m, 4, t), (m, 6, t), (m, 3, n).
-        self._q = _component_major(quaternions)
-        self._s = _component_major(stretch)
-        self._d = _component_major(detail)
+        # Component-major copies, (m, 4, t), (m, 6, t), (m, 3, n). ``layout``: those arrays made
+        # beforehand (component_major_layout), e.g. mapped from a file several processes share
+        # (engine/motion_space/derived.py); only read.
+        layout = layout if layout is not None else component_major_layout(quaternions, stretch, detail)
+        self._q, self._s, self._d = layout["quaternions"], layout["stretch"], layout["detail"]
         self.surfaces = surfaces
         self._surfaces = np.asarray(surfaces, dtype=np.float32).reshape(len(surfaces), -1)
         self.solver = DeformationSolver(embedding.V_tet, embedding.T)

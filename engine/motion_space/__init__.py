@@ -13,6 +13,7 @@ from .container import (
     inspect_container,
     write_container,
 )
+from .derived import DerivedStore
 from .build import PreparedSources, SourceClip, build_motion_space, prepare_sources, warp_cycle_onto
 from .space import MODES, MotionSpace
 
@@ -23,6 +24,7 @@ __all__ = [
     "MotionSpaceError",
     "inspect_container",
     "write_container",
+    "DerivedStore",
     "SourceClip",
     "build_motion_space",
     "PreparedSources",

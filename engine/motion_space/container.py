@@ -303,6 +303,8 @@ class Container(collections.abc.Mapping):
     ----------
     path : pathlib.Path
     version : int          format version of the file
+    checksum : str         the header's checksum (32 hex digits): it covers the metadata and
+                           every array's checksum, so it names the file's content
     metadata : dict        the JSON metadata (this object's own copy)
     names : tuple of str   array names in file order
 
@@ -320,6 +322,7 @@ class Container(collections.abc.Mapping):
         """Private: use `Container.open`."""
         self.path = path
         self.version = header["version"]
+        self.checksum = header["header_checksum"]
         self.metadata = header["metadata"]
         self._entries = header["arrays"]
         self._file_size = header["file_size"]

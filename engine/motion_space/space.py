@@ -16,11 +16,16 @@ from engine.blend import (
     VolumetricEmbedding,
 )
 from engine.blend.cache import PhaseTableBlender
+from engine.blend.hybrid import hybrid_layout
+from engine.blend.nonlinear import component_major_layout
 from engine.motion_space.build import SPACE_FORMAT, SPACE_VERSION
 from engine.motion_space.container import Container, MotionSpaceError
 from engine.parameters import ParameterMap, RootTrack
 
 MODES = ("linear", "hybrid", "nonlinear")
+# What a derived file of each kind holds; bump one when hybrid_layout or component_major_layout
+# change what they return, so older derived files are built again.
+LAYOUT_VERSIONS = {"hybrid": 1, "nonlinear": 1}
 
 
 class MotionSpace:
@@ -28,6 +33,9 @@ class MotionSpace:
 
     ``space = MotionSpace.open(path)`` maps the file (no copies); ``space.blender(mode)`` builds
     a blender once and caches it; ``space.blend(weights, phase, mode)`` is a convenience.
+    ``MotionSpace.open(path, derived=DerivedStore(directory))``: the arrays the hybrid and
+    non-linear blenders derive from the file are mapped from files in ``directory`` too (built
+    there once), so that processes serving the same space share them (motion_space/derived.py).
 
     Attributes
     ----------
@@ -40,8 +48,9 @@ class MotionSpace:
     model_size : float                     metres
     """
 
-    def __init__(self, container):
+    def __init__(self, container, derived=None):
         self.container = container
+        self.derived = derived
         meta = container.metadata
         if meta.get("format") != SPACE_FORMAT:
             raise MotionSpaceError(f"{container.path}: the file holds {meta.get('format')!r}, "
@@ -61,14 +70,18 @@ class MotionSpace:
         self.faces = container["faces"]
         self.sources = container["sources"]
         self._blenders = {}
+        self._layouts = []
 
     @classmethod
-    def open(cls, path, *, verify=True):
-        """Open a motion space file (``verify`` checks every array's checksum)."""
-        return cls(Container.open(path, verify=verify))
+    def open(cls, path, *, verify=True, derived=None):
+        """Open a motion space file (``verify`` checks every array's checksum); ``derived``: a
+        DerivedStore for the blenders' derived arrays (None: each blender makes its own)."""
+        return cls(Container.open(path, verify=verify), derived)
 
     def close(self):
         self.container.close()
+        for layout in self._layouts:
+            layout.close()
 
     def __enter__(self):
         return self
@@ -130,17 +143,29 @@ class MotionSpace:
         if mode not in MODES:
             raise ValueError(f"unknown blend mode {mode!r}; choose one of {', '.join(MODES)}")
         if mode not in self._blenders:
+            c = self.container
             if mode == "linear":
                 blender = LinearBlender(self.sources, self.cyclic)
             elif mode == "hybrid":
-                blender = HybridBlender(self.sources, self.tree, self.corrections, self.cyclic)
+                layout = self._layout("hybrid", lambda: hybrid_layout(self.corrections, self.n_vertices))
+                blender = HybridBlender(self.sources, self.tree, self.corrections, self.cyclic, layout=layout)
             else:
-                c = self.container
-                inner = NonlinearBlender(self.embedding, c["nl_quaternions"], c["nl_stretch"], c["nl_detail"],
-                                         self.sources.reshape(-1, self.n_vertices, 3))
+                q, s, d = c["nl_quaternions"], c["nl_stretch"], c["nl_detail"]
+                layout = self._layout("nonlinear", lambda: component_major_layout(q, s, d))
+                inner = NonlinearBlender(self.embedding, q, s, d, self.sources.reshape(-1, self.n_vertices, 3),
+                                         layout=layout)
                 blender = PhasedNonlinearBlender(inner, self.n_phases, self.n_sources, self.cyclic)
             self._blenders[mode] = blender
         return self._blenders[mode]
+
+    def _layout(self, kind, build):
+        """A blender's derived arrays: mapped from the DerivedStore, or None (the blender makes
+        them itself)."""
+        if self.derived is None:
+            return None
+        layout = self.derived.load(self.container, kind, {"version": LAYOUT_VERSIONS[kind]}, build)
+        self._layouts.append(layout)
+        return layout
 
     def frame_blender(self, mode):
         """The blender a player uses: linear and hybrid with phase tables (exact; one

@@ -103,6 +103,42 @@ def test_http_requests_reach_both_workers(two_workers):
     assert answered == {"0", "1"}
 
 
+def file_mappings(pid, directory):
+    """{path: {"Rss": kB, "Shared_Clean": kB, "Anonymous": kB, ...}} summed over the mappings of
+    files under ``directory`` in process ``pid`` (/proc/<pid>/smaps)."""
+    out, current = {}, None
+    with open(f"/proc/{pid}/smaps") as smaps:
+        for line in smaps:
+            fields = line.split()
+            if "-" in fields[0] and len(fields) >= 5:  # a mapping's first line: range perms offset dev inode [path]
+                path = fields[5] if len(fields) >= 6 else ""
+                current = out.setdefault(path, {}) if path.startswith(str(directory)) else None
+            elif current is not None and fields[0].endswith(":") and len(fields) == 3:
+                current[fields[0][:-1]] = current.get(fields[0][:-1], 0) + int(fields[1])
+    return out
+
+
+def test_workers_share_the_mapped_space_and_its_derived_arrays(two_workers):
+    answered = set()
+    for _ in range(60):  # non-linear frames from both workers (a new connection each time)
+        r = httpx.get(two_workers.url + "/v1/spaces/speed/frame", params={"mode": "nonlinear", "format": "json"},
+                      timeout=30)
+        assert r.status_code == 200, r.text
+        answered.add(r.headers["x-morphspace-worker"])
+        if answered == {"0", "1"}:
+            break
+    assert answered == {"0", "1"}
+    data = two_workers.data_dir.resolve()
+    maps = [file_mappings(w["pid"], data) for w in health(two_workers)["workers"]]
+    space = str(data / "spaces" / "speed.mspace")
+    (derived,) = [p for p in maps[0] if p.startswith(str(data / "work" / "derived")) and p.endswith(".nonlinear.mspace")]
+    for mapping in maps:  # both map the same files read-only: no private copies, the pages shared
+        for path in (space, derived):
+            figures = mapping[path]
+            shared = figures["Shared_Clean"] + figures["Shared_Dirty"]  # dirty: the copy is not written back yet
+            assert figures["Anonymous"] == 0 and shared >= 0.5 * figures["Rss"] > 0, (path, figures)
+
+
 def test_jobs_queued_at_either_worker_run_once_in_worker_0(two_workers):
     with httpx.Client(base_url=two_workers.url, timeout=30.0) as client:
         r = client.post("/v1/datasets", params={"name": "gaits"}, content=capture_zip(),
