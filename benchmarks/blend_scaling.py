@@ -3,15 +3,17 @@
 For each body resolution: generate a slow walk (0.8 m/s) and a jog (2.8 m/s) cycle, build a
 two-source speed space at epsilon = 5 mm, and time linear, hybrid and exact non-linear blending
 on one core (BLAS/OpenMP pinned to one thread) at random weights and phases, and the player's
-per-frame path (``Player.step``) at settled and at moving parameters. Prints a table and writes
-JSON. Frames/s are given by wall time and by this thread's CPU time (what the core does when a
+per-frame path (``Player.step``) at settled and at moving parameters; and checks the hybrid
+against the non-linear blend over a dense sampling of the weight simplex (``--dense`` weights, 4x
+denser than the build's test weights, at every phase sample). Prints a table and writes JSON. Frames/s are given by wall time and by this thread's CPU time (what the core does when a
 loaded machine does not take it away; the load average is recorded with the figures).
 
     .venv/bin/python benchmarks/blend_scaling.py [--vertices 3000 20000 50000] [--out results.json]
     .venv/bin/python benchmarks/blend_scaling.py --tiny --out /tmp/blend_scaling.json   # a few seconds
 
 ``--tiny`` (the test suite's smoke run): 1,000 vertices, gaits at 15 fps, 200 linear and hybrid
-calls, 10 non-linear calls and 100 player steps; ``--out`` is required with it.
+calls, 10 non-linear calls, 100 player steps and 9 weights for the dense check; ``--out`` is
+required with it.
 """
 
 from __future__ import annotations
@@ -33,13 +35,14 @@ import numpy as np  # noqa: E402
 
 from _tiny import parse_arguments  # noqa: E402
 from engine.bench import blend_requests, blend_speed, player_speed, single_core  # noqa: E402
+from engine.blend import phase_of_sample  # noqa: E402
 from engine.motion_space import MotionSpace, SourceClip, build_motion_space  # noqa: E402
 from engine.parameters import Layout  # noqa: E402
 from engine.player import Player  # noqa: E402
 from engine.synthetic import animate, build_body, gait  # noqa: E402
 
 
-TINY = {"vertices": [1000], "fps": 15.0, "calls": 200, "nonlinear_calls": 10, "steps": 100}
+TINY = {"vertices": [1000], "fps": 15.0, "calls": 200, "nonlinear_calls": 10, "steps": 100, "dense": 9}
 
 
 def _player_speeds(space, mode, steps):
@@ -64,7 +67,21 @@ def _player_speeds(space, mode, steps):
     return result
 
 
-def run_one(n_vertices, workdir, calls=2000, nonlinear_calls=40, fps=30.0, steps=600):
+def dense_hybrid_error(space, count):
+    """Largest hybrid - non-linear distance (m) over ``count`` weights evenly along the two-source
+    simplex (the whole of it) at every phase sample, and the weight where it is largest."""
+    hybrid, nonlinear = space.blender("hybrid"), space.blender("nonlinear")
+    worst = (0.0, None)
+    for u in np.linspace(0.0, 1.0, count):
+        w = np.array([1.0 - u, u])
+        for p in range(space.n_phases):
+            phase = phase_of_sample(p, space.n_phases, space.cyclic)
+            error = float(np.linalg.norm(hybrid.blend(w, phase) - nonlinear.blend(w, phase), axis=1).max())
+            worst = max(worst, (error, float(u)), key=lambda x: x[0])
+    return worst
+
+
+def run_one(n_vertices, workdir, calls=2000, nonlinear_calls=40, fps=30.0, steps=600, dense=129):
     started = time.perf_counter()
     body = build_body(n_vertices)
     clips = []
@@ -90,7 +107,9 @@ def run_one(n_vertices, workdir, calls=2000, nonlinear_calls=40, fps=30.0, steps
             row["player"][mode] = _player_speeds(space, mode, steps if mode != "nonlinear" else max(30, steps // 10))
     row["load_average_after"] = os.getloadavg()[0]
     hybrid = report["hybrid"]
+    dense_error, dense_at = dense_hybrid_error(space, dense)
     row["hybrid"] = {"references": hybrid["references"], "max_test_error_mm": hybrid["max_test_error"] * 1000,
+                     "dense_weights": dense, "dense_max_error_mm": dense_error * 1000, "dense_worst_weight": dense_at,
                      "correction_share_of_sources": hybrid["correction_bytes"] / hybrid["source_bytes"],
                      "correction_mb": hybrid["correction_bytes"] / 1e6, "source_mb": hybrid["source_bytes"] / 1e6}
     space.close()
@@ -103,6 +122,8 @@ def main(argv=None):
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate of the generated gaits")
     parser.add_argument("--calls", type=int, default=2000, help="linear and hybrid blend calls per size")
     parser.add_argument("--nonlinear-calls", type=int, default=40, help="non-linear blend calls per size")
+    parser.add_argument("--dense", type=int, default=129,
+                        help="weights along the simplex for the hybrid's dense error check (every phase)")
     parser.add_argument("--steps", type=int, default=600,
                         help="player steps per mode (non-linear: a tenth, at least 30)")
     parser.add_argument("--tiny", action="store_true",
@@ -114,7 +135,7 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as workdir:
         for n in args.vertices:
             row = run_one(n, workdir, calls=args.calls, nonlinear_calls=args.nonlinear_calls, fps=args.fps,
-                          steps=args.steps)
+                          steps=args.steps, dense=args.dense)
             rows.append(row)
             m, pl = row["modes"], row["player"]
             print(f"{row['vertices']:>6} vertices {row['tets']:>6} tets, one core (1 BLAS/OpenMP thread), load average "
@@ -124,9 +145,13 @@ def main(argv=None):
                       f"{m[mode]['cpu_frames_per_second']:>8.0f}/s CPU time, median {m[mode]['median_us']:>7.1f} us | "
                       f"player.step settled {pl[mode]['settled']['frames_per_second']:>7.0f}/s, "
                       f"steered {pl[mode]['steered']['frames_per_second']:>7.0f}/s", flush=True)
-            print(f"  corrections {100 * row['hybrid']['correction_share_of_sources']:.1f}% of sources, "
-                  f"{row['hybrid']['references']} refs, max test error {row['hybrid']['max_test_error_mm']:.2f} mm | "
+            hybrid = row["hybrid"]
+            print(f"  corrections {100 * hybrid['correction_share_of_sources']:.1f}% of sources, "
+                  f"{hybrid['references']} refs, max test error {hybrid['max_test_error_mm']:.2f} mm | "
                   f"build {row['build_s']['total_s']:.0f} s", flush=True)
+            print(f"  hybrid - non-linear over a dense sampling of the weight simplex ({hybrid['dense_weights']} "
+                  f"weights x {row['phases']} phases): max {hybrid['dense_max_error_mm']:.2f} mm "
+                  f"(epsilon 5 mm)", flush=True)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(rows, indent=2) + "\n")
     print(f"wrote {out}")

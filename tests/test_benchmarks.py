@@ -45,9 +45,10 @@ def check_blend_scaling(rows, stdout):
         assert positive(player["settled"]["frames_per_second"]) and positive(player["steered"]["frames_per_second"])
     hybrid = row["hybrid"]
     assert hybrid["references"] >= 1 and non_negative(hybrid["max_test_error_mm"])
+    assert hybrid["dense_weights"] == 9 and 0 < hybrid["dense_max_error_mm"] <= 5.1  # the bound, between tests too
     assert non_negative(hybrid["correction_share_of_sources"]) and hybrid["correction_share_of_sources"] < 1
     assert positive(hybrid["source_mb"])
-    assert "1000 vertices" in stdout and "nonlinear" in stdout and "corrections" in stdout and "one core" in stdout
+    assert "1000 vertices" in stdout and "nonlinear" in stdout and "corrections" in stdout and "one core" in stdout and "dense sampling" in stdout
 
 
 def check_similarity_scaling(records, stdout):

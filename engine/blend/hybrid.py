@@ -4,7 +4,8 @@ M(t, w) = M_L(t, w) + sum_j g_j(w) D_NL(t, w_j), where the w_j are the reference
 vertices of the simplex cell containing w, g_j are w's barycentric coordinates there and
 D_NL(t, w_j) = M_NL(t, w_j) - M_L(t, w_j). References come from recursive bisection of the weight
 simplex (``SimplexTree``) until the hybrid is within epsilon of the exact non-linear blend at
-test points of every cell, over all phase samples.
+test points of every cell, over all phase samples. The bisection is conforming: every leaf around
+a split edge is split on it, so each reference is a vertex of every leaf that touches it.
 
 Storage is hierarchical and sparse. When a cell is split at the midpoint m of its edge (a, b),
 only the part of D_NL(m) that interpolating the edge does not predict is stored:
@@ -181,9 +182,9 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         none are never split. Default: a barycentric grid of ``level`` in every cell (the whole
         simplex).
     prune : bool
-        After the bisection, drop stored entries whose removal keeps every test point (and, on
-        the whole simplex, every reference) within margin * epsilon, or no further off than it
-        was (``prune_corrections``). Same tree, fewer entries.
+        After the bisection, drop stored entries whose removal keeps every test point and every
+        reference within margin * epsilon, or no further off than it was
+        (``prune_corrections``). Same tree, fewer entries.
     progress : callable(message) or None
 
     Returns
@@ -196,6 +197,9 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
     -----
     Test errors are measured with the corrections exactly as stored (thresholded, quantised,
     pruned), so the bound holds for what the runtime computes. Non-linear blends are cached by weight.
+    Cells are split conformingly (``SimplexTree.bisect_conforming``): a leaf beside a split edge is
+    split on it too and its halves tested, so no leaf interpolates across a reference on its edge
+    and the hybrid is continuous in the weights and within the bound at every reference.
     """
     tree = SimplexTree(n_sources)
     max_depth = 8 + (n_sources - 2) if max_depth is None else max_depth
@@ -261,10 +265,16 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         if split:
             cell = tree.cells[node]
             a, b = tree.longest_edge(node)
-            r, is_new = tree.bisect(node)
+            r, is_new, split_nodes = tree.bisect_conforming(node)
             if is_new:
                 add_reference(r, cell[a], cell[b])
-            queue.extend(tree.children[node])
+            for other in split_nodes[1:]:  # leaves beside the split edge: their halves are tested instead
+                if other in queue:
+                    queue.remove(other)
+                leaf_errors = [(leaf, error) for leaf, error in leaf_errors if leaf != other]
+            children = tree.children
+            for split_node in split_nodes:
+                queue.extend(children[split_node].tolist())
             if progress is not None:
                 progress(f"split cell {node} (depth {depth}, test error {worst * 1000:.1f} mm): "
                          f"{len(tree.references) - n_sources} references")
@@ -272,11 +282,10 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
             leaf_errors.append((int(node), worst))
     corrections = store.finish()
     if prune and uniform_depth is None:
-        # Where the bound is checked: the leaves' test points, and on the whole simplex also the
-        # references (which the bisection takes as exact; pruning must not spoil them).
+        # Where the bound is checked: the leaves' test points, and every reference (the bisection
+        # takes them as exact; pruning must not spoil them, also off a layout's sheet).
         checked = [(node, w) for node, _ in leaf_errors for w in points_in(node)]
-        if test_weights is None:
-            checked += [(-1, w) for w in tree.references[n_sources:]]
+        checked += [(-1, w) for w in tree.references[n_sources:]]
         corrections, worst = prune_corrections(tree, corrections, [w for _, w in checked], linear, exact,
                                                margin * epsilon, leaf=[node for node, _ in checked])
         leaf_errors = [(node, worst.get(node, 0.0)) for node, _ in leaf_errors]

@@ -98,8 +98,14 @@ class SimplexTree:
                     best, pair = length, (i, j)
         return pair
 
-    def bisect(self, node):
-        """Split ``node`` at the midpoint of its longest edge.
+    def bisect(self, node, edge=None):
+        """Split ``node`` at the midpoint of one of its edges.
+
+        Parameters
+        ----------
+        node : int          a leaf
+        edge : (int, int)   positions (in the node's vertex list) of the edge to split;
+                            default its longest edge
 
         Returns
         -------
@@ -108,7 +114,7 @@ class SimplexTree:
         """
         if self._children[node][0] >= 0:
             raise ValueError(f"node {node} is already split")
-        a, b = self.longest_edge(node)
+        a, b = self.longest_edge(node) if edge is None else edge
         cell = self._cells[node]
         mid = 0.5 * (self._references[cell[a]] + self._references[cell[b]])
         key = tuple(np.round(mid, 12))
@@ -129,6 +135,48 @@ class SimplexTree:
             self._split.append([-1, -1])
             self._depth.append(self._depth[node] + 1)
         return m, is_new
+
+    def bisect_conforming(self, node):
+        """Split ``node`` on its longest edge and every other leaf with that edge on the same edge.
+
+        Returns
+        -------
+        reference : int     the midpoint's reference id
+        is_new : bool       whether the reference was created by this split
+        nodes : list of int the split nodes, ``node`` first
+
+        Notes
+        -----
+        Splitting every simplex around an edge keeps the tree's leaves a conforming mesh: no leaf
+        has a reference in the middle of one of its edges (a hanging reference). Otherwise a leaf
+        beside the split interpolates along the shared edge without the reference on it, so the
+        hybrid is discontinuous there and not even exact at the reference itself. The neighbours'
+        splits add no reference and store nothing: the midpoint's residual is defined by the edge.
+        """
+        a, b = self.longest_edge(node)
+        ends = self._cells[node][a], self._cells[node][b]
+        reference, is_new = self.bisect(node, (a, b))
+        nodes = [node]
+        for leaf in self.leaves():
+            cell = self._cells[leaf]
+            if ends[0] in cell and ends[1] in cell:
+                self.bisect(leaf, (cell.index(ends[0]), cell.index(ends[1])))
+                nodes.append(leaf)
+        return reference, is_new, nodes
+
+    def hanging_references(self):
+        """[(leaf, reference)] of references at the midpoint of a leaf's edge (none in a tree
+        grown by ``bisect_conforming``)."""
+        out = []
+        for leaf in self.leaves():
+            cell = self._cells[leaf]
+            for i in range(self.n):
+                for j in range(i + 1, self.n):
+                    mid = 0.5 * (self._references[cell[i]] + self._references[cell[j]])
+                    r = self._ref_index.get(tuple(np.round(mid, 12)))
+                    if r is not None:
+                        out.append((leaf, r))
+        return out
 
     def locate(self, weights):
         """Leaf containing ``weights`` and the barycentric coordinates there.

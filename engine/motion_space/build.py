@@ -46,8 +46,11 @@ from engine.timewarp import (
 )
 
 SPACE_FORMAT = "morphspace-motion-space"
-SPACE_VERSION = 3  # 2: root-local time-warped sources, root rates, int8 hierarchical corrections;
-                   # 3: correction rows' vertex sets as index lists or bitmasks (corrections_mask)
+SPACE_VERSION = 4  # 2: root-local time-warped sources, root rates, int8 hierarchical corrections;
+                   # 3: correction rows' vertex sets as index lists or bitmasks (corrections_mask);
+                   # 4: a conforming bisection tree (no reference on a leaf's edge; a version 3 tree
+                   #    could hang one, and its hybrid was off by up to 269 mm there) and every
+                   #    reference kept within the bound by pruning
 
 
 @dataclass
