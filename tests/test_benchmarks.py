@@ -100,8 +100,19 @@ def check_tetrahedra(rows, stdout):
     assert "identical bytes" in stdout
 
 
+def check_open_blends(result, stdout):
+    (pair,) = result["pairs"]
+    assert pair["sequence"] == "walk" and pair["holes"] >= 1 and pair["faces_dropped"] > 0
+    assert all(positive(v) for v in pair["input_volumes_l"])
+    assert abs(pair["nonlinear_change_percent"]) <= result["target_percent"]          # the target
+    assert abs(pair["linear_change_percent"]) > abs(pair["nonlinear_change_percent"])  # what it is for
+    assert result["summary"]["nonlinear"]["pairs"] == 1
+    assert "non-linear: |capped volume change| median" in stdout
+
+
 CHECKS = {
     "blend_scaling.py": check_blend_scaling,
+    "open_blends.py": check_open_blends,
     "similarity_scaling.py": check_similarity_scaling,
     "speed_ground_truth.py": check_speed_ground_truth,
     "stream_load.py": check_stream_load,

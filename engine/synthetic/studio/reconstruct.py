@@ -132,6 +132,61 @@ def _fragment(rng, centre, size, subdivisions=1):
     return V + centre, F
 
 
+def _face_frames(V, F):
+    """Centroids and unit normals (m, 3) of a mesh's faces."""
+    centroid = V[F].mean(axis=1)
+    normal = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-15)
+    return centroid, normal
+
+
+def sole_faces(centroid, normal):
+    """(m,) bool: faces on the ground facing down (soles, the underside of a fallen body): no
+    camera sees them."""
+    return (centroid[:, 1] < 0.02) & (normal[:, 1] < -0.3)
+
+
+def head_top_faces(centroid, normal, head_top, head_up, radius):
+    """(m,) bool: faces within ``radius`` of the top of the head and facing up from it (hair and
+    the cameras' angles leave a hole there)."""
+    up = head_up / np.linalg.norm(head_up)
+    return (np.linalg.norm(centroid - head_top, axis=1) < radius) & (normal @ up > 0.2)
+
+
+def occlusion_faces(rng, centroid, camera):
+    """(m,) bool: random occlusions, ``camera.holes`` per frame on average, each the faces within
+    2-5 cm of a random face."""
+    drop = np.zeros(len(centroid), dtype=bool)
+    for _ in range(rng.poisson(camera.holes)):
+        centre = centroid[rng.integers(len(centroid))]
+        drop |= np.linalg.norm(centroid - centre, axis=1) < rng.uniform(0.02, 0.05)
+    return drop
+
+
+def camera_holes(V, F, *, camera, seed, head_top, head_up):
+    """Faces of a true surface that the studio's cameras would leave open (``reconstruct_frame``'s
+    holes, on the surface itself: soles on the ground, a patch on top of the head, occlusions;
+    there are no bridges over gaps on a true surface).
+
+    Parameters
+    ----------
+    V : (n, 3) float array   metres, Y up
+    F : (m, 3) int array
+    camera : StudioCamera
+    seed : int               the occlusions' and the head patch's randomness
+    head_top, head_up : (3,) float arrays
+
+    Returns
+    -------
+    drop : (m,) bool array
+    """
+    rng = np.random.default_rng(seed)
+    centroid, normal = _face_frames(np.asarray(V, dtype=np.float64), np.asarray(F))
+    drop = sole_faces(centroid, normal)
+    drop |= head_top_faces(centroid, normal, head_top, head_up, rng.uniform(0.03, 0.07))
+    return drop | occlusion_faces(rng, centroid, camera)
+
+
 def reconstruct_frame(V, F, colors, *, camera, seed, thin=None, contact=None, head_top=None, head_up=None):
     """One frame as the studio reconstructs it.
 
@@ -164,24 +219,17 @@ def reconstruct_frame(V, F, colors, *, camera, seed, thin=None, contact=None, he
     C = np.einsum("qk,qkc->qc", bary, np.asarray(colors)[F[faces]])
     bridged = distance > 1.5 * h
     merged = bridged | (np.asarray(contact)[F[faces]].any(axis=1) if contact is not None else False)
-    drop = np.zeros(len(Fr), dtype=bool)
-    centroid = Vr[Fr].mean(axis=1)
-    normal = np.cross(Vr[Fr[:, 1]] - Vr[Fr[:, 0]], Vr[Fr[:, 2]] - Vr[Fr[:, 0]])
-    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-15)
-    drop |= (centroid[:, 1] < 0.02) & (normal[:, 1] < -0.3)  # soles on the ground: no camera sees them
+    centroid, normal = _face_frames(Vr, Fr)
+    drop = sole_faces(centroid, normal)
     if head_top is not None:
-        up = head_up / np.linalg.norm(head_up)
-        radius = rng.uniform(0.03, 0.07)
-        drop |= (np.linalg.norm(centroid - head_top, axis=1) < radius) & (normal @ up > 0.2)
+        drop |= head_top_faces(centroid, normal, head_top, head_up, rng.uniform(0.03, 0.07))
     if np.any(bridged):  # contact bridges: some are missing in the reconstruction
         on_bridge = bridged[Fr].all(axis=1)
         if np.any(on_bridge):
             label = _components(Fr[on_bridge], len(Vr))[Fr[on_bridge, 0]]
             gone = rng.uniform(size=label.max() + 1) < 0.5
             drop[np.flatnonzero(on_bridge)[gone[label]]] = True
-    for _ in range(rng.poisson(camera.holes)):  # occlusions
-        centre = centroid[rng.integers(len(centroid))]
-        drop |= np.linalg.norm(centroid - centre, axis=1) < rng.uniform(0.02, 0.05)
+    drop |= occlusion_faces(rng, centroid, camera)
     Fr = Fr[~drop]
     used = np.unique(Fr)
     remap = np.full(len(Vr), -1)
