@@ -1,6 +1,7 @@
 """The stream benchmark's load generator (benchmarks/stream_load.py): raw WebSocket clients that
 count frames and time parameter updates, and the connect/leave soak clients, each group run in a
-process of its own (``client_process``, ``soak_process``)."""
+process of its own (``client_process``, ``soak_process``). A client process reports the CPU
+seconds it used (``cpu_seconds``), so that a run can say what the load generator itself cost."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import asyncio
 import base64
 import os
 import random
+import resource
 import time
 
 import msgpack
@@ -115,6 +117,8 @@ async def one_client(host, port, space, fps, seconds, measure_from, measure_to, 
 
 def client_process(host, port, space, n, fps, seconds, warmup, update_share, update_every, params, seed, queue):
     rng = random.Random(seed)
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    cpu_start = usage.ru_utime + usage.ru_stime
 
     async def main():
         out = []
@@ -131,7 +135,8 @@ def client_process(host, port, space, n, fps, seconds, warmup, update_share, upd
         return out, failures, measure_to - measure_from
 
     out, failures, window = asyncio.run(main())
-    queue.put({"frames": [f for f, _, _ in out], "latencies": [x for _, l, _ in out for x in l],
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    queue.put({"cpu_seconds": usage.ru_utime + usage.ru_stime - cpu_start,"frames": [f for f, _, _ in out], "latencies": [x for _, l, _ in out for x in l],
                "transit": [x for _, _, t in out for x in t],
                "failures": failures, "window": window})
 

@@ -3,9 +3,10 @@
     .venv/bin/python benchmarks/stream_load.py                       # 200 clients x 60 fps, 20 s
     .venv/bin/python benchmarks/stream_load.py --repeat 3            # three rounds, and their median
     .venv/bin/python benchmarks/stream_load.py --soak 300            # + 5-minute connect/leave soak
-    .venv/bin/python benchmarks/stream_load.py --tiny --out /tmp/stream_load.json   # smoke run, ~10 s
+    .venv/bin/python benchmarks/stream_load.py --compare-workers 1,2     # 1 and 2 worker processes side by side
+    .venv/bin/python benchmarks/stream_load.py --tiny --out /tmp/stream_load.json   # smoke run, ~30 s
 
-Starts ``morphspace serve`` (one process) on 127.0.0.1 over a data directory holding the space
+Starts ``morphspace serve`` (``--workers``, default one process) on 127.0.0.1 over a data directory holding the space
 (default data/spaces/locomotion.mspace, 3,000 vertices), then runs the clients in separate
 processes (``--client-procs``; benchmarks/_load_clients.py), each an asyncio loop of plain
 websockets connections asking for ``--fps`` frames per second in the q16 codec. It reports
@@ -13,13 +14,21 @@ websockets connections asking for ``--fps`` frames per second in the q16 codec. 
 - frames delivered: received / (clients x fps x seconds) over the measuring window,
 - latency: a share of the clients request new parameters every ``--update-every`` seconds; the
   time from sending to the first frame whose ``ack`` covers the request (median, p95, p99),
-- the server's CPU and resident memory; with ``--soak``, resident memory sampled while clients
-  connect and leave (start, end, max, and the slope of a line fitted to the second half).
+- the server's CPU and resident memory (of all its processes), and the CPU the client processes
+  themselves used; with ``--soak``, resident memory sampled while clients connect and leave
+  (start, end, max, and the slope of a line fitted to the second half).
+
+``--compare-workers 1,2`` replaces the rounds above by a capacity search (benchmarks/_workers.py):
+a server of each worker count is started, then at each client count of ``--levels`` the servers
+take turns under the same load (the order alternating from level to level), each until it misses
+95% delivered twice at a level; it prints a table (delivered, server and client CPU, CPU per
+frame) and the ratio of the client counts held. The clients share the machine with the server:
+their CPU is reported so that the comparison can be read against it (docs/evaluation.md).
 
 Results go to benchmarks/results/stream_load.json. ``--tiny`` (the test suite's smoke run) builds a
 1,000-vertex speed space in a temporary directory unless ``--space`` is given, and runs 4 clients
-x 30 fps for 4 s (1.5 s of warm-up) in one client process, every client sending parameters; it
-needs ``--out``. The server always binds 127.0.0.1 and is stopped (its whole process group) at
+x 30 fps for 4 s (1.5 s of warm-up) in one client process, every client sending parameters, then
+the same 4 clients against a 1-worker and a 2-worker server side by side; it needs ``--out``. The server always binds 127.0.0.1 and is stopped (its whole process group) at
 the end, whatever happens.
 """
 
@@ -41,9 +50,11 @@ from pathlib import Path
 
 from _tiny import parse_arguments
 from _load_clients import client_process, soak_process
+from _workers import compare_workers, start_server, tree_cpu_seconds, tree_memory_mb, warm_up
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = {"clients": 4, "fps": 30.0, "seconds": 4.0, "warmup": 1.5, "client_procs": 1, "update_share": 1.0}
+TINY = {"clients": 4, "fps": 30.0, "seconds": 4.0, "warmup": 1.5, "client_procs": 1, "update_share": 1.0,
+        "compare_workers": [1, 2], "levels": [4]}
 
 
 def free_port():
@@ -66,11 +77,8 @@ def stop_process_group(process, timeout=15.0):
 
 
 def rss_mb(pid):
-    with open(f"/proc/{pid}/status") as f:
-        for line in f:
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1]) / 1024.0
-    return float("nan")
+    """Resident MB of the server ``pid``: with several workers, summed over the supervisor and them."""
+    return tree_memory_mb(pid)[0]
 
 
 def reference_loop_ms():
@@ -98,9 +106,8 @@ def machine_times():
 
 
 def cpu_seconds(pid):
-    with open(f"/proc/{pid}/stat") as f:
-        parts = f.read().rsplit(")", 1)[1].split()
-    return (int(parts[11]) + int(parts[12])) / os.sysconf("SC_CLK_TCK")
+    """CPU seconds of the server ``pid``: with several workers, of the supervisor and all of them."""
+    return tree_cpu_seconds(pid)
 
 
 def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start, seed):
@@ -125,6 +132,7 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
         p.join(30)
     elapsed = time.monotonic() - wall_start
     cpu = (cpu_seconds(server_pid) - cpu_start) / elapsed
+    clients_cpu = sum(o["cpu_seconds"] for o in outputs) / elapsed
     busy, idle, steal = (b - a for a, b in zip(machine_start, machine_times()))
     health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
     deadline = time.monotonic() + 15
@@ -153,6 +161,8 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
         "transit_ms": {"median": percentile(transit, 50), "p95": percentile(transit, 95),
                        "p99": percentile(transit, 99)},
         "server_cpu_cores": cpu,
+        # the load generator's own processes (they share the machine with the server)
+        "clients_cpu_cores": clients_cpu,
         "server_rss_mb": {"start": rss_start, "after_load": rss_mb(server_pid)},
         "server_counters": dict({k: v if k.endswith("_max") else v - before["scheduler"].get(k, 0)  # peaks as they are
                                  for k, v in health["scheduler"].items()},
@@ -179,6 +189,7 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
           f"{counters.get('transport_full', 0)} due frames skipped for a full transport (at most "
           f"{counters.get('transport_bytes_max', 0) / 1024:.0f} KB held for one connection), {counters['frames_dropped']} ticks "
           f"dropped (a frame more than a period late)")
+    print(f"  load generator: {clients_cpu:.2f} cores in {args.client_procs} client process(es)")
     print(f"  machine: {busy / elapsed:.2f} cores busy, {idle / elapsed:.2f} idle, {steal / elapsed:.2f} stolen "
           f"by the host (of {os.cpu_count()}); reference Python loop {reference_before:.0f} ms before, "
           f"{reference_after:.0f} ms after (lower is a faster host)")
@@ -195,6 +206,16 @@ def percentile(values, q):
     return values[k]
 
 
+def _counts(text):
+    try:
+        values = [int(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected positive integers separated by commas, got {text!r}") from None
+    if not values or min(values) < 1:
+        raise argparse.ArgumentTypeError(f"expected positive integers separated by commas, got {text!r}")
+    return values
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--space", type=Path,
@@ -209,6 +230,12 @@ def main(argv=None):
     parser.add_argument("--update-every", type=float, default=0.5, help="seconds between their updates")
     parser.add_argument("--repeat", type=int, default=1, help="measuring rounds against the same server "
                                                                "(each reported; the median of their means)")
+    parser.add_argument("--workers", type=int, default=1, help="server worker processes (morphspace serve --workers)")
+    parser.add_argument("--compare-workers", type=_counts, metavar="A,B",
+                        help="instead of the rounds above: servers of A and B workers side by side, each taking "
+                             "the client counts of --levels in turn until it misses 95%% delivered")
+    parser.add_argument("--levels", type=_counts, default=[100, 150, 200, 250, 300, 350, 400, 450, 500],
+                        metavar="N,N,...", help="client counts of --compare-workers (default 100,150,...,500)")
     parser.add_argument("--soak", type=float, default=0.0, help="seconds of connect/leave soak (0: none)")
     parser.add_argument("--soak-clients", type=int, default=50)
     parser.add_argument("--tiny", action="store_true",
@@ -229,7 +256,12 @@ def main(argv=None):
         else:
             space_path = data / "spaces" / (args.space or ROOT / "data" / "spaces" / "locomotion.mspace").name
             space_path.symlink_to((args.space or ROOT / "data" / "spaces" / "locomotion.mspace").resolve())
-        result = serve_and_measure(args, data, space_path)
+        if args.compare_workers and not args.tiny:
+            result = {"workers_comparison": measure_workers(args, data, space_path)}
+        else:
+            result = serve_and_measure(args, data, space_path)
+            if args.compare_workers:  # --tiny: the smoke run tries both
+                result["workers_comparison"] = measure_workers(args, data, space_path)
     finally:
         shutil.rmtree(data, ignore_errors=True)
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -237,35 +269,33 @@ def main(argv=None):
     return 0
 
 
-def serve_and_measure(args, data, space_path):
-    """Start ``morphspace serve`` on 127.0.0.1 over ``data``, run the rounds (and the soak), stop
-    the server; returns the result record."""
+def space_figures(space_path):
+    """(name, vertices, [(parameter, (min, max))]) of the space served."""
     from engine.motion_space import MotionSpace  # here, not at the top: the client processes never need it
 
     with MotionSpace.open(space_path, verify=False) as space:
-        name, n_vertices = space_path.stem, space.n_vertices
         pmap = space.parameter_map
-        params = list(zip(pmap.names, pmap.domain()))
-    port = free_port()
+        return space_path.stem, space.n_vertices, list(zip(pmap.names, pmap.domain()))
+
+
+def measure_workers(args, data, space_path):
+    """--compare-workers: benchmarks/_workers.py's side-by-side capacity search."""
+    name, n_vertices, params = space_figures(space_path)
+    print(f"{name} ({n_vertices} vertices, q16) at {args.fps:g} fps, {args.seconds:g} s per round:")
+    record = compare_workers(args, data, name, n_vertices, params, load_round, stop_process_group)
+    return dict(record, space=name, n_vertices=n_vertices, fps=args.fps, seconds=args.seconds)
+
+
+def serve_and_measure(args, data, space_path):
+    """Start ``morphspace serve`` (``--workers``) on 127.0.0.1 over ``data``, run the rounds (and
+    the soak), stop the server; returns the result record."""
+    name, n_vertices, params = space_figures(space_path)
+    server, port = start_server(data, args.workers, max(1000, args.clients * 2))
     url = f"ws://127.0.0.1:{port}/v1/stream"
-    env = dict(os.environ, MORPHSPACE_STREAM_MAX_CLIENTS=str(max(1000, args.clients * 2)))
-    server = subprocess.Popen([sys.executable, "-m", "server.cli", "serve", "--data-dir", str(data), "--host",
-                               "127.0.0.1", "--port", str(port), "--log-level", "warning"], cwd=ROOT, env=env,
-                              start_new_session=True)
     result = {"space": name, "n_vertices": n_vertices, "clients": args.clients, "fps": args.fps,
-              "codec": "q16", "seconds": args.seconds, "cpus": os.cpu_count()}
+              "codec": "q16", "seconds": args.seconds, "cpus": os.cpu_count(), "workers": args.workers}
     try:
-        import httpx
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            if server.poll() is not None:
-                raise RuntimeError(f"morphspace serve exited with status {server.returncode} before it answered")
-            try:
-                if httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=1).status_code == 200:
-                    break
-            except httpx.HTTPError:
-                time.sleep(0.2)
-        httpx.get(f"http://127.0.0.1:{port}/v1/spaces/{name}", timeout=30)  # open (and verify) it once
+        warm_up(port, name)  # open (and verify) it once in every worker
         rss_start = rss_mb(server.pid)
         ctx = mp.get_context("spawn")
         rounds = []

@@ -80,6 +80,18 @@ def check_stream_load(result, stdout):
     assert non_negative(result["server_cpu_cores"]) and positive(result["server_rss_mb"]["start"])
     assert result["server_counters"]["frames"] > 0
     assert "frames delivered: mean" in stdout and "params -> first frame" in stdout
+    assert result["workers"] == 1 and non_negative(result["clients_cpu_cores"])
+    comparison = result["workers_comparison"]  # 1 and 2 workers side by side, 4 clients each
+    assert comparison["workers"] == [1, 2] and comparison["levels"] == [4]
+    assert {row["workers"] for row in comparison["table"]} == {1, 2}
+    for row in comparison["table"]:
+        assert row["clients"] == 4 and positive(row["delivered_mean"]) and non_negative(row["clients_cpu_cores"])
+    for workers in ("1", "2"):
+        assert comparison["capacity"][workers] in (0, 4)
+        (record, *_) = comparison["rounds"][workers]
+        assert record["connected"] == 4 and record["failures"] == [] and record["server_counters"]["frames"] > 0
+        assert 0 < record["server_memory_mb"]["pss_sum"] <= record["server_memory_mb"]["rss_sum"]
+    assert "workers side by side" in stdout
 
 
 def check_stream_stall(result, stdout):

@@ -17,10 +17,15 @@ from server.workers.supervisor import Supervisor
 
 
 def serve_worker(settings, log_level, context, sock):
-    """One worker (in the forked process): the app on ``sock`` until it is told to stop."""
+    """One worker (in the forked process): the app on ``sock`` until it is told to stop. Its
+    BLAS and OpenMP pools get one thread: N workers share the cores already (the job processes
+    it starts are not limited)."""
     import uvicorn
+    from threadpoolctl import threadpool_limits
 
     from server.app import create_app
+
+    threadpool_limits(1)
 
     config = uvicorn.Config(create_app(settings, worker=context), **uvicorn_options(settings, log_level))
     uvicorn.Server(config).run(sockets=[sock])

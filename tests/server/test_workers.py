@@ -8,6 +8,7 @@ import asyncio
 import contextlib
 import os
 import signal
+import subprocess
 import sys
 import time
 
@@ -237,3 +238,16 @@ def test_workers_end_with_a_killed_supervisor(built_spaces, tmp_path):
         for pid in pids:
             if pid_alive(pid):
                 os.kill(pid, signal.SIGKILL)
+
+
+def test_the_supervisor_gives_up_on_workers_that_cannot_start(tmp_path):
+    """A data directory that is a file: every worker fails at start; the supervisor backs off,
+    then stops and exits with status 1 naming the worker and how it ended."""
+    (tmp_path / "data").write_text("not a directory")
+    process = subprocess.run(
+        [sys.executable, "-m", "server.cli", "serve", "--data-dir", str(tmp_path / "data"), "--port", "0",
+         "--workers", "2", "--log-level", "critical"], capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert process.returncode == 1, process.stderr[-2000:]
+    assert "starting it again in" in process.stderr
+    assert "giving up: worker" in process.stderr and "5 times in a row within 10 s of starting" in process.stderr
+    assert "exited with status 3" in process.stderr
