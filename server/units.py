@@ -92,6 +92,28 @@ def common_convention(conventions):
     return Convention(units="m", up="y", units_from="mixed", up_from="mixed")
 
 
+def source_metadata(names, conventions, rest=None):
+    """What the inputs were in, for the metadata of what is made from them (a motion space).
+
+    Parameters
+    ----------
+    names : list of str                       one per source
+    conventions : list of engine.mesh_io.Convention   one per source
+    rest : Convention or None                 the rest shape's, recorded as input "rest"
+
+    Returns
+    -------
+    dict   ``source_units`` and ``source_up``: the sources' own ("mm", "+Z", ...) when they all
+           agree, else "mixed"; ``input``: {name: units, up, units_from, up_from}
+    """
+    common = common_convention(conventions)
+    inputs = {name: c.to_metadata() for name, c in zip(names, conventions)}
+    if rest is not None:
+        inputs["rest"] = rest.to_metadata()
+    return {"source_units": common.units if common.units_from != "mixed" else "mixed",
+            "source_up": common.up_label if common.up_from != "mixed" else "mixed", "input": inputs}
+
+
 def say_conventions(conventions, names, say, what="input"):
     """Tell ``say(line)`` what each sequence is in: one line per group of sequences decided alike,
     then every warning, named after its sequence."""

@@ -240,8 +240,14 @@ def effector_vertices(samples, fraction=0.015):
     return np.sort(np.argsort(displacement)[-count:]).astype(np.int32)
 
 
+# Metadata keys build_motion_space writes itself (``metadata=`` may not set them).
+BUILT_METADATA = ("format", "version", "name", "cyclic", "n_sources", "n_phases", "n_vertices", "n_faces",
+                  "n_tet_vertices", "n_tets", "model_size", "epsilon", "units", "up", "forward", "bounds",
+                  "sources", "hybrid", "timings", "parameters")
+
+
 def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005, rest=None,
-                       embedding=None, hybrid_options=None, parameters=None, progress=None):
+                       embedding=None, hybrid_options=None, parameters=None, metadata=None, progress=None):
     """Build and write a motion space.
 
     Parameters
@@ -259,6 +265,10 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
     parameters : dict or None     high-level parameters: ``layout`` (engine.parameters.Layout),
                                   ``names`` (measures, e.g. ["speed", "turn_rate"]), optional
                                   ``resolution`` (samples per axis)
+    metadata : dict or None       more JSON metadata for the space, e.g. what the sources were in
+                                  before they were converted to metres, +Y up (``source_units``,
+                                  ``source_up``, ``input``: see ``server.units.source_metadata``);
+                                  the keys the builder writes itself (``BUILT_METADATA``) are refused
     progress : callable(stage: str, done: int, total: int) or None
 
     Returns
@@ -266,6 +276,10 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
     report : dict   what was built (sizes, timings, hybrid report)
     """
     report_progress = progress or (lambda stage, done, total: None)
+    extra = dict(metadata or {})
+    clash = sorted(set(extra) & set(BUILT_METADATA))
+    if clash:
+        raise ValueError(f"metadata {', '.join(clash)}: the builder writes these itself")
     if len(clips) < 2:
         raise ValueError(f"a motion space needs at least 2 sources, got {len(clips)}")
     n = clips[0].vertices.shape[1]
@@ -366,6 +380,7 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
                    "correction_bytes": int(corrections.nbytes()), "source_bytes": int(sources32.nbytes)},
         "timings": {k: round(v, 3) for k, v in timings.items()},
         "parameters": None if parameter_map is None else parameter_map.to_metadata(),
+        **extra,
     }
     arrays = {
         "faces": faces.astype(np.int32), "sources": sources32, "rest": rest,

@@ -1,15 +1,17 @@
 """Blend two or more same-topology meshes: linear, exact non-linear or hybrid.
 
 The way to try morphspace's blending on your own meshes. Non-linear and hybrid blending
-tetrahedralise the first mesh (or --rest), so the meshes must be closed surfaces. Progress bars on
-stderr follow the stages: read, tetrahedralise, decompose, solve, hybrid (hybrid mode or --compare),
-write. Example:
+tetrahedralise the first mesh (or --rest; holes are capped). The meshes' units and up axis are
+detected (or given with --units/--up), the blend is made in metres with +Y up, and the output is
+written back in the inputs' units and axes. Progress bars on stderr follow the stages: read,
+tetrahedralise, decompose, solve, hybrid (hybrid mode or --compare), write. Example:
 
     morphspace blend walk.obj run.obj --weights 0.5 0.5 --mode nonlinear --out half.obj
 """
 
 from __future__ import annotations
 
+import sys
 import time
 from pathlib import Path
 
@@ -26,8 +28,10 @@ from engine.blend import (
     decompose_frames,
 )
 from engine.mesh_io import read_mesh, write_mesh
+from engine.mesh_io.units import from_metres_y_up, to_metres_y_up
 from engine.surface import model_size
 from server.progress import StageBars
+from server.units import add_units_arguments, length_text, meshes_to_metres, say_conventions
 
 
 def add_arguments(parser):
@@ -37,10 +41,10 @@ def add_arguments(parser):
     parser.add_argument("--mode", choices=("linear", "nonlinear", "hybrid"), default="nonlinear")
     parser.add_argument("--out", type=Path, required=True, help="output mesh (.obj, .ply or .off)")
     parser.add_argument("--rest", type=Path, help="rest shape to tetrahedralise (default: the first mesh)")
-    parser.add_argument("--epsilon-mm", type=float, default=5.0,
-                        help="hybrid error bound in the meshes' units / 1000 (default 5 mm for metres)")
+    parser.add_argument("--epsilon-mm", type=float, default=5.0, help="hybrid error bound in mm (default 5)")
     parser.add_argument("--compare", action="store_true",
                         help="also report linear and hybrid errors against the non-linear blend")
+    add_units_arguments(parser)
 
 
 def _load(paths, progress):
@@ -71,28 +75,31 @@ def run(args):
         raise ValueError(f"--epsilon-mm must be > 0, got {args.epsilon_mm}")
     bars = StageBars()
     try:
-        meshes, result, elapsed = _blend(args, w, bars)
+        (meshes, convention), result, elapsed = _blend(args, w, bars)
     finally:
         bars.close()
     N, n = len(meshes), len(meshes[0].vertices)
     print(f"wrote {args.out}: {args.mode} blend of {N} meshes ({n} vertices) with weights "
-          f"{np.round(w / w.sum(), 4).tolist()} in {elapsed:.2f} s")
+          f"{np.round(w / w.sum(), 4).tolist()} in {elapsed:.2f} s, in the inputs' units ({convention.units}, "
+          f"up {convention.up_label})")
     if args.compare:
         size = model_size(meshes[0].vertices)
         for mode in ("linear", "hybrid"):
             error = np.linalg.norm(result[mode] - result["nonlinear"], axis=1)
-            print(f"  {mode:<7} vs non-linear: max {error.max():.4g} ({100 * error.max() / size:.2f}% of model size), "
-                  f"mean {error.mean():.4g}")
+            print(f"  {mode:<7} vs non-linear: max {length_text(error.max(), convention, size)}, "
+                  f"mean {length_text(error.mean(), convention)}")
     return 0
 
 
 def _blend(args, w, progress):
     """Read, blend and write; ``progress(stage, done, total)`` is told about each stage.
 
-    Returns (meshes, result, seconds): the input meshes, the (n, 3) blends by mode computed on the
-    way (``result[args.mode]`` is the one written), and the seconds from the meshes read to the
-    blend written."""
-    meshes = _load(args.meshes, progress)
+    Returns ((meshes, convention), result, seconds): the input meshes in metres, +Y up and what
+    their files were in, the (n, 3) blends by mode computed on the way (metres, +Y up;
+    ``result[args.mode]`` is the one written, converted back), and the seconds from the meshes
+    read to the blend written."""
+    meshes, convention = meshes_to_metres(_load(args.meshes, progress), args.units, args.up)
+    say_conventions([convention], ["the meshes"], lambda line: print(f"morphspace blend: {line}", file=sys.stderr))
     faces = meshes[0].faces
     sources = np.stack([m.vertices for m in meshes])[None].astype(np.float32)  # (P=1, N, n, 3)
     N, n = sources.shape[1:3]
@@ -109,7 +116,7 @@ def _blend(args, w, progress):
             rest_mesh = read_mesh(args.rest)
             if rest_mesh.vertices.shape != rest.shape or not np.array_equal(rest_mesh.faces, faces):
                 raise ValueError(f"{args.rest}: the rest mesh must have the same topology as the inputs")
-            rest = rest_mesh.vertices
+            rest = to_metres_y_up(rest_mesh.vertices, convention.units, convention.up)  # as the inputs
         progress("tetrahedralise", 0, 1)
         try:
             embedding = VolumetricEmbedding.from_surface(rest, faces)
@@ -133,6 +140,7 @@ def _blend(args, w, progress):
             result["hybrid"] = HybridBlender(sources, tree, corrections, cyclic=True).blend(w, 0.0)
             progress("hybrid", 1, 1)
     progress("write", 0, 1)
-    write_mesh(args.out, np.asarray(result[args.mode], dtype=np.float64), faces)
+    write_mesh(args.out, from_metres_y_up(np.asarray(result[args.mode], dtype=np.float64), convention.units,
+                                          convention.up), faces)
     progress("write", 1, 1)
-    return meshes, result, time.perf_counter() - started
+    return (meshes, convention), result, time.perf_counter() - started

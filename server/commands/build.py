@@ -31,7 +31,7 @@ from engine.mesh_io import read_mesh, read_sequence, resolve_convention, to_metr
 from engine.motion_space import SourceClip, build_motion_space
 from engine.parameters import MEASURES, Layout
 from server.progress import StageBars
-from server.units import add_units_arguments, declared_convention, say_conventions
+from server.units import add_units_arguments, declared_convention, say_conventions, source_metadata
 
 LAYOUT_KEYS = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}
 
@@ -230,8 +230,10 @@ def run(args):
     bars = StageBars()
     started = time.perf_counter()
     report = build_motion_space(out, clips, faces, name=name, n_phases=args.phases or spec["phases"],
-                                epsilon=epsilon_mm / 1000.0, rest=rest,
-                                parameters=spec["parameters"], progress=bars)
+                                epsilon=epsilon_mm / 1000.0, rest=rest, parameters=spec["parameters"],
+                                metadata=source_metadata([clip.name for clip in clips], conventions[:-1],
+                                                         conventions[-1]),
+                                progress=bars)
     bars.close()
     hybrid = report["hybrid"]
     print(f"wrote {out}: {report['n_sources']} sources x {report['n_phases']} phases, "

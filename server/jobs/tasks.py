@@ -95,7 +95,10 @@ def run_task(payload, reporter):
     kind = payload["kind"]
     staging = Path(payload["staging"])
     staging.mkdir(parents=True, exist_ok=True)
-    runner = {"build": run_build, "align": run_align, "ingest": run_ingest}[kind]
+    if kind == "ingest":
+        from server.jobs.ingest import run_ingest as runner
+    else:
+        runner = {"build": run_build, "align": run_align}[kind]
     try:
         return runner(payload, reporter)
     except (JobCancelled, JobError):
@@ -155,7 +158,7 @@ def check_build_sources(dataset_dir, spec):
 def run_build(payload, reporter):
     from engine.motion_space import build_motion_space
     from server.commands.build import choose_rest, load_sources, read_spec, sources_to_metres
-    from server.units import say_conventions
+    from server.units import say_conventions, source_metadata
 
     params, staging = payload["params"], Path(payload["staging"])
     dataset_dir = Path(payload["data_dir"]) / "datasets" / params["dataset"]
@@ -178,8 +181,10 @@ def run_build(payload, reporter):
     out = staging / f"{params['space']}.mspace"
     epsilon_mm = spec["epsilon_mm"] or 5.0
     report = build_motion_space(out, clips, faces, name=params["space"], n_phases=spec["phases"],
-                                epsilon=epsilon_mm / 1000.0, rest=rest,
-                                parameters=spec["parameters"], progress=reporter.progress)
+                                epsilon=epsilon_mm / 1000.0, rest=rest, parameters=spec["parameters"],
+                                metadata=source_metadata([clip.name for clip in clips], conventions[:-1],
+                                                         conventions[-1]),
+                                progress=reporter.progress)
     reporter.progress("write", 1, 1)
     hybrid = report["hybrid"]
     reporter.log(f"built {params['space']}: {report['n_sources']} sources x {report['n_phases']} phases, "
@@ -187,6 +192,7 @@ def run_build(payload, reporter):
     summary = {"space": params["space"], "n_sources": report["n_sources"], "n_phases": report["n_phases"],
                "n_vertices": report["n_vertices"], "n_tets": report["n_tets"], "epsilon_mm": epsilon_mm,
                "hybrid_references": hybrid["references"], "hybrid_max_test_error_mm": 1000 * hybrid["max_test_error"],
+               "source_units": report["source_units"], "source_up": report["source_up"],
                "seconds": round(time.perf_counter() - started, 2)}
     if report.get("parameters"):
         p = report["parameters"]
@@ -244,90 +250,6 @@ def run_align(payload, reporter):
                         "input": {s["name"]: c.to_metadata() for s, c in zip(sequences, conventions)},
                         "display_unit": display_unit(common_convention(conventions)),
                         "seconds": round(time.perf_counter() - started, 2)}}
-
-
-# --- ingest ---------------------------------------------------------------------------------------
-def run_ingest(payload, reporter):
-    """Read every frame (engine.mesh_io), rewrite each sequence as frame_0000.obj ... in natural
-    order, complete meta.json (frames, duration, topology, source frame names), add
-    template/body.obj from the first consistent frame when the dataset has none, new manifest."""
-    from engine.mesh_io import MeshError, list_frames, read_mesh, write_obj
-    from engine.mesh_io.dataset import write_capture_manifest
-    from engine.surface import model_size
-    from server.uploads import KINDS, FrameStats, sequence_meta
-
-    params, staging = payload["params"], Path(payload["staging"])
-    source = Path(payload["data_dir"]) / "datasets" / params["dataset"]
-    if not (source / "sequences").is_dir():
-        raise JobError(f"dataset {params['dataset']!r} has no sequences/ folder")
-    groups = []
-    for seq in sorted(p.name for p in (source / "sequences").iterdir() if p.is_dir()):
-        for kind in KINDS:
-            if (source / "sequences" / seq / kind).is_dir():
-                groups.append((seq, kind, list_frames(source / "sequences" / seq / kind)))
-    total = sum(len(frames) for _, _, frames in groups)
-    if total == 0:
-        raise JobError(f"dataset {params['dataset']!r} has no frames")
-    out = staging / "dataset"
-    done, metas, template, warnings = 0, {}, None, []
-    for seq, kind, frames in groups:
-        stats = FrameStats()
-        base = source / "sequences" / seq
-        for k, frame in enumerate(frames):
-            label = f"{params['dataset']}/sequences/{seq}/{kind}/{frame}"
-            try:
-                mesh = read_mesh(base / kind / frame, name=label)
-            except MeshError as exc:
-                raise JobError(str(exc)) from None
-            stats.add(mesh, label)
-            write_obj(out / "sequences" / seq / kind / f"frame_{k:04d}.obj", mesh.vertices, mesh.faces,
-                      colors=mesh.colors, precision=6)
-            done += 1
-            reporter.progress("validate", done, total)
-        if kind == "consistent" and not stats.consistent:
-            raise JobError(f"{stats.first_problem}; frames in consistent/ must share one mesh structure")
-        if kind == "consistent" and template is None:
-            template = read_mesh(out / "sequences" / seq / kind / "frame_0000.obj")
-        try:
-            meta = json.loads((base / "meta.json").read_text())
-        except (OSError, ValueError):
-            meta = {}
-            warnings.append(f"sequence {seq}: no readable meta.json; assumed 30 fps, not cyclic")
-        meta.setdefault("fps", 30.0)
-        meta.setdefault("cyclic", False)
-        record = sequence_meta(seq, meta, kind, stats)
-        record["source_frames"] = frames
-        if seq in metas:  # both kinds: keep the consistent record, note the other
-            metas[seq][f"{kind}_frames"] = stats.frames
-        else:
-            metas[seq] = record
-    reporter.progress("write", 0, 1)
-    for seq, record in metas.items():
-        (out / "sequences" / seq / "meta.json").write_text(json.dumps(record, indent=2) + "\n")
-    if (source / "template").is_dir():
-        for path in sorted((source / "template").iterdir()):
-            try:
-                mesh = read_mesh(path, name=f"{params['dataset']}/template/{path.name}")
-            except MeshError as exc:
-                raise JobError(str(exc)) from None
-            write_obj(out / "template" / f"{path.stem}.obj", mesh.vertices, mesh.faces, colors=mesh.colors,
-                      precision=6)
-    if not (out / "template" / "body.obj").exists() and template is not None:
-        write_obj(out / "template" / "body.obj", template.vertices, template.faces, colors=template.colors,
-                  precision=6)
-        reporter.log("template/body.obj: the first consistent frame (the rest shape builds use)")
-    body = {}
-    if template is not None:
-        body = {"vertices": int(len(template.vertices)), "faces": int(len(template.faces)),
-                "model_size": float(model_size(template.vertices)), "up": "+Y", "units": "m"}
-    write_capture_manifest(out, {"uploaded": True, "ingested": True, "created": time.time(), "body": body,
-                                 "sequences": list(metas.values()), "warnings": warnings})
-    reporter.progress("write", 1, 1)
-    for line in warnings:
-        reporter.log(line)
-    name = params.get("output") or params["dataset"]
-    return {"output": {"type": "dataset", "name": name, "path": out.name},
-            "summary": {"dataset": name, "frames": total, "sequences": list(metas), "warnings": warnings}}
 
 
 # --- publishing (done by the server, after the task) ------------------------------------------------

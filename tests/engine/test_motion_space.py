@@ -140,3 +140,12 @@ def test_sources_must_agree(body, tmp_path):
     with pytest.raises(ValueError, match="other: vertices have shape"):
         build_motion_space(tmp_path / "x.mspace", [one_shot, other], body.F, name="x")
     assert not (tmp_path / "x.mspace").exists()
+
+
+def test_extra_metadata_may_not_replace_the_builders_own(tmp_path):
+    from engine.motion_space import SourceClip, build_motion_space
+
+    clips = [SourceClip(name, np.zeros((3, 4, 3)), 30.0, False) for name in ("a", "b")]
+    with pytest.raises(ValueError, match="units: the builder writes these itself"):
+        build_motion_space(tmp_path / "x.mspace", clips, np.array([[0, 1, 2]]), name="x", metadata={"units": "mm"})
+    assert not (tmp_path / "x.mspace").exists()

@@ -263,6 +263,13 @@ def test_build_converts_sources_in_millimetres_z_up(aligned, tmp_path, capsys):
     from engine.motion_space import MotionSpace
 
     with MotionSpace.open(spaces["m"]) as metres, MotionSpace.open(spaces["mm"]) as millimetres:
+        # the space records what its sources were in (its own coordinates are metres, +Y up)
+        assert (metres.metadata["source_units"], metres.metadata["source_up"]) == ("m", "+Y")
+        assert (millimetres.metadata["source_units"], millimetres.metadata["source_up"]) == ("mm", "+Z")
+        assert millimetres.metadata["input"]["walk"] == {"units": "mm", "up": "+Z", "units_from": "detected",
+                                                         "up_from": "detected"}
+        assert millimetres.metadata["input"]["rest"]["units"] == "mm"
+        assert (millimetres.metadata["units"], millimetres.metadata["up"]) == ("m", "+Y")
         for key in ("sources", "rest", "tet_vertices"):
             np.testing.assert_allclose(np.asarray(millimetres.container[key]), np.asarray(metres.container[key]),
                                        atol=1e-6)

@@ -72,7 +72,7 @@ def test_blend_shows_its_stages_on_stderr_and_keeps_stdout_and_output(arms, caps
     assert main(["blend", *inputs, "--mode", "linear", "--out", str(folder / "lin.obj")]) == 0
     captured = capsys.readouterr()
     assert re.fullmatch(rf"wrote {re.escape(str(folder / 'lin.obj'))}: linear blend of 2 meshes \({len(V0)} vertices\) "
-                        r"with weights \[0.25, 0.75\] in \d+\.\d\d s\n", captured.out)
+                        r"with weights \[0.25, 0.75\] in \d+\.\d\d s, in the inputs' units \(m, up \+Y\)\n", captured.out)
     assert [stage for stage in ("read", "solve", "write") if f"{stage}: 100%" in captured.err] == ["read", "solve",
                                                                                                      "write"]
     np.testing.assert_allclose(read_mesh(folder / "lin.obj").vertices, 0.25 * V0 + 0.75 * V1, atol=1e-6)
@@ -123,3 +123,26 @@ def test_open_surfaces_blend_non_linearly_and_a_flat_one_is_explained(tmp_path, 
                  "--mode", "nonlinear", "--out", str(tmp_path / "nl2.obj")]) == 2
     err = capsys.readouterr().err
     assert "flat.obj" in err and "encloses no lattice cell" in err
+
+
+def test_meshes_in_millimetres_z_up_blend_as_in_metres_and_come_back_in_their_units(arms, tmp_path, capsys):
+    """--units/--up (or detection) put the meshes in metres, +Y up for the blend; the output is
+    written in the inputs' units and axes, and equals the metres blend converted."""
+    folder, V0, V1, F = arms
+    from engine.mesh_io.units import from_metres_y_up
+
+    write_obj(tmp_path / "a.obj", from_metres_y_up(V0, "mm", "z"), F)
+    write_obj(tmp_path / "b.obj", from_metres_y_up(V1, "mm", "z"), F)
+    metres = tmp_path / "metres.obj"
+    assert main(["blend", str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "1", "1",
+                 "--mode", "nonlinear", "--out", str(metres)]) == 0
+    capsys.readouterr()
+    for options in ([], ["--units", "mm", "--up", "z"]):
+        out = tmp_path / f"mm{len(options)}.obj"
+        assert main(["blend", str(tmp_path / "a.obj"), str(tmp_path / "b.obj"), "--weights", "1", "1",
+                     "--mode", "nonlinear", "--compare", "--out", str(out), *options]) == 0
+        captured = capsys.readouterr()
+        assert "units mm (" + ("given" if options else "detected") in captured.err and "up +Z" in captured.err
+        assert "in the inputs' units (mm, up +Z)" in captured.out and " mm (" in captured.out
+        np.testing.assert_allclose(read_mesh(out).vertices, from_metres_y_up(read_mesh(metres).vertices, "mm", "z"),
+                                   atol=2e-3)  # mm: 2 um

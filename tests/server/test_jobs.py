@@ -25,9 +25,11 @@ SEQUENCES = {"slow": 0.9, "fast": 2.6}
 FINAL = ("succeeded", "failed", "cancelled")
 
 
-def capture_zip(fps=10.0):
-    """A zip of two synthetic gait sequences (<seq>/frame_NNNN.obj + meta.json)."""
+def capture_zip(fps=10.0, units="m", up="y"):
+    """A zip of two synthetic gait sequences (<seq>/frame_NNNN.obj + meta.json), in ``units`` with
+    ``up`` up (the meta.json says nothing about either)."""
     from engine.mesh_io import write_obj
+    from engine.mesh_io.units import from_metres_y_up
     from engine.synthetic import animate, build_body, gait
 
     body = build_body(1000)
@@ -38,7 +40,7 @@ def capture_zip(fps=10.0):
                 V = animate(body, gait(body.skeleton, speed, cycles=1.0, fps=fps))
                 for k, frame in enumerate(V):
                     path = Path(tmp) / f"{name}_{k}.obj"
-                    write_obj(path, frame, body.F, precision=6)
+                    write_obj(path, from_metres_y_up(frame, units, up), body.F, precision=6)
                     archive.write(path, f"{name}/frame_{k:04d}.obj")
                 archive.writestr(f"{name}/meta.json", json.dumps({"fps": fps, "cyclic": True}))
     return buffer.getvalue()
@@ -124,6 +126,7 @@ def test_upload_build_and_the_space_appears(client, live):
     assert job["result"]["url"] == "/v1/spaces/gaitspace" and job["result"]["n_sources"] == 2
     assert any("published" in line for line in job["log"])
     assert any(line.startswith("source slow, fast") and "units m (detected" in line for line in job["log"]), job["log"]
+    assert (job["result"]["source_units"], job["result"]["source_up"]) == ("m", "+Y")
     spaces = {s["name"]: s for s in client.get("/v1/spaces").json()["spaces"]}
     assert spaces["gaitspace"]["n_vertices"] == 1000 and spaces["gaitspace"]["parameters"][0]["name"] == "speed"
     assert client.get("/v1/spaces/gaitspace/frame", params={"format": "json", "params": "speed:1.5"}).status_code == 200
@@ -197,6 +200,26 @@ def test_ingest_normalises_a_dataset(client, live):
     root = live.data_dir / "datasets" / "gaits_clean"
     meta = json.loads((root / "sequences" / "slow" / "meta.json").read_text())
     assert meta["cyclic"] is True and meta["fps"] == 10.0 and meta["source_frames"][0] == "frame_0000.obj"
+    assert (meta["units"], meta["up"], meta["input"]["units_from"]) == ("m", "+Y", "detected")
+    body = json.loads((root / "manifest.json").read_text())["body"]
+    assert (body["units"], body["up"]) == ("m", "+Y") and 1.5 < body["model_size"] < 2.0
+
+
+def test_ingest_records_the_units_and_up_axis_it_finds(client, live):
+    """A dataset in millimetres with +Z up is written as it is, and says so (it used to say m, +Y)."""
+    client.post("/v1/datasets", params={"name": "gaits_mm"}, content=capture_zip(units="mm", up="z"),
+                headers={**AUTH, "Content-Type": "application/zip"}).raise_for_status()
+    r = client.post("/v1/jobs", json={"kind": "ingest", "dataset": "gaits_mm", "output": "gaits_mm_clean"},
+                    headers=AUTH)
+    job = wait_for(client, r.json()["id"], lambda j: j["status"] in FINAL, timeout=60)
+    assert job["status"] == "succeeded", job
+    root = live.data_dir / "datasets" / "gaits_mm_clean"
+    for name in SEQUENCES:
+        meta = json.loads((root / "sequences" / name / "meta.json").read_text())
+        assert (meta["units"], meta["up"]) == ("mm", "+Z")
+    body = json.loads((root / "manifest.json").read_text())["body"]
+    assert (body["units"], body["up"]) == ("mm", "+Z") and 1.5 < body["model_size"] < 2.0  # metres
+    assert any("template/body.obj: units mm (detected" in line for line in job["log"]), job["log"]
 
 
 def test_a_job_left_running_by_a_crashed_server_is_run_again(tmp_path, dataset_zip):
