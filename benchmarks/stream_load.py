@@ -14,7 +14,8 @@ websockets connections asking for ``--fps`` frames per second in the q16 codec. 
 - frames delivered: received / (clients x fps x seconds) over the measuring window,
 - latency: a share of the clients request new parameters every ``--update-every`` seconds; the
   time from sending to the first frame whose ``ack`` covers the request (median, p95, p99),
-- the server's CPU and resident memory (of all its processes), and the CPU the client processes
+- the server's CPU (of all its processes) per delivered frame (its cores over the frames the
+  clients received per second) and resident memory, and the CPU the client processes
   themselves used; with ``--soak``, resident memory sampled while clients connect and leave
   (start, end, max, and the slope of a line fitted to the second half).
 
@@ -163,6 +164,8 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
         "server_cpu_cores": cpu,
         # the load generator's own processes (they share the machine with the server)
         "clients_cpu_cores": clients_cpu,
+        # server CPU per frame the clients received (cores / delivered frames per second)
+        "server_cpu_us_per_frame": 1e6 * cpu / (sum(frames) / window) if sum(frames) else float("nan"),
         "server_rss_mb": {"start": rss_start, "after_load": rss_mb(server_pid)},
         "server_counters": dict({k: v if k.endswith("_max") else v - before["scheduler"].get(k, 0)  # peaks as they are
                                  for k, v in health["scheduler"].items()},
@@ -184,6 +187,7 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     print(f"    of which frame encoded -> read by the client: median {tr['median']:.1f} ms, p95 {tr['p95']:.1f} ms, "
           f"p99 {tr['p99']:.1f} ms")
     counters = result["server_counters"]
+    print(f"  server CPU per delivered frame: {result['server_cpu_us_per_frame']:.1f} us")
     print(f"  server: {cpu:.2f} cores, RSS {rss_start:.0f} -> {result['server_rss_mb']['after_load']:.0f} MB; "
           f"{counters.get('table_frames', 0)} of {counters.get('frames', 0)} frames from phase tables, "
           f"{counters.get('transport_full', 0)} due frames skipped for a full transport (at most "

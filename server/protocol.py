@@ -335,12 +335,6 @@ def to_wire(message):
     return msgpack.packb(body, use_bin_type=True)
 
 
-def frame_wire(**values):
-    """The msgpack bytes of ``Frame(**values)`` without building the object: the streaming hot
-    path. Give every required Frame field (tests decode these bytes into a Frame)."""
-    return msgpack.packb({"type": "frame", **values}, use_bin_type=True)
-
-
 def decode_server(data):
     """A server message object from msgpack bytes (for clients written in Python)."""
     raw = msgpack.unpackb(data, raw=False)

@@ -10,11 +10,12 @@ client message makes a frame urgent). Per tick:
   straight from the table in codec units (``Quantiser.table``), so their integers need one
   truncating cast;
 - moving weights, the non-linear mode and heatmaps blend one client at a time;
-- frames are written without a task switch: the ASGI send is run by hand and completes in the
-  call, because a frame is only written into a transport that has taken everything before it
-  (the session checks before it blends; a connection whose transport still holds bytes skips
-  the tick, counted in its ``dropped``: latest-wins, never queued). A send that would wait
-  anyway is abandoned: that frame is dropped.
+- frames are written without a task switch, straight to the transport (server/transport.py: the
+  message assembled with one copy), and only into a transport that has taken everything before
+  it (the session checks before it blends; a connection whose transport still holds bytes skips
+  the tick, counted in its ``dropped``: latest-wins, never queued). Under an ASGI server
+  without that access the ASGI send is run by hand and completes in the call; a send that
+  would wait is abandoned: that frame is dropped.
 
 All of it runs on the event loop thread: the engine's blenders keep scratch buffers and the
 work per frame is a few tens of microseconds.
@@ -177,7 +178,7 @@ class FrameScheduler:
                 log.exception("stream: gathering %d frames from a phase table failed", len(members))
                 continue
             for member, row in zip(members, rows):
-                member.payload = row.tobytes()
+                member.payload = row  # its bytes are the frame's vertices (written without a copy here)
             self.table_frames += len(members)
         for session in ready:
             if session.closed:

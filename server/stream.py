@@ -28,6 +28,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from engine.player import Player
 from server import protocol as P
 from server.decoding import decode_client
+from server.frames import frame_parts, joined
 from server.registry import BrokenSpace, UnknownSpace
 from server.scheduler import URGENT, send_now
 from server.transport import GAUGE
@@ -337,18 +338,24 @@ class StreamSession:
             return self.quantiser.encode(vertices)
         return P.encode_vertices(vertices, "f32", None)
 
-    def _frame_bytes(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
+    def _frame_parts(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
                      vertices, finished, pull_id=None, error_um=None, error_max=None):
-        """The next frame's wire bytes (numbers as arrays or sequences, ``vertices`` encoded)."""
+        """The next frame's msgpack body as buffers (server/frames.py; numbers as arrays or
+        sequences, ``vertices`` and ``error_um`` encoded: bytes or arrays, not copied here)."""
         self.seq += 1
         self.stats.frames += 1
-        return P.frame_wire(seq=self.seq, ack=self.ack, time=float(time_), phase=float(phase), mode=mode,
-                            requested=np.asarray(requested, dtype=float).tolist(),
-                            realised=np.asarray(realised, dtype=float).tolist(), clamped=bool(clamped),
-                            weights=np.asarray(weights, dtype=float).tolist(),
-                            root=np.asarray(root, dtype=float).tolist(), heading=float(heading), vertices=vertices,
-                            dropped=self.dropped, finished=bool(finished), sent_at=time.time(), pull_id=pull_id,
-                            error_um=error_um, error_max=error_max)
+        small = {"type": "frame", "seq": self.seq, "ack": self.ack, "time": float(time_), "phase": float(phase),
+                 "mode": mode, "requested": np.asarray(requested, dtype=float).tolist(),
+                 "realised": np.asarray(realised, dtype=float).tolist(), "clamped": bool(clamped),
+                 "weights": np.asarray(weights, dtype=float).tolist(), "root": np.asarray(root, dtype=float).tolist(),
+                 "heading": float(heading), "dropped": self.dropped, "finished": bool(finished),
+                 "sent_at": time.time(), "pull_id": pull_id, "error_max": error_max}
+        bulk = [("vertices", vertices)]
+        if error_um is None:
+            small["error_um"] = None
+        else:
+            bulk.append(("error_um", error_um))
+        return frame_parts(small, bulk)
 
     def _heatmap(self, mode, weights, phase, vertices, space):
         """(error_um bytes, error_max) of ``vertices`` against the non-linear blend."""
@@ -365,10 +372,10 @@ class StreamSession:
         error_um = error_max = None
         if self.heatmap:
             error_um, error_max = self._heatmap(mode, weights, phase, vertices, space)
-        await self._send(self._frame_bytes(
+        await self._send(joined(self._frame_parts(
             time_=time_, phase=phase, mode=mode, requested=requested, realised=realised, clamped=clamped,
             weights=weights, root=root, heading=heading, vertices=self._vertex_bytes(vertices), finished=finished,
-            pull_id=pull_id, error_um=error_um, error_max=error_max))
+            pull_id=pull_id, error_um=error_um, error_max=error_max)))
 
     # ------------------------------------------------------------ the scheduler's side
 
@@ -456,12 +463,18 @@ class StreamSession:
             if self.heatmap:
                 error_um, error_max = self._heatmap(mode, weights, phase, vertices, space)
             payload = self._vertex_bytes(vertices)
-        data = self._frame_bytes(time_=player.time, phase=player.phase, mode=player.mode,
-                                 requested=player.requested, realised=player.realised, clamped=player.clamped,
-                                 weights=player.weights, root=player.position, heading=player.heading,
-                                 vertices=payload, finished=player.finished, error_um=error_um, error_max=error_max)
+        parts = self._frame_parts(time_=player.time, phase=player.phase, mode=player.mode,
+                                  requested=player.requested, realised=player.realised, clamped=player.clamped,
+                                  weights=player.weights, root=player.position, heading=player.heading,
+                                  vertices=payload, finished=player.finished, error_um=error_um, error_max=error_max)
         try:
-            sent = send_now(self.ws.send_bytes(data))
+            if self.gauge is not None:  # straight to the transport, one copy (server/transport.py)
+                sent = self.gauge.write_message(parts)
+                if not sent:  # the connection is closing
+                    self._close()
+                    return
+            else:
+                sent = send_now(self.ws.send_bytes(joined(parts)))
         except (WebSocketDisconnect, OSError, RuntimeError):
             self._shut(P.CLOSE_INTERNAL, "sending failed")
             return

@@ -172,3 +172,29 @@ def test_serve_gives_the_websocket_layer_the_documented_size_limit():
     for max_message in (1024, 64 * 1024, 1 << 20):
         options = uvicorn_options(Settings(stream_max_message=max_message), "warning")
         assert options["ws_max_size"] == P.websocket_max_size(max_message) == max(1 << 20, 4 * max_message)
+
+
+@pytest.mark.parametrize("n_bytes", [0, 100, 6000, 70000])
+def test_frame_parts_are_the_bytes_msgpack_packs_for_the_whole_map(n_bytes):
+    from server.frames import frame_parts, joined
+
+    small = {"type": "frame", "seq": 7, "ack": 3, "time": 1.5, "phase": 0.25, "mode": "hybrid",
+             "requested": [1.0, 2.0], "realised": [1.0, 2.0], "clamped": False, "weights": [0.5, 0.5],
+             "root": [0.0, 0.0, 1.0], "heading": 0.1, "dropped": 2, "finished": False, "sent_at": 1e9,
+             "pull_id": None, "error_max": None}
+    vertices = np.arange(n_bytes // 2, dtype="<u2")
+    error = bytes(range(256)) * 3
+    expected = msgpack.packb({**small, "vertices": vertices.tobytes(), "error_um": error})
+    assert joined(frame_parts(small, [("vertices", vertices), ("error_um", error)])) == expected
+    decoded = P.decode_server(joined(frame_parts(small, [("vertices", vertices)])))
+    assert isinstance(decoded, P.Frame) and decoded.vertices == vertices.tobytes() and decoded.seq == 7
+
+
+@pytest.mark.parametrize("length", [0, 125, 126, 65535, 65536, 200000])
+def test_the_websocket_header_is_rfc_6455s(length):
+    from websockets.frames import Frame, Opcode
+
+    from server.transport import websocket_header
+
+    payload = b"x" * length
+    assert websocket_header(length) + payload == Frame(Opcode.BINARY, payload).serialize(mask=False)
