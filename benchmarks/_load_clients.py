@@ -76,7 +76,7 @@ class RawClient(asyncio.Protocol):
 
 
 async def one_client(host, port, space, fps, seconds, measure_from, measure_to, updates, update_every, params,
-                     rng, out):
+                     rng, out, heatmap=False):
     loop = asyncio.get_running_loop()
     state = {"frames": 0, "latencies": [], "pending": {}, "transit": []}
 
@@ -98,7 +98,8 @@ async def one_client(host, port, space, fps, seconds, measure_from, measure_to, 
 
     transport, client = await loop.create_connection(lambda: RawClient(host, port, on_message), host, port)
     await client.upgraded
-    client.send(msgpack.packb({"type": "hello", "space": space, "codec": "q16", "rate": fps, "seq": 0}))
+    client.send(msgpack.packb({"type": "hello", "space": space, "codec": "q16", "rate": fps, "seq": 0,
+                               "heatmap": heatmap}))
     seq = 0
     stop = time.monotonic() + seconds
     next_update = time.monotonic() + rng.uniform(0.5, 0.5 + update_every)
@@ -112,10 +113,12 @@ async def one_client(host, port, space, fps, seconds, measure_from, measure_to, 
         wake = min(stop, next_update) if updates else stop
         await asyncio.sleep(max(0.0, wake - time.monotonic()))
     transport.close()
-    out.append((state["frames"], state["latencies"], state["transit"]))
+    out.append((state["frames"], state["latencies"], state["transit"], heatmap))
 
 
-def client_process(host, port, space, n, fps, seconds, warmup, update_share, update_every, params, seed, queue):
+def client_process(host, port, space, n, fps, seconds, warmup, update_share, update_every, params, seed, queue,
+                   heatmaps=0):
+    """``n`` clients, the first ``heatmaps`` of them with the heatmap on."""
     rng = random.Random(seed)
     usage = resource.getrusage(resource.RUSAGE_SELF)
     cpu_start = usage.ru_utime + usage.ru_stime
@@ -128,7 +131,7 @@ def client_process(host, port, space, n, fps, seconds, warmup, update_share, upd
         for i in range(n):
             tasks.append(asyncio.create_task(one_client(
                 host, port, space, fps, seconds, measure_from, measure_to, rng.random() < update_share, update_every,
-                params, random.Random(rng.random()), out)))
+                params, random.Random(rng.random()), out, i < heatmaps)))
             await asyncio.sleep(0.005)  # do not open every connection in the same instant
         results = await asyncio.gather(*tasks, return_exceptions=True)
         failures = [repr(r) for r in results if isinstance(r, BaseException)]
@@ -136,8 +139,9 @@ def client_process(host, port, space, n, fps, seconds, warmup, update_share, upd
 
     out, failures, window = asyncio.run(main())
     usage = resource.getrusage(resource.RUSAGE_SELF)
-    queue.put({"cpu_seconds": usage.ru_utime + usage.ru_stime - cpu_start,"frames": [f for f, _, _ in out], "latencies": [x for _, l, _ in out for x in l],
-               "transit": [x for _, _, t in out for x in t],
+    queue.put({"cpu_seconds": usage.ru_utime + usage.ru_stime - cpu_start,
+               "frames": [f for f, _, _, _ in out], "latencies": [x for _, l, _, _ in out for x in l],
+               "transit": [x for _, _, t, _ in out for x in t], "heatmap": [h for _, _, _, h in out],
                "failures": failures, "window": window})
 
 

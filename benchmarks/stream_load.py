@@ -4,6 +4,7 @@
     .venv/bin/python benchmarks/stream_load.py --repeat 3            # three rounds, and their median
     .venv/bin/python benchmarks/stream_load.py --soak 300            # + 5-minute connect/leave soak
     .venv/bin/python benchmarks/stream_load.py --compare-workers 1,2     # 1 and 2 worker processes side by side
+    .venv/bin/python benchmarks/stream_load.py --heatmap-clients 50  # 50 of the 200 with the heatmap on
     .venv/bin/python benchmarks/stream_load.py --tiny --out /tmp/stream_load.json   # smoke run, ~30 s
 
 Starts ``morphspace serve`` (``--workers``, default one process) on 127.0.0.1 over a data directory holding the space
@@ -16,8 +17,9 @@ websockets connections asking for ``--fps`` frames per second in the q16 codec. 
   time from sending to the first frame whose ``ack`` covers the request (median, p95, p99),
 - the server's CPU (of all its processes) per delivered frame (its cores over the frames the
   clients received per second) and resident memory, and the CPU the client processes
-  themselves used; with ``--soak``, resident memory sampled while clients connect and leave
-  (start, end, max, and the slope of a line fitted to the second half).
+  themselves used; with ``--heatmap-clients N``, the first N clients also ask for the heatmap
+  and their frames delivered are reported apart; with ``--soak``, resident memory sampled while
+  clients connect and leave (start, end, max, and the slope of a line fitted to the second half).
 
 ``--compare-workers 1,2`` replaces the rounds above by a capacity search (benchmarks/_workers.py):
 a server of each worker count is started, then at each client count of ``--levels`` the servers
@@ -55,7 +57,7 @@ from _workers import compare_workers, start_server, tree_cpu_seconds, tree_memor
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = {"clients": 4, "fps": 30.0, "seconds": 4.0, "warmup": 1.5, "client_procs": 1, "update_share": 1.0,
-        "compare_workers": [1, 2], "levels": [4]}
+        "compare_workers": [1, 2], "levels": [4], "heatmap_clients": 1}
 
 
 def free_port():
@@ -123,9 +125,11 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     queue = ctx.Queue()
     per = [args.clients // args.client_procs + (i < args.clients % args.client_procs)
            for i in range(args.client_procs)]
+    heat = [args.heatmap_clients // args.client_procs + (i < args.heatmap_clients % args.client_procs)
+            for i in range(args.client_procs)]
     procs = [ctx.Process(target=client_process, args=("127.0.0.1", port, name, n, args.fps, args.seconds, args.warmup,
                                                        args.update_share, args.update_every, params, seed + i,
-                                                       queue)) for i, n in enumerate(per)]
+                                                       queue, heat[i])) for i, n in enumerate(per)]
     for p in procs:
         p.start()
     outputs = [queue.get(timeout=args.seconds + 120) for _ in procs]
@@ -147,6 +151,8 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     window = min(o["window"] for o in outputs)
     expected = args.fps * window
     delivered = [f / expected for f in frames]
+    heatmap = [h for o in outputs for h in o["heatmap"]]
+    with_heatmap = [d for d, h in zip(delivered, heatmap) if h]
     result = {
         "failures": [f for o in outputs for f in o["failures"]][:10],
         "connected": len(frames),
@@ -154,6 +160,10 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
         "delivered_min": min(delivered) if delivered else 0.0,
         "delivered_p5": percentile(delivered, 5),
         "frames_per_second_total": sum(frames) / window,
+        "heatmap_clients": len(with_heatmap),
+        "delivered_heatmap_mean": statistics.mean(with_heatmap) if with_heatmap else None,
+        "delivered_heatmap_min": min(with_heatmap) if with_heatmap else None,
+        "delivered_others_min": min((d for d, h in zip(delivered, heatmap) if not h), default=None),
         "latency_ms": {"count": len(latencies), "median": percentile(latencies, 50),
                        "p95": percentile(latencies, 95), "p99": percentile(latencies, 99),
                        "max": max(latencies) if latencies else float("nan")},
@@ -180,6 +190,10 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     print(f"  frames delivered: mean {100 * result['delivered_mean']:.1f}%, 5th percentile "
           f"{100 * result['delivered_p5']:.1f}%, min {100 * result['delivered_min']:.1f}% "
           f"({result['frames_per_second_total']:.0f} frames/s in total)")
+    if with_heatmap:
+        print(f"  with the heatmap on ({len(with_heatmap)} clients): mean {100 * result['delivered_heatmap_mean']:.1f}%, "
+              f"min {100 * result['delivered_heatmap_min']:.1f}%; the others: min "
+              f"{100 * (result['delivered_others_min'] or 0):.1f}%")
     lat = result["latency_ms"]
     print(f"  params -> first frame reflecting them: median {lat['median']:.1f} ms, p95 {lat['p95']:.1f} ms, "
           f"p99 {lat['p99']:.1f} ms, max {lat['max']:.1f} ms ({lat['count']} updates)")
@@ -231,6 +245,8 @@ def main(argv=None):
     parser.add_argument("--warmup", type=float, default=4.0)
     parser.add_argument("--client-procs", type=int, default=2)
     parser.add_argument("--update-share", type=float, default=0.25, help="share of clients sending params")
+    parser.add_argument("--heatmap-clients", type=int, default=0,
+                        help="clients asking for the heatmap (distances from the non-linear blend) too")
     parser.add_argument("--update-every", type=float, default=0.5, help="seconds between their updates")
     parser.add_argument("--repeat", type=int, default=1, help="measuring rounds against the same server "
                                                                "(each reported; the median of their means)")

@@ -55,6 +55,7 @@ class ClientFrame:
     received_at: float
     pull_id: int | None = None
     error: np.ndarray | None = None   # (n,) float32 metres from the non-linear blend (heatmap)
+    error_seq: int | None = None      # the frame ``error`` describes (this one once parameters settle)
 
     def world_vertices(self):
         """(n, 3) float32 vertices placed by the root transform."""
@@ -162,7 +163,7 @@ class StreamClient:
             heading=raw["heading"],
             vertices=P.decode_vertices(raw["vertices"], t.codec, t.n_vertices, t.bounds_min, t.bounds_max),
             dropped=raw["dropped"], finished=raw["finished"], sent_at=raw["sent_at"], received_at=time.time(),
-            pull_id=raw.get("pull_id"), error=error)
+            pull_id=raw.get("pull_id"), error=error, error_seq=raw.get("error_seq"))
         if self.window:
             asyncio.get_running_loop().create_task(self._ack(frame.seq))
         if frame.pull_id is not None:

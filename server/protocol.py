@@ -241,6 +241,10 @@ class Frame:
     pull_id: int = wire("int", "the Pull's id, or nil for streamed frames", optional=True)
     error_um: bytes = wire("bytes", "with heatmap on: n_vertices uint16 distances from the non-linear blend (micrometres, saturating)", optional=True)
     error_max: float = wire("float", "with heatmap on: the largest of those distances (m)", optional=True)
+    error_seq: int = wire("int", "with heatmap on: the seq of the frame error_um describes (computed off the event "
+                                 "loop: an earlier frame, a few frames or, with dozens of heatmap viewers, a few "
+                                 "tenths of a second back; this one in nonlinear mode); nil until the first is ready",
+                          optional=True)
 
 
 @dataclass(frozen=True)

@@ -83,8 +83,17 @@ class FrameScheduler:
         self.ticks = 0           # ticks that produced frames
         self.frames = 0          # frames written
         self.table_frames = 0    # of which interpolated from a phase table
+        self._heatmaps = None
         self.transport_full = 0  # due frames skipped because the transport still held bytes
         self.transport_bytes_max = 0  # the most one connection's transport held after a frame
+
+    @property
+    def heatmaps(self):
+        """The HeatmapService of these sessions (server/heatmap.py), started on first use."""
+        if self._heatmaps is None:
+            from server.heatmap import HeatmapService
+            self._heatmaps = HeatmapService()
+        return self._heatmaps
 
     def counters(self):
         """Ticks, frames, frames from phase tables, frames skipped for a full transport, the

@@ -91,6 +91,9 @@ class StreamSession:
         self.ready = False      # the topology has gone out: frames may follow
         self.version = 0        # the scheduler's bookkeeping
         self.payload = None     # encoded vertices the scheduler prepared for the next frame
+        self.heatmap_job = None   # server/heatmap.py: this connection's distances being computed
+        self.heatmap_last = None  # and the newest finished: (error_um, error_max, error_seq)
+        self.loop = None
         self.quantiser = None
         self.gauge = (websocket.scope.get("extensions") or {}).get(GAUGE)  # None under other servers
         self._limits = {"max_message": settings.stream_max_message, "max_rate": settings.stream_max_rate,
@@ -149,6 +152,7 @@ class StreamSession:
     # ------------------------------------------------------------ connection
 
     async def run(self):
+        self.loop = asyncio.get_running_loop()
         await self.ws.accept()
         if self.stats.connections >= self.settings.stream_max_clients:
             await self.error("server_busy", f"the server streams to at most {self.settings.stream_max_clients} "
@@ -236,7 +240,8 @@ class StreamSession:
             self._last_step = None
         elif isinstance(m, P.Heatmap):
             if m.on:
-                await self._prepare_mode("nonlinear")
+                await self._prepare_mode("nonlinear")  # pulls blend it on the loop
+                self.heatmap_last = None
             self.heatmap = m.on
         elif isinstance(m, P.Pull):
             return await self._pull(m)
@@ -339,7 +344,7 @@ class StreamSession:
         return P.encode_vertices(vertices, "f32", None)
 
     def _frame_parts(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
-                     vertices, finished, pull_id=None, error_um=None, error_max=None):
+                     vertices, finished, pull_id=None, error_um=None, error_max=None, error_seq=None):
         """The next frame's msgpack body as buffers (server/frames.py; numbers as arrays or
         sequences, ``vertices`` and ``error_um`` encoded: bytes or arrays, not copied here)."""
         self.seq += 1
@@ -349,7 +354,7 @@ class StreamSession:
                  "realised": np.asarray(realised, dtype=float).tolist(), "clamped": bool(clamped),
                  "weights": np.asarray(weights, dtype=float).tolist(), "root": np.asarray(root, dtype=float).tolist(),
                  "heading": float(heading), "dropped": self.dropped, "finished": bool(finished),
-                 "sent_at": time.time(), "pull_id": pull_id, "error_max": error_max}
+                 "sent_at": time.time(), "pull_id": pull_id, "error_max": error_max, "error_seq": error_seq}
         bulk = [("vertices", vertices)]
         if error_um is None:
             small["error_um"] = None
@@ -369,13 +374,14 @@ class StreamSession:
     async def _send_frame(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
                           vertices, finished, pull_id, space):
         """A pulled frame (streamed ones go through the scheduler: send_frame)."""
-        error_um = error_max = None
+        error_um = error_max = error_seq = None
         if self.heatmap:
             error_um, error_max = self._heatmap(mode, weights, phase, vertices, space)
+            error_seq = self.seq + 1
         await self._send(joined(self._frame_parts(
             time_=time_, phase=phase, mode=mode, requested=requested, realised=realised, clamped=clamped,
             weights=weights, root=root, heading=heading, vertices=self._vertex_bytes(vertices), finished=finished,
-            pull_id=pull_id, error_um=error_um, error_max=error_max)))
+            pull_id=pull_id, error_um=error_um, error_max=error_max, error_seq=error_seq)))
 
     # ------------------------------------------------------------ the scheduler's side
 
@@ -443,9 +449,10 @@ class StreamSession:
 
     def frame_source(self):
         """(phase table or None, codec): a table when this frame is one interpolation of it
-        (linear or hybrid at weights that recur, no heatmap); q16 tables are in codec units."""
+        (linear or hybrid at weights that recur; heatmaps too: server/heatmap.py works off the
+        loop); q16 tables are in codec units."""
         player = self.player
-        if self.heatmap or player.mode == "nonlinear":
+        if player.mode == "nonlinear":
             return None, self.codec
         table = player.space.frame_blender(player.mode).lookup(player.weights)
         if table is not None and self.codec == "q16":
@@ -456,17 +463,21 @@ class StreamSession:
         """Write the frame at the player's state; ``payload``: its encoded vertices, or None to
         blend them here."""
         player = self.player
-        error_um = error_max = None
+        error_um = error_max = error_seq = None
         if payload is None:
             space, mode, weights, phase = player.space, player.mode, player.weights, player.phase
             vertices = space.frame_blender(mode).blend(weights, phase)
-            if self.heatmap:
-                error_um, error_max = self._heatmap(mode, weights, phase, vertices, space)
             payload = self._vertex_bytes(vertices)
+        if self.heatmap:  # off the event loop (server/heatmap.py)
+            distances = self.scheduler.heatmaps.frame_error(self, player.space, player.mode, player.weights,
+                                                            player.phase, self.seq + 1)
+            if distances is not None:
+                error_um, error_max, error_seq = distances
         parts = self._frame_parts(time_=player.time, phase=player.phase, mode=player.mode,
                                   requested=player.requested, realised=player.realised, clamped=player.clamped,
                                   weights=player.weights, root=player.position, heading=player.heading,
-                                  vertices=payload, finished=player.finished, error_um=error_um, error_max=error_max)
+                                  vertices=payload, finished=player.finished, error_um=error_um, error_max=error_max,
+                                  error_seq=error_seq)
         try:
             if self.gauge is not None:  # straight to the transport, one copy (server/transport.py)
                 sent = self.gauge.write_message(parts)

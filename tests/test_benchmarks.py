@@ -79,6 +79,7 @@ def check_stream_load(result, stdout):
     assert result["latency_ms"]["count"] > 0 and positive(result["latency_ms"]["median"])
     assert non_negative(result["server_cpu_cores"]) and positive(result["server_rss_mb"]["start"])
     assert non_negative(result["server_cpu_us_per_frame"]) and "server CPU per delivered frame" in stdout
+    assert result["heatmap_clients"] == 1 and result["delivered_heatmap_min"] > 0.25 and "heatmap on" in stdout
     assert result["server_counters"]["frames"] > 0
     assert "frames delivered: mean" in stdout and "params -> first frame" in stdout
     assert result["workers"] == 1 and non_negative(result["clients_cpu_cores"])

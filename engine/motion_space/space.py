@@ -140,23 +140,25 @@ class MotionSpace:
 
     def blender(self, mode):
         """The blender for ``mode`` ("linear", "hybrid" or "nonlinear"), built once."""
+        if mode not in self._blenders:
+            self._blenders[mode] = self.new_blender(mode)
+        return self._blenders[mode]
+
+    def new_blender(self, mode):
+        """A blender for ``mode`` of the caller's own (blenders keep scratch buffers: a thread
+        that blends beside another needs its own). Built anew on every call."""
         if mode not in MODES:
             raise ValueError(f"unknown blend mode {mode!r}; choose one of {', '.join(MODES)}")
-        if mode not in self._blenders:
-            c = self.container
-            if mode == "linear":
-                blender = LinearBlender(self.sources, self.cyclic)
-            elif mode == "hybrid":
-                layout = self._layout("hybrid", lambda: hybrid_layout(self.corrections, self.n_vertices))
-                blender = HybridBlender(self.sources, self.tree, self.corrections, self.cyclic, layout=layout)
-            else:
-                q, s, d = c["nl_quaternions"], c["nl_stretch"], c["nl_detail"]
-                layout = self._layout("nonlinear", lambda: component_major_layout(q, s, d))
-                inner = NonlinearBlender(self.embedding, q, s, d, self.sources.reshape(-1, self.n_vertices, 3),
-                                         layout=layout)
-                blender = PhasedNonlinearBlender(inner, self.n_phases, self.n_sources, self.cyclic)
-            self._blenders[mode] = blender
-        return self._blenders[mode]
+        c = self.container
+        if mode == "linear":
+            return LinearBlender(self.sources, self.cyclic)
+        if mode == "hybrid":
+            layout = self._layout("hybrid", lambda: hybrid_layout(self.corrections, self.n_vertices))
+            return HybridBlender(self.sources, self.tree, self.corrections, self.cyclic, layout=layout)
+        q, s, d = c["nl_quaternions"], c["nl_stretch"], c["nl_detail"]
+        layout = self._layout("nonlinear", lambda: component_major_layout(q, s, d))
+        inner = NonlinearBlender(self.embedding, q, s, d, self.sources.reshape(-1, self.n_vertices, 3), layout=layout)
+        return PhasedNonlinearBlender(inner, self.n_phases, self.n_sources, self.cyclic)
 
     def _layout(self, kind, build):
         """A blender's derived arrays: mapped from the DerivedStore, or None (the blender makes

@@ -74,6 +74,17 @@ def test_space_round_trip_matches_the_sources(space_path):
         assert durations[0] > durations[1]  # the slow gait has the longer cycle
 
 
+def test_a_new_blender_is_the_callers_own_and_blends_alike(space_path):
+    with MotionSpace.open(space_path) as space:
+        for mode in ("linear", "hybrid", "nonlinear"):
+            own = space.new_blender(mode)
+            assert own is not space.blender(mode) and own is not space.new_blender(mode)
+            np.testing.assert_array_equal(own.blend(np.array([0.3, 0.7]), 0.45),
+                                          space.blender(mode).blend(np.array([0.3, 0.7]), 0.45))
+        with pytest.raises(ValueError, match="unknown blend mode"):
+            space.new_blender("cubic")
+
+
 @pytest.mark.parametrize("weights,phase,match", [
     ([1.0], 0.1, "expected 2 weights"), ([np.nan, 1.0], 0.1, "finite"), ([-1.0, 2.0], 0.1, "non-negative"),
     ([0.0, 0.0], 0.1, "not all zero"), ([0.5, 0.5], np.inf, "phase must be finite")])

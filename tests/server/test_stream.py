@@ -372,16 +372,35 @@ def test_a_slow_client_does_not_slow_a_fast_one(server, window):
 
 
 def test_heatmap_frames_carry_the_distance_from_the_nonlinear_blend(server, speed_space):
+    """The distances are computed off the event loop for an earlier frame, which error_seq names;
+    they are that frame's exact distances, and they keep coming while the parameters move."""
     async def go():
-        async with StreamClient.connect(server.ws_url, "speed", mode="linear", heatmap=True, rate=20) as c:
-            lo, hi = c.topology.parameters[0]["min"], c.topology.parameters[0]["max"]
-            seq = await c.set_params(speed=(lo + hi) / 2, immediate=True)
-            return await c.next_frame(after=seq)
-    frame = run(go())
-    reference = speed_space.blend(frame.weights, frame.phase, "nonlinear")
-    distance = np.linalg.norm(frame.vertices - reference, axis=1)
-    np.testing.assert_allclose(frame.error, distance, atol=2e-6)
-    assert frame.error.max() > 1e-4   # linear blending of two gaits really differs
+        frames = {}
+        async with websockets.connect(server.ws_url, max_size=2**26) as ws:
+            await ws.send(msgpack.packb({"type": "hello", "space": "speed", "mode": "linear", "heatmap": True,
+                                         "rate": 30, "smoothing": 1.0}))
+            topology = P.decode_server(await asyncio.wait_for(ws.recv(), 10))
+            await ws.send(msgpack.packb({"type": "params", "params": {"speed": 2.2}, "seq": 1}))
+            while len(frames) < 40:
+                raw = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 10))
+                if raw["type"] == "frame":
+                    frames[raw["seq"]] = raw
+        return topology, frames
+    topology, frames = run(go())
+    carrying = [f for f in frames.values() if f["error_seq"] is not None]
+    assert len(carrying) >= 30 and all(f["error_seq"] <= f["seq"] for f in carrying)
+    described = {f["error_seq"] for f in carrying if f["error_seq"] in frames}
+    assert len(described) >= 5   # fresh distances keep coming
+    moving = [f for f in carrying if f["error_seq"] in frames and f["ack"] >= 1]
+    for raw in moving[-3:]:
+        frame = frames[raw["error_seq"]]
+        vertices = P.decode_vertices(frame["vertices"], "f32", topology.n_vertices)
+        reference = speed_space.blend(frame["weights"], frame["phase"], "nonlinear")
+        distance = np.linalg.norm(vertices - reference, axis=1)
+        error = np.frombuffer(raw["error_um"], dtype="<u2").astype(np.float32) * 1e-6
+        np.testing.assert_allclose(error, np.minimum(distance, 0.065535), atol=2e-6)  # saturating at 65535 um
+        assert raw["error_max"] == pytest.approx(distance.max(), abs=1e-6)
+        assert distance.max() > 1e-4   # linear blending of two gaits really differs
 
 
 def test_unknown_space_fails_the_connect_with_a_clear_error(server):

@@ -108,7 +108,8 @@ export const SERVER_MESSAGES = {
     "sent_at",
     "pull_id",
     "error_um",
-    "error_max"
+    "error_max",
+    "error_seq"
   ],
   "notice": [
     "type",
