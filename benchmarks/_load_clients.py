@@ -1,7 +1,8 @@
 """The stream benchmark's load generator (benchmarks/stream_load.py): raw WebSocket clients that
 count frames and time parameter updates, and the connect/leave soak clients, each group run in a
 process of its own (``client_process``, ``soak_process``). A client process reports the CPU
-seconds it used (``cpu_seconds``), so that a run can say what the load generator itself cost."""
+seconds it used (``cpu_seconds``) and how long it waited for a CPU (``wait_seconds``), so that a
+run can say what the load generator itself cost and whether the host kept it waiting."""
 
 from __future__ import annotations
 
@@ -116,12 +117,21 @@ async def one_client(host, port, space, fps, seconds, measure_from, measure_to, 
     out.append((state["frames"], state["latencies"], state["transit"], heatmap))
 
 
+def _runqueue_wait():
+    """Seconds this process has been runnable but waiting for a CPU (Linux schedstat; 0 elsewhere)."""
+    try:
+        with open("/proc/self/schedstat") as f:
+            return int(f.read().split()[1]) / 1e9
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
 def client_process(host, port, space, n, fps, seconds, warmup, update_share, update_every, params, seed, queue,
                    heatmaps=0):
     """``n`` clients, the first ``heatmaps`` of them with the heatmap on."""
     rng = random.Random(seed)
     usage = resource.getrusage(resource.RUSAGE_SELF)
-    cpu_start = usage.ru_utime + usage.ru_stime
+    cpu_start, wait_start = usage.ru_utime + usage.ru_stime, _runqueue_wait()
 
     async def main():
         out = []
@@ -140,6 +150,7 @@ def client_process(host, port, space, n, fps, seconds, warmup, update_share, upd
     out, failures, window = asyncio.run(main())
     usage = resource.getrusage(resource.RUSAGE_SELF)
     queue.put({"cpu_seconds": usage.ru_utime + usage.ru_stime - cpu_start,
+               "wait_seconds": _runqueue_wait() - wait_start,
                "frames": [f for f, _, _, _ in out], "latencies": [x for _, l, _, _ in out for x in l],
                "transit": [x for _, _, t, _ in out for x in t], "heatmap": [h for _, _, _, h in out],
                "failures": failures, "window": window})

@@ -44,6 +44,20 @@ def tree_cpu_seconds(pid):
     return total
 
 
+def run_and_wait_seconds(pids):
+    """(seconds on a CPU, seconds runnable but waiting for one) summed over ``pids``
+    (/proc/<pid>/schedstat). Waiting time is what a saturated host takes from a process."""
+    run = wait = 0.0
+    for each in pids:
+        try:
+            with open(f"/proc/{each}/schedstat") as f:
+                fields = f.read().split()
+        except OSError:
+            continue
+        run, wait = run + int(fields[0]) / 1e9, wait + int(fields[1]) / 1e9
+    return run, wait
+
+
 def tree_memory_mb(pid):
     """(RSS, PSS) MB summed over ``pid`` and its descendants. PSS splits each shared page between
     the processes mapping it, so it does not count a mapped space once per worker, RSS does."""
@@ -157,7 +171,7 @@ def summarise(counts, levels, rounds, capacity):
     table = []
     print(f"\nworkers side by side ({', '.join(map(str, counts))}), {DELIVERED:.0%} of frames delivered to hold:")
     print("  workers  clients  delivered  server cores  clients' cores  server us/frame  client us/frame  "
-          "machine busy")
+          "machine busy  server waited")
     for w in counts:
         for r in rounds[w]:
             frames = r["frames_per_second_total"]
@@ -165,11 +179,13 @@ def summarise(counts, levels, rounds, capacity):
                    "server_cpu_cores": r["server_cpu_cores"], "clients_cpu_cores": r["clients_cpu_cores"],
                    "server_cpu_us_per_frame": 1e6 * r["server_cpu_cores"] / frames if frames else float("nan"),
                    "clients_cpu_us_per_frame": 1e6 * r["clients_cpu_cores"] / frames if frames else float("nan"),
-                   "machine_busy_cores": r["machine_cores"]["busy"]}
+                   "machine_busy_cores": r["machine_cores"]["busy"],
+                   "server_runqueue_wait": r["server_runqueue_wait"]}
             table.append(row)
             print(f"  {w:7d}  {row['clients']:7d}  {100 * row['delivered_mean']:8.1f}%  {row['server_cpu_cores']:12.2f}  "
                   f"{row['clients_cpu_cores']:14.2f}  {row['server_cpu_us_per_frame']:15.0f}  "
-                  f"{row['clients_cpu_us_per_frame']:15.0f}  {row['machine_busy_cores']:12.2f}")
+                  f"{row['clients_cpu_us_per_frame']:15.0f}  {row['machine_busy_cores']:12.2f}  "
+                  f"{row['server_runqueue_wait']:13.2f}")
     print(f"  held: {', '.join(f'{w} worker(s) {capacity[w]} clients' for w in counts)}; "
           f"{other} / {base} = {ratio:.2f}x (target >= 1.5x)")
     return {"workers": counts, "levels": levels, "delivered_to_hold": DELIVERED,

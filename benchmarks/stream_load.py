@@ -53,7 +53,15 @@ from pathlib import Path
 
 from _tiny import parse_arguments
 from _load_clients import client_process, soak_process
-from _workers import compare_workers, start_server, tree_cpu_seconds, tree_memory_mb, warm_up
+from _workers import (
+    compare_workers,
+    process_tree,
+    run_and_wait_seconds,
+    start_server,
+    tree_cpu_seconds,
+    tree_memory_mb,
+    warm_up,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = {"clients": 4, "fps": 30.0, "seconds": 4.0, "warmup": 1.5, "client_procs": 1, "update_share": 1.0,
@@ -121,6 +129,8 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     before = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
     reference_before = reference_loop_ms()
     cpu_start, wall_start = cpu_seconds(server_pid), time.monotonic()
+    server_processes = process_tree(server_pid)
+    wait_start = run_and_wait_seconds(server_processes)[1]
     machine_start = machine_times()
     queue = ctx.Queue()
     per = [args.clients // args.client_procs + (i < args.clients % args.client_procs)
@@ -138,6 +148,8 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     elapsed = time.monotonic() - wall_start
     cpu = (cpu_seconds(server_pid) - cpu_start) / elapsed
     clients_cpu = sum(o["cpu_seconds"] for o in outputs) / elapsed
+    server_wait = (run_and_wait_seconds(server_processes)[1] - wait_start) / elapsed
+    clients_wait = sum(o["wait_seconds"] for o in outputs) / elapsed
     busy, idle, steal = (b - a for a, b in zip(machine_start, machine_times()))
     health = httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=30).json()
     deadline = time.monotonic() + 15
@@ -176,6 +188,9 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
         "clients_cpu_cores": clients_cpu,
         # server CPU per frame the clients received (cores / delivered frames per second)
         "server_cpu_us_per_frame": 1e6 * cpu / (sum(frames) / window) if sum(frames) else float("nan"),
+        # seconds per second the server's and the clients' processes were runnable but waited for a
+        # CPU (summed over processes): a host saturated by other work shows here
+        "server_runqueue_wait": server_wait, "clients_runqueue_wait": clients_wait,
         "server_rss_mb": {"start": rss_start, "after_load": rss_mb(server_pid)},
         "server_counters": dict({k: v if k.endswith("_max") else v - before["scheduler"].get(k, 0)  # peaks as they are
                                  for k, v in health["scheduler"].items()},
@@ -207,7 +222,8 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
           f"{counters.get('transport_full', 0)} due frames skipped for a full transport (at most "
           f"{counters.get('transport_bytes_max', 0) / 1024:.0f} KB held for one connection), {counters['frames_dropped']} ticks "
           f"dropped (a frame more than a period late)")
-    print(f"  load generator: {clients_cpu:.2f} cores in {args.client_procs} client process(es)")
+    print(f"  load generator: {clients_cpu:.2f} cores in {args.client_procs} client process(es); waiting for a CPU "
+          f"(runnable, not running): server {server_wait:.2f} s/s, clients {clients_wait:.2f} s/s")
     print(f"  machine: {busy / elapsed:.2f} cores busy, {idle / elapsed:.2f} idle, {steal / elapsed:.2f} stolen "
           f"by the host (of {os.cpu_count()}); reference Python loop {reference_before:.0f} ms before, "
           f"{reference_after:.0f} ms after (lower is a faster host)")
