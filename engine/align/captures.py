@@ -16,7 +16,7 @@ from engine.align.pairwise import AlignmentOptions, PairwiseAligner
 from engine.align.propagation import AlignedFrames, align_tree
 from engine.align.repair import alignment_confidence, repair_alignment
 from engine.align.similarity import shape_dissimilarity
-from engine.align.similarity_tree import chain_tree, similarity_tree
+from engine.align.similarity_tree import DEFAULT_TREE, chain_tree, similarity_tree
 from engine.surface import main_components
 
 
@@ -43,8 +43,8 @@ class CaptureAlignment:
     tets: tuple
 
 
-def align_captures(meshes, lengths, *, method="tree", root=None, options=None, window=2, workers=1,
-                   retries=3, tets=None, use_colors=True, seed=0, similarity=None, repair=True, progress=None):
+def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, options=None, window=2,
+                   workers=1, retries=3, tets=None, use_colors=True, seed=0, similarity=None, repair=True, progress=None):
     """Shape similarity, tree and alignment of unstructured frames of several sequences.
 
     Parameters
@@ -55,7 +55,10 @@ def align_captures(meshes, lengths, *, method="tree", root=None, options=None, w
         "tree" aligns along the shape similarity tree (paper section 3); "sequential" tracks
         frame to frame from the same root (forwards and backwards, sequences end to end), the
         baseline, with no retries.
-    root : int or None          root frame (default: the tree's most central frame)
+    tree_kind : {"paths", "mst"}   the similarity tree (:func:`engine.align.similarity_tree.similarity_tree`):
+                                cheapest paths from the root with big steps penalised, or the
+                                paper's minimum spanning tree
+    root : int or None          root frame (default: the minimum spanning tree's most central frame)
     options : AlignmentOptions
     window : int                temporal filter half-width
     workers : int               processes for the dissimilarity matrix and for aligning
@@ -87,7 +90,7 @@ def align_captures(meshes, lengths, *, method="tree", root=None, options=None, w
         similarity = shape_dissimilarity(meshes, lengths, window=window, workers=workers, progress=progress)
     timings["similarity"] = time.perf_counter() - started
     started = time.perf_counter()
-    tree = similarity_tree(similarity.dissimilarity, root=root)
+    tree = similarity_tree(similarity.dissimilarity, root=root, kind=tree_kind)
     if method == "sequential":
         tree = chain_tree(lengths, tree.root)
     timings["tree"] = time.perf_counter() - started

@@ -36,6 +36,7 @@ import numpy as np
 from tqdm import tqdm
 
 from engine.align import AlignmentOptions, align_captures
+from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
 from engine.align.repair import TRUSTED
 from engine.mesh_io import read_frames, write_obj, write_sequence
 from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
@@ -65,6 +66,9 @@ def add_arguments(parser):
                         "(default: the most central frame of the tree)")
     parser.add_argument("--sequential", action="store_true",
                         help="frame-to-frame tracking from the root instead of the tree (the baseline)")
+    parser.add_argument("--tree", choices=TREE_KINDS, default=DEFAULT_TREE,
+                        help="paths: every frame's cheapest path from the root, big steps penalised (shallow); "
+                             f"mst: the paper's minimum spanning tree (default {DEFAULT_TREE})")
     parser.add_argument("--window", type=int, default=2, help="temporal filter half-width in frames (default 2)")
     parser.add_argument("--patches", type=int, default=30, help="patches at the coarsest level (default 30)")
     parser.add_argument("--levels", type=int, default=4, help="coarse-to-fine levels, patches doubling (default 4)")
@@ -335,8 +339,8 @@ def run(args):
         root = parse_root(args.root, sequences, lengths)
         options = AlignmentOptions(patches=args.patches, levels=args.levels,
                                    colour_weight=AlignmentOptions().colour_weight if not args.colors else 0.5)
-        result = align_captures(meshes, lengths, method="sequential" if args.sequential else "tree", root=root,
-                                options=options, window=args.window, workers=args.workers, retries=args.retries,
+        result = align_captures(meshes, lengths, method="sequential" if args.sequential else "tree", tree_kind=args.tree,
+                                root=root, options=options, window=args.window, workers=args.workers, retries=args.retries,
                                 use_colors=args.colors, seed=args.seed, progress=progress)
         staging = out.with_name(f".{out.name}.partial-{os.getpid()}")
         if staging.exists():
@@ -345,7 +349,7 @@ def run(args):
         try:
             write_alignment(staging, sequences, meshes, lengths, result, fps=args.fps,
                             options_record={"patches": args.patches, "levels": args.levels, "window": args.window,
-                                            "retries": args.retries, "colors": bool(args.colors), "seed": args.seed,
+                                            "retries": args.retries, "tree": args.tree, "colors": bool(args.colors), "seed": args.seed,
                                             "units": args.units, "up": args.up},
                             progress=progress, conventions=conventions)
         except BaseException:

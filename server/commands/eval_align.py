@@ -26,6 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from engine.align import AlignmentOptions, align_captures, error_summary, pattern_sheet, score_alignment
+from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
 from engine.align.repair import TRUSTED
 from engine.mesh_io import read_mesh, read_sequence
 from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
@@ -49,6 +50,8 @@ def add_arguments(parser):
     parser.add_argument("--max-frames", type=int, metavar="N", help="use at most the first N frames of each sequence")
     parser.add_argument("--aligned", type=Path, metavar="DIR", help="score this `morphspace align` output "
                         "instead of aligning here")
+    parser.add_argument("--tree", choices=TREE_KINDS, default=DEFAULT_TREE,
+                        help=f"the similarity tree: paths or mst (see `morphspace align --help`; default {DEFAULT_TREE})")
     parser.add_argument("--no-sequential", action="store_true", help="skip the frame-to-frame baseline")
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global index (default: the tree's)")
     parser.add_argument("--colors", action="store_true", help="use vertex colours as matching cues")
@@ -222,14 +225,14 @@ def run(args):
             options = AlignmentOptions(colour_weight=0.5 if args.colors else AlignmentOptions().colour_weight)
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names,
                           **_units_report(names, conventions))
-            tree_run = align_captures(meshes, lengths, method="tree", root=root, options=options,
+            tree_run = align_captures(meshes, lengths, method="tree", tree_kind=args.tree, root=root, options=options,
                                       workers=args.workers, use_colors=args.colors, seed=args.seed,
                                       progress=progress)
             root = tree_run.aligned.root
             report["root"] = int(root)
             report["similarity_seconds"] = round(tree_run.timings["similarity"], 3)
             report["tree_seconds"] = round(tree_run.timings["tree"], 4)
-            report["tree"] = {"depth_max": int(tree_run.tree.depth.max()),
+            report["tree"] = {"kind": args.tree, "depth_max": int(tree_run.tree.depth.max()),
                               "depth_mean": round(float(tree_run.tree.depth.mean()), 2),
                               "components_reconnected": int(tree_run.tree.components)}
             runs = {"tree": tree_run}

@@ -227,7 +227,8 @@ def run_align(payload, reporter):
                                          params.get("up", "auto"), say=reporter.log)
     root = parse_root(params.get("root"), sequences, lengths)
     options = AlignmentOptions(patches=params["patches"], levels=params["levels"])
-    result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree", root=root,
+    result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree",
+                            tree_kind=params.get("tree", "paths"), root=root,
                             options=options, window=params["window"], workers=1, retries=params["retries"],
                             use_colors=False, seed=params["seed"], progress=reporter.progress)
     out = staging / "dataset"
@@ -235,6 +236,7 @@ def run_align(payload, reporter):
     fps = float((sequences[0].get("meta") or {}).get("fps", 30.0))
     write_alignment(out, sequences, meshes, lengths, result, fps=fps,
                     options_record={**{k: params[k] for k in ("patches", "levels", "window", "retries", "seed")},
+                                    "tree": params.get("tree", "paths"),
                                     "units": params.get("units", "auto"), "up": params.get("up", "auto")},
                     progress=reporter.progress, conventions=conventions)
     aligned = result.aligned
