@@ -44,7 +44,8 @@ class CaptureAlignment:
 
 
 def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, options=None, window=2,
-                   workers=1, retries=3, tets=None, use_colors=True, seed=0, similarity=None, repair=True, progress=None):
+                   workers=1, retries=3, tets=None, use_colors=True, seed=0, similarity=None, repair=True,
+                   repair_budget=0.5, progress=None):
     """Shape similarity, tree and alignment of unstructured frames of several sequences.
 
     Parameters
@@ -72,6 +73,8 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     similarity : ShapeSimilarity or None   reuse an earlier computation on the same frames
     repair : bool               with the tree: align frames of low confidence again from the
                                 root and trusted similar frames (:mod:`engine.align.repair`)
+    repair_budget : float or None   pairwise alignments per frame the repair may spend (the
+                                worst frames first; None: every flagged frame is repaired)
     progress : callable(stage, done, total) or None
         stages "histograms", "dissimilarity", "align", "repair"
 
@@ -119,7 +122,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     started = time.perf_counter()
     if method == "tree" and repair:
         repair_alignment(aligner, meshes, aligned, dissimilarity=similarity.dissimilarity, yaw=similarity.yaw,
-                         candidates=retries, progress=(lambda d, t: progress("repair", d, t)) if progress else None)
+                         candidates=retries, budget=repair_budget, progress=(lambda d, t: progress("repair", d, t)) if progress else None)
     else:
         _confidence_only(aligned)
     timings["repair"] = time.perf_counter() - started

@@ -164,8 +164,10 @@ def colour_flow(y, m, face, bary, target, colors, options):
     return shift, strength
 
 
-def reverse_correspondences(x, n, F, target, options, labels=None, count=1):
+def reverse_correspondences(x, n, F, target, options, labels=None, count=1, subset=None):
     """Target vertices paired with their closest points on the current source surface (x, F).
+
+    ``subset``: indices of the target vertices to pair (default all).
 
     Returns
     -------
@@ -175,13 +177,15 @@ def reverse_correspondences(x, n, F, target, options, labels=None, count=1):
     """
     o = options
     tree = cKDTree(x[F].mean(axis=1))
-    points, d, face, bary = closest_points(target.V, x, F, tree)
+    TV = target.V if subset is None else target.V[subset]
+    TN = target.normals if subset is None else target.normals[subset]
+    points, d, face, bary = closest_points(TV, x, F, tree)
     normal = np.einsum("tk,tkc->tc", bary, n[F[face]])
-    ok = np.einsum("tc,tc->t", normal, target.normals) > normal_cosine(o)
+    ok = np.einsum("tc,tc->t", normal, TN) > normal_cosine(o)
     vertex = F[face, np.argmax(bary, axis=1)]
     w = robust_weights(d, ok, None if labels is None else labels[vertex], count, o.outlier_factor,
                         1.5 * target.edge_length)
-    return points, vertex, target.V, target.normals, 0.5 * w
+    return points, vertex, TV, TN, 0.5 * w
 
 
 def sample_cost(P, N, target, options):

@@ -78,6 +78,11 @@ class AlignmentOptions:
     search_angles : tuple       rotation angles tried about each axis (degrees, both signs)
     search_samples : int        vertices per patch used to score hypotheses
     search_cap : float          distance (m) at which a sample counts as unmatched
+    match_samples : int         source vertices and target vertices that drive each patch's
+                                rigid matching (a fixed random subset of each when a mesh has
+                                more; all vertices still move with their patch, and the final
+                                per-vertex rounds use all of them)
+    match_sample_levels : int   the coarse levels that subsample so; finer ones use every vertex
     orientation_margin : float  a rigid start facing more than 90 degrees away from the best
                                 one whose fit score is within this factor of the best's is
                                 aligned from too (front-back ambiguity, see ``_rigid_starts``)
@@ -108,6 +113,8 @@ class AlignmentOptions:
     search_cap: float = 0.05
     tet_resolution: float = 48.0
     orientation_margin: float = 1.25
+    match_samples: int = 3000
+    match_sample_levels: int = 2
 
 
 @dataclass
@@ -199,6 +206,7 @@ class PairwiseAligner:
         self.patch_samples = [patch_samples(labels, count, o.search_samples, rng)
                               for labels, count in zip(self.patch_labels, counts)]
         self._search_rotations = rotation_set(o.search_angles)
+        self._match_subset = _subset(n, o.match_samples, seed)
         self._tet_volume = np.abs(tet_volumes(self.V_tet, self.T))
         scale = float(tet_laplacian(self.V_tet, self.T).diagonal().mean())
         weights = sorted(set(list(o.stiffness[:o.levels]) + [o.final_stiffness]))
@@ -256,7 +264,8 @@ class PairwiseAligner:
                 S = self.B @ X
                 search = level < o.search_levels and round_ < o.search_rounds
                 goal, confidence = self._match_patches(S, target, labels, count, use_colour,
-                                                       level=level if search else None)
+                                                       level=level if search else None,
+                                                       subsample=level < o.match_sample_levels)
                 X, R = self._deform(X, R, solver, goal, confidence, prior)
         solver = self._solvers[o.final_stiffness]
         for _ in range(o.final_rounds):
@@ -377,10 +386,13 @@ class PairwiseAligner:
                 starts.append(X @ fits[1][1].T + fits[1][2])
         return starts
 
-    def _match_patches(self, S, target, labels, count, use_colour, level=None):
+    def _match_patches(self, S, target, labels, count, use_colour, level=None, subsample=True):
         """Rigidly match every patch to the target; returns per-vertex goals and confidences.
 
-        With ``level`` given, badly fitting patches also try articulated hypotheses
+        With ``subsample``, the rigid steps are driven by at most ``options.match_samples`` source
+        vertices and as many target vertices (fixed random subsets); every vertex moves with its
+        patch. With
+        ``level`` given, badly fitting patches also try articulated hypotheses
         (:func:`engine.align.patches.search_patches`) after the ICP steps.
         """
         o = self.options
@@ -388,16 +400,22 @@ class PairwiseAligner:
         n = vertex_normals(S, self.F)
         size = np.bincount(labels, minlength=count).astype(float)
         colours = self.colors if use_colour else None
+        pick = self._match_subset if subsample else None
+        picked_labels = labels if pick is None else labels[pick]
+        picked_colours = colours if colours is None or pick is None else colours[pick]
+        target_pick = _subset(len(target.V), o.match_samples, 0) if subsample else None
         for _ in range(o.icp_steps):
-            y, m, w, tangential, d = correspondences(x, n, target, o, colours, labels, count)
+            xs, ns = (x, n) if pick is None else (x[pick], n[pick])
+            y, m, w, tangential, d = correspondences(xs, ns, target, o, picked_colours, picked_labels, count)
             # target -> source pairs pull the source into parts of the target it does not cover
-            points, src, ys, ms, ws = reverse_correspondences(x, n, self.F, target, o, labels, count)
-            P = np.concatenate([x, points])
+            points, src, ys, ms, ws = reverse_correspondences(x, n, self.F, target, o, labels, count,
+                                                              subset=target_pick)
+            P = np.concatenate([xs, points])
             Y = np.concatenate([y, ys])
             M = np.concatenate([m, ms])
             W = np.concatenate([w, ws])
             Tw = np.concatenate([tangential, np.zeros(len(src))])
-            L = np.concatenate([labels, labels[src]])
+            L = np.concatenate([picked_labels, labels[src]])
             omega, shift, centres = patch_rigid_steps(P, Y, M, W, Tw, L, count)
             Rp = rodrigues(omega)
             x = np.einsum("pij,pj->pi", Rp[labels], x - centres[labels]) + centres[labels] + shift[labels]
@@ -405,8 +423,10 @@ class PairwiseAligner:
         if level is not None:
             x, n = search_patches(x, n, target, labels, count, self.patch_samples[level],
                                   self.patch_graph[level], self._search_rotations, o)
-        y, m, w, tangential, d = correspondences(x, n, target, o, colours, labels, count)
-        support = np.bincount(labels, weights=w, minlength=count) / np.maximum(size, 1.0)
+        xs, ns = (x, n) if pick is None else (x[pick], n[pick])
+        y, m, w, tangential, d = correspondences(xs, ns, target, o, picked_colours, picked_labels, count)
+        picked_size = size if pick is None else np.bincount(picked_labels, minlength=count).astype(float)
+        support = np.bincount(picked_labels, weights=w, minlength=count) / np.maximum(picked_size, 1.0)
         confidence = np.clip(support[labels] * 1.25, 0.0, 1.0)
         return x, confidence
 
@@ -433,6 +453,13 @@ class PairwiseAligner:
             current = self.B @ X
             X = solver.solve(stack_rotations(R), c * goal + (1.0 - c) * current)
         return X, R
+
+
+def _subset(n, limit, seed):
+    """Sorted indices of a fixed random subset of ``limit`` of ``n`` items, or None for all of them."""
+    if limit is None or limit <= 0 or n <= limit:
+        return None
+    return np.sort(np.random.default_rng(seed).choice(n, size=int(limit), replace=False))
 
 
 __all__ = ["AlignmentOptions", "PairAlignment", "PairwiseAligner"]

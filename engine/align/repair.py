@@ -32,7 +32,8 @@ def alignment_confidence(residual, distortion_tail, model_size):
     return np.exp(-alignment_badness(residual, distortion_tail, model_size))
 
 
-def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, candidates=2, progress=None):
+def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, candidates=2, budget=None,
+                     progress=None):
     """Align low-confidence frames again from the root and from trusted similar frames.
 
     Parameters
@@ -44,6 +45,10 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     dissimilarity : (N, N) array or None   picks the trusted frames most like each flagged one
     yaw : (N, N) array or None       rotation hints (degrees about +Y) between frames
     candidates : int                 trusted frames tried besides the root
+    budget : float or None           at most this many pairwise alignments per frame of the
+                                     whole capture go to repairs (None: no limit); when the
+                                     flagged frames would need more, the worst of them (lowest
+                                     confidence) are repaired first and the others stay flagged
     progress : callable(done, total) or None
 
     Returns
@@ -60,6 +65,17 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     repaired = np.zeros(len(confidence), dtype=bool)
     depth_order = _tree_order(aligned.parent, root)
     flagged = [f for f in depth_order if confidence[f] < TRUSTED]
+    limit = np.inf if budget is None else int(np.floor(float(budget) * len(confidence)))
+    if budget is not None:
+        cost = {f: (1 if aligned.parent[f] != root else 0) + (max(0, int(candidates)) if dissimilarity is not None else 0)
+                for f in flagged}
+        chosen, planned = set(), 0
+        for f in sorted(flagged, key=lambda f: (confidence[f], f)):
+            if planned + cost[f] <= limit:
+                chosen.add(f)
+                planned += cost[f]
+        flagged = [f for f in flagged if f in chosen]
+    spent = 0
     use_colours = aligner.colors is not None
     for done, frame in enumerate(flagged):
         trusted = np.flatnonzero(confidence >= TRUSTED)
@@ -73,7 +89,9 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         target = TargetSurface(V, F, C)
         best, best_source = None, None
         best_badness = alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size)
+        sources = sources[:max(0, int(min(limit - spent, len(sources))))] if np.isfinite(limit) else sources
         for source in sources:
+            spent += 1
             hint = None if yaw is None else float(yaw[frame, source])
             result = aligner.align(aligned.poses[source], target, yaw=hint)
             badness = alignment_badness(result.residual, result.distortion_tail, size)

@@ -74,6 +74,9 @@ def add_arguments(parser):
     parser.add_argument("--levels", type=int, default=4, help="coarse-to-fine levels, patches doubling (default 4)")
     parser.add_argument("--retries", type=int, default=3,
                         help="other parents tried for a frame whose alignment scores poorly (default 3)")
+    parser.add_argument("--repair-budget", type=float, default=0.5, metavar="B",
+                        help="pairwise alignments per frame the repair of low-confidence frames may spend, "
+                             "the worst frames first (default 0.5; 0 turns the repair off)")
     parser.add_argument("--colors", action="store_true",
                         help="use vertex colours as matching cues when every frame has them")
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate of inputs without meta.json (default 30)")
@@ -326,7 +329,7 @@ def run(args):
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
     for name, value, low in (("--window", args.window, 0), ("--patches", args.patches, 1),
                              ("--levels", args.levels, 1), ("--retries", args.retries, 0),
-                             ("--workers", args.workers, 1)):
+                             ("--workers", args.workers, 1), ("--repair-budget", args.repair_budget, 0)):
         if value < low:
             raise ValueError(f"{name} must be >= {low}, got {value}")
     sequences = resolve_inputs(args.inputs, args.only)
@@ -341,7 +344,8 @@ def run(args):
                                    colour_weight=AlignmentOptions().colour_weight if not args.colors else 0.5)
         result = align_captures(meshes, lengths, method="sequential" if args.sequential else "tree", tree_kind=args.tree,
                                 root=root, options=options, window=args.window, workers=args.workers, retries=args.retries,
-                                use_colors=args.colors, seed=args.seed, progress=progress)
+                                use_colors=args.colors, seed=args.seed, repair_budget=args.repair_budget,
+                                progress=progress)
         staging = out.with_name(f".{out.name}.partial-{os.getpid()}")
         if staging.exists():
             shutil.rmtree(staging)
@@ -349,7 +353,7 @@ def run(args):
         try:
             write_alignment(staging, sequences, meshes, lengths, result, fps=args.fps,
                             options_record={"patches": args.patches, "levels": args.levels, "window": args.window,
-                                            "retries": args.retries, "tree": args.tree, "colors": bool(args.colors), "seed": args.seed,
+                                            "retries": args.retries, "repair_budget": args.repair_budget, "tree": args.tree, "colors": bool(args.colors), "seed": args.seed,
                                             "units": args.units, "up": args.up},
                             progress=progress, conventions=conventions)
         except BaseException:

@@ -39,3 +39,64 @@ def _target(mesh):
     from engine.align import TargetSurface
 
     return TargetSurface(*mesh[:3])
+
+
+class _Counting:
+    """The real aligner, counting the pairwise alignments asked of it."""
+
+    def __init__(self, aligner):
+        self.aligner, self.calls = aligner, 0
+
+    def __getattr__(self, name):
+        return getattr(self.aligner, name)
+
+    def align(self, *args, **kwargs):
+        self.calls += 1
+        return self.aligner.align(*args, **kwargs)
+
+
+def _slipped(aligner, meshes, frames):
+    """Frames aligned along a chain, then ``frames`` re-aligned from a mirrored pose (slipped)."""
+    tree = rooted_tree([[k, k + 1] for k in range(len(meshes) - 1)], np.ones(len(meshes) - 1), 0, len(meshes))
+    aligned = align_tree(aligner, meshes, tree)
+    centre = aligner.V_tet.mean(axis=0)
+    for frame in frames:
+        mirrored = (aligned.poses[frame - 1] - centre) * [-1.0, 1.0, 1.0] + centre
+        slipped = aligner.align(mirrored, _target(meshes[frame]))
+        aligned.vertices[frame], aligned.poses[frame] = slipped.V, slipped.X
+        aligned.residual[frame], aligned.distortion_tail[frame] = slipped.residual, slipped.distortion_tail
+    return aligned
+
+
+@pytest.fixture(scope="module")
+def five_frames():
+    """Five unstructured frames of a walk (1,000 vertices at 15 fps)."""
+    from engine.synthetic import SequenceSpec, build_body, generate_sequence_data
+
+    data = generate_sequence_data(build_body(1000), SequenceSpec("walk", "gait", {"speed": 1.0, "cycles": 0.34,
+                                                                                  "start_phase": 0.1}),
+                                  fps=15, seed=1)
+    assert len(data["unstructured"]) >= 5
+    return data["unstructured"][:5]
+
+
+def test_the_repair_budget_repairs_the_worst_frames_first_and_no_more(walk_aligner, five_frames):
+    meshes = five_frames
+    aligned = _slipped(walk_aligner, meshes, [2, 3])
+    before = alignment_confidence(aligned.residual, aligned.distortion_tail, 1.75)
+    assert before[2] < 0.5 and before[3] < 0.5
+    worst = 2 if before[2] < before[3] else 3
+    counting = _Counting(walk_aligner)
+    # 5 frames x 0.2 = one pairwise alignment: only the root is tried, for the worst frame
+    repair_alignment(counting, meshes, aligned, budget=0.2)
+    assert counting.calls == 1
+    assert aligned.repaired[worst] and not aligned.repaired[5 - worst] and not aligned.repaired[[0, 1, 4]].any()
+    assert aligned.confidence[5 - worst] < 0.5  # left flagged, not silently passed
+
+
+def test_a_zero_budget_repairs_nothing(walk_aligner, walk_capture):
+    meshes = walk_capture[2][:3]
+    aligned = _slipped(walk_aligner, meshes, [2])
+    counting = _Counting(walk_aligner)
+    repair_alignment(counting, meshes, aligned, budget=0.0)
+    assert counting.calls == 0 and not aligned.repaired.any() and aligned.confidence[2] < 0.5
