@@ -56,9 +56,9 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
         "tree" aligns along the shape similarity tree (paper section 3); "sequential" tracks
         frame to frame from the same root (forwards and backwards, sequences end to end), the
         baseline, with no retries.
-    tree_kind : {"paths", "mst"}   the similarity tree (:func:`engine.align.similarity_tree.similarity_tree`):
-                                cheapest paths from the root with big steps penalised, or the
-                                paper's minimum spanning tree
+    tree_kind : {"mst", "paths"}   the similarity tree (:func:`engine.align.similarity_tree.similarity_tree`):
+                                the paper's minimum spanning tree, or cheapest paths from the
+                                root with big steps penalised
     root : int or None          root frame (default: the minimum spanning tree's most central frame)
     options : AlignmentOptions
     window : int                temporal filter half-width

@@ -204,7 +204,7 @@ def _farthest(adjacency, source):
 
 
 TREE_KINDS = ("paths", "mst")
-DEFAULT_TREE = "paths"
+DEFAULT_TREE = "mst"
 
 
 def similarity_tree(D, *, root=None, threshold=None, criterion="median", kind=DEFAULT_TREE, power=3.0):
@@ -234,7 +234,9 @@ def similarity_tree(D, *, root=None, threshold=None, criterion="median", kind=DE
     whose steps are small in total with big steps penalised steeply (cubed), so paths take
     shortcuts through similar poses: on the studio dance (617 frames at 25 fps) the mean depth
     drops from 62 to 21 and the deepest frame from 131 to 58, while the mean edge
-    dissimilarity grows by only 9% (0.103 to 0.112).
+    dissimilarity grows by only 9% (0.103 to 0.112). It is not the default: on the tiny preset's
+    four sequences it aligned worse than the minimum spanning tree (mean error 1.74% against
+    0.79% of the model size; docs/evaluation.md).
     """
     D = _check_matrix(D)
     n = len(D)

@@ -92,9 +92,9 @@ class AlignJob(_Body):
     only: list[Name] | None = Field(None, max_length=256, description="only these sequences")
     root: str | None = Field(None, max_length=200, description="root frame as SEQUENCE:FRAME or a global index")
     sequential: bool = Field(False, description="frame-to-frame tracking instead of the tree")
-    tree: Literal["paths", "mst"] = Field(
-        "paths", description="paths: every frame's cheapest path from the root with big steps penalised "
-                             "(shallow); mst: the paper's minimum spanning tree")
+    tree: Literal["mst", "paths"] = Field(
+        "mst", description="mst: the paper's minimum spanning tree; paths: every frame's cheapest path "
+                           "from the root with big steps penalised (shallower)")
     window: int = Field(2, ge=0, le=10)
     patches: int = Field(30, ge=1, le=500)
     levels: int = Field(4, ge=1, le=8)

@@ -228,7 +228,7 @@ def run_align(payload, reporter):
     root = parse_root(params.get("root"), sequences, lengths)
     options = AlignmentOptions(patches=params["patches"], levels=params["levels"])
     result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree",
-                            tree_kind=params.get("tree", "paths"), root=root,
+                            tree_kind=params.get("tree", "mst"), root=root,
                             options=options, window=params["window"], workers=1, retries=params["retries"],
                             use_colors=False, seed=params["seed"], progress=reporter.progress)
     out = staging / "dataset"
@@ -236,7 +236,7 @@ def run_align(payload, reporter):
     fps = float((sequences[0].get("meta") or {}).get("fps", 30.0))
     write_alignment(out, sequences, meshes, lengths, result, fps=fps,
                     options_record={**{k: params[k] for k in ("patches", "levels", "window", "retries", "seed")},
-                                    "tree": params.get("tree", "paths"),
+                                    "tree": params.get("tree", "mst"),
                                     "units": params.get("units", "auto"), "up": params.get("up", "auto")},
                     progress=reporter.progress, conventions=conventions)
     aligned = result.aligned
