@@ -8,19 +8,12 @@ and stops it after the test (or module).
 
 from __future__ import annotations
 
-import contextlib
 import fcntl
 import os
-import shutil
-import signal
-import socket
-import subprocess
-import sys
-import time
-from pathlib import Path
 
-import httpx
 import pytest
+
+from live_server import LiveServer, data_dir_with_spaces, free_port  # noqa: F401 (re-exported)
 
 FPS = 15.0
 
@@ -56,69 +49,6 @@ def built_spaces(tmp_path_factory):
             (root / "done").write_text("ok")
         fcntl.flock(lock, fcntl.LOCK_UN)
     return root
-
-
-def free_port():
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class LiveServer:
-    """A ``morphspace serve`` subprocess on 127.0.0.1."""
-
-    def __init__(self, data_dir, env=None, args=()):
-        self.data_dir = Path(data_dir)
-        self.args = list(args)  # more `morphspace serve` options (e.g. --workers 2)
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        self.ws_url = f"ws://127.0.0.1:{self.port}/v1/stream"
-        self.env = dict(os.environ, **(env or {}))
-        self.process = None
-        self.log = self.data_dir / "server.log"
-
-    def start(self, timeout=60.0):
-        self.data_dir.mkdir(parents=True, exist_ok=True)
-        with open(self.log, "ab") as log:
-            self.process = subprocess.Popen(
-                [sys.executable, "-m", "server.cli", "serve", "--data-dir", str(self.data_dir),
-                 "--port", str(self.port), "--log-level", "warning", *self.args],
-                stdout=log, stderr=subprocess.STDOUT, env=self.env, start_new_session=True)
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if self.process.poll() is not None:
-                raise RuntimeError(f"the server exited ({self.process.returncode}):\n{self.log.read_text()[-3000:]}")
-            with contextlib.suppress(httpx.HTTPError):
-                if httpx.get(self.url + "/v1/health", timeout=1.0).status_code == 200:
-                    return self
-            time.sleep(0.1)
-        self.stop()
-        raise RuntimeError(f"the server did not come up in {timeout} s:\n{self.log.read_text()[-3000:]}")
-
-    def stop(self, timeout=10.0):
-        if self.process is None or self.process.poll() is not None:
-            return
-        os.killpg(self.process.pid, signal.SIGTERM)
-        try:
-            self.process.wait(timeout)
-        except subprocess.TimeoutExpired:
-            os.killpg(self.process.pid, signal.SIGKILL)
-            self.process.wait(timeout)
-
-    def __enter__(self):
-        return self.start()
-
-    def __exit__(self, *exc):
-        self.stop()
-
-
-def data_dir_with_spaces(path, built_spaces, names=("speed", "jump")):
-    """A data directory whose spaces/ holds copies of the built test spaces."""
-    spaces = Path(path) / "spaces"
-    spaces.mkdir(parents=True, exist_ok=True)
-    for name in names:
-        shutil.copyfile(built_spaces / f"{name}.mspace", spaces / f"{name}.mspace")
-    return Path(path)
 
 
 @pytest.fixture(scope="module")

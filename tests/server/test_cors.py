@@ -2,7 +2,7 @@
 
 import httpx
 
-from conftest import LiveServer, data_dir_with_spaces
+from live_server import LiveServer, data_dir_with_spaces
 
 
 def test_cors_allows_only_configured_origins(built_spaces, tmp_path):

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from conftest import LiveServer
+from live_server import LiveServer
 
 TOKEN = "test-token-jobs"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

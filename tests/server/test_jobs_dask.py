@@ -8,7 +8,7 @@ import time
 
 import httpx
 import pytest
-from conftest import LiveServer
+from live_server import LiveServer
 from test_jobs import AUTH, FINAL, TOKEN, build_request, capture_zip, wait_for
 
 distributed = pytest.importorskip("distributed")

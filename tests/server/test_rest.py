@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conftest import free_port
+from live_server import free_port
 
 from server.app import create_app
 from server.settings import Settings

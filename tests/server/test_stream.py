@@ -427,7 +427,7 @@ def test_a_space_written_while_serving_appears_without_restart(server, built_spa
 
 
 def test_connections_over_the_limit_are_told_so_and_others_keep_streaming(built_spaces, tmp_path):
-    from conftest import LiveServer, data_dir_with_spaces
+    from live_server import LiveServer, data_dir_with_spaces
 
     data = data_dir_with_spaces(tmp_path / "data", built_spaces, names=("speed",))
 

@@ -21,7 +21,7 @@ import httpx
 import msgpack
 import pytest
 
-from conftest import LiveServer, data_dir_with_spaces
+from live_server import LiveServer, data_dir_with_spaces
 
 HELD_LIMIT = 256 * 1024          # bytes the server may hold for one connection (the issue's target)
 VERTICES = 1000                  # the test spaces' vertex count

@@ -14,7 +14,7 @@ import zipfile
 
 import httpx
 import pytest
-from conftest import LiveServer
+from live_server import LiveServer
 
 TOKEN = "test-token-uploads"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}

@@ -14,7 +14,7 @@ import time
 
 import httpx
 import pytest
-from conftest import LiveServer, data_dir_with_spaces
+from live_server import LiveServer, data_dir_with_spaces
 from test_jobs import AUTH, TOKEN, build_request, capture_zip, pid_alive, wait_dead, wait_for
 from test_stream import run
 
