@@ -1,8 +1,8 @@
 """Browser tests: the page in Debian's headless Chromium, driven by Playwright, against a real server.
 
 The server fixtures (small real motion spaces built once per run, a ``morphspace serve``
-subprocess) come from tests/server/conftest.py, loaded by path so the two conftest modules do not
-shadow each other. Screenshots go to tests/browser/artifacts/ (kept after the run, gitignored).
+subprocess) come from tests/server/conftest.py (and the live_server module it imports), loaded by path so
+the two conftest modules do not shadow each other. Screenshots go to tests/browser/artifacts/ (kept after the run, gitignored).
 """
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from __future__ import annotations
 import importlib.util
 import io
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -21,10 +22,19 @@ ARTIFACTS = Path(__file__).resolve().parent / "artifacts"
 VENDOR = Path(__file__).resolve().parents[2] / "web_client" / "static" / "vendor"
 VIEWPORT = {"width": 1000, "height": 640}
 
-_spec = importlib.util.spec_from_file_location(
-    "morphspace_server_fixtures", Path(__file__).resolve().parents[1] / "server" / "conftest.py")
-server_fixtures = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(server_fixtures)
+
+
+def _load(name, path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault(name, module)
+    spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+_SERVER_TESTS = Path(__file__).resolve().parents[1] / "server"
+_load("live_server", _SERVER_TESTS / "live_server.py")  # what tests/server/conftest.py imports
+server_fixtures = _load("morphspace_server_fixtures", _SERVER_TESTS / "conftest.py")
 LiveServer = server_fixtures.LiveServer
 data_dir_with_spaces = server_fixtures.data_dir_with_spaces
 built_spaces = server_fixtures.built_spaces  # the session fixture, shared through its lock file
