@@ -68,6 +68,21 @@ TINY = {"clients": 4, "fps": 30.0, "seconds": 4.0, "warmup": 1.5, "client_procs"
         "compare_workers": [1, 2], "levels": [4], "heatmap_clients": 1}
 
 
+def served_space(data, space, tiny):
+    """Put the space to serve into ``data/spaces``: with ``tiny`` and no ``space``, a 1,000-vertex
+    speed space built there; otherwise a link to ``space`` (default data/spaces/locomotion.mspace)."""
+    if space is None and tiny:
+        from _tiny import build_tiny_speed_space
+
+        path = data / "spaces" / "speed.mspace"
+        build_tiny_speed_space(path)
+        return path
+    source = Path(space or ROOT / "data" / "spaces" / "locomotion.mspace").resolve()
+    path = data / "spaces" / source.name
+    path.symlink_to(source)
+    return path
+
+
 def free_port():
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -284,14 +299,7 @@ def main(argv=None):
     data = Path(tempfile.mkdtemp(prefix="morphspace-bench-"))
     try:
         (data / "spaces").mkdir()
-        if args.space is None and args.tiny:
-            from _tiny import build_tiny_speed_space
-
-            space_path = data / "spaces" / "speed.mspace"
-            build_tiny_speed_space(space_path)
-        else:
-            space_path = data / "spaces" / (args.space or ROOT / "data" / "spaces" / "locomotion.mspace").name
-            space_path.symlink_to((args.space or ROOT / "data" / "spaces" / "locomotion.mspace").resolve())
+        space_path = served_space(data, args.space, args.tiny)
         if args.compare_workers and not args.tiny:
             result = {"workers_comparison": measure_workers(args, data, space_path)}
         else:

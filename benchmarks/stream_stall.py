@@ -28,12 +28,10 @@ variant; it needs ``--out``. The server binds 127.0.0.1 and is stopped at the en
 from __future__ import annotations
 
 import argparse
-import base64
 import concurrent.futures
 import json
 import os
 import shutil
-import socket
 import statistics
 import struct
 import subprocess
@@ -45,8 +43,9 @@ from pathlib import Path
 
 import msgpack
 
+from _raw_websocket import RawWebSocket
 from _tiny import parse_arguments
-from stream_load import free_port, stop_process_group
+from stream_load import free_port, served_space, stop_process_group
 
 ROOT = Path(__file__).resolve().parents[1]
 TINY = {"stalls": [0.5, 1.0], "per_variant": 1}
@@ -54,69 +53,17 @@ VARIANTS = [("f32", 0), ("q16", 0), ("f32", 2), ("q16", 2)]  # codec, window
 HELD_TARGET = 256 * 1024
 
 
-class StallingClient:
-    """A blocking WebSocket client (RFC 6455) on a socket with a 4 KiB receive buffer."""
-
-    def __init__(self, port, space, codec, window, fps):
-        self.window = window
-        self.sock = socket.socket()
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
-        self.sock.settimeout(10.0)
-        self.sock.connect(("127.0.0.1", port))
-        key = base64.b64encode(os.urandom(16)).decode()
-        self.sock.sendall((f"GET /v1/stream HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
-                           f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n")
-                          .encode())
-        self.buffer = b""
-        while b"\r\n\r\n" not in self.buffer:
-            self._fill()
-        head, self.buffer = self.buffer.split(b"\r\n\r\n", 1)
-        if not head.startswith(b"HTTP/1.1 101"):
-            raise ConnectionError(head[:200].decode(errors="replace"))
-        self.send(msgpack.packb({"type": "hello", "space": space, "rate": fps, "codec": codec, "window": window}))
-
-    def _fill(self):
-        chunk = self.sock.recv(65536)
-        if not chunk:
-            raise EOFError("the server closed the connection")
-        self.buffer += chunk
-
-    def send(self, payload, opcode=0x2):
-        mask = os.urandom(4)
-        n = len(payload)
-        head = bytes([0x80 | opcode]) + (bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + n.to_bytes(2, "big"))
-        self.sock.sendall(head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload)))
-
-    def receive(self):
-        """(opcode, payload) of the next data or close frame; pings are answered on the way."""
-        while True:
-            while len(self.buffer) < 2:
-                self._fill()
-            opcode, length, header = self.buffer[0] & 0x0F, self.buffer[1] & 0x7F, 2
-            if length >= 126:
-                header = 4 if length == 126 else 10
-                while len(self.buffer) < header:
-                    self._fill()
-                length = int.from_bytes(self.buffer[2:header], "big")
-            while len(self.buffer) < header + length:
-                self._fill()
-            payload, self.buffer = self.buffer[header:header + length], self.buffer[header + length:]
-            if opcode == 0x9:
-                self.send(payload, opcode=0xA)
-                continue
-            return opcode, payload
-
-
 def stall_once(port, space, codec, window, fps, stall, read_for, read_before):
     """Connect, read for ``read_before`` seconds, read nothing for ``stall`` seconds, then read
     for ``read_for`` seconds."""
-    client = StallingClient(port, space, codec, window, fps)
+    client = RawWebSocket(port, {"type": "hello", "space": space, "rate": fps, "codec": codec,
+                                 "window": window})
     try:
         started = time.monotonic()
         while time.monotonic() - started < read_before:
             client.sock.settimeout(max(0.01, read_before - (time.monotonic() - started)))
             try:
-                opcode, payload = client.receive()
+                opcode, payload = client.receive_frame()
             except TimeoutError:
                 break
             finally:
@@ -128,7 +75,7 @@ def stall_once(port, space, codec, window, fps, stall, read_for, read_before):
         record = {"codec": codec, "window": window, "stall_s": stall, "stale_frames": 0, "stale_bytes": 0,
                   "first_fresh_ms": None, "frames_after": 0, "closed": None}
         while time.monotonic() - resumed < read_for:
-            opcode, payload = client.receive()
+            opcode, payload = client.receive_frame()
             if opcode == 0x8:
                 record["closed"] = struct.unpack("!H", payload[:2])[0] if len(payload) >= 2 else None
                 break
@@ -185,15 +132,7 @@ def main(argv=None):
     data = Path(tempfile.mkdtemp(prefix="morphspace-stall-"))
     try:
         (data / "spaces").mkdir()
-        if args.space is None and args.tiny:
-            from _tiny import build_tiny_speed_space
-            space_path = data / "spaces" / "speed.mspace"
-            build_tiny_speed_space(space_path)
-        else:
-            source = (args.space or ROOT / "data" / "spaces" / "locomotion.mspace").resolve()
-            space_path = data / "spaces" / source.name
-            space_path.symlink_to(source)
-        result = serve_and_stall(args, data, space_path)
+        result = serve_and_stall(args, data, served_space(data, args.space, args.tiny))
     finally:
         shutil.rmtree(data, ignore_errors=True)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -22,6 +22,7 @@ The pieces: :mod:`engine.align.matching` (correspondences), :mod:`engine.align.p
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
@@ -133,7 +134,8 @@ class PairAlignment:
                                 or shoulder where a limb slid onto another's place)
     seconds : float
     colour_distance : float     median RGB distance between the root's vertex colours and the
-                                target's where they landed (NaN when either has no colours)
+                                target's where they landed (NaN when either has no colours, or
+                                when only one orientation was aligned and nothing was compared)
     orientations : int          rigid starts aligned from (2 when front and back were ambiguous)
     """
 
@@ -246,7 +248,10 @@ class PairwiseAligner:
         started = time.perf_counter()
         starts = self._rigid_starts(np.asarray(X_source, dtype=np.float64), target, yaw)
         results = [self._fit(X, target) for X in starts]
-        best = min(results, key=lambda r: self._orientation_score(r, target))
+        if len(results) > 1:
+            for result in results:
+                result.colour_distance = self._colour_distance(result.V, target)
+        best = min(results, key=self._orientation_score)
         best.seconds = time.perf_counter() - started
         best.orientations = len(starts)
         return best
@@ -280,7 +285,7 @@ class PairwiseAligner:
         per_tet = np.sum((F - R) ** 2, axis=(1, 2))
         distortion = float(self._tet_volume @ per_tet / self._tet_volume.sum())
         return PairAlignment(V=V, X=X, residual=residual, residual_max=residual_max, distortion=distortion,
-                             distortion_tail=self._tail(per_tet), colour_distance=self._colour_distance(V, target))
+                             distortion_tail=self._tail(per_tet))
 
     def _colour_distance(self, V, target):
         """Median RGB distance between the root's colours and the target's where V lands (NaN without colours)."""
@@ -290,7 +295,7 @@ class PairwiseAligner:
         there = target.colors[target.F[face]].mean(axis=1)
         return float(np.median(np.linalg.norm(there - self.colors, axis=1)))
 
-    def _orientation_score(self, result, target):
+    def _orientation_score(self, result):
         """Which of the results from different orientations to keep (lower is better).
 
         The appearance decides when both meshes carry colours (a body turned front to back
@@ -455,11 +460,17 @@ class PairwiseAligner:
         return X, R
 
 
+@functools.lru_cache(maxsize=16)
 def _subset(n, limit, seed):
-    """Sorted indices of a fixed random subset of ``limit`` of ``n`` items, or None for all of them."""
+    """Sorted indices of a fixed random subset of ``limit`` of ``n`` items, or None for all of them.
+
+    Cached: every patch round of every alignment asks for the same subsets (read-only).
+    """
     if limit is None or limit <= 0 or n <= limit:
         return None
-    return np.sort(np.random.default_rng(seed).choice(n, size=int(limit), replace=False))
+    subset = np.sort(np.random.default_rng(seed).choice(n, size=int(limit), replace=False))
+    subset.flags.writeable = False
+    return subset
 
 
 __all__ = ["AlignmentOptions", "PairAlignment", "PairwiseAligner"]

@@ -89,7 +89,8 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         target = TargetSurface(V, F, C)
         best, best_source = None, None
         best_badness = alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size)
-        sources = sources[:max(0, int(min(limit - spent, len(sources))))] if np.isfinite(limit) else sources
+        if spent + len(sources) > limit:
+            sources = sources[:max(0, int(limit) - spent)]
         for source in sources:
             spent += 1
             hint = None if yaw is None else float(yaw[frame, source])

@@ -10,12 +10,11 @@ real server.
 
 from __future__ import annotations
 
-import base64
 import concurrent.futures
-import os
-import socket
 import struct
+import sys
 import time
+from pathlib import Path
 
 import httpx
 import msgpack
@@ -23,66 +22,32 @@ import pytest
 
 from live_server import LiveServer, data_dir_with_spaces
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "benchmarks"))
+from _raw_websocket import RawWebSocket  # noqa: E402 (the benchmark's client, one implementation)
+
 HELD_LIMIT = 256 * 1024          # bytes the server may hold for one connection (the issue's target)
 VERTICES = 1000                  # the test spaces' vertex count
 FRAME_BYTES = {"f32": 12 * VERTICES, "q16": 6 * VERTICES}
 VARIANTS = [("f32", 0), ("q16", 0), ("f32", 2), ("q16", 2)]  # codec, window
 
 
-class RawClient:
-    """A blocking WebSocket client (RFC 6455) on a socket with a tiny receive buffer."""
+class RawClient(RawWebSocket):
+    """The stalling client of benchmarks/_raw_websocket.py, speaking dicts."""
 
     def __init__(self, port, *, codec="f32", window=0, rate=60.0, receive_buffer=4096):
         self.window = window
-        self.sock = socket.socket()
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, receive_buffer)
-        self.sock.settimeout(10.0)
-        self.sock.connect(("127.0.0.1", port))
-        key = base64.b64encode(os.urandom(16)).decode()
-        self.sock.sendall((f"GET /v1/stream HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
-                           f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n\r\n")
-                          .encode())
-        self.buffer = b""
-        while b"\r\n\r\n" not in self.buffer:
-            self._fill()
-        head, self.buffer = self.buffer.split(b"\r\n\r\n", 1)
-        assert head.startswith(b"HTTP/1.1 101"), head[:200]
-        self.send({"type": "hello", "space": "speed", "rate": rate, "codec": codec, "window": window})
-
-    def _fill(self):
-        chunk = self.sock.recv(65536)
-        if not chunk:
-            raise EOFError("the server closed the TCP connection without a close frame")
-        self.buffer += chunk
-
-    def send(self, message, opcode=0x2):
-        payload = message if isinstance(message, bytes) else msgpack.packb(message)
-        mask = os.urandom(4)
-        n = len(payload)
-        head = bytes([0x80 | opcode]) + (bytes([0x80 | n]) if n < 126 else bytes([0x80 | 126]) + n.to_bytes(2, "big"))
-        self.sock.sendall(head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(payload)))
+        super().__init__(port, {"type": "hello", "space": "speed", "rate": rate, "codec": codec, "window": window},
+                         receive_buffer=receive_buffer)
 
     def receive(self):
         """The next data message as a dict, answering pings on the way; ("close", code, reason)
         on a close frame."""
         while True:
-            while len(self.buffer) < 2:
-                self._fill()
-            opcode, length, header = self.buffer[0] & 0x0F, self.buffer[1] & 0x7F, 2
-            if length >= 126:
-                header = 4 if length == 126 else 10
-                while len(self.buffer) < header:
-                    self._fill()
-                length = int.from_bytes(self.buffer[2:header], "big")
-            while len(self.buffer) < header + length:
-                self._fill()
-            payload, self.buffer = self.buffer[header:header + length], self.buffer[header + length:]
-            if opcode == 0x9:
-                self.send(payload, opcode=0xA)
-            elif opcode == 0x8:
+            opcode, payload = self.receive_frame()
+            if opcode == 0x8:
                 code = struct.unpack("!H", payload[:2])[0] if len(payload) >= 2 else None
                 return ("close", code, payload[2:].decode())
-            elif opcode == 0x2:
+            if opcode == 0x2:
                 return msgpack.unpackb(payload)
 
     def frames(self, seconds):
@@ -100,8 +65,6 @@ class RawClient:
                     self.send({"type": "ack", "frame": message["seq"]})
         return out, None
 
-    def close(self):
-        self.sock.close()
 
 
 def stall_and_resume(port, codec, window, stall):
