@@ -136,7 +136,11 @@ class Page:
         """(h, w, 3) uint8 RGB of the 3D view (a screenshot of the canvas; saved under artifacts/)."""
         from PIL import Image
 
-        png = self.page.locator("#view").screenshot(timeout=10000)
+        for _ in range(3):  # a WebGL canvas caught between drawing-buffer swaps screenshots blank
+            png = self.page.locator("#view").screenshot(timeout=10000)
+            if np.ptp(np.asarray(Image.open(io.BytesIO(png)).convert("L"))) > 0:
+                break
+            self.wait_frames(2)
         if name:
             ARTIFACTS.mkdir(exist_ok=True)
             (ARTIFACTS / f"{name}.png").write_bytes(png)
