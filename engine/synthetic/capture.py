@@ -13,7 +13,7 @@ import numpy as np
 
 from engine import measures
 from engine.rotations import rot_y
-from engine.synthetic import motions
+from engine.synthetic import motions, transitions
 from engine.synthetic.dynamics import GARMENT, SOFT_TISSUE, secondary_motion
 from engine.synthetic.remesh import remesh_frame
 from engine.synthetic.skinning import skin_dual_quaternion
@@ -69,6 +69,11 @@ class SequenceSpec:
     kind "gait": params speed (m/s), turn_rate (deg/s), cycles
     kind "jump": params height (m, centre-of-mass rise), distance (m)
     kind "reach": params height (m, palm centre), side ("l"/"r")
+    kind "stand": params period (s), breath (m), sway (m), cycles: a standing idle
+    kind "gait_stop" / "gait_start": params speed (m/s), walk, ramp, hold (s): a walk that stops
+        to the standing pose / sets off from it
+    kind "performance": params speed (m/s), height, distance (m), walk (s): the true continuous
+        walk, stop, jump, start, walk a motion graph imitates
     """
 
     name: str
@@ -88,6 +93,27 @@ def _secant(f, target, x0, x1, lo, hi, tol=2e-4, iterations=8):
         x = float(np.clip(x - y / (slope if abs(slope) > 1e-6 else 1.0), lo, hi))
         y = f(x) - target
     return x
+
+
+def _jump_rise(body, height, distance, fps):
+    """The flight rise whose jump's centre of mass rises ``height`` metres (measured on meshes)."""
+
+    def measured_height(rise):
+        V = animate(body, motions.jump(body.skeleton, rise, distance, fps=fps, palm_offset=PALM_OFFSET))
+        return measures.jump_height(measures.centre_of_mass(V, body.F))
+
+    return _secant(measured_height, height, height, 0.9 * height, 0.02, 0.9)
+
+
+def _travel(V, F, motion, fps):
+    """What a walk that stops or starts measures: its centre of mass's horizontal travel (m) and
+    its speed over the first (stop) or last (start) second."""
+    com = measures.centre_of_mass(V, F)
+    travel = float(np.linalg.norm(com[-1, [0, 2]] - com[0, [0, 2]]))
+    span = max(2, min(len(com) - 1, int(round(fps))))
+    piece = com[:span + 1] if motion.kind != "gait_start" else com[-span - 1:]
+    speed = float(np.linalg.norm(piece[-1, [0, 2]] - piece[0, [0, 2]]) * fps / span)
+    return {"travel": travel, "speed": speed}
 
 
 def make_sequence(body, spec, *, fps=30.0, seed=0):
@@ -126,20 +152,32 @@ def make_sequence(body, spec, *, fps=30.0, seed=0):
         measured = {"speed": speed, "turn_rate": turn}
     elif spec.kind == "jump":
         height, distance = p["height"], p["distance"]
-
-        def run(rise):
-            m = motions.jump(sk, rise, distance, fps=fps, name=spec.name, palm_offset=PALM_OFFSET)
-            return m, animate(body, m)
-
-        def measured_height(rise):
-            _, V = run(rise)
-            return measures.jump_height(measures.centre_of_mass(V, body.F))
-
-        rise = _secant(measured_height, height, height, 0.9 * height, 0.02, 0.9)
-        motion, V = run(rise)
+        rise = _jump_rise(body, height, distance, fps)
+        motion = motions.jump(sk, rise, distance, fps=fps, name=spec.name, palm_offset=PALM_OFFSET)
+        V = animate(body, motion)
         com = measures.centre_of_mass(V, body.F)
         measured = {"height": measures.jump_height(com), "distance": measures.jump_distance(com)}
         motion.params.update({"height": height})
+    elif spec.kind == "stand":
+        motion = transitions.stand(sk, period=p.get("period", 2.0), breath=p.get("breath", 0.008),
+                                   sway=p.get("sway", 0.0), cycles=p.get("cycles", 1.0), fps=fps, name=spec.name,
+                                   palm_offset=PALM_OFFSET)
+        V = animate(body, motion)
+        com = measures.centre_of_mass(V, body.F)
+        measured = {"com_bob": float(np.ptp(com[:, 1])), "com_sway": float(np.ptp(com[:, 0]))}
+    elif spec.kind in ("gait_stop", "gait_start"):
+        motion = transitions.walk_transition(sk, p["speed"], spec.kind[5:], walk=p.get("walk", 1.0),
+                                             ramp=p.get("ramp", 1.2), hold=p.get("hold", 0.4), fps=fps,
+                                             name=spec.name, palm_offset=PALM_OFFSET)
+        V = animate(body, motion)
+        measured = _travel(V, body.F, motion, fps)
+    elif spec.kind == "performance":
+        rise = _jump_rise(body, p["height"], p["distance"], fps)
+        motion = transitions.performance(sk, p["speed"], rise, p["distance"], walk=p.get("walk", 1.0), fps=fps,
+                                         name=spec.name, palm_offset=PALM_OFFSET)
+        V = animate(body, motion)
+        measured = _travel(V, body.F, motion, fps)
+        motion.params.update({"height": p["height"]})
     elif spec.kind == "reach":
         side = p.get("side", "r")
         hand = body.hand_vertices(side)
@@ -155,7 +193,8 @@ def make_sequence(body, spec, *, fps=30.0, seed=0):
         measured = {"height": measures.reach_height(V, hand)}
         motion.params.update({"height": p["height"]})
     else:
-        raise ValueError(f"unknown sequence kind {spec.kind!r}; expected gait, jump or reach")
+        raise ValueError(f"unknown sequence kind {spec.kind!r}; expected gait, jump, reach, stand, "
+                         "gait_stop, gait_start or performance")
     return motion, V, measured
 
 
