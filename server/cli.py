@@ -11,7 +11,7 @@ import sys
 
 from server.commands import bench, blend, build, eval_params, play, synth
 from server.commands import eval as eval_command
-from server.commands import align, eval_align, serve
+from server.commands import align, eval_align, export, serve
 
 COMMANDS = {
     "synth": synth,
@@ -24,6 +24,7 @@ COMMANDS = {
     "align": align,
     "eval-align": eval_align,
     "serve": serve,
+    "export": export,
 }
 
 

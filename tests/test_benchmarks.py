@@ -124,8 +124,22 @@ def check_open_blends(result, stdout):
     assert "non-linear: |capped volume change| median" in stdout
 
 
+def check_export(record, stdout):
+    assert record["vertices"] == 1000 and record["frames"] == 61 and record["fps"] == 30
+    assert positive(record["play_s"]) and non_negative(record["load_average"])
+    formats = record["formats"]
+    assert set(formats) == {"glb int16", "glb float32", "usd", "ply sequence"}
+    for row in formats.values():
+        assert positive(row["write_s"]) and row["total_s"] >= row["write_s"] and row["bytes"] > 0
+    assert formats["glb int16"]["bytes"] < formats["glb float32"]["bytes"]  # 8 instead of 12 bytes a vertex
+    assert 0 < formats["glb int16"]["max_error_mm"] < 0.05 and formats["glb float32"]["max_error_mm"] == 0
+    assert set(record["met"]) == {"glb_seconds", "glb_megabytes", "usd_seconds"}
+    assert "glb int16" in stdout and "targets: glTF <= 5 s" in stdout
+
+
 CHECKS = {
     "blend_scaling.py": check_blend_scaling,
+    "export.py": check_export,
     "open_blends.py": check_open_blends,
     "similarity_scaling.py": check_similarity_scaling,
     "speed_ground_truth.py": check_speed_ground_truth,

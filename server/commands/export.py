@@ -1,0 +1,136 @@
+"""Export a clip of a motion space: binary glTF, USD, or an OBJ / PLY sequence (docs/exports.md).
+
+The clip is played by the real-time player (the frames a stream at that rate shows): start at
+--set parameters, request others --at later times (or from a --track JSON file), for --seconds
+at --fps. Examples:
+
+    morphspace export data/spaces/locomotion.mspace --out walk.glb --set speed=1.3 \\
+        --at 3 speed=2.5 --at 6 turn_rate=30 --seconds 10 --fps 60
+    morphspace export data/spaces/jumps.mspace --out jump.usd --set jump_height=0.45 --seconds 2
+    morphspace export data/spaces/locomotion.mspace --out frames/ --format ply --track track.json
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+from engine.export import Clip, check_clip, parse_track, play_clip, write_export
+from engine.export.gltf import INTERPOLATIONS, PRECISIONS
+from engine.motion_space import MotionSpace
+from server.commands.play import _assignments
+
+SUFFIXES = {".glb": "glb", ".usd": "usd", ".usdc": "usd", ".usda": "usd"}
+
+
+def add_arguments(parser):
+    parser.add_argument("space", type=Path, help="a .mspace file with parameters")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="file (.glb, .usd/.usdc/.usda, .zip) or directory (obj/ply sequence)")
+    parser.add_argument("--format", choices=("glb", "usd", "obj", "ply"),
+                        help="default: from --out's suffix (.glb, .usd*); obj/ply need --format")
+    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="parameters at t = 0")
+    parser.add_argument("--at", nargs="+", action="append", default=[], metavar="T NAME=VALUE",
+                        help="at time T (s) request parameters (repeat for a script)")
+    parser.add_argument("--track", type=Path, help='JSON {"params": {...}, "track": [{"time": T, "params": {...}}]}')
+    parser.add_argument("--seconds", type=float, default=10.0, help="clip length (default 10 s)")
+    parser.add_argument("--fps", type=float, default=60.0, help="frames per second (default 60)")
+    parser.add_argument("--mode", choices=("linear", "hybrid", "nonlinear"), default="hybrid")
+    parser.add_argument("--smoothing", type=float, default=0.25, help="parameter time constant, s (default 0.25)")
+    parser.add_argument("--precision", choices=PRECISIONS, default="int16",
+                        help="glTF vertex storage (default int16, KHR_mesh_quantization; float32: exact)")
+    parser.add_argument("--interpolation", choices=INTERPOLATIONS, default="LINEAR",
+                        help="glTF weights sampling between frames (default LINEAR)")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out file")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def output_format(out, chosen):
+    """The export format for ``--out`` and ``--format``; errors say what to give."""
+    inferred = SUFFIXES.get(out.suffix.lower())
+    if chosen is None:
+        if inferred is None:
+            raise ValueError(f"--out {out}: cannot tell the format from the name; give --format glb, usd, obj or ply")
+        return inferred
+    if chosen in ("glb", "usd") and inferred != chosen:
+        wanted = ".glb" if chosen == "glb" else ".usd, .usdc or .usda"
+        raise ValueError(f"--out {out}: a {chosen} export must be a file ending in {wanted}")
+    if chosen in ("obj", "ply") and inferred is not None:
+        raise ValueError(f"--out {out}: an {chosen} sequence is a directory or a .zip file")
+    return chosen
+
+
+def clip_from_arguments(args, names):
+    params, track = {}, []
+    if args.track:
+        try:
+            document = json.loads(args.track.read_text())
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"--track {args.track}: not JSON ({exc})") from None
+        params, track = parse_track(document, str(args.track))
+    params.update(_assignments(args.set, names))
+    for entry in args.at:
+        try:
+            when = float(entry[0])
+        except ValueError:
+            raise ValueError(f"--at needs a time first, got {entry[0]!r}") from None
+        track.append((when, _assignments(entry[1:], names)))
+    return Clip(params=params, track=tuple(track), duration=args.seconds, rate=args.fps, mode=args.mode,
+                smoothing=args.smoothing)
+
+
+class _Bar:
+    """One tqdm bar per stage on stderr (none with --quiet)."""
+
+    def __init__(self, quiet):
+        self.quiet, self.bar = quiet, None
+
+    def stage(self, name, total):
+        from tqdm import tqdm
+
+        self.close()
+        if not self.quiet:
+            self.bar = tqdm(total=total, desc=name, unit="frame", file=sys.stderr, leave=True)
+        return self.update
+
+    def update(self, done, total):
+        if self.bar is not None:
+            self.bar.update(done - self.bar.n)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
+def run(args):
+    fmt = output_format(args.out, args.format)
+    if args.out.exists() and not args.force:
+        raise ValueError(f"--out {args.out} exists; pass --force to replace it")
+    space = MotionSpace.open(args.space)
+    if space.parameter_map is None:
+        raise ValueError(f"{args.space}: the space has no parameter map (build it from a spec with parameters)")
+    clip = clip_from_arguments(args, list(space.parameter_map.names))
+    check_clip(space, clip)
+    bar = _Bar(args.quiet)
+    started = time.perf_counter()
+    try:
+        frames = play_clip(space, clip, progress=bar.stage("play", clip.n_frames))
+        played = time.perf_counter()
+        stats = write_export(args.out, frames, fmt, progress=bar.stage("write", clip.n_frames),
+                             precision=args.precision, interpolation=args.interpolation)
+    finally:
+        bar.close()
+    done = time.perf_counter()
+    print(f"{space.name}: {len(frames)} frames ({clip.duration:g} s at {clip.rate:g} frames/s, {clip.mode}) -> "
+          f"{args.out} ({fmt}, {stats['bytes'] / 1e6:.2f} MB); played in {played - started:.2f} s, written in "
+          f"{done - played:.2f} s")
+    if fmt == "glb":
+        print(f"  {stats['targets']} morph targets ({stats['dense_targets']} dense, {stats['sparse_targets']} "
+              f"sparse, {stats['empty_targets']} empty), {args.precision}, largest error "
+              f"{1000 * stats['max_error_m']:.3f} mm")
+    for note in frames.notes:
+        print(f"  note: {note}")
+    return 0

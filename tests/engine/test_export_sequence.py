@@ -1,0 +1,52 @@
+"""OBJ and PLY sequence exports: read back with the project's readers, the player's world frames."""
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from engine.export import Clip, play_clip, write_export
+from engine.export.sequence import write_mesh_sequence
+from engine.mesh_io import read_sequence
+
+
+@pytest.fixture(scope="module")
+def walk(export_spaces):
+    return play_clip(export_spaces["speed"], Clip(params={"speed": 1.5}, duration=1.0, rate=12))
+
+
+def world(frames):
+    return np.stack([frames.world(k) for k in range(len(frames))]).astype(np.float64)
+
+
+@pytest.mark.parametrize("fmt, tolerance", [("obj", 5e-7 + 1e-9), ("ply", 0.0)])
+def test_sequences_read_back_as_the_players_frames(walk, tmp_path, fmt, tolerance):
+    stats = write_export(tmp_path / "seq", walk, fmt)
+    assert stats["frames"] == 13 and stats["bytes"] > 0
+    sequence = read_sequence(tmp_path / "seq")
+    assert sequence.vertices.shape == (13, walk.local.shape[1], 3)
+    assert np.array_equal(sequence.faces, walk.faces)
+    assert np.abs(sequence.vertices - world(walk)).max() <= tolerance  # OBJ: 6 decimals; PLY: float32
+    record = json.loads((tmp_path / "seq" / "clip.json").read_text())
+    assert record["frames"] == 13 and record["rate"] == 12 and record["coordinates"] == "world"
+    assert np.allclose(record["root_position"], walk.root_position) and record["times"][-1] == pytest.approx(1.0)
+
+
+def test_a_zip_holds_the_same_files(walk, tmp_path):
+    write_export(tmp_path / "seq.zip", walk, "ply")
+    write_export(tmp_path / "seq", walk, "ply")
+    with zipfile.ZipFile(tmp_path / "seq.zip") as archive:
+        names = sorted(archive.namelist())
+        assert names == sorted(p.name for p in (tmp_path / "seq").iterdir())
+        assert archive.read("frame_0003.ply") == (tmp_path / "seq" / "frame_0003.ply").read_bytes()
+    assert np.array_equal(read_sequence(tmp_path / "seq.zip").vertices, read_sequence(tmp_path / "seq").vertices)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["seq", "seq.zip"]  # no scratch left behind
+
+
+def test_a_directory_with_other_meshes_is_refused(walk, tmp_path):
+    (tmp_path / "other.obj").write_text("v 0 0 0\n")
+    with pytest.raises(ValueError, match="already holds 1 other mesh files"):
+        write_mesh_sequence(tmp_path, walk, "obj")
+    with pytest.raises(ValueError, match="sequence format must be one of obj, ply"):
+        write_mesh_sequence(tmp_path / "x", walk, "off")

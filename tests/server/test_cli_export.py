@@ -1,0 +1,61 @@
+"""`morphspace export`: a real subprocess writes each format from a built space; bad input is a
+one-line error with exit status 2; nothing is written outside --out."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from engine.mesh_io import read_sequence
+
+
+def export(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "server.cli", "export", *map(str, args)], cwd=cwd,
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_export_writes_glb_usd_and_sequences(built_spaces, tmp_path):
+    cwd = tmp_path / "cwd"
+    cwd.mkdir()
+    space = built_spaces / "speed.mspace"
+    track = tmp_path / "track.json"
+    track.write_text(json.dumps({"params": {"speed": 1.0}, "track": [{"time": 1.0, "params": {"speed": 2.4}}]}))
+    run = export(space, "--out", tmp_path / "clip.glb", "--track", track, "--seconds", 2, "--fps", 30, cwd=cwd)
+    assert run.returncode == 0, run.stderr
+    assert "61 frames (2 s at 30 frames/s, hybrid)" in run.stdout and "61 morph targets" in run.stdout
+    assert "play: 100%" in run.stderr and "write: 100%" in run.stderr  # the progress bars
+    assert (tmp_path / "clip.glb").read_bytes()[:4] == b"glTF"
+    run = export(space, "--out", tmp_path / "clip.usda", "--set", "speed=1.5", "--seconds", 1, "--quiet", cwd=cwd)
+    assert run.returncode == 0 and run.stderr == "" and b"timeCodesPerSecond = 60" in (tmp_path / "clip.usda").read_bytes()
+    run = export(space, "--out", tmp_path / "frames", "--format", "ply", "--set", "speed=1.5", "--at", "0.5",
+                 "speed=2", "--seconds", 1, "--fps", 10, cwd=cwd)
+    assert run.returncode == 0, run.stderr
+    assert read_sequence(tmp_path / "frames").vertices.shape[0] == 11
+    assert list(cwd.iterdir()) == []
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--out", "x.glb", "--set", "speed=7"], "params: speed = 7 m/s is out of range; speed spans"),
+    (["--out", "x.glb", "--set", "pace=1"], "unknown parameter 'pace'; this space has speed"),
+    (["--out", "x.glb", "--at", "12", "speed=1"], "track: time 12.0 is outside the clip [0, 10] s"),
+    (["--out", "x.zip"], "cannot tell the format from the name; give --format"),
+    (["--out", "x.glb", "--format", "usd"], "a usd export must be a file ending in .usd, .usdc or .usda"),
+    (["--out", "x.glb", "--seconds", "-1"], "duration must be a positive number of seconds"),
+])
+def test_bad_input_is_a_one_line_error(built_spaces, tmp_path, args, message):
+    run = export(built_spaces / "speed.mspace", *args, cwd=tmp_path)
+    assert run.returncode == 2 and message in run.stderr, run.stderr
+    assert run.stderr.count("\n") == 1 and run.stderr.startswith("morphspace export: error:")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_existing_output_needs_force(built_spaces, tmp_path):
+    (tmp_path / "clip.glb").write_bytes(b"old")
+    run = export(built_spaces / "speed.mspace", "--out", tmp_path / "clip.glb", "--seconds", 1, cwd=tmp_path)
+    assert run.returncode == 2 and "exists; pass --force" in run.stderr
+    run = export(built_spaces / "speed.mspace", "--out", tmp_path / "clip.glb", "--seconds", 1, "--force",
+                 cwd=tmp_path)
+    assert run.returncode == 0 and (tmp_path / "clip.glb").read_bytes()[:4] == b"glTF"
+    assert np.frombuffer((tmp_path / "clip.glb").read_bytes()[8:12], "<u4")[0] == (tmp_path / "clip.glb").stat().st_size
