@@ -21,7 +21,7 @@ from fastapi.responses import RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
 from server import __version__
-from server.api import datasets, jobs, spaces
+from server.api import datasets, exports, jobs, spaces
 from server.jobs import JobService
 from server.registry import SpaceRegistry
 from server.scheduler import FrameScheduler
@@ -88,6 +88,7 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
     app.include_router(spaces.router, prefix="/v1")
     app.include_router(datasets.router, prefix="/v1")
     app.include_router(jobs.router, prefix="/v1")
+    app.include_router(exports.router, prefix="/v1")
 
     @app.get("/v1/health", tags=["server"], summary="Liveness and counters of every worker process")
     def health():

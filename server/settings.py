@@ -38,6 +38,8 @@ class Settings(BaseSettings):
     stream_burst: int = Field(240, ge=1, description="client messages allowed in a burst")
     stream_max_fps: float = Field(120.0, gt=0, description="highest frame rate a client may ask for")
     stream_max_clients: int = Field(1000, ge=1, description="concurrent streaming connections")
+    export_sync_max_vertex_frames: int = Field(1_000_000, ge=1, description="longest synchronous export (frames x "
+                                               "vertices); longer clips are export jobs")
     stream_stall_timeout: float = Field(60.0, gt=0, le=3600, description="seconds a connection may take no due "
                                         "frame (reads nothing) before it is closed with code 1008")
 

@@ -144,12 +144,14 @@ def check_clip(space, clip):
                                 f"{lo:.4g} to {hi:.4g} {unit}")
 
 
-def play_clip(space, clip, progress=None):
+def play_clip(space, clip, progress=None, blender=None):
     """Play ``clip`` on ``space`` with the real-time player; returns ClipFrames.
 
     Frame k is the player's state after k steps of 1 / rate (frame 0: the start, at the
     origin facing +Z); a request of the track applies from the first frame at or after its
     time, as ``morphspace play --at`` does. ``progress(done, total)`` is called as frames are made.
+    ``blender``: blend with this one (``blend(weights, phase)``, e.g. a thread's own, see
+    MotionSpace.new_blender) instead of the space's shared player blender.
     """
     check_clip(space, clip)
     player = Player(space, mode=clip.mode, smoothing=clip.smoothing, params=clip.params or None)
@@ -169,9 +171,12 @@ def play_clip(space, clip, progress=None):
                 notes.append(f"t={when:g} s: {solution.message}")
         if k:
             player.advance(dt)
-        frame = player.frame(out=local[k], local=True)
-        times[k], heading[k] = k * dt, frame.heading
-        root[k], params[k] = frame.root_position, frame.realised
+        if blender is None:
+            player.frame(out=local[k], local=True)
+        else:  # what Player.frame(local=True) does, with the caller's blender
+            local[k] = blender.blend(player.weights, player.phase)
+        times[k], heading[k] = k * dt, player.heading
+        root[k], params[k] = player.position, player.realised
         if progress is not None and (k % 16 == 15 or k == n - 1):
             progress(k + 1, n)
     return ClipFrames(times=times, local=local, root_position=root, heading=heading,

@@ -25,9 +25,9 @@ def _http(exc):
 
 
 @router.post("/jobs", status_code=202, response_model=JobRecord, dependencies=[Authorised],
-             summary="Queue a job: ingest, align or build",
+             summary="Queue a job: ingest, align, build or export",
              responses={401: {"description": "a bearer token is required"},
-                        404: {"description": "no such dataset"},
+                        404: {"description": "no such dataset (or space)"},
                         409: {"description": "the output exists (replace=true) or another job is writing it"},
                         422: {"description": "invalid request (the message names the field or sequence)"}})
 async def create_job(request: Annotated[JobRequest, Body(openapi_examples={"build": {"value": EXAMPLE_BUILD}})],
@@ -43,7 +43,7 @@ async def create_job(request: Annotated[JobRequest, Body(openapi_examples={"buil
 @router.get("/jobs", response_model=JobList, summary="List jobs, newest first")
 def list_jobs(jobs: JobsDep,
               status: Annotated[list[JobStatus] | None, Query(description="only these statuses (repeatable)")] = None,
-              kind: Annotated[str | None, Query(pattern="^(build|align|ingest)$")] = None,
+              kind: Annotated[str | None, Query(pattern="^(build|align|ingest|export)$")] = None,
               limit: Annotated[int, Query(ge=1, le=1000)] = 100,
               offset: Annotated[int, Query(ge=0)] = 0):
     return {"jobs": jobs.list(status=[s.value for s in status or []], kind=kind, limit=limit, offset=offset)}

@@ -117,7 +117,35 @@ class IngestJob(_Body):
     replace: bool = Field(False, description="with output: replace an existing dataset of that name")
 
 
-JobRequest = Annotated[Union[BuildJob, AlignJob, IngestJob], Field(discriminator="kind")]
+class TrackEntry(_Body):
+    """A request of an export's parameter track."""
+    time: float = Field(ge=0, le=3600, description="seconds from the start of the clip")
+    params: dict[str, float] = Field(description="{name: value} requested from then on")
+
+
+class ExportSpec(_Body):
+    """A clip to export (docs/exports.md): played by the real-time player, written as ``format``."""
+    format: Literal["glb", "usd", "obj", "ply"] = Field("glb", description="glb, usd, or obj/ply (a zip of one file "
+                                                                          "per frame)")
+    params: dict[str, float] = Field(default_factory=dict, description="{name: value} at t = 0 (missing ones: the "
+                                                                       "middle of their range)")
+    track: list[TrackEntry] = Field(default_factory=list, max_length=1000, description="later requests")
+    duration: float = Field(10.0, gt=0, le=3600, description="seconds")
+    rate: float = Field(60.0, gt=0, le=240, description="frames per second")
+    mode: Literal["linear", "hybrid", "nonlinear"] = "hybrid"
+    smoothing: float = Field(0.25, ge=0, le=60, description="the player's parameter time constant (s)")
+    precision: Literal["int16", "float32"] = Field("int16", description="glTF: int16 (KHR_mesh_quantization) or "
+                                                                        "float32")
+    interpolation: Literal["LINEAR", "STEP"] = Field("LINEAR", description="glTF weights sampling")
+
+
+class ExportJob(ExportSpec):
+    """Export a clip of a motion space (a long one; short ones: POST /v1/spaces/{name}/export)."""
+    kind: Literal["export"]
+    space: Name = Field(description="a motion space")
+
+
+JobRequest = Annotated[Union[BuildJob, AlignJob, IngestJob, ExportJob], Field(discriminator="kind")]
 
 
 class JobStatus(str, Enum):
@@ -130,12 +158,12 @@ class JobStatus(str, Enum):
 
 class JobRecord(BaseModel):
     id: str
-    kind: Literal["build", "align", "ingest"]
+    kind: Literal["build", "align", "ingest", "export"]
     status: JobStatus
     stage: str = Field(description="what it is doing: queued, starting, read, tetrahedralise, ... publish")
     progress: float = Field(ge=0, le=1, description="0..1, never decreasing within an attempt")
     params: dict[str, Any] = Field(description="the request")
-    result: dict[str, Any] | None = Field(description="what a succeeded job produced")
+    result: dict[str, Any] | None = Field(description="what a succeeded job produced (with its url)")
     error: str | None = Field(description="why it failed or was cancelled")
     log: list[str] = Field(description="the last lines of the job's log")
     attempts: int = Field(description="times it has been started (an interrupted job is started again once)")

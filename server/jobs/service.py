@@ -143,6 +143,12 @@ class JobService:
         """Check a validated request (models.JobRequest) against the data directory and queue it."""
         params = request.model_dump()
         kind = params["kind"]
+        if kind == "export":
+            self._check_export(params)
+            params["output_name"], params["output_type"] = None, "export"
+            job = self.store.create(kind, params)
+            self._kick()
+            return job
         datasets = self.settings.datasets_dir
         inputs = params["datasets"] if kind == "align" else [params["dataset"]]
         for name in inputs:
@@ -173,6 +179,24 @@ class JobService:
         job = self.store.create(kind, params)
         self._kick()
         return job
+
+    def _check_export(self, params):
+        """An export job's space must exist and its clip be playable (the errors of the
+        synchronous endpoint, before anything is queued)."""
+        from engine.export import ClipError, check_clip
+        from server.exports import clip_of
+        from server.registry import BrokenSpace, UnknownSpace
+
+        try:
+            space = self.registry.get(params["space"])
+        except UnknownSpace as exc:
+            raise JobRequestError(404, str(exc)) from None
+        except BrokenSpace as exc:
+            raise JobRequestError(409, str(exc)) from None
+        try:
+            check_clip(space, clip_of(params))
+        except ClipError as exc:
+            raise JobRequestError(422, str(exc)) from None
 
     def get(self, job_id):
         return self.store.get(job_id)

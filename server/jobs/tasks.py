@@ -29,6 +29,7 @@ STAGES = {
               ("parameters", 0.17), ("write", 0.03)],
     "align": [("read", 0.05), ("histograms", 0.15), ("dissimilarity", 0.05), ("align", 0.65), ("write", 0.1)],
     "ingest": [("validate", 0.75), ("write", 0.25)],
+    "export": [("play", 0.4), ("write", 0.6)],
 }
 
 
@@ -97,6 +98,8 @@ def run_task(payload, reporter):
     staging.mkdir(parents=True, exist_ok=True)
     if kind == "ingest":
         from server.jobs.ingest import run_ingest as runner
+    elif kind == "export":
+        from server.exports import run_export as runner
     else:
         runner = {"build": run_build, "align": run_align}[kind]
     try:
@@ -256,7 +259,7 @@ def run_align(payload, reporter):
 
 # --- publishing (done by the server, after the task) ------------------------------------------------
 def publish(result, staging, data_dir, replace):
-    """Rename the task's output into ``spaces/`` or ``datasets/``; returns the job's public result."""
+    """Rename the task's output into ``spaces/``, ``datasets/`` or ``exports/``; returns the job's public result."""
     from server.uploads import UploadError, publish_dir
 
     output = result["output"]
@@ -268,6 +271,11 @@ def publish(result, staging, data_dir, replace):
         target.parent.mkdir(parents=True, exist_ok=True)
         os.replace(source, target)
         url = f"/v1/spaces/{output['name']}"
+    elif output["type"] == "export":  # named by the job's id: never replaces another
+        target = Path(data_dir) / "exports" / output["name"]
+        target.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(source, target)
+        url = f"/v1/exports/{output['name']}"
     else:
         target = Path(data_dir) / "datasets" / output["name"]
         try:
