@@ -11,11 +11,12 @@ import sys
 
 from server.commands import bench, blend, build, eval_params, play, synth
 from server.commands import eval as eval_command
-from server.commands import align, eval_align, export, serve
+from server.commands import align, build_graph, eval_align, export, serve
 
 COMMANDS = {
     "synth": synth,
     "build": build,
+    "build-graph": build_graph,
     "blend": blend,
     "eval": eval_command,
     "bench": bench,

@@ -51,6 +51,16 @@ def check_blend_scaling(rows, stdout):
     assert "1000 vertices" in stdout and "nonlinear" in stdout and "corrections" in stdout and "one core" in stdout and "dense sampling" in stdout
 
 
+def check_graph_search(result, stdout):
+    assert result["graph"] == "tiny" and result["vertices"] == 1000 and result["search_ms"]["count"] == 500
+    assert positive(result["search_ms"]["median"]) and result["search_ms"]["p99"] >= result["search_ms"]["median"]
+    assert set(result["strategies"]) == {"search", "cut", "crossfade"}
+    for figures in result["strategies"].values():
+        assert figures["transitions"] >= 3 and positive(figures["smoothness_p95"])
+        assert non_negative(figures["foot_slide_p95_cm"]) and non_negative(figures["latency_p50_s"])
+    assert "search median" in stdout and "crossfade" in stdout
+
+
 def check_similarity_scaling(records, stdout):
     (record,) = records
     assert record["frames"] == 60 and record["vertices_mean"] == 1000 and record["workers"] == 1
@@ -140,6 +150,7 @@ def check_export(record, stdout):
 CHECKS = {
     "blend_scaling.py": check_blend_scaling,
     "export.py": check_export,
+    "graph_search.py": check_graph_search,
     "open_blends.py": check_open_blends,
     "similarity_scaling.py": check_similarity_scaling,
     "speed_ground_truth.py": check_speed_ground_truth,

@@ -43,7 +43,7 @@ async def create_job(request: Annotated[JobRequest, Body(openapi_examples={"buil
 @router.get("/jobs", response_model=JobList, summary="List jobs, newest first")
 def list_jobs(jobs: JobsDep,
               status: Annotated[list[JobStatus] | None, Query(description="only these statuses (repeatable)")] = None,
-              kind: Annotated[str | None, Query(pattern="^(build|align|ingest|export)$")] = None,
+              kind: Annotated[str | None, Query(pattern="^(build|align|ingest|export|graph)$")] = None,
               limit: Annotated[int, Query(ge=1, le=1000)] = 100,
               offset: Annotated[int, Query(ge=0)] = 0):
     return {"jobs": jobs.list(status=[s.value for s in status or []], kind=kind, limit=limit, offset=offset)}

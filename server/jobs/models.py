@@ -145,7 +145,47 @@ class ExportJob(ExportSpec):
     space: Name = Field(description="a motion space")
 
 
-JobRequest = Annotated[Union[BuildJob, AlignJob, IngestJob, ExportJob], Field(discriminator="kind")]
+class GraphNode(_Body):
+    """A node of a motion graph: a motion space of the server under a name."""
+    name: Name
+    space: Name = Field(description="a motion space (spaces/<space>.mspace)")
+    return_to: Name | None = Field(None, description="one-shot nodes: the cyclic node to go back to")
+
+
+class GraphWindow(_Body):
+    """How windows of motion are sampled and compared (docs/file-formats.md, "Motion graph specs")."""
+    window_frames: int = Field(6, ge=2, le=60)
+    window_step: float = Field(1.0 / 30.0, gt=0, le=0.5)
+    vertices: int = Field(300, ge=10, le=100_000)
+    velocity_weight: float = Field(0.1, ge=0, le=10)
+    phases: int = Field(24, ge=4, le=256)
+    per_axis: int = Field(5, ge=1, le=21)
+
+
+class GraphJob(_Body):
+    """Build a motion graph over spaces of the server (``morphspace build-graph``)."""
+    kind: Literal["graph"]
+    graph: Name = Field(description="name of the graph to write (spaces/<graph>.mgraph)")
+    nodes: list[GraphNode] = Field(min_length=2, max_length=32)
+    edges: list[Annotated[list[Name], Field(min_length=2, max_length=2)]] = Field(
+        min_length=1, max_length=1024, description="allowed transitions as [from, to] node names")
+    window: GraphWindow = Field(default_factory=GraphWindow)
+    replace: bool = Field(False, description="replace an existing graph of that name")
+
+    @model_validator(mode="after")
+    def _known_nodes(self):
+        names = [n.name for n in self.nodes]
+        if len(set(names)) != len(names):
+            raise ValueError("node names must differ")
+        for edge in self.edges:
+            if any(e not in names for e in edge):
+                raise ValueError(f"edge {edge}: both ends must be nodes ({', '.join(names)})")
+        for n in self.nodes:
+            _no_dotdot(n.space)
+        return self
+
+
+JobRequest = Annotated[Union[BuildJob, AlignJob, IngestJob, ExportJob, GraphJob], Field(discriminator="kind")]
 
 
 class JobStatus(str, Enum):
@@ -158,7 +198,7 @@ class JobStatus(str, Enum):
 
 class JobRecord(BaseModel):
     id: str
-    kind: Literal["build", "align", "ingest", "export"]
+    kind: Literal["build", "align", "ingest", "export", "graph"]
     status: JobStatus
     stage: str = Field(description="what it is doing: queued, starting, read, tetrahedralise, ... publish")
     progress: float = Field(ge=0, le=1, description="0..1, never decreasing within an attempt")

@@ -150,7 +150,7 @@ class JobService:
             self._kick()
             return job
         datasets = self.settings.datasets_dir
-        inputs = params["datasets"] if kind == "align" else [params["dataset"]]
+        inputs = params["datasets"] if kind == "align" else [] if kind == "graph" else [params["dataset"]]
         for name in inputs:
             if not (datasets / name).is_dir():
                 have = ", ".join(uploads.dataset_names(self.settings)) or "none"
@@ -165,6 +165,13 @@ class JobService:
                 raise JobRequestError(422, f"dataset {params['dataset']!r} has no {rest}")
             target, what = self.settings.spaces_dir / f"{params['space']}.mspace", "space"
             output = params["space"]
+        elif kind == "graph":
+            spaces = self.settings.spaces_dir
+            missing = [n["space"] for n in params["nodes"] if not (spaces / f"{n['space']}.mspace").is_file()]
+            if missing:
+                raise JobRequestError(404, f"no space(s) {', '.join(repr(m) for m in missing)}")
+            target, what = self.settings.spaces_dir / f"{params['graph']}.mgraph", "graph"
+            output = params["graph"]
         else:
             output = params.get("output") or params["dataset"]
             target, what = datasets / output, "dataset"

@@ -1,4 +1,4 @@
-"""What a job does: ingest, align and build, as functions of a JSON payload.
+"""What a job does: ingest, align, build and graph, as functions of a JSON payload.
 
 The same functions run in a local worker process (server/jobs/worker.py) and on a Dask worker
 (``dask_entry``). A payload is plain JSON::
@@ -30,6 +30,7 @@ STAGES = {
     "align": [("read", 0.05), ("histograms", 0.15), ("dissimilarity", 0.05), ("align", 0.65), ("write", 0.1)],
     "ingest": [("validate", 0.75), ("write", 0.25)],
     "export": [("play", 0.4), ("write", 0.6)],
+    "graph": [("windows", 0.75), ("edges", 0.2), ("write", 0.05)],
 }
 
 
@@ -101,7 +102,7 @@ def run_task(payload, reporter):
     elif kind == "export":
         from server.exports import run_export as runner
     else:
-        runner = {"build": run_build, "align": run_align}[kind]
+        runner = {"build": run_build, "align": run_align, "graph": run_graph}[kind]
     try:
         return runner(payload, reporter)
     except (JobCancelled, JobError):
@@ -204,6 +205,35 @@ def run_build(payload, reporter):
     return {"output": {"type": "space", "name": params["space"], "path": out.name}, "summary": summary}
 
 
+# --- graph ----------------------------------------------------------------------------------------
+def run_graph(payload, reporter):
+    from engine.graph import GraphError, NodeSpec, WindowOptions, build_graph
+    from server.commands.build_graph import WINDOW_KEYS
+
+    params, staging = payload["params"], Path(payload["staging"])
+    spaces = Path(payload["data_dir"]) / "spaces"
+    nodes = []
+    for node in params["nodes"]:
+        file = spaces / f"{node['space']}.mspace"
+        if not file.is_file():
+            raise JobError(f"node {node['name']!r}: no space {node['space']!r}")
+        nodes.append(NodeSpec(node["name"], file, node.get("return_to")))
+    options = WindowOptions(**{WINDOW_KEYS[k]: v for k, v in params["window"].items()})
+    out = staging / f"{params['graph']}.mgraph"
+    try:
+        report = build_graph(out, nodes, [tuple(e) for e in params["edges"]], name=params["graph"], options=options,
+                             progress=reporter.progress, relative_to=spaces)
+    except GraphError as exc:
+        raise JobError(_relative(exc, payload["data_dir"])) from None
+    reporter.progress("write", 1, 1)
+    reporter.log(f"built graph {params['graph']}: {len(report['nodes'])} nodes, {len(report['edges'])} edges "
+                 f"in {report['build_s']:.1f} s")
+    summary = {"graph": params["graph"], "nodes": [n["name"] for n in report["nodes"]],
+               "edges": [{"from": e["from"], "to": e["to"], "best_seam_mm": round(1000 * e["min_m"], 2)}
+                         for e in report["edges"]], "seconds": report["build_s"]}
+    return {"output": {"type": "graph", "name": params["graph"], "path": out.name}, "summary": summary}
+
+
 # --- align ----------------------------------------------------------------------------------------
 def run_align(payload, reporter):
     from engine.align import AlignmentOptions, align_captures
@@ -264,13 +294,15 @@ def publish(result, staging, data_dir, replace):
 
     output = result["output"]
     source = Path(staging) / output["path"]
-    if output["type"] == "space":
-        target = Path(data_dir) / "spaces" / f"{output['name']}.mspace"
+    if output["type"] in ("space", "graph"):
+        suffix = ".mspace" if output["type"] == "space" else ".mgraph"
+        target = Path(data_dir) / "spaces" / f"{output['name']}{suffix}"
         if target.exists() and not replace:
-            raise JobError(f"space {output['name']!r} appeared while the job ran; pass replace=true to replace it")
+            raise JobError(f"{output['type']} {output['name']!r} appeared while the job ran; pass replace=true "
+                           "to replace it")
         target.parent.mkdir(parents=True, exist_ok=True)
         os.replace(source, target)
-        url = f"/v1/spaces/{output['name']}"
+        url = f"/v1/spaces/{output['name']}" if output["type"] == "space" else None
     elif output["type"] == "export":  # named by the job's id: never replaces another
         target = Path(data_dir) / "exports" / output["name"]
         target.parent.mkdir(parents=True, exist_ok=True)

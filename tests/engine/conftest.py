@@ -1,4 +1,5 @@
-"""Fixtures shared by the alignment tests: a short walk of a small synthetic body."""
+"""Fixtures shared by engine tests: a short walk of a small synthetic body; small motion spaces
+and a motion graph over them."""
 
 import pytest
 
@@ -48,3 +49,36 @@ def export_spaces(tmp_path_factory):
     yield spaces
     for space in spaces.values():
         space.close()
+
+
+@pytest.fixture(scope="session")
+def graph_spaces(tmp_path_factory):
+    """Directory with the tiny graph's walk, stand and jump spaces (engine.graph.tiny; built once
+    for all workers)."""
+    import fcntl
+    import os
+
+    from engine.graph.tiny import build_tiny_spaces
+
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # the run's directory, shared by its workers
+    root = base / "morphspace-graph-spaces"
+    root.mkdir(exist_ok=True)
+    with open(root / ".lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (root / "done").exists():
+            build_tiny_spaces(root)
+            (root / "done").write_text("ok")
+        fcntl.flock(lock, fcntl.LOCK_UN)
+    return root
+
+
+@pytest.fixture(scope="session")
+def motion_graph_file(graph_spaces, tmp_path_factory):
+    """The tiny .mgraph over the graph spaces (walk <-> stand -> jump -> stand, walk -> jump)."""
+    from engine.graph.tiny import build_tiny_graph
+
+    path = tmp_path_factory.mktemp("graph") / "tiny.mgraph"
+    build_tiny_graph(graph_spaces, path)
+    return path

@@ -1,0 +1,106 @@
+"""Motion graph transitions (issue 14): search time, and the search against two baselines.
+
+1. Search time: ``--searches`` transition searches from random states (a node, a weight sample,
+   a phase) to random successors at random parameters, one at a time on one core; median and
+   99th percentile.
+2. The same ``--requests`` random requests (a random node at random parameters every 2-4 s)
+   played at ``--fps`` by the graph player with the search, an immediate cut and a fixed 0.3 s
+   crossfade (engine.graph.baselines); per strategy the medians and tails of smoothness, latency,
+   foot sliding, root continuity and the seam's dissimilarity (engine.graph.evaluate).
+
+    .venv/bin/python benchmarks/graph_search.py --graph data/spaces/demo.mgraph [--requests 40]
+    .venv/bin/python benchmarks/graph_search.py --tiny --out /tmp/graph_search.json   # ~30 s
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from _tiny import parse_arguments
+from engine.graph import MotionGraph, SearchOptions, TransitionSearch
+from engine.graph.baselines import Crossfade, ImmediateCut
+from engine.graph.evaluate import play_requests, random_requests, summarise, transition_measures
+
+
+def search_times(graph, search, count, seed):
+    """Seconds per search from random states to random successors."""
+    rng = np.random.default_rng(seed)
+    sources = [n for n in graph.nodes if graph.successors(n.name)]
+    seconds = []
+    for _ in range(count):
+        a = sources[int(rng.integers(len(sources)))]
+        targets = graph.successors(a.name)
+        b = graph.node(targets[int(rng.integers(len(targets)))])
+        w = a.samples.weights[int(rng.integers(len(a.samples.weights)))]
+        wb = b.samples.weights[int(rng.integers(len(b.samples.weights)))]
+        phase = float(rng.uniform(0, 1))
+        started = time.perf_counter()
+        search.search(a.name, w, phase, b.name, wb)
+        seconds.append(time.perf_counter() - started)
+    return seconds
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--graph", type=Path, default=Path("data/spaces/demo.mgraph"))
+    parser.add_argument("--searches", type=int, default=5000)
+    parser.add_argument("--requests", type=int, default=40)
+    parser.add_argument("--fps", type=float, default=30.0)
+    parser.add_argument("--latency-weight", type=float, help="the search's (default: SearchOptions')")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, help="JSON results (default benchmarks/results/graph_search.json)")
+    parser.add_argument("--tiny", action="store_true", help="the tiny graph (engine.graph.tiny) built in a "
+                        "temporary directory, 500 searches, 6 requests (needs --out)")
+    args = parse_arguments(parser, argv, {"searches": 500, "requests": 6})
+    out = args.out or Path(__file__).parent / "results" / "graph_search.json"
+    with tempfile.TemporaryDirectory() as scratch:
+        path = args.graph
+        if args.tiny:
+            from engine.graph.tiny import build_tiny_graph, build_tiny_spaces
+
+            build_tiny_spaces(scratch)
+            path = Path(scratch) / "tiny.mgraph"
+            build_tiny_graph(scratch, path)
+        with MotionGraph.open(path) as graph:
+            options = SearchOptions() if args.latency_weight is None else SearchOptions(
+                latency_weight=args.latency_weight)
+            search = TransitionSearch(graph, options)
+            seconds = search_times(graph, search, args.searches, args.seed)
+            ms = np.asarray(seconds) * 1e3
+            result = {"graph": graph.name, "vertices": graph.metadata["n_vertices"],
+                      "nodes": [n.name for n in graph.nodes], "latency_weight": options.latency_weight,
+                      "search_ms": {"median": float(np.median(ms)), "p99": float(np.percentile(ms, 99)),
+                                    "max": float(ms.max()), "count": len(ms)},
+                      "fps": args.fps, "requests": args.requests, "load_average": os.getloadavg()[0],
+                      "strategies": {}}
+            requests = random_requests(graph, args.requests, seed=args.seed)
+            start = next(n.name for n in graph.nodes if n.cyclic)
+            for name, strategy in (("search", search), ("cut", ImmediateCut(graph)), ("crossfade", Crossfade(graph))):
+                frames, transitions, searched = play_requests(graph, strategy, requests, fps=args.fps, start=start)
+                measures = transition_measures(graph, frames, transitions, fps=args.fps)
+                result["strategies"][name] = summarise(measures, searched)
+    print(f"{result['graph']} ({result['vertices']} vertices): search median {result['search_ms']['median']:.3f} ms, "
+          f"p99 {result['search_ms']['p99']:.3f} ms over {len(seconds)} searches (load average "
+          f"{result['load_average']:.1f})")
+    print(f"{'strategy':<10} {'n':>3} {'smooth p50':>10} {'p95':>6} {'latency p50':>11} {'p95':>6} "
+          f"{'slide p50 cm':>12} {'p95':>6} {'root max':>8} {'seam p50 mm':>11}")
+    for name, s in result["strategies"].items():
+        def f(x, spec=".2f"):
+            return "-" if x is None else format(x, spec)
+        print(f"{name:<10} {s['transitions']:>3} {f(s['smoothness_p50']):>10} {f(s['smoothness_p95']):>6} "
+              f"{f(s['latency_p50_s']):>11} {f(s['latency_p95_s']):>6} {f(s['foot_slide_p50_cm']):>12} "
+              f"{f(s['foot_slide_p95_cm']):>6} {f(s['root_ratio_max']):>8} {f(s['seam_p50_mm'], '.1f'):>11}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

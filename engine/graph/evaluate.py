@@ -1,0 +1,169 @@
+"""Measuring transitions: smoothness, root continuity, foot sliding, latency and search time,
+for the search and for the baselines (``baselines``) on the same random requests.
+
+Definitions (docs/evaluation.md, "Motion graph"):
+
+- smoothness: the largest per-vertex step between consecutive frames during a transition (from
+  the frame before the blend starts to the frame it ends), divided by the largest step within
+  the two nodes' own motion at the same weights and frame rate (1.0 = as smooth as captured);
+- root: the largest root step (position, and heading) during the transition divided by the
+  largest in the half second before and after it;
+- foot sliding: per step, of a foot's vertices on the ground (less than ``contact`` above the
+  rest mesh's lowest point) in both frames, the horizontal travel of the one that moved least
+  (the point the foot pivots on; ``clock.foot_slide``), summed over the transition, the worse foot;
+- latency: seconds from the request to the frame the target is fully entered.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.graph.clock import NodeClock, foot_slide, foot_vertices, move, place
+from engine.graph.player import GraphPlayer
+
+
+@dataclass
+class Request:
+    time: float
+    node: str
+    params: dict
+
+
+def random_requests(graph, count, *, seed=0, spacing=(2.0, 4.0)):
+    """``count`` requests of random nodes at random parameters, ``spacing`` seconds apart."""
+    rng = np.random.default_rng(seed)
+    out, t = [], 1.0
+    for _ in range(count):
+        node = graph.nodes[int(rng.integers(len(graph.nodes)))]
+        pmap = node.space.parameter_map
+        params = {} if pmap is None else {n: float(rng.uniform(lo, hi)) for n, (lo, hi) in
+                                          zip(pmap.names, pmap.domain())}
+        out.append(Request(round(t, 4), node.name, params))
+        t += float(rng.uniform(*spacing))
+    return out
+
+
+class _Timed:
+    """Wraps a search and times every call."""
+
+    def __init__(self, search):
+        self.inner, self.options, self.seconds = search, search.options, []
+
+    def search(self, *args, **kwargs):
+        t0 = time.perf_counter()
+        result = self.inner.search(*args, **kwargs)
+        self.seconds.append(time.perf_counter() - t0)
+        return result
+
+
+def play_requests(graph, search, requests, *, fps=30.0, start="walk", params=None, mode="linear", tail=3.0):
+    """Play ``requests`` (sorted by time) and keep every frame.
+
+    Returns
+    -------
+    frames : dict of arrays   vertices (F, n, 3) float32, root (F, 3), heading (F,), node (F,) str
+    transitions : list of dict  request frame, leave frame, enter frame, source, target, weights, plan
+    search_seconds : list of float
+    """
+    timed = _Timed(search)
+    player = GraphPlayer(graph, node=start, params=params, mode=mode, search=timed)
+    dt = 1.0 / fps
+    end = (requests[-1].time if requests else 0.0) + tail
+    pending = list(requests)
+    vertices, root, heading, nodes, transitions, open_ = [], [], [], [], [], {}
+    asked = None
+    for k in range(int(round(end * fps)) + 1):
+        while pending and pending[0].time <= k * dt + 1e-9:
+            r = pending.pop(0)
+            player.request(r.node, r.params)
+            asked = k
+        frame = player.step(dt) if k else player.frame()
+        for event in frame.events:
+            if event.startswith("leave"):
+                plan, source_weights = player.left
+                open_ = {"request": asked, "leave": k, "source": plan.source, "target": plan.target,
+                         "source_weights": source_weights, "target_weights": plan.target_weights,
+                         "dissimilarity": plan.dissimilarity, "length": plan.length}
+                asked = None  # a later transition without a request of its own is a one-shot's return
+            elif event.startswith("enter") and open_:
+                open_["enter"] = k
+                transitions.append(open_)
+                open_ = {}
+        vertices.append(frame.vertices.copy())
+        root.append(frame.root_position)
+        heading.append(frame.heading)
+        nodes.append(frame.node)
+    return ({"vertices": np.stack(vertices), "root": np.stack(root), "heading": np.array(heading),
+             "node": np.array(nodes)}, transitions, timed.seconds)
+
+
+def own_motion_step(graph, node, weights, fps):
+    """The largest per-vertex step between consecutive frames of ``node`` played alone at
+    ``weights`` for one cycle (or its whole clip)."""
+    n = graph.node(node)
+    clock = NodeClock(n.space, weights, 0.0)
+    position, heading = np.zeros(3), 0.0
+    previous, largest = None, 0.0
+    for _ in range(int(np.ceil(clock.duration * fps)) + 1):
+        V = place(clock.mesh("linear"), position, heading)
+        if previous is not None:
+            largest = max(largest, float(np.linalg.norm(V - previous, axis=1).max()))
+        previous = V
+        position, heading = move(position, heading, *clock.advance(1.0 / fps))
+    return largest
+
+
+def transition_measures(graph, frames, transitions, *, fps, contact=0.01):
+    """Per transition: smoothness, root ratios, foot slide (m), latency (s), seam (m)."""
+    rest = np.asarray(graph.nodes[0].space.container["rest"])
+    feet = foot_vertices(rest)
+    ground = float(rest[:, 1].min())
+    V, root, heading = frames["vertices"], frames["root"], frames["heading"]
+    cache, out = {}, []
+    for t in transitions:
+        a, b = t["leave"] - 1, t["enter"]
+        if a < 1 or b + 1 >= len(V):
+            continue
+        keys = [(t["source"], graph.node(t["source"]).sample_of(t["source_weights"])),
+                (t["target"], graph.node(t["target"]).sample_of(t["target_weights"]))]
+        for key, w in zip(keys, (t["source_weights"], t["target_weights"])):
+            if key not in cache:
+                cache[key] = own_motion_step(graph, key[0], w, fps)
+        reference = max(cache[keys[0]], cache[keys[1]])
+        steps = np.linalg.norm(np.diff(V[a:b + 1], axis=0), axis=2).max(axis=1)
+        root_steps = np.linalg.norm(np.diff(root, axis=0), axis=1)
+        turn_steps = np.abs(np.diff(heading))
+        around = np.r_[max(0, a - int(fps / 2)):a, b + 1:min(len(root_steps), b + 1 + int(fps / 2))]
+        slide = max(sum(foot_slide(V[f - 1][foot], V[f][foot], ground + contact)[0] for f in range(a + 1, b + 1))
+                    for foot in feet)
+        out.append({
+            "source": t["source"], "target": t["target"], "smoothness": float(steps.max() / reference),
+            "root_ratio": float(root_steps[a:b].max() / max(root_steps[around].max(), 1e-6)) if len(around) else 0.0,
+            "turn_step_deg": float(np.degrees(turn_steps[a:b].max())),
+            "foot_slide_m": slide, "latency_s": (t["enter"] - t["request"]) / fps if t["request"] is not None else None,
+            "seam_m": t["dissimilarity"], "length_s": t["length"]})
+    return out
+
+
+def summarise(measures, search_seconds):
+    """Medians and tails of ``transition_measures`` and search times (ms)."""
+    def pick(key):
+        return np.array([m[key] for m in measures if m[key] is not None], dtype=float)
+
+    def pct(values, q):
+        return float(np.percentile(values, q)) if len(values) else None
+
+    s, lat, slide, rootr, seam = (pick("smoothness"), pick("latency_s"), pick("foot_slide_m"), pick("root_ratio"),
+                                  pick("seam_m"))
+    ms = np.asarray(search_seconds) * 1e3
+    return {"transitions": len(measures),
+            "smoothness_p50": pct(s, 50), "smoothness_p95": pct(s, 95),
+            "latency_p50_s": pct(lat, 50), "latency_p95_s": pct(lat, 95),
+            "foot_slide_p50_cm": None if not len(slide) else pct(slide, 50) * 100,
+            "foot_slide_p95_cm": None if not len(slide) else pct(slide, 95) * 100,
+            "root_ratio_max": None if not len(rootr) else float(rootr.max()),
+            "seam_p50_mm": None if not len(seam) else pct(seam, 50) * 1000,
+            "search_p50_ms": pct(ms, 50), "search_p99_ms": pct(ms, 99), "searches": int(len(ms))}

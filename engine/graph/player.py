@@ -1,0 +1,254 @@
+"""Plays a motion graph: one node at a time, transitions blended across, one-shots returning to a
+cyclic node on their own, the root carried continuously through all of it.
+
+``player = GraphPlayer(graph, node="walk", params={"speed": 1.3})``; ``player.request("jump",
+{"jump_height": 0.45})`` plans a transition (``TransitionSearch``); ``frame = player.step(dt)``
+per display frame. Across a transition both nodes play on (the source from where it is left, the
+target from where it is entered, at the requested parameters), their root-local meshes and
+their root steps are blended with a smooth-step weight, so the root's position and heading stay
+continuous. A request to a node without an edge from the current one follows the shortest route
+(each hop at the parameters that node last had). Requests made while a transition is blending
+wait for it to end; one made in a one-shot redirects its return when an edge allows, or waits.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from engine.graph.build import GraphError
+from engine.graph.clock import NodeClock, foot_slide, foot_vertices, move, place
+from engine.graph.search import TransitionSearch
+
+MODES = ("linear", "hybrid", "nonlinear")
+
+
+def smooth_weight(u):
+    """Blend weight of the target at fraction u of a transition: cubic smooth step."""
+    u = min(max(u, 0.0), 1.0)
+    return u * u * (3.0 - 2.0 * u)
+
+
+@dataclass
+class GraphFrame:
+    """One played frame.
+
+    time : float; node : str (the source during a transition); phase : float (of ``node``)
+    target : str or None (during a transition or while one is planned); progress : float or None
+    (0..1 across a blend); params : dict (``node``'s realised parameters)
+    root_position : (3,) float; heading : float (rad); vertices : (n, 3) float32 world positions
+    events : list of str (what happened during the step: "leave walk -> jump", "enter jump")
+    """
+
+    time: float
+    node: str
+    phase: float
+    target: str | None
+    progress: float | None
+    params: dict
+    root_position: np.ndarray
+    heading: float
+    vertices: np.ndarray
+    events: list = field(default_factory=list)
+
+
+@dataclass
+class _Blend:
+    plan: object
+    clock: NodeClock
+    elapsed: float = 0.0
+
+
+class GraphPlayer:
+    """Plays a MotionGraph under requests.
+
+    Parameters
+    ----------
+    graph : MotionGraph
+    node : str or None       start node (default: the first cyclic node)
+    params : dict or None    its parameters (default: the middle of each range)
+    mode : str               blend mode of the nodes' spaces
+    search : TransitionSearch or None
+    foot_lock : bool         during a blend, move the root against the drift of a foot that stays on
+                             the ground (the one that drifts least), so it does not slide
+    contact : float          metres above the rest mesh's lowest point that count as on the ground
+    """
+
+    def __init__(self, graph, *, node=None, params=None, mode="hybrid", search=None, foot_lock=True,
+                 contact=0.01):
+        if mode not in MODES:
+            raise ValueError(f"unknown blend mode {mode!r}; choose one of {', '.join(MODES)}")
+        self.graph, self.mode = graph, mode
+        self.search = search or TransitionSearch(graph)
+        start = graph.node(node) if node else next((n for n in graph.nodes if n.cyclic), graph.nodes[0])
+        self._params = {n.name: {} for n in graph.nodes}  # what each node was last asked for
+        self._params[start.name] = dict(params or {})
+        weights, self._realised, _, _ = start.solve(self._params[start.name])
+        self.node = start
+        self.clock = NodeClock(start.space, weights, 0.0)
+        self.time, self.frames = 0.0, 0
+        self.position, self.heading = np.zeros(3), 0.0
+        self.pending = None      # a planned transition not started: (plan, seconds left)
+        self.blend = None        # the transition being blended
+        self.queued = None       # a request waiting for the current transition
+        self.route = []          # nodes still to visit after the pending transition's target
+        self.requests = []       # every request: {"frame", "node", "params", "budget"} (for replay)
+        self.left = None         # (plan, source weights) of the last transition started
+        self._buffer = None
+        self.foot_lock = bool(foot_lock)
+        rest = np.asarray(start.space.container["rest"])
+        self._feet = foot_vertices(rest)
+        self._ground = float(rest[:, 1].min()) + float(contact)  # below this: on the ground
+        self._cached = None      # (frames, root-local mesh, progress) of the current state
+        self._feet_before = self._feet_at()
+        if not start.cyclic:
+            self._plan_return()
+
+    # requests ---------------------------------------------------------------------------------
+
+    def request(self, node, params=None, *, budget=None):
+        """Ask for ``node`` at ``params`` ({name: value}), within ``budget`` seconds if given.
+
+        Returns a dict: ``status`` ("planned", "queued" or "set"), and when planned the
+        transition (``leave_in``, ``enter_phase``, ``length``, ``latency``, ``dissimilarity``)
+        and the ``route``; ``clamped`` / ``message`` when the parameters were out of reach.
+        """
+        target = self.graph.node(node)
+        if budget is not None and not (np.isfinite(budget) and budget > 0):
+            raise GraphError(f"budget must be a positive number of seconds, got {budget}")
+        weights, realised, clamped, message = target.solve(params)  # validates before anything changes
+        self.requests.append({"frame": self.frames, "node": node, "params": dict(params or {}), "budget": budget})
+        self._params[node] = dict(params or {})
+        note = {"clamped": clamped, "message": message}
+        if self.blend is not None or (not self.node.cyclic and not self._can_redirect(node)):
+            self.queued = (node, budget)
+            return {"status": "queued", **note}
+        if node == self.node.name:
+            self.pending, self.route = None, []
+            self.clock.set_weights(weights)
+            self._cached = None
+            self._realised = realised
+            return {"status": "set", **note}
+        return {**self._plan(node, budget), **note}
+
+    def _can_redirect(self, node):
+        return self.graph.node(node).cyclic and (self.node.name, node) in self.graph.edges
+
+    def _plan(self, goal, budget=None, *, latency_weight=None):
+        here = self.node.name
+        route = self.graph.route(here, goal)
+        hop = self.graph.node(route[1])
+        weights, _, _, _ = hop.solve(self._params[hop.name])
+        finish_by = None
+        if not self.node.cyclic:  # a one-shot is played to (near) its end
+            finish_by = max((1.0 - self.clock.phase) * self.clock.duration, self.search.options.lengths[0])
+            latency_weight = 0.0 if latency_weight is None else latency_weight
+        plan = self.search.search(here, self.clock.weights, self.clock.phase, hop.name, weights, budget=budget,
+                                  latency_weight=latency_weight, finish_by=finish_by)
+        self.pending = [plan, plan.leave_in]
+        self.route = route[2:]
+        return {"status": "planned", "route": route, "leave_in": plan.leave_in, "enter_phase": plan.enter_phase,
+                "length": plan.length, "latency": plan.latency, "dissimilarity": plan.dissimilarity}
+
+    def _plan_return(self):
+        self._plan(self.node.meta["return_to"])
+
+    # playing ----------------------------------------------------------------------------------
+
+    def step(self, dt):
+        """Advance ``dt`` seconds; the frame there."""
+        dt = float(dt)
+        if not (dt >= 0 and np.isfinite(dt)):
+            raise ValueError(f"dt must be a non-negative number of seconds, got {dt}")
+        events = []
+        self._cached = None
+        if self.pending is not None and self.blend is None and self.pending[1] <= 0.5 * dt:
+            plan = self.pending[0]
+            target = self.graph.node(plan.target)
+            self.blend = _Blend(plan, NodeClock(target.space, plan.target_weights, plan.enter_phase))
+            self.left = (plan, self.clock.weights.copy())
+            self.pending = None
+            events.append(f"leave {plan.source} -> {plan.target}")
+        elif self.pending is not None and self.blend is None:
+            self.pending[1] -= dt
+        step = self.clock.advance(dt)
+        if self.blend is not None:
+            other = self.blend.clock.advance(dt)
+            self.blend.elapsed += dt
+            s = smooth_weight(self.blend.elapsed / self.blend.plan.length)
+            step = tuple((1 - s) * x + s * y for x, y in zip(step, other))
+        self.position, self.heading = move(self.position, self.heading, *step)
+        self.time += dt
+        self.frames += 1
+        if self.blend is not None and self.foot_lock:
+            self._lock_feet()
+        self._feet_before = self._feet_at()
+        if self.blend is not None and self.blend.elapsed >= self.blend.plan.length - 1e-9:
+            events.append(self._enter())
+        elif self.blend is None and self.pending is None and not self.node.cyclic and self.clock.finished:
+            self._plan_return()  # the planned return could not be kept: leave now
+        return self.frame(events)
+
+    def _enter(self):
+        plan = self.blend.plan
+        self.node = self.graph.node(plan.target)
+        self.clock = self.blend.clock
+        self.blend = None
+        self._cached = None
+        _, self._realised, _, _ = self.node.solve(self._params[self.node.name])
+        if self.route:
+            goal, self.route = self.route[-1], []
+            self._plan(goal)
+        elif self.queued is not None:
+            node, budget = self.queued
+            self.queued = None
+            if node != self.node.name:
+                self._plan(node, budget)
+        if self.pending is None and not self.node.cyclic:
+            self._plan_return()
+        return f"enter {plan.target}"
+
+    def _local(self):
+        """(root-local mesh, progress or None) at the current state, blended once per frame."""
+        if self._cached is not None and self._cached[0] == self.frames:
+            return self._cached[1], self._cached[2]
+        mesh, progress = self.clock.mesh(self.mode), None
+        if self._buffer is None:
+            self._buffer = np.empty((len(mesh), 3), dtype=np.float32)
+        if self.blend is not None:
+            s = smooth_weight(self.blend.elapsed / self.blend.plan.length)
+            np.multiply(mesh, 1.0 - s, out=self._buffer)
+            self._buffer += np.float32(s) * np.asarray(self.blend.clock.mesh(self.mode), dtype=np.float32)
+            progress = self.blend.elapsed / self.blend.plan.length
+        else:
+            self._buffer[:] = mesh  # a copy: the space's blender reuses its buffer
+        mesh = self._buffer
+        self._cached = (self.frames, mesh, progress)
+        return mesh, progress
+
+    def _feet_at(self):
+        """Per foot: its vertices in the world now, (f, 3)."""
+        mesh, _ = self._local()
+        return [place(mesh[foot], self.position, self.heading) for foot in self._feet]
+
+    def _lock_feet(self):
+        moves = [foot_slide(before, now, self._ground) for before, now in zip(self._feet_before, self._feet_at())]
+        moves = [move for length, move in moves if move is not None]
+        if moves:
+            dx, dz = min(moves, key=lambda d: float(d @ d))
+            self.position = self.position - np.array([dx, 0.0, dz])
+
+    def frame(self, events=None):
+        """The frame at the current state (nothing advances)."""
+        mesh, progress = self._local()
+        target = None
+        if progress is not None:
+            target = self.blend.plan.target
+        elif self.pending is not None:
+            target = self.pending[0].target
+        params = dict(zip(self.node.parameters, np.asarray(self._realised, dtype=float).tolist()))
+        return GraphFrame(time=self.time, node=self.node.name, phase=self.clock.phase, target=target,
+                          progress=progress, params=params, root_position=self.position.copy(),
+                          heading=float(self.heading), vertices=place(mesh, self.position, self.heading),
+                          events=list(events or []))

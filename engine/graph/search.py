@@ -1,0 +1,148 @@
+"""Run-time transition search: when to leave the current node, where to enter the target and
+over how long, from the edge's precomputed dissimilarity table.
+
+Notes
+-----
+Casas et al., 4D Parametric Motion Graphs (I3D 2012), section 4: the transition minimises a
+cost that adds the shape-and-motion dissimilarity at the seam to a latency cost. Here the cost
+of leaving at phase sample j of the source (or now), entering at phase sample e of the target
+and blending over L seconds is
+
+    D[j, e] / model_size * (reference_length / L)  +  latency_weight * (wait_j + L)
+
+where D is the RMS difference of the two windows (``features``), so a longer blend spreads a
+larger difference over more frames, and wait_j is the time until the source reaches phase j at
+its current weights. Both weights are looked up at the edge table's nearest parameter sample.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from engine.graph.build import GraphError
+
+
+@dataclass(frozen=True)
+class SearchOptions:
+    """latency_weight : cost per second of latency (1 = a second costs as much as a seam one
+    model size apart over the reference length); lengths : transition lengths tried (s);
+    reference_length : s; max_entry : latest phase a one-shot target may be entered at."""
+
+    latency_weight: float = 2.0
+    lengths: tuple = (0.15, 0.25, 0.35, 0.5, 0.7)
+    reference_length: float = 0.3
+    max_entry: float = 0.35
+
+    def __post_init__(self):
+        if not (self.latency_weight >= 0 and len(self.lengths) > 0 and all(0 < x <= 5 for x in self.lengths)
+                and self.reference_length > 0 and 0 <= self.max_entry <= 1):
+            raise ValueError(f"search options out of range: {self}")
+
+
+@dataclass
+class Transition:
+    """A planned transition.
+
+    source, target : str        node names
+    leave_in : float            seconds from the request until the blend starts
+    leave_phase : float         the source's phase then
+    enter_phase : float         the target's phase when the blend starts
+    length : float              seconds of blending
+    dissimilarity : float       the windows' RMS difference at the seam (m)
+    cost : float
+    target_weights : (N,) float
+    """
+
+    source: str
+    target: str
+    leave_in: float
+    leave_phase: float
+    enter_phase: float
+    length: float
+    dissimilarity: float
+    cost: float
+    target_weights: np.ndarray
+
+    @property
+    def latency(self):
+        """Seconds from the request until the target is fully entered."""
+        return self.leave_in + self.length
+
+
+class TransitionSearch:
+    """Finds transitions on a loaded MotionGraph (cheap: a few array operations per search)."""
+
+    def __init__(self, graph, options=None):
+        self.graph = graph
+        self.options = options or SearchOptions()
+        self._lengths = np.asarray(self.options.lengths, dtype=float)
+        self._spread = self.options.reference_length / self._lengths / graph.model_size
+
+    def search(self, source, weights, phase, target, target_weights, *, budget=None, latency_weight=None,
+               finish_by=None):
+        """The cheapest transition from ``source`` (at ``weights``, ``phase``) to ``target``.
+
+        Parameters
+        ----------
+        source, target : str
+        weights, target_weights : (N,) float arrays
+        phase : float
+        budget : float or None          the transition must be complete within this many seconds
+                                        (if nothing fits, the quickest one is taken)
+        latency_weight : float or None  overrides the options'
+        finish_by : float or None       seconds: the blend must end by then (a one-shot's end)
+
+        Returns
+        -------
+        Transition
+        """
+        try:
+            table = self.graph.edges[(source, target)]
+        except KeyError:
+            raise GraphError(f"graph {self.graph.name!r} has no edge {source} -> {target}; from {source}: "
+                             f"{', '.join(self.graph.successors(source)) or 'none'}") from None
+        a, b = self.graph.node(source), self.graph.node(target)
+        D = table[a.sample_of(weights), :, b.sample_of(target_weights), :]  # (MA, MB)
+        duration = a.space.root_track.duration(weights)
+        phases = a.samples.phases
+        if a.cyclic:
+            waits = ((phases - phase) % 1.0) * duration
+            x = (phase % 1.0) * len(phases)
+            j0 = int(x) % len(phases)
+            j1, f = (j0 + 1) % len(phases), x - int(x)
+        else:
+            waits = np.where(phases >= phase - 1e-9, (phases - phase) * duration, np.nan)  # no going back
+            x = min(max(phase, 0.0), 1.0) * (len(phases) - 1)
+            j0 = min(int(x), len(phases) - 2)
+            j1, f = j0 + 1, x - j0
+        now = (1 - f) * D[j0] + f * D[j1]  # leaving at once: the current phase's row
+        waits = np.concatenate([[0.0], waits])
+        rows = np.where(np.isnan(waits)[:, None], np.inf, np.vstack([now[None], D]))
+        waits = np.nan_to_num(waits, nan=0.0)
+        leave = np.concatenate([[phase], phases])
+        entries = b.samples.phases
+        if not b.cyclic:
+            rows = np.where(entries[None, :] <= self.options.max_entry + 1e-9, rows, np.inf)
+        weight = self.options.latency_weight if latency_weight is None else float(latency_weight)
+        total = waits[:, None] + self._lengths[None, :]  # (rows, lengths)
+        cost = rows[:, :, None] * self._spread[None, None, :] + weight * total[:, None, :]
+        allowed = np.isfinite(cost)
+        if finish_by is not None:
+            allowed &= (total <= finish_by + 1e-9)[:, None, :]
+        if budget is not None:
+            fits = allowed & (total <= budget + 1e-9)[:, None, :]
+            if fits.any():
+                allowed = fits
+            else:  # nothing fits: the quickest transition, the best seam among the quickest
+                quickest = np.where(allowed, total[:, None, :], np.inf).min()
+                allowed &= (total <= quickest + 1e-9)[:, None, :]
+        if not allowed.any():
+            allowed = np.isfinite(cost)
+        flat = int(np.argmin(np.where(allowed, cost, np.inf)))
+        j, e, k = np.unravel_index(flat, cost.shape)
+        return Transition(source=source, target=target, leave_in=float(waits[j]), leave_phase=float(leave[j] % 1.0
+                          if a.cyclic else leave[j]), enter_phase=float(entries[e]), length=float(self._lengths[k]),
+                          dissimilarity=float(rows[j, e]), cost=float(cost[j, e, k]),
+                          target_weights=np.asarray(target_weights, dtype=float))

@@ -1,0 +1,46 @@
+"""A small motion graph straight from the capture generator, for tests and the benchmarks'
+``--tiny`` runs: a walk (speed chain, cyclic), a standing idle (no parameters, cyclic) and a
+jump (height chain, one-shot) of the 1,000-vertex body at 15 fps, at cheap settings (12 phases,
+a coarse hybrid), joined walk <-> stand -> jump -> stand, walk -> jump. About 10 CPU seconds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+TINY_EDGES = [("walk", "stand"), ("stand", "walk"), ("stand", "jump"), ("jump", "stand"), ("walk", "jump")]
+
+
+def build_tiny_spaces(directory, *, fps=15.0):
+    """Write walk.mspace, stand.mspace and jump.mspace into ``directory``."""
+    from engine.blend import VolumetricEmbedding
+    from engine.motion_space import SourceClip, build_motion_space
+    from engine.parameters import Layout
+    from engine.synthetic import animate, build_body, gait, jump
+    from engine.synthetic.transitions import stand
+
+    directory = Path(directory)
+    body = build_body(1000)
+    embedding = VolumetricEmbedding.from_surface(body.V, body.F)
+    cheap = dict(epsilon=0.03, rest=body.V, n_phases=12, hybrid_options={"max_depth": 1}, embedding=embedding)
+    chain = Layout("chain", 2, chain=(0, 1))
+    clips = [SourceClip(f"gait_{v}", animate(body, gait(body.skeleton, v, cycles=2.0, fps=fps)), fps, True)
+             for v in (0.9, 1.6)]
+    build_motion_space(directory / "walk.mspace", clips, body.F, name="walk",
+                       parameters={"layout": chain, "names": ["speed"], "resolution": 5}, **cheap)
+    idles = [stand(body.skeleton, breath=0.008, fps=fps, cycles=2),
+             stand(body.skeleton, breath=0.006, sway=0.02, period=2.4, fps=fps, cycles=2)]
+    clips = [SourceClip(f"stand_{i}", animate(body, m), fps, True) for i, m in enumerate(idles)]
+    build_motion_space(directory / "stand.mspace", clips, body.F, name="stand", **cheap)
+    clips = [SourceClip(f"jump_{h}", animate(body, jump(body.skeleton, h, 0.6, fps=fps)), fps, False)
+             for h in (0.2, 0.45)]
+    build_motion_space(directory / "jump.mspace", clips, body.F, name="jump",
+                       parameters={"layout": chain, "names": ["jump_height"], "resolution": 5}, **cheap)
+
+
+def build_tiny_graph(spaces, path, **options):
+    """Write the tiny graph over ``spaces`` (``build_tiny_spaces``) to ``path``; returns its report."""
+    from engine.graph.build import NodeSpec, build_graph
+
+    spaces = Path(spaces)
+    nodes = [NodeSpec(name, spaces / f"{name}.mspace") for name in ("walk", "stand", "jump")]
+    return build_graph(path, nodes, TINY_EDGES, name="tiny", **options)

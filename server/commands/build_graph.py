@@ -1,0 +1,93 @@
+"""Build a motion graph (``.mgraph``) from a graph spec (TOML).
+
+The spec names the nodes (motion spaces, cyclic or one-shot) and the allowed transitions
+(docs/file-formats.md, "Motion graph specs"); the build samples every node's parameters and
+phases and stores, for every edge, the shape-and-motion dissimilarity of short windows of the
+two spaces, which the run-time transition search looks up. Example:
+
+    morphspace build-graph specs/demo/graph.toml --out data/spaces/demo.mgraph
+"""
+
+from __future__ import annotations
+
+import sys
+import tomllib
+from pathlib import Path
+
+from engine.graph import GraphError, NodeSpec, WindowOptions, build_graph
+from server.progress import StageBars
+
+WINDOW_KEYS = {"window_frames": "frames", "window_step": "step", "vertices": "vertices",
+               "velocity_weight": "velocity_weight", "phases": "phases", "per_axis": "per_axis"}
+
+
+def add_arguments(parser):
+    parser.add_argument("spec", type=Path, help="a graph spec (.toml)")
+    parser.add_argument("--out", type=Path, help="output .mgraph file (default: the spec's name in its spaces "
+                        "directory, beside the spaces)")
+    parser.add_argument("--force", action="store_true", help="replace an existing output file")
+
+
+def read_graph_spec(path):
+    """Parse and check a graph spec; returns {name, nodes: [NodeSpec], edges: [(a, b)], options,
+    spaces (directory)}. Errors name the spec and the problem."""
+    path = Path(path)
+    try:
+        spec = tomllib.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such graph spec") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a valid TOML graph spec: {exc}") from None
+    base = path.parent
+    spaces = base / spec.get("spaces", ".")
+    nodes = spec.get("nodes")
+    if not isinstance(nodes, list) or len(nodes) < 2:
+        raise ValueError(f"{path}: [[nodes]] must list at least 2 nodes")
+    specs = []
+    for entry in nodes:
+        if not isinstance(entry, dict) or not isinstance(entry.get("name"), str) or not isinstance(
+                entry.get("space"), str):
+            raise ValueError(f"{path}: every [[nodes]] entry needs a name and a space (a .mspace file)")
+        unknown = sorted(set(entry) - {"name", "space", "return_to"})
+        if unknown:
+            raise ValueError(f"{path}: node {entry['name']!r}: unknown key(s) {', '.join(unknown)} (in TOML, "
+                             "top-level keys such as edges go before the first [[nodes]])")
+        file = spaces / entry["space"]
+        if not file.is_file():
+            raise ValueError(f"{path}: node {entry['name']!r}: {file} does not exist (build the space first)")
+        specs.append(NodeSpec(entry["name"], file, entry.get("return_to")))
+    edges = spec.get("edges")
+    if not isinstance(edges, list) or not edges or not all(
+            isinstance(e, list) and len(e) == 2 and all(isinstance(x, str) for x in e) for e in edges):
+        raise ValueError(f"{path}: edges must be a list of [from, to] node-name pairs")
+    window = spec.get("window", {})
+    unknown = sorted(set(window) - set(WINDOW_KEYS))
+    if unknown:
+        raise ValueError(f"{path}: [window] has unknown key(s) {', '.join(unknown)}; known: {', '.join(WINDOW_KEYS)}")
+    try:
+        options = WindowOptions(**{WINDOW_KEYS[k]: v for k, v in window.items()})
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: [window]: {exc}") from None
+    return {"name": spec.get("name", path.stem), "nodes": specs, "edges": [tuple(e) for e in edges],
+            "options": options, "spaces": spaces}
+
+
+def run(args):
+    spec = read_graph_spec(args.spec)
+    out = args.out or spec["spaces"] / f"{spec['name']}.mgraph"
+    if out.exists() and not args.force:
+        raise FileExistsError(f"{out} already exists; pass --force to replace it")
+    bars = StageBars()
+    try:
+        report = build_graph(out, spec["nodes"], spec["edges"], name=spec["name"], options=spec["options"],
+                             progress=bars)
+    except GraphError as exc:
+        raise ValueError(f"{args.spec}: {exc}") from None
+    finally:
+        bars.close()
+    print(f"wrote {out}: {len(report['nodes'])} nodes, {len(report['edges'])} edges in {report['build_s']:.1f} s",
+          file=sys.stdout)
+    for edge in report["edges"]:
+        print(f"  {edge['from']:>10} -> {edge['to']:<10} best seam {1000 * edge['min_m']:.1f} mm, "
+              f"median {1000 * edge['median_m']:.1f} mm")
+    return 0

@@ -1,0 +1,100 @@
+"""Motion graphs from the command line (build-graph, play GRAPH.mgraph) and as a REST job.
+
+The graph joins the test spaces: the speed chain (cyclic) and the jump distance chain (one-shot)."""
+
+from __future__ import annotations
+
+import time
+
+import httpx
+import pytest
+from live_server import LiveServer
+
+from engine.graph import MotionGraph
+from server.cli import main
+
+TOKEN = "test-token-graph"
+AUTH = {"Authorization": f"Bearer {TOKEN}"}
+SPEC = """
+name = "gaits"
+spaces = "{spaces}"
+edges = [["run", "leap"], ["leap", "run"]]
+
+[window]
+phases = 12
+per_axis = 3
+
+[[nodes]]
+name = "run"
+space = "speed.mspace"
+
+[[nodes]]
+name = "leap"
+space = "jump.mspace"
+"""
+
+
+@pytest.fixture(scope="module")
+def graph_file(built_spaces, tmp_path_factory):
+    directory = tmp_path_factory.mktemp("graph-cli")
+    (directory / "graph.toml").write_text(SPEC.format(spaces=built_spaces))
+    out = directory / "gaits.mgraph"
+    assert main(["build-graph", str(directory / "graph.toml"), "--out", str(out)]) == 0
+    return out
+
+
+def test_build_graph_writes_a_graph_file(graph_file, capsys):
+    with MotionGraph.open(graph_file) as graph:
+        assert [n.name for n in graph.nodes] == ["run", "leap"] and graph.node("leap").meta["return_to"] == "run"
+        assert graph.edges[("run", "leap")].shape == (3, 12, 3, 12)
+    assert main(["build-graph", str(graph_file.parent / "graph.toml"), "--out", str(graph_file)]) == 2
+    assert "already exists" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda s: s.replace('space = "jump.mspace"', 'space = "nope.mspace"'), "nope.mspace does not exist"),
+    (lambda s: s.replace('["leap", "run"]', '["leap", "walk"]'), "both ends must be nodes"),
+    (lambda s: s.replace("per_axis = 3", "per_axis = 0"), "window"),
+    (lambda s: s.replace("[[nodes]]", "[[nodes]]\ncolour = 1", 1), "unknown key"),
+])
+def test_bad_specs_name_the_problem(built_spaces, tmp_path, capsys, change, message):
+    (tmp_path / "g.toml").write_text(change(SPEC.format(spaces=built_spaces)))
+    assert main(["build-graph", str(tmp_path / "g.toml"), "--out", str(tmp_path / "g.mgraph")]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "g.mgraph").exists()
+
+
+def _wait(client, job_id, timeout=120.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        job = client.get(f"/v1/jobs/{job_id}").json()
+        if job["status"] in ("succeeded", "failed", "cancelled"):
+            return job
+        time.sleep(0.1)
+    raise AssertionError(f"job {job_id} did not finish in {timeout} s: {job}")
+
+
+def test_graph_job_over_rest(built_spaces, tmp_path_factory):
+    from live_server import data_dir_with_spaces
+
+    data = data_dir_with_spaces(tmp_path_factory.mktemp("graph-data"), built_spaces)
+    request = {"kind": "graph", "graph": "gaits", "nodes": [{"name": "run", "space": "speed"},
+                                                            {"name": "leap", "space": "jump", "return_to": "run"}],
+               "edges": [["run", "leap"], ["leap", "run"]], "window": {"phases": 12, "per_axis": 3}}
+    with LiveServer(data, env={"MORPHSPACE_TOKEN": TOKEN}) as live, httpx.Client(base_url=live.url, timeout=30) as client:
+        bad = client.post("/v1/jobs", headers=AUTH, json={**request, "edges": [["run", "fly"]]})
+        assert bad.status_code == 422 and "both ends must be nodes" in bad.text
+        missing = client.post("/v1/jobs", headers=AUTH, json={**request, "nodes": [
+            {"name": "run", "space": "speed"}, {"name": "leap", "space": "hop"}]})
+        assert missing.status_code == 404 and "hop" in missing.json()["detail"]
+        r = client.post("/v1/jobs", headers=AUTH, json=request)
+        assert r.status_code == 202, r.text
+        job = _wait(client, r.json()["id"])
+        assert job["status"] == "succeeded", job
+        assert job["kind"] == "graph" and job["result"]["nodes"] == ["run", "leap"]
+        assert [e["from"] for e in job["result"]["edges"]] == ["run", "leap"]
+        assert client.get("/v1/jobs", params={"kind": "graph"}).json()["jobs"][0]["id"] == job["id"]
+        again = client.post("/v1/jobs", headers=AUTH, json=request)
+        assert again.status_code == 409 and "already exists" in again.json()["detail"]
+    with MotionGraph.open(data / "spaces" / "gaits.mgraph") as graph:  # its spaces found beside it
+        assert graph.node("run").meta["space"] == "speed.mspace"
