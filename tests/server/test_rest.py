@@ -51,7 +51,7 @@ def test_openapi_is_complete(tmp_path):
     job = schema["paths"]["/v1/jobs"]["post"]
     body = job["requestBody"]["content"]["application/json"]["schema"]
     assert body["discriminator"]["propertyName"] == "kind"
-    assert set(body["discriminator"]["mapping"]) == {"build", "align", "ingest", "export"}
+    assert set(body["discriminator"]["mapping"]) == {"build", "align", "ingest", "export", "graph"}
     for model in ("JobRecord", "BuildSpec", "DatasetInfo"):
         assert model in schema["components"]["schemas"], model
 
