@@ -72,8 +72,9 @@ class NodeClock:
 
     def mesh(self, mode="hybrid"):
         """(n, 3) the root-local blended mesh at the current phase (the blender's buffer: copy it
-        to keep it)."""
-        return self.space.frame_blender(mode).blend(self.weights, self.phase)
+        to keep it). The space's own blender, not its phase-table cache: the bytes depend only on
+        the weights and the phase, so a replay gives the same frames."""
+        return self.space.blender(mode).blend(self.weights, self.phase)
 
 
 def place(mesh, position, heading, out=None):

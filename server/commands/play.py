@@ -1,4 +1,4 @@
-"""Play a motion space headless under scripted parameter changes.
+"""Play a motion space or a motion graph headless under scripted requests.
 
 Runs the real-time player (engine.player) on a fixed clock and reports what it did: realised vs
 requested parameters over time, the path travelled, and optionally a trail picture (every n-th
@@ -7,6 +7,10 @@ frame along the path, like the paper's figs. 7-8) and the frames as OBJ files. E
     morphspace play data/spaces/locomotion.mspace --set speed=1.3 turn_rate=0 \\
         --at 3 speed=2.6 --at 6 turn_rate=40 --seconds 10 --trail path.png
     morphspace play data/spaces/jumps.mspace --set jump_height=0.45 jump_distance=0.8 --json
+    morphspace play data/spaces/demo.mgraph --set speed=1.3 --at 2 jump jump_height=0.45 \
+        --at 6 walk speed=1.5 --at 9 reach reach_height=1.8 --record session.json
+
+With a motion graph (.mgraph) each ``--at`` names a node first (server/commands/play_graph.py).
 """
 
 from __future__ import annotations
@@ -22,10 +26,15 @@ from engine.player import Player
 
 
 def add_arguments(parser):
-    parser.add_argument("space", type=Path, help="a .mspace file with parameters")
+    parser.add_argument("space", type=Path, help="a .mspace file with parameters, or a .mgraph motion graph")
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="initial parameters")
-    parser.add_argument("--at", nargs="+", action="append", default=[], metavar="T NAME=VALUE",
-                        help="at time T (s) request parameters (repeat for a script)")
+    parser.add_argument("--at", nargs="+", action="append", default=[], metavar="T [NODE] NAME=VALUE",
+                        help="at time T (s) request parameters (repeat for a script); with a graph, a node "
+                             "first and optionally budget=S (the latency budget, s)")
+    parser.add_argument("--start", help="graphs: the node to start in (default: the first cyclic node)")
+    parser.add_argument("--record", type=Path, help="graphs: write the session's requests as a JSON recording")
+    parser.add_argument("--replay", type=Path, help="graphs: replay a JSON recording (its own start, clock, mode "
+                        "and requests) and check the frames are identical (exit status 1 if not)")
     parser.add_argument("--seconds", type=float, help="how long to play (default: 10 s, or one clip)")
     parser.add_argument("--fps", type=float, default=60.0, help="player clock rate (default 60)")
     parser.add_argument("--mode", choices=("linear", "hybrid", "nonlinear"), default="hybrid")
@@ -53,6 +62,12 @@ def _assignments(items, names):
 
 
 def run(args):
+    if args.space.suffix == ".mgraph":
+        from server.commands.play_graph import run_graph
+
+        return run_graph(args)
+    if args.start or args.record or args.replay:
+        raise ValueError("--start, --record and --replay are for motion graphs (.mgraph)")
     if args.fps <= 0 or (args.seconds is not None and args.seconds <= 0):
         raise ValueError("--fps and --seconds must be positive")
     space = MotionSpace.open(args.space)

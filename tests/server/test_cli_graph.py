@@ -4,6 +4,7 @@ The graph joins the test spaces: the speed chain (cyclic) and the jump distance 
 
 from __future__ import annotations
 
+import json
 import time
 
 import httpx
@@ -98,3 +99,42 @@ def test_graph_job_over_rest(built_spaces, tmp_path_factory):
         assert again.status_code == 409 and "already exists" in again.json()["detail"]
     with MotionGraph.open(data / "spaces" / "gaits.mgraph") as graph:  # its spaces found beside it
         assert graph.node("run").meta["space"] == "speed.mspace"
+
+
+def test_play_a_graph_record_and_replay_byte_for_byte(graph_file, tmp_path, capsys):
+    record = tmp_path / "session.json"
+    status = main(["play", str(graph_file), "--set", "speed=1.2", "--at", "1", "leap", "jump_distance=0.8",
+                   "budget=0.5", "--seconds", "5", "--fps", "20", "--frames", str(tmp_path / "frames"),
+                   "--record", str(record), "--json", "--mode", "linear"])
+    assert status == 0
+    report = json.loads(capsys.readouterr().out)
+    events = [e["event"] for e in report["events"]]
+    assert events == ["leave run -> leap", "enter leap", "leave leap -> run", "enter run"]
+    assert report["requests"][0]["status"] == "planned" and report["requests"][0]["latency"] <= 0.5 + 1e-9
+    assert len(list((tmp_path / "frames").glob("frame_*.obj"))) == report["frames"] == 101
+    saved = json.loads(record.read_text())
+    assert saved["requests"] == [{"frame": 20, "node": "leap", "params": {"jump_distance": 0.8}, "budget": 0.5}]
+    assert saved["frames_sha256"] == report["frames_sha256"] and saved["mode"] == "linear"
+    assert main(["play", str(graph_file), "--replay", str(record)]) == 0  # a new player, the same frames
+    assert "identical frames" in capsys.readouterr().out
+    saved["requests"][0]["frame"] = 21  # a different performance is told apart
+    record.write_text(json.dumps(saved))
+    assert main(["play", str(graph_file), "--replay", str(record)]) == 1
+    assert "DIFFERENT frames" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["--at", "1", "fly"], "no node 'fly'"),
+    (["--at", "1", "leap", "height=2"], "has no parameter 'height'"),
+    (["--at", "soon", "leap"], "needs a time first"),
+    (["--at", "1"], "needs a time and a node"),
+])
+def test_play_graph_errors_name_the_problem(graph_file, capsys, argv, message):
+    assert main(["play", str(graph_file), *argv]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_graph_options_are_refused_for_a_space(built_spaces, tmp_path, capsys):
+    assert main(["play", str(built_spaces / "speed.mspace"), "--record", str(tmp_path / "r.json")]) == 2
+    assert "for motion graphs" in capsys.readouterr().err
+    assert not (tmp_path / "r.json").exists()

@@ -1,0 +1,134 @@
+"""``morphspace play GRAPH.mgraph``: a scripted performance on a motion graph.
+
+The script is ``--at T NODE [NAME=VALUE ...] [budget=S]`` requests (``--at 3 jump
+jump_height=0.5``): the graph player plans each transition (when to leave, where to enter, how
+long to blend) and plays on, one-shots returning to a cyclic node by themselves. It reports the
+transitions and the path, can write every frame as OBJ (``--frames``), record the session's
+requests (``--record``) and replay a recording to the same frames, byte for byte (``--replay``).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from engine.graph import GraphError, MotionGraph
+from engine.graph.recording import perform, read_recording, recording
+from engine.mesh_io import write_obj
+
+
+def _assignments(items, node):
+    out, budget = {}, None
+    for item in items:
+        if "=" not in item:
+            raise ValueError(f"expected NAME=VALUE, got {item!r}")
+        name, value = item.split("=", 1)
+        try:
+            number = float(value)
+        except ValueError:
+            raise ValueError(f"{name}: {value!r} is not a number") from None
+        if name == "budget":
+            budget = number
+        else:
+            if name not in node.parameters:
+                raise ValueError(f"node {node.name!r} has no parameter {name!r}"
+                                 f"{'; it has ' + ', '.join(node.parameters) if node.parameters else ''}")
+            out[name] = number
+    return out, budget
+
+
+def run_graph(args):
+    if args.fps <= 0 or (args.seconds is not None and args.seconds <= 0):
+        raise ValueError("--fps and --seconds must be positive")
+    try:
+        graph = MotionGraph.open(args.space)
+    except GraphError as exc:
+        raise ValueError(str(exc)) from None
+    with graph:
+        if args.replay:
+            try:
+                document = read_recording(json.loads(args.replay.read_text()), graph)
+            except json.JSONDecodeError as exc:
+                raise ValueError(f"{args.replay}: not JSON: {exc}") from None
+            except GraphError as exc:
+                raise ValueError(f"{args.replay}: {exc}") from None
+            start, params, fps, steps = document["start"], document["params"], document["fps"], document["steps"]
+            mode, requests = document["mode"], document["requests"]
+        else:
+            start = args.start or next(n.name for n in graph.nodes if n.cyclic)
+            params, _ = _assignments(args.set, graph.node(start))
+            fps, mode = args.fps, args.mode
+            requests = []
+            for entry in args.at:
+                if len(entry) < 2:
+                    raise ValueError(f"--at needs a time and a node, got {' '.join(entry)!r}")
+                try:
+                    when = float(entry[0])
+                except ValueError:
+                    raise ValueError(f"--at needs a time first, got {entry[0]!r}") from None
+                node = graph.node(entry[1])
+                values, budget = _assignments(entry[2:], node)
+                requests.append({"frame": int(round(when * fps)), "node": node.name, "params": values,
+                                 "budget": budget})
+            last = max((r["frame"] / fps for r in requests), default=0.0)
+            steps = int(round((args.seconds or last + 4.0) * fps))
+        if args.frames:
+            args.frames.mkdir(parents=True, exist_ok=True)
+        faces = graph.nodes[0].space.faces
+        log = []
+
+        def on_frame(k, frame):
+            if args.frames:
+                write_obj(args.frames / f"frame_{k:05d}.obj", frame.vertices, faces, precision=6)
+            log.append({"time": round(frame.time, 4), "node": frame.node, "phase": round(frame.phase, 4),
+                        "target": frame.target, "progress": None if frame.progress is None else round(frame.progress, 3),
+                        "root": np.round(frame.root_position, 4).tolist(),
+                        "heading_deg": round(float(np.degrees(frame.heading)), 3), "events": frame.events})
+
+        try:
+            player, digest, answers = perform(graph, start=start, params=params, fps=fps, steps=steps, mode=mode,
+                                              requests=requests, on_frame=on_frame)
+        except GraphError as exc:
+            raise ValueError(str(exc)) from None
+        root = np.array([entry["root"] for entry in log])
+        travelled = float(np.sum(np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=1)))
+        events = [{"time": e["time"], "event": ev} for e in log for ev in e["events"]]
+        report = {"graph": graph.name, "mode": mode, "fps": fps, "seconds": log[-1]["time"], "frames": len(log),
+                  "path_length_m": travelled, "requests": answers, "events": events, "end": log[-1],
+                  "frames_sha256": digest, "timeline": log[:: max(1, len(log) // 50)]}
+        if args.replay:
+            report["replayed"] = args.replay.name
+            report["identical"] = digest == document.get("frames_sha256")
+        if args.record:
+            doc = recording(graph, player, start=start, params=params, fps=fps, steps=steps, mode=mode, digest=digest)
+            args.record.parent.mkdir(parents=True, exist_ok=True)
+            args.record.write_text(json.dumps(doc, indent=2) + "\n")
+            report["recorded"] = str(args.record)
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(f"{report['graph']}: played {report['seconds']:.2f} s ({report['frames']} frames, {mode}) from {start}, "
+              f"travelled {travelled:.2f} m")
+        for answer in answers:
+            if answer["status"] == "planned":
+                print(f"  t {answer['frame'] / fps:6.2f} s  request {answer['node']}: via {' -> '.join(answer['route'])}, "
+                      f"leave in {answer['leave_in']:.2f} s, blend {answer['length']:.2f} s, enter at phase "
+                      f"{answer['enter_phase']:.2f} (seam {1000 * answer['dissimilarity']:.0f} mm)")
+            else:
+                print(f"  t {answer['frame'] / fps:6.2f} s  request {answer['node']}: {answer['status']}")
+            if answer.get("clamped"):
+                print(f"    note: {answer['message']}")
+        for event in events:
+            print(f"  t {event['time']:6.2f} s  {event['event']}")
+        end = report["end"]
+        print(f"  end: {end['node']} at phase {end['phase']:.2f}, root {end['root'][0]:+.2f}, {end['root'][2]:+.2f} m, "
+              f"heading {end['heading_deg']:+.1f} deg")
+        print(f"  frames sha256 {digest[:16]}...")
+        if args.replay:
+            print(f"  replay of {args.replay}: {'identical frames' if report['identical'] else 'DIFFERENT frames'}")
+        if args.record:
+            print(f"  recorded: {args.record}")
+    if args.replay and not report["identical"]:
+        return 1
+    return 0

@@ -1,0 +1,101 @@
+"""The graph player: transitions played, one-shots returning, the root carried, replays exact."""
+
+import numpy as np
+import pytest
+
+from engine.graph import GraphError, GraphPlayer, MotionGraph, TransitionSearch
+from engine.graph.evaluate import Request, play_requests, transition_measures
+from engine.graph.recording import perform, read_recording, recording
+
+
+@pytest.fixture(scope="module")
+def graph(motion_graph_file):
+    with MotionGraph.open(motion_graph_file) as g:
+        yield g
+
+
+def _play(player, seconds, fps=30.0):
+    return [player.step(1.0 / fps) for _ in range(int(seconds * fps))]
+
+
+def test_walk_jump_and_back_to_the_stand_by_itself(graph):
+    player = GraphPlayer(graph, node="walk", params={"speed": 1.2}, mode="linear")
+    _play(player, 0.5)
+    answer = player.request("jump", {"jump_height": 0.4})
+    assert answer["status"] == "planned" and answer["route"] == ["walk", "jump"]
+    frames = _play(player, 5.0)
+    events = [e for f in frames for e in f.events]
+    assert events[:2] == ["leave walk -> jump", "enter jump"]
+    assert events[2:] == ["leave jump -> stand", "enter stand"]  # nobody asked: the one-shot returned
+    entered = next(f for f in frames if "enter jump" in f.events)
+    _, realised, _, _ = graph.node("jump").solve({"jump_height": 0.4})
+    assert entered.params["jump_height"] == pytest.approx(float(realised[0]))  # the target's parameters, at once
+    assert frames[-1].node == "stand" and frames[-1].target is None
+    blending = [f for f in frames if f.progress is not None]
+    assert blending and all(0 < f.progress < 1 + 1e-9 and f.target for f in blending)
+
+
+def test_root_position_and_heading_stay_continuous(graph):
+    player = GraphPlayer(graph, node="walk", params={"speed": 1.5}, mode="linear")
+    requests = [(0.4, "stand", {}), (1.5, "walk", {"speed": 0.9}), (3.0, "jump", {"jump_height": 0.3})]
+    frames = []
+    for k in range(int(6 * 30)):
+        for when, node, params in requests:
+            if k == int(when * 30):
+                player.request(node, params)
+        frames.append(player.step(1 / 30))
+    root = np.array([f.root_position for f in frames])
+    steps = np.linalg.norm(np.diff(root, axis=0), axis=1)
+    # never faster than the fastest walk the graph has (1.6 m/s) plus the foot lock's corrections
+    assert steps.max() <= 1.6 / 30 * 1.5
+    assert np.abs(np.diff([f.heading for f in frames])).max() < 1e-5  # these motions go straight
+
+
+def test_requests_follow_routes_and_wait_for_one_shots(graph):
+    player = GraphPlayer(graph, node="stand", mode="linear")
+    player.request("jump", {"jump_height": 0.3})
+    _play(player, 0.5)
+    assert player.node.name == "jump"
+    assert player.request("walk", {"speed": 1.0})["status"] == "queued"  # no edge jump -> walk: after the stand
+    frames = _play(player, 5.0)
+    entered = [e for f in frames for e in f.events if e.startswith("enter")]
+    assert entered == ["enter stand", "enter walk"]
+    assert player.request("walk", {"speed": 1.5})["status"] == "set"  # the node it is in: just its parameters
+    with pytest.raises(GraphError, match="no node 'fly'"):
+        player.request("fly")
+    with pytest.raises(GraphError, match="unknown parameter"):
+        player.request("jump", {"height": 1})
+    with pytest.raises(GraphError, match="budget"):
+        player.request("stand", budget=-1)
+    with pytest.raises(GraphError, match="has no parameters"):
+        player.request("stand", {"speed": 1})
+
+
+def test_a_recording_replays_to_identical_frames(graph):
+    script = [{"frame": 10, "node": "jump", "params": {"jump_height": 0.35}, "budget": None},
+              {"frame": 100, "node": "walk", "params": {"speed": 1.1}, "budget": 0.6}]
+    player, digest, answers = perform(graph, start="walk", params={"speed": 1.0}, fps=30.0, steps=150, mode="hybrid",
+                                      requests=script)
+    document = recording(graph, player, start="walk", params={"speed": 1.0}, fps=30.0, steps=150, mode="hybrid",
+                         digest=digest)
+    assert [r["frame"] for r in document["requests"]] == [10, 100] and answers[0]["status"] == "planned"
+    checked = read_recording(document, graph)
+    _, again, _ = perform(graph, start=checked["start"], params=checked["params"], fps=checked["fps"],
+                          steps=checked["steps"], mode=checked["mode"], requests=checked["requests"])
+    assert again == digest
+    _, other, _ = perform(graph, start="walk", params={"speed": 1.0}, fps=30.0, steps=150, mode="hybrid",
+                          requests=script[:1])
+    assert other != digest
+    with pytest.raises(GraphError, match="not this one"):
+        read_recording({**document, "graph_checksum": "0" * 32}, graph)
+    with pytest.raises(GraphError, match="not a morphspace-graph-recording"):
+        read_recording({"format": "x"}, graph)
+
+
+def test_feet_stay_put_entering_a_jump_from_the_stand(graph):
+    requests = [Request(1.0, "jump", {"jump_height": 0.3}), Request(5.0, "jump", {"jump_height": 0.45})]
+    frames, transitions, _ = play_requests(graph, TransitionSearch(graph), requests, start="stand")
+    measures = transition_measures(graph, frames, transitions, fps=30.0)
+    assert {(m["source"], m["target"]) for m in measures} == {("stand", "jump"), ("jump", "stand")}
+    assert max(m["foot_slide_m"] for m in measures) < 0.01
+    assert max(m["smoothness"] for m in measures) < 1.0
