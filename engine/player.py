@@ -96,6 +96,7 @@ class Player:
         self.loop = space.cyclic if loop is None else bool(loop)
         middle = np.array([(lo + hi) / 2 for lo, hi in self.map.domain()])
         self._target = middle
+        self._request = middle.copy()  # the last request as asked (not clamped): a {name: value} update keeps the rest
         self._current = middle.copy()
         self._velocity = np.zeros_like(middle)
         self._settled = True
@@ -133,7 +134,7 @@ class Player:
             unknown = sorted(set(params) - set(self.names))
             if unknown:
                 raise ValueError(f"unknown parameter(s) {', '.join(unknown)}; this space has {', '.join(self.names)}")
-            values = self._target.copy()
+            values = self._request.copy()  # what was asked for, not where the clamp put it
             for name, value in params.items():
                 values[self.names.index(name)] = value
         else:
@@ -149,10 +150,14 @@ class Player:
         """Request parameters (a {name: value} mapping or a vector in ``names`` order).
 
         Returns the map's Solution for the request: ``clamped`` and ``message`` say whether it is
-        reachable. Unreachable requests are clamped to the nearest reachable parameters.
+        reachable. Unreachable requests are clamped to the nearest reachable parameters. A mapping
+        changes only the named parameters of the last request *as it was asked*: a turn clamped at
+        high speed lowers the reachable speed only while the turn is asked for, and asking for
+        straight ahead again heads back to the speed that was asked.
         """
         target = self._as_vector(params)
         solution = self.map.solve(target)
+        self._request = target.copy()
         self._target = solution.realised.copy()  # steer towards what can be reached
         if immediate:
             self._current = self._target.copy()

@@ -85,6 +85,33 @@ def test_unreachable_requests_are_clamped(gait_space):
     assert frame.clamped and frame.requested[0] == pytest.approx(gait_space.parameter_map.domain()[0][1], abs=0.02)
 
 
+@pytest.fixture(scope="module")
+def fan_space(body, tmp_path_factory):
+    """speed x turn_rate: a speed chain (0.9, 2.6 m/s) and turns of +-40 deg/s at 1.5 m/s."""
+    gaits = [(0.9, 0.0), (2.6, 0.0), (1.5, 40.0), (1.5, -40.0)]
+    clips = [SourceClip(f"g{k}", animate(body, gait(body.skeleton, v, turn_rate=r, cycles=1.0, fps=FPS)), FPS, True)
+             for k, (v, r) in enumerate(gaits)]
+    path = tmp_path_factory.mktemp("player") / "fan.mspace"
+    build_motion_space(path, clips, body.F, name="fan", epsilon=0.008, rest=body.V,
+                       parameters={"layout": Layout("fan", 4, chain=(0, 1), left=2, right=3),
+                                   "names": ["speed", "turn_rate"]})
+    with MotionSpace.open(path) as space:
+        yield space
+
+
+def test_a_clamped_turn_does_not_lower_the_speed_asked_for(fan_space):
+    """Issue 15 item 1: speed asked, a turn clamped (the reachable speed drops), the turn released:
+    the player heads back to the speed that was asked, not the clamped one."""
+    player = Player(fan_space, smoothing=0.0, params={"speed": 2.2, "turn_rate": 0.0})
+    assert not player.clamped and player.target[0] == pytest.approx(2.2, abs=1e-6)
+    turning = player.set_params({"turn_rate": 36.0})
+    assert turning.clamped and player.target[0] < 2.1  # the fast turns are out of reach
+    straight = player.set_params({"turn_rate": 0.0})
+    assert not straight.clamped
+    assert player.target[0] == pytest.approx(2.2, abs=1e-6)
+    assert player.step(1 / 60).requested[0] == pytest.approx(2.2, abs=1e-6)
+
+
 def test_one_shot_clip_plays_once_and_travels_its_distance(jump_space):
     player = Player(jump_space, smoothing=0.0, params={"jump_distance": 0.7})
     frames = [player.step(1 / 30) for _ in range(200)]
