@@ -15,7 +15,7 @@ import time
 from contextlib import asynccontextmanager
 from pathlib import Path
 
-from fastapi import FastAPI, WebSocket
+from fastapi import FastAPI, Request, WebSocket
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import RedirectResponse
 from fastapi.staticfiles import StaticFiles
@@ -108,7 +108,9 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
         app.mount("/app", StaticFiles(directory=WEB_CLIENT, html=True), name="web_client")
 
         @app.get("/", include_in_schema=False)
-        def index():
-            return RedirectResponse("/app/")
+        def index(request: Request):
+            # the query is the page's state (?space=reach&mode=linear...): a shared link keeps it
+            query = request.url.query
+            return RedirectResponse(f"/app/?{query}" if query else "/app/")
 
     return app

@@ -520,7 +520,11 @@ def publish_dir(staging, target, *, replace=False):
 
 
 def remove_dir(path):
-    """Make a directory vanish at once (rename to a hidden name), then delete it."""
+    """Make a directory vanish at once (rename to a hidden name), then delete it. A link to a
+    directory (scripts/demo publishes its captures so) is removed, not what it points to."""
+    if path.is_symlink():
+        path.unlink()
+        return
     trash = path.with_name(f"{TRASH_PREFIX}{uuid.uuid4().hex[:12]}")
     os.rename(path, trash)
     shutil.rmtree(trash, ignore_errors=True)
@@ -614,7 +618,23 @@ def describe_dataset(settings, name):
         "frames": sum(s["frames"] for s in sequences),
         "bytes": _directory_bytes(root),
         "buildable": [s["name"] for s in sequences if s["consistent_frames"] > 0],
+        "pictures": [p for p in PICTURES if (root / p).is_file()],
     }
+
+
+# The pictures an align job (morphspace align) writes into its dataset: figs. 1c, 1d and 2.
+PICTURES = {"similarity.png": "shape dissimilarity matrix", "tree.png": "shape similarity tree",
+            "aligned_pattern.png": "a pattern fixed on the root mesh, carried by the alignment"}
+
+
+def picture_path(settings, name, picture):
+    """The file of one of a dataset's alignment pictures (PICTURES); UploadError 404 otherwise."""
+    if picture not in PICTURES:
+        raise UploadError(404, f"no picture {picture!r}: a dataset may have {', '.join(PICTURES)}")
+    path = dataset_path(settings, name) / picture
+    if not path.is_file():
+        raise UploadError(404, f"dataset {name!r} has no {picture} (only aligned datasets have pictures)")
+    return path
 
 
 def sequence_names(settings, name):

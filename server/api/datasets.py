@@ -6,6 +6,7 @@ import asyncio
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException, Query, Request, Response
+from fastapi.responses import FileResponse
 from pydantic import BaseModel, Field
 
 from server import uploads
@@ -34,6 +35,7 @@ class DatasetInfo(BaseModel):
     frames: int
     bytes: int
     buildable: list[str] = Field(description="sequences a build job can use (consistent frames)")
+    pictures: list[str] = Field(description="alignment pictures the dataset has (GET .../pictures/{picture})")
 
 
 class DatasetProblem(BaseModel):
@@ -109,6 +111,17 @@ def describe_dataset(name: str, settings: SettingsDep):
         return uploads.describe_dataset(settings, name)
     except uploads.UploadError as exc:
         raise _http(exc) from None
+
+
+@router.get("/datasets/{name}/pictures/{picture}", response_class=FileResponse,
+            summary="One of an aligned dataset's pictures (PNG)",
+            responses={200: {"content": {"image/png": {}}}, 404: {"description": "no such dataset or picture"}})
+def dataset_picture(name: str, picture: str, settings: SettingsDep):
+    try:
+        path = uploads.picture_path(settings, name, picture)
+    except uploads.UploadError as exc:
+        raise _http(exc) from None
+    return FileResponse(path, media_type="image/png")
 
 
 @router.delete("/datasets/{name}", status_code=204, dependencies=[Authorised], summary="Delete a dataset",

@@ -276,6 +276,17 @@ def test_align_job_writes_a_buildable_dataset(client, live, dataset_zip):
     info = client.get("/v1/datasets/raw_aligned").json()
     assert info["kind"] == "aligned" and info["buildable"] == sorted(SEQUENCES) and info["frames"] == 6
     assert info["templates"] == ["body.obj"]
+    # its pictures (figs. 1c, 1d, 2), served as PNG; nothing else of the directory is
+    assert info["pictures"] == ["similarity.png", "tree.png", "aligned_pattern.png"]
+    for picture in info["pictures"]:
+        r = client.get(f"/v1/datasets/raw_aligned/pictures/{picture}")
+        assert r.status_code == 200 and r.headers["content-type"] == "image/png" and r.content[:8] == b"\x89PNG\r\n\x1a\n"
+    for bad in ("manifest.json", "tree.jpg"):
+        r = client.get(f"/v1/datasets/raw_aligned/pictures/{bad}")
+        assert r.status_code == 404 and "similarity.png" in r.json()["detail"], r.text
+    assert client.get("/v1/datasets/raw_aligned/pictures/..%2F..%2Fjobs.sqlite").status_code == 404
+    assert client.get("/v1/datasets/raw/pictures/tree.png").status_code == 404  # not aligned: none
+    assert client.get("/v1/datasets/raw").json()["pictures"] == []
     assert job["result"]["url"] == "/v1/datasets/raw_aligned" and job["result"]["frames"] == 6
     for name in SEQUENCES:  # units as asked for, the up axis detected, said in the log
         units = job["result"]["input"][name]

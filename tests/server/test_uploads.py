@@ -123,6 +123,20 @@ def test_duplicate_name_replace_and_delete(client, live):
     assert client.delete("/v1/datasets/dup", headers=AUTH).status_code == 404
 
 
+def test_a_linked_dataset_is_listed_and_deleting_it_keeps_what_it_links(client, live, tmp_path):
+    """scripts/demo publishes its captures as links in datasets/: they are datasets like any other,
+    and deleting one removes the link only."""
+    assert post_zip(client, "to_link", zip_bytes(good_files())).status_code == 201
+    elsewhere = tmp_path / "captures"
+    (live.data_dir / "datasets" / "to_link").rename(elsewhere)
+    (live.data_dir / "datasets" / "linked").symlink_to(elsewhere, target_is_directory=True)
+    listed = {d["name"]: d for d in client.get("/v1/datasets").json()["datasets"]}
+    assert "to_link" not in listed and sorted(listed["linked"]["buildable"]) == ["jump", "walk"]
+    assert client.delete("/v1/datasets/linked", headers=AUTH).status_code == 204
+    assert not (live.data_dir / "datasets" / "linked").exists() and (elsewhere / "manifest.json").is_file()
+    assert not [p for p in (live.data_dir / "datasets").iterdir() if p.name.startswith(".")]
+
+
 def test_token_is_required_to_upload(client, live):
     before = datasets_state(live)
     data = zip_bytes(good_files())
