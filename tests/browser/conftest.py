@@ -70,6 +70,45 @@ def browser():
         chromium.close()
 
 
+def _build_steer_space(path):
+    """speed x turn_rate (fan): gaits at 0.9 and 2.6 m/s, turns of +-40 deg/s at 1.5 m/s (1,000 vertices).
+    Fast turns are out of its reach (clamped): what issue 15's first two items are about."""
+    from engine.motion_space import SourceClip, build_motion_space
+    from engine.parameters import Layout
+    from engine.synthetic import animate, build_body, gait
+
+    fps = 15.0
+    body = build_body(1000)
+    gaits = [("slow", 0.9, 0.0), ("fast", 2.6, 0.0), ("left", 1.5, 40.0), ("right", 1.5, -40.0)]
+    clips = [SourceClip(name, animate(body, gait(body.skeleton, v, turn_rate=r, cycles=1.0, fps=fps)), fps, True)
+             for name, v, r in gaits]
+    build_motion_space(path, clips, body.F, name="steer", epsilon=0.008, rest=body.V,
+                       parameters={"layout": Layout("fan", 4, chain=(0, 1), left=2, right=3),
+                                   "names": ["speed", "turn_rate"]})
+
+
+@pytest.fixture(scope="session")
+def steer_space(built_spaces):
+    """built_spaces' directory, with steer.mspace added (built once per run, under the same kind of lock)."""
+    import fcntl
+
+    with open(built_spaces / ".steer-lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if not (built_spaces / "steer.mspace").exists():
+            _build_steer_space(built_spaces / "steer.mspace.tmp")
+            (built_spaces / "steer.mspace.tmp").rename(built_spaces / "steer.mspace")
+        fcntl.flock(lock, fcntl.LOCK_UN)
+    return built_spaces
+
+
+@pytest.fixture(scope="module")
+def steer_server(steer_space, tmp_path_factory):
+    """A live server with the 'speed', 'jump' and 'steer' test spaces."""
+    data = data_dir_with_spaces(tmp_path_factory.mktemp("browser-steer"), steer_space, names=("speed", "jump", "steer"))
+    with LiveServer(data) as live:
+        yield live
+
+
 @pytest.fixture(scope="module")
 def web_server(built_spaces, tmp_path_factory):
     """A live server with the 'speed' and 'jump' test spaces."""
@@ -163,8 +202,9 @@ def open_page(browser):
     """``open_page(url)``: a fresh page at ``url`` (closed after the test)."""
     pages = []
 
-    def make(url):
-        context = browser.new_context(viewport=VIEWPORT)
+    def make(url, viewport=None, touch=False):
+        options = {"has_touch": True, "is_mobile": True, "device_scale_factor": 2} if touch else {}
+        context = browser.new_context(viewport=viewport or VIEWPORT, **options)
         page = Page(context.new_page())
         page.page.set_default_timeout(15000)
         pages.append(context)

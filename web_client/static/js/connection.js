@@ -17,7 +17,7 @@ export function typedView(bytes, Ctor) {
 export class StreamConnection {
   /**
    * url: ws://host/v1/stream; hello(): the fields of the next Hello (space, codec, mode, params...);
-   * handlers: {topology(t), frame(f), notice(n), error(e), state(s)}.
+   * handlers: {topology(t), frame(f), pulled(f), notice(n), error(e), state(s)}.
    */
   constructor(url, hello, handlers) {
     this.url = url;
@@ -94,7 +94,9 @@ export class StreamConnection {
       // With a window, the server keeps at most that many frames in flight until we ack:
       // latest-wins end to end, so a busy page never works through a backlog of stale frames.
       if (this.window > 0 && this.open) this.ws.send(clientMessage("ack", { frame: message.seq }));
-      if (this.ready) this.handlers.frame?.(message);
+      if (!this.ready) return;
+      if (message.pull_id !== undefined && message.pull_id !== null) this.handlers.pulled?.(message);
+      else this.handlers.frame?.(message);
     } else if (message.type === "notice") {
       this.handlers.notice?.(message);
     } else if (message.type === "error") {

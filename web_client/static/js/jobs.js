@@ -1,10 +1,18 @@
-// The jobs panel: upload a capture dataset (zip), queue a build job, follow its progress, and
-// hand the new motion space to the picker when the job succeeds (docs/rest.md: datasets, jobs).
+// The jobs panel: the datasets on the server (uploaded, captured, aligned) with what can be
+// done with each (build, align, look at the alignment pictures), uploading a capture zip,
+// queueing a build job, following its progress, and handing the new motion space to the picker
+// when the job succeeds (docs/rest.md: datasets, jobs).
 import { api, setToken, ApiError } from "./api.js";
+import { openDialog } from "./dialogs.js";
 
 const MEASURES = ["speed", "turn_rate", "jump_height", "jump_distance", "reach_height"];
 const ACTIVE = ["queued", "running"];
 const NAME = /^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$/;
+const PICTURES = {
+  "similarity.png": "shape dissimilarity between every pair of frames (fig. 1c)",
+  "tree.png": "the shape similarity tree the alignment follows (fig. 1d)",
+  "aligned_pattern.png": "a pattern fixed on the root mesh, carried to every frame (fig. 2)",
+};
 
 const $ = (id) => document.getElementById(id);
 
@@ -64,6 +72,7 @@ export class JobsPanel {
     $("build-form").addEventListener("submit", (e) => { e.preventDefault(); this.build(); });
     $("build-dataset").addEventListener("change", () => this.showDataset());
     $("align-button").addEventListener("click", () => this.align());
+    $("datasets").replaceChildren(el("li", { className: "empty" }, "…"));
     $("build-layout").addEventListener("change", () => this.showLayout());
     $("build-measures").replaceChildren(...MEASURES.map((m) => el("label", {},
       el("input", { type: "checkbox", value: m, checked: m === "speed" }), ` ${m.replace("_", " ")}`)));
@@ -104,6 +113,7 @@ export class JobsPanel {
       return;
     }
     const usable = this.datasets.filter((d) => d.buildable.length >= 2 || unstructured(d).length > 0);
+    this.renderDatasets();
     $("build-form").hidden = usable.length === 0;
     const picker = $("build-dataset");
     const keep = select || picker.value;
@@ -111,6 +121,56 @@ export class JobsPanel {
       d.buildable.length >= 2 ? `${d.name} (${d.buildable.length} sequences)` : `${d.name} (unstructured)`, d.name)));
     if (usable.some((d) => d.name === keep)) picker.value = keep;
     this.showDataset();
+  }
+
+  /** One row per dataset: name, kind, sequences and frames; Build, Align, Pictures. */
+  renderDatasets() {
+    const list = $("datasets");
+    if (this.datasets.length === 0) {
+      list.replaceChildren(el("li", { className: "empty" }, "none yet: upload a capture below"));
+      return;
+    }
+    list.replaceChildren(...this.datasets.map((d) => {
+      const head = el("div", { className: "dataset-head" }, el("span", { className: "dataset-name", title: d.name }, d.name),
+        el("span", { className: "dataset-kind" }, `${d.kind} · ${d.sequences.length} sequences · ${d.frames} frames`));
+      const buttons = el("div", { className: "buttons" });
+      const button = (label, action, title) => {
+        const b = el("button", { type: "button", textContent: label, title });
+        b.dataset.action = label.toLowerCase();
+        b.addEventListener("click", action);
+        buttons.append(b);
+      };
+      if (d.buildable.length >= 2) {
+        button("Build", () => this.chooseForBuild(d.name), `build a motion space from ${d.name}'s ${d.buildable.length} sequences`);
+      }
+      if (unstructured(d).length > 0) {
+        button("Align", () => this.align(d.name), `align ${unstructured(d).length} unstructured sequences into one mesh structure`);
+      }
+      if (d.pictures?.length) {
+        button("Pictures", () => this.openPictures(`Alignment of ${d.name}`, d.pictures.map((p) => ({
+          src: `/v1/datasets/${encodeURIComponent(d.name)}/pictures/${p}`, caption: PICTURES[p] ?? p }))),
+        "the similarity matrix, the tree and the aligned pattern");
+      }
+      const item = el("li", {}, head, buttons);
+      item.dataset.name = d.name;
+      return item;
+    }));
+  }
+
+  /** The pictures dialog: [{src, caption}] under a title. */
+  openPictures(title, pictures) {
+    $("pictures-title").textContent = title;
+    $("pictures").replaceChildren(...pictures.map(({ src, caption }) =>
+      el("figure", {}, el("img", { src, alt: caption }), el("figcaption", { textContent: caption }))));
+    openDialog("pictures-dialog", "pictures-close");
+  }
+
+  /** Show the build form for a dataset and move focus there. */
+  chooseForBuild(name) {
+    $("build-dataset").value = name;
+    this.showDataset();
+    $("build-form").scrollIntoView({ block: "nearest" });
+    $("build-dataset").focus();
   }
 
   showDataset() {
@@ -168,8 +228,8 @@ export class JobsPanel {
     }
   }
 
-  async align() {
-    const dataset = $("build-dataset").value;
+  async align(name) {
+    const dataset = name ?? $("build-dataset").value;
     const request = { kind: "align", datasets: [dataset], output: `${dataset}_aligned`.slice(0, 128) };
     try {
       const job = await api.request("POST", "/jobs", request);

@@ -1,53 +1,51 @@
 // The page: picks a motion space, streams it from /v1/stream, renders and steers it.
 // The server blends; this file wires the panel, the connection, the viewer and the overlay.
-import { MODES, CODECS } from "../protocol.js";
 import { api } from "./api.js";
-import { cssGradient } from "./colormap.js";
+import { PRESETS } from "./camera.js";
 import { StreamConnection } from "./connection.js";
+import { closeDialog, dialogOpen, setUpDialogs } from "./dialogs.js";
+import { Comparison, setUpDownloads, shareLink, showHelp } from "./extras.js";
+import { HeatmapControls } from "./heatmap.js";
 import { JobsPanel } from "./jobs.js";
-import { ParameterPanel, ParamSender, Steering, formatValue } from "./params.js";
+import { setUpDrawer, setUpStatusBox, setUpStick } from "./layout.js";
+import { buildStatusRows, renderStatus, say } from "./overlay.js";
+import { ParameterPanel, ParamSender, Steering } from "./params.js";
 import { StreamStats } from "./stats.js";
+import { readUrl, UrlWriter, viewUrl } from "./urlstate.js";
 import { Viewer } from "./viewer.js";
 
 const $ = (id) => document.getElementById(id);
-const query = new URLSearchParams(location.search);
+const fromUrl = readUrl();
 
 const state = {
   spaces: [],                 // GET /v1/spaces entries
-  space: query.get("space") || null,
-  codec: CODECS.includes(query.get("codec")) ? query.get("codec") : "q16",
-  mode: MODES.includes(query.get("mode")) ? query.get("mode") : "hybrid",
-  rate: Number(query.get("rate")) || 60,
-  smoothing: query.has("smoothing") ? Number(query.get("smoothing")) : 0.25,  // seconds (server-side)
-  heatmap: false,
+  space: fromUrl.space,
+  codec: fromUrl.codec ?? "q16",
+  mode: fromUrl.mode ?? "hybrid",
+  rate: fromUrl.rate || 60,
+  smoothing: fromUrl.smoothing ?? 0.25,  // seconds (server-side)
+  heatmap: fromUrl.heatmap,
   paused: false,
   targets: {},                // space -> {name: value} the user asked for
+  urlParams: fromUrl.space ? fromUrl.params : {},  // the URL's parameter values, for its space
+  camera: fromUrl.camera,     // a preset the user chose (else each space's default)
   topology: null,
   frame: null,                // newest frame received
   connection: "idle",
   notices: [],
   errors: [],
   resetPending: false,
+  replays: 0,                 // one-shot clips replayed ("Replay clips when they end")
 };
 
 const stats = new StreamStats();
-const viewer = new Viewer($("view"), query.has("lite") ? { lite: query.get("lite") === "1" } : {});
+const viewer = new Viewer($("view"), fromUrl.lite === null ? {} : { lite: fromUrl.lite });
+const comparison = new Comparison(null, viewer);
+const url = new UrlWriter(() => ({
+  space: state.space, mode: state.mode, heatmap: state.heatmap, camera: state.camera, trail: $("trail").checked,
+  scale: heat.urlScale(), params: targets(),
+}));
 let pendingDraw = null;
-
-// ------------------------------------------------------------------ messages to the user
-
-/** A message top right for `ms`; one with the same `key` (default: the text) replaces it. */
-function say(text, kind = "info", ms = 4000, key = text) {
-  const box = $("messages");
-  for (const old of [...box.children]) if (old.dataset.key === key) old.remove();
-  const div = document.createElement("div");
-  div.className = `message ${kind}`;
-  div.dataset.key = key;
-  div.textContent = text;
-  box.prepend(div);
-  while (box.children.length > 4) box.lastChild.remove();
-  setTimeout(() => div.remove(), ms);
-}
 
 // ------------------------------------------------------------------ connection
 
@@ -63,24 +61,30 @@ const connection = new StreamConnection(wsUrl, () => state.space && {
       stats.reset();
       refreshSpaces();
     }
-    renderStatus();
+    renderStatus(state, stats, viewer.framesDrawn, targets());
   },
   topology: onTopology,
   frame: (frame) => {
     if (!state.topology || state.topology.space !== state.space) return;  // an older hello's frames
     stats.frame(frame);
     state.frame = frame;
-    if (frame.error_max !== undefined && frame.error_max !== null && $("heat-auto").checked) {
-      autoMax = Math.max(frame.error_max, autoMax * 0.98);
-      viewer.heatmap.scale = heatScale();
-    }
+    heat.frame(frame);
     pendingDraw = frame;
     if (frame.finished && $("loop").checked && !state.resetPending && !state.paused) {
       state.resetPending = true;
-      setTimeout(() => connection.send("reset"), 700);
+      setTimeout(() => {
+        if (!state.resetPending || state.paused) return;
+        viewer.keepTrailOnce = true;  // the finished run's trail stays while the clip plays again
+        state.replays += 1;
+        connection.send("reset");
+      }, 700);
     } else if (!frame.finished) {
       state.resetPending = false;
     }
+  },
+  pulled: (frame) => {
+    stats.pulled(frame);
+    comparison.pulled(frame);
   },
   notice: (notice) => {
     if (notice.code === "space_changed") connection.sayHello();  // the file was rebuilt: new topology
@@ -95,6 +99,7 @@ const connection = new StreamConnection(wsUrl, () => state.space && {
     say(`${error.code}: ${error.message}`, "error", 6000, `error:${error.code}`);
   },
 });
+comparison.connection = connection;
 
 const sender = new ParamSender((params) => stats.sent(connection.send("params", { params })));
 
@@ -106,11 +111,30 @@ function setTarget(name, value) {
   targets()[name] = value;
   panel.show(name, value);
   sender.queue(name, value);
+  url.changed();
 }
 
-const panel = new ParameterPanel($("params"), setTarget);
+const panel = new ParameterPanel($("params"), (name, value) => {
+  steering.sliderMoved(name);  // a turn set on its slider holds
+  setTarget(name, value);
+});
 const steering = new Steering({ getTarget: (name) => targets()[name], setTarget });
-steering.attach(window, { onPause: togglePause, onReset: () => connection.send("reset") });
+steering.attach(window, { onPause: togglePause, onReset: userReset, onKey });
+
+/** Page keys that are not parameters: ? help, C camera preset. Returns true when handled. */
+function onKey(event) {
+  if (event.key === "?") {
+    if (dialogOpen()) closeDialog();
+    else showHelp(steering, state.space);
+    return true;
+  }
+  if (event.code === "KeyC" && !dialogOpen()) {
+    setCamera(PRESETS[(PRESETS.indexOf(viewer.rig.preset) + 1) % PRESETS.length], true);
+    say(`camera: ${viewer.rig.preset}`, "info", 1500, "camera");
+    return true;
+  }
+  return false;
+}
 
 // ------------------------------------------------------------------ spaces
 
@@ -161,21 +185,23 @@ function chooseSpace(name) {
   const info = state.spaces.find((s) => s.name === name);
   state.space = name;
   if (!state.targets[name] && info) {
-    state.targets[name] = Object.fromEntries(info.parameters.map((p) => [p.name, p.default]));
+    const fromLink = name === fromUrl.space ? state.urlParams : {};
+    state.targets[name] = Object.fromEntries(info.parameters.map((p) => {
+      const asked = fromLink[p.name];
+      return [p.name, Number.isFinite(asked) ? Math.min(p.max, Math.max(p.min, asked)) : p.default];
+    }));
   }
-  const url = new URL(location.href);
-  url.searchParams.set("space", name);
-  history.replaceState(null, "", url);
   if (info) $("space-info").textContent = describeSpace(info);
   sender.clear();
   stats.reset();
+  url.changed();
   if (connection.state === "idle") connection.start();
   else connection.sayHello();
 }
 
 $("space").addEventListener("change", (event) => {
   chooseSpace(event.target.value);
-  event.target.blur();
+  event.target.blur();  // the arrow keys steer again (Tab comes back to the picker)
 });
 
 function onTopology(topology) {
@@ -191,15 +217,34 @@ function onTopology(topology) {
   state.targets[state.space] = mine;
   panel.build(defs, mine);
   const hint = steering.configure(defs);
-  $("steer-hint").textContent = hint ? `Keys: ${hint}. Space pauses, R resets.` : "";
-  $("steer-keys").textContent = hint ? "arrows / WASD: steer" : "";
+  $("steer-hint").textContent = hint ? `Keys: ${hint}. Space pauses, R resets, ? lists every key.` : "";
+  const names = steering.keys().length ? [steering.forward, steering.turn].filter(Boolean).map((d) => d.name.replace(/_/g, " ")) : [];
+  $("steer-keys").textContent = steering.centre ? "arrows / WASD: steer" : names.length ? `arrows / WASD: ${names.join(", ")}` : "";
   state.mode = topology.mode;
   buildModes(topology.modes);
   const info = state.spaces.find((s) => s.name === topology.space);
   if (info) $("space-info").textContent = describeSpace(info);
   buildStatusRows(defs);
+  // each space's camera: chase for cyclic motion (walks), front for clips (jumps, reaches),
+  // unless the user picked one
+  if (!state.camera) setCamera(info && !info.cyclic ? "front" : "chase", false);
   if (state.paused) connection.send("pause");  // a new session (reconnect, new space) starts playing
+  url.changed();
 }
+
+// ------------------------------------------------------------------ camera
+
+function setCamera(preset, chosen) {
+  viewer.setCameraPreset(preset);
+  $("camera").value = preset;
+  if (chosen) state.camera = preset;
+  url.changed();
+}
+
+$("camera").addEventListener("change", (event) => setCamera(event.target.value, true));
+viewer.rig.onChange = (preset) => setCamera(preset, true);  // dragged: free
+if (state.camera) setCamera(state.camera, true);
+$("follow").addEventListener("change", (event) => { viewer.rig.follow = event.target.checked; });
 
 // ------------------------------------------------------------------ blend mode, heatmap, trail
 
@@ -213,47 +258,23 @@ function buildModes(modes) {
     input.addEventListener("change", () => {
       state.mode = mode;
       connection.send("mode", { mode });
+      url.changed();
+      updateCompareLabels();
     });
     return label;
   }));
+  updateCompareLabels();
 }
 
-let autoMax = 0;  // metres: a slowly decaying maximum of the frames' error_max (auto scale)
-
-function heatScale() {
-  if ($("heat-auto").checked) return Math.max(autoMax, 1e-4);
-  const mm = Number($("heat-scale").value);
-  return (Number.isFinite(mm) && mm > 0 ? mm : 20) / 1000;
-}
-
-function updateLegend() {
-  const legend = $("legend");
-  legend.hidden = !state.heatmap;
-  legend.querySelector(".legend-bar").style.background = cssGradient();
-  const mm = heatScale() * 1000;
-  $("heat-scale").disabled = $("heat-auto").checked;
-  $("legend-mid").textContent = `${(mm / 2).toPrecision(3)} mm`;
-  $("legend-max").textContent = `≥ ${mm.toPrecision(3)} mm`;
-}
-
-$("heatmap").addEventListener("change", (event) => {
-  state.heatmap = event.target.checked;
-  viewer.setHeatmap(state.heatmap, heatScale());
-  connection.send("heatmap", { on: state.heatmap });
-  updateLegend();
-});
-for (const id of ["heat-scale", "heat-auto"]) {
-  $(id).addEventListener("input", () => {
-    autoMax = 0;
-    viewer.setHeatmap(state.heatmap, heatScale());
-    updateLegend();
-  });
-}
+const heat = new HeatmapControls(state, viewer, connection, url, fromUrl.scale);
 
 function updateTrail() {
   viewer.setTrail($("trail").checked, Number($("trail-every").value) || 8, Number($("trail-count").value) || 12);
+  url.changed();
 }
+$("trail").checked = fromUrl.trail;
 for (const id of ["trail", "trail-every", "trail-count"]) $(id).addEventListener("change", updateTrail);
+updateTrail();
 
 // ------------------------------------------------------------------ playback
 
@@ -263,17 +284,19 @@ function togglePause() {
   $("pause").textContent = state.paused ? "Resume" : "Pause";
 }
 
-$("pause").addEventListener("click", togglePause);
-$("reset").addEventListener("click", () => {
+function userReset() {
+  state.resetPending = false;
   connection.send("reset");
   viewer.clearPath();
   viewer.clearTrail();
-});
+}
+
+$("pause").addEventListener("click", togglePause);
+$("reset").addEventListener("click", userReset);
 $("clear-path").addEventListener("click", () => {
   viewer.clearPath();
   viewer.clearTrail();
 });
-$("follow").addEventListener("change", (event) => { viewer.follow = event.target.checked; });
 $("codec").value = state.codec;
 $("codec").addEventListener("change", (event) => {
   state.codec = event.target.value;
@@ -285,54 +308,36 @@ $("rate").addEventListener("change", (event) => {
   connection.send("rate", { rate: state.rate });
 });
 
-// ------------------------------------------------------------------ status overlay
+// ------------------------------------------------------------------ toolbar: compare, share, help
 
-function buildStatusRows(defs) {
-  const body = $("realised").querySelector("tbody");
-  body.replaceChildren(...defs.map((def) => {
-    const row = document.createElement("tr");
-    row.dataset.name = def.name;
-    row.innerHTML = "<td></td><td class='target'></td><td class='requested'></td><td class='realised'></td>";
-    row.cells[0].textContent = `${def.name.replace(/_/g, " ")} (${def.unit})`;
-    return row;
-  }));
+function updateCompareLabels() {
+  const name = (mode) => (mode === "nonlinear" ? "non-linear" : mode);
+  $("compare-labels").hidden = !comparison.on;
+  $("compare-left").textContent = name(state.mode);
+  $("compare-right").textContent = name(comparison.mode);
 }
 
-function ms(value) {
-  return value === null || value === undefined ? "–" : `${value.toFixed(0)} ms`;
-}
-
-function renderStatus() {
-  const pill = $("conn");
-  const labels = { open: "live", connecting: "connecting", reconnecting: "reconnecting…", idle: "no stream" };
-  pill.textContent = labels[state.connection] ?? state.connection;
-  pill.className = `pill ${state.connection}`;
-  $("status-space").textContent = state.space ? `${state.space} · ${state.codec}` : "no playable space";
-  const s = stats.snapshot();
-  $("stat-fps").textContent = state.paused ? `${s.fps.toFixed(0)} (paused)` : s.fps.toFixed(0);
-  const lat = s.latency;
-  $("stat-latency").textContent = lat.n ? `${ms(lat.last)} (median ${ms(lat.median)}, p95 ${ms(lat.p95)})` : "–";
-  $("stat-dropped").textContent = `${s.dropped} / ${s.gaps} / ${Math.max(0, s.framesTotal - viewer.framesDrawn)}`;
-  const frame = state.frame;
-  $("stat-frame").textContent = frame ? `#${frame.seq} · ${frame.phase.toFixed(2)} · ${frame.mode}` : "–";
-  const defs = state.topology?.parameters ?? [];
-  for (const row of $("realised").querySelectorAll("tbody tr")) {
-    const i = defs.findIndex((d) => d.name === row.dataset.name);
-    if (i < 0) continue;
-    const def = defs[i];
-    row.querySelector(".target").textContent = formatValue(def, targets()[def.name]);
-    row.querySelector(".requested").textContent = frame ? formatValue(def, frame.requested[i]) : "–";
-    row.querySelector(".realised").textContent = frame ? formatValue(def, frame.realised[i]) : "–";
-  }
-  $("clamped").hidden = !(frame && frame.clamped);
-  if (state.heatmap && $("heat-auto").checked) updateLegend();
-  const readout = $("heat-readout");
-  readout.hidden = !(state.heatmap && frame && frame.error_max !== undefined && frame.error_max !== null);
-  if (!readout.hidden && state.topology) {
-    const pct = (100 * frame.error_max) / state.topology.model_size;
-    readout.textContent = `max distance from non-linear: ${(frame.error_max * 1000).toFixed(2)} mm (${pct.toFixed(2)}% of model size)`;
-  }
-}
+$("compare").addEventListener("click", () => {
+  comparison.set(!comparison.on);
+  $("compare").setAttribute("aria-pressed", String(comparison.on));
+  updateCompareLabels();
+});
+$("compare-mode").addEventListener("change", (event) => {
+  comparison.mode = event.target.value;
+  updateCompareLabels();
+});
+$("share").addEventListener("click", () => {
+  url.flush();
+  shareLink(viewUrl({ space: state.space, mode: state.mode, heatmap: state.heatmap, camera: viewer.rig.preset,
+    trail: $("trail").checked, scale: heat.urlScale(), params: targets() }));
+});
+$("help-button").addEventListener("click", () => showHelp(steering, state.space));
+setUpDialogs(["help-dialog", "share-dialog", "pictures-dialog"]);
+const drawer = setUpDrawer();
+setUpStatusBox();
+setUpStick(steering, null);
+setUpDownloads(() => state.frame && state.topology && state.topology.space === state.space
+  ? { space: state.space, defs: state.topology.parameters, frame: state.frame } : null);
 
 // ------------------------------------------------------------------ loop
 
@@ -343,6 +348,7 @@ function animate(now) {
   steering.tick(dt);
   if (pendingDraw) {
     viewer.showFrame(pendingDraw);
+    comparison.drawn(pendingDraw, state.topology.parameters);
     pendingDraw = null;
   }
   viewer.render(dt);
@@ -352,7 +358,7 @@ function animate(now) {
 
 // The state the overlay shows, for scripts and tests: window.morphspace.status().
 window.morphspace = {
-  state, stats, viewer, connection,
+  state, stats, viewer, connection, drawer, comparison,
   status() {
     const frame = state.frame;
     const names = (state.topology?.parameters ?? []).map((p) => p.name);
@@ -362,15 +368,20 @@ window.morphspace = {
       codec: state.codec, heatmap: state.heatmap, paused: state.paused, topologySpace: state.topology?.space ?? null,
       targets: { ...targets() }, requested: frame && pick(frame.requested), realised: frame && pick(frame.realised),
       frame: frame && { seq: frame.seq, ack: frame.ack, phase: frame.phase, mode: frame.mode, clamped: frame.clamped,
-        root: frame.root, heading: frame.heading, errorMax: frame.error_max ?? null },
+        root: frame.root, heading: frame.heading, errorMax: frame.error_max ?? null, time: frame.time,
+        finished: frame.finished },
       stats: stats.snapshot(), framesDrawn: viewer.framesDrawn, errors: state.errors.map((e) => `${e.code}: ${e.message}`),
-      spaces: state.spaces.map((s) => s.name), lastParamsSeq: connection.seq,
+      spaces: state.spaces.map((s) => s.name), lastParamsSeq: connection.seq, replays: state.replays,
+      camera: frame ? viewer.rig.describe(frame.root, frame.heading) : { preset: viewer.rig.preset },
+      heatScale: viewer.heatmap.scale, compared: comparison.shown, drawnSeq: viewer.lastFrame?.seq ?? null,
     };
   },
 };
 
-updateLegend();
-setInterval(renderStatus, 200);
+setInterval(() => {
+  renderStatus(state, stats, viewer.framesDrawn, targets());
+  heat.tick();
+}, 200);
 setInterval(() => { if (connection.open) refreshSpaces(); }, 10000);
 new JobsPanel({ onSpaceReady: async (name, select) => {
   await refreshSpaces();

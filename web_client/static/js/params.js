@@ -112,10 +112,14 @@ function ownsSpace(target) {
     (target.tagName === "INPUT" && ["checkbox", "radio", "range", "file"].includes(target.type))));
 }
 
+const spoken = (def) => def.name.replace(/_/g, " ");
+
 /**
- * Game-style steering. Up/W and Down/S move the speed parameter (or the first parameter);
- * Left/A and Right/D move turn_rate (or the second parameter). turn_rate springs back to
- * straight ahead when no turn key is held; positive turn rates turn left (heading about +Y).
+ * Keyboard (and touch stick) control of a space's parameters. Up/W and Down/S move the speed
+ * parameter (or the first parameter); Left/A and Right/D move turn_rate (or the second
+ * parameter). A turn made with the keys or the stick springs back to straight ahead when they
+ * let go, like a game; a turn set on the slider holds. Positive turn rates turn left (heading
+ * about +Y). In a space without turn_rate (jumps, reaches) the keys just move its parameters.
  */
 export class Steering {
   constructor({ getTarget, setTarget }) {
@@ -125,24 +129,55 @@ export class Steering {
     this.forward = null;
     this.turn = null;
     this.centre = false;
+    this.springing = false;   // the turn was last moved by keys or the stick: it springs back
+    this.stick = { x: 0, y: 0, active: false };
   }
 
-  /** Choose the steered parameters from the definitions; returns a hint for the user. */
+  /** Choose the controlled parameters from the definitions; returns a one-line hint. */
   configure(defs) {
     const byName = Object.fromEntries(defs.map((d) => [d.name, d]));
     this.forward = byName.speed ?? defs[0] ?? null;
     this.turn = byName.turn_rate ?? defs.find((d) => d !== this.forward) ?? null;
     this.centre = this.turn !== null && this.turn.name === "turn_rate";
-    const parts = [];
-    if (this.forward) parts.push(`↑/W ↓/S: ${this.forward.name.replace(/_/g, " ")}`);
-    if (this.turn) parts.push(`←/A →/D: ${this.turn.name.replace(/_/g, " ")}${this.centre ? " (springs back)" : ""}`);
-    return parts.join(" · ");
+    this.springing = false;
+    return this.keys().filter((k) => k.param).map((k) => `${k.keys}: ${k.what}`).join(" · ");
   }
 
-  attach(target, { onPause, onReset }) {
+  /** The keys of the current space: [{keys, what, param}] (param: a parameter key). */
+  keys() {
+    const list = [];
+    if (this.forward) {
+      const name = spoken(this.forward);
+      list.push({ keys: "↑ / W", what: this.forward.name === "speed" ? "faster" : `more ${name}`, param: true });
+      list.push({ keys: "↓ / S", what: this.forward.name === "speed" ? "slower" : `less ${name}`, param: true });
+    }
+    if (this.turn && this.centre) {
+      list.push({ keys: "← / A", what: "turn left (straight again when released)", param: true });
+      list.push({ keys: "→ / D", what: "turn right (straight again when released)", param: true });
+    } else if (this.turn) {
+      list.push({ keys: "→ / D", what: `more ${spoken(this.turn)}`, param: true });
+      list.push({ keys: "← / A", what: `less ${spoken(this.turn)}`, param: true });
+    }
+    return list;
+  }
+
+  /** A slider moved a parameter: a turn set there holds (no spring back). */
+  sliderMoved(name) {
+    if (this.turn && name === this.turn.name) this.springing = false;
+  }
+
+  /** The touch stick: x, y in [-1, 1] (right, up); active while a finger holds it. */
+  setStick(x, y, active) {
+    this.stick = { x, y, active };
+    if (active && this.turn && Math.abs(x) > 0.05) this.springing = true;
+  }
+
+  attach(target, { onPause, onReset, onKey }) {
     target.addEventListener("keydown", (event) => {
       if (typingInto(event.target) || event.ctrlKey || event.metaKey || event.altKey) return;
-      if (event.code === "Space") {
+      if (onKey?.(event)) {
+        event.preventDefault();
+      } else if (event.code === "Space") {
         if (ownsSpace(event.target)) return;
         onPause();
         event.preventDefault();
@@ -152,6 +187,7 @@ export class Steering {
         // a slider focused from the keyboard keeps its arrow keys (clicked sliders give focus back)
         if (event.target?.type === "range" && event.code.startsWith("Arrow")) return;
         this.held.add(KEYS[event.code]);
+        if (KEYS[event.code] === "left" || KEYS[event.code] === "right") this.springing = true;
         event.preventDefault();
       }
     });
@@ -169,15 +205,30 @@ export class Steering {
     };
     if (this.held.has("faster")) move(this.forward, +1, 0.5);
     if (this.held.has("slower")) move(this.forward, -1, 0.5);
+    const stick = this.stick;
+    if (stick.active && Math.abs(stick.y) > 0.1) move(this.forward, Math.sign(stick.y), 0.5 * Math.abs(stick.y));
     const left = this.held.has("left"), right = this.held.has("right");
-    if (left && !right) move(this.turn, +1, 0.8);
-    if (right && !left) move(this.turn, -1, 0.8);
-    if (!left && !right && this.centre && this.turn) {
+    // without turn_rate, Right/D raises the second parameter (as on its slider)
+    const leftwards = this.centre ? +1 : -1;
+    if (left && !right) move(this.turn, leftwards, 0.8);
+    if (right && !left) move(this.turn, -leftwards, 0.8);
+    const stickTurns = stick.active && this.turn && Math.abs(stick.x) > 0.05;
+    if (stickTurns && this.centre) {
+      // the stick sets the turn directly: full left is the largest left turn
+      const straight = Math.min(this.turn.max, Math.max(this.turn.min, 0));
+      const end = stick.x < 0 ? this.turn.max : this.turn.min;
+      this.setTarget(this.turn.name, straight + (end - straight) * Math.abs(stick.x));
+    } else if (stickTurns) {
+      move(this.turn, Math.sign(stick.x), 0.8 * Math.abs(stick.x));
+    }
+    if (!left && !right && !stickTurns && this.centre && this.turn && this.springing) {
       const now = this.getTarget(this.turn.name);
       const straight = Math.min(this.turn.max, Math.max(this.turn.min, 0));
       const stepSize = (this.turn.max - this.turn.min) * 1.2 * dt;
       if (Math.abs(now - straight) > 1e-9) {
         this.setTarget(this.turn.name, Math.abs(now - straight) <= stepSize ? straight : now - Math.sign(now - straight) * stepSize);
+      } else {
+        this.springing = false;
       }
     }
   }

@@ -21,6 +21,7 @@ export class StreamStats {
     this.latencies = [];
     this.lastLatency = null;
     this.lastSeq = 0;
+    this.pulledSeqs = new Set();  // frame numbers taken by pulled frames (side by side): not gaps
     this.gaps = 0;
     this.serverDropped = 0;
     this.frames = 0;
@@ -39,7 +40,14 @@ export class StreamStats {
     this.frames += 1;
     this.framesTotal += 1;
     if (frame.pull_id === undefined || frame.pull_id === null) {
-      if (this.lastSeq && frame.seq > this.lastSeq + 1) this.gaps += frame.seq - this.lastSeq - 1;
+      if (this.lastSeq && frame.seq > this.lastSeq + 1) {
+        let missing = frame.seq - this.lastSeq - 1;
+        for (const seq of this.pulledSeqs) {
+          if (seq > this.lastSeq && seq < frame.seq) missing -= 1;
+          if (seq < frame.seq) this.pulledSeqs.delete(seq);
+        }
+        this.gaps += missing;
+      }
       this.lastSeq = frame.seq;
     }
     this.serverDropped = frame.dropped;
@@ -51,6 +59,11 @@ export class StreamStats {
         this.pending.delete(seq);
       }
     }
+  }
+
+  /** A pulled frame arrived (its number is not a gap in the stream). */
+  pulled(frame) {
+    this.pulledSeqs.add(frame.seq);
   }
 
   fps() {

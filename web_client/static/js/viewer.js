@@ -1,65 +1,16 @@
 // The three.js scene: the streamed character (one BufferGeometry whose position attribute is
-// rewritten in place per frame), a ground grid that follows it, a follow camera, the heatmap
-// colouring, the travelled path and a trail of every n-th frame.
+// rewritten in place per frame), a ground grid that follows it, the camera (presets in
+// camera.js), the heatmap colouring, the travelled path, a trail of every n-th frame, and a
+// second copy of the character for the side-by-side comparison.
 import * as THREE from "three";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
-import { colourAt } from "./colormap.js";
+import { CameraRig } from "./camera.js";
 import { typedView } from "./connection.js";
+import { GRID_TILE_M, gridTexture, heatmapLut, LUT_SIZE, softwareGL } from "./scenery.js";
 
 const BODY_COLOUR = 0xc9a27e;
 const TRAIL_COLOUR = 0x8fa7c9;
 const PATH_POINTS = 8192;
-const LUT_SIZE = 256;
-
-const GRID_TILE_M = 5;
-
-/** A repeating texture of one GRID_TILE_M square: 1 m minor lines, a major line on its edge. */
-function gridTexture(repeat) {
-  const size = 512;
-  const canvas = document.createElement("canvas");
-  canvas.width = canvas.height = size;
-  const g = canvas.getContext("2d");
-  g.fillStyle = "#c9ced4";
-  g.fillRect(0, 0, size, size);
-  const cell = size / GRID_TILE_M;
-  g.fillStyle = "#a3abb4";
-  for (let i = 1; i < GRID_TILE_M; i += 1) {
-    g.fillRect(i * cell - 1.5, 0, 3, size);
-    g.fillRect(0, i * cell - 1.5, size, 3);
-  }
-  g.fillStyle = "#7d8792";
-  g.fillRect(0, 0, 5, size);
-  g.fillRect(0, 0, size, 5);
-  const texture = new THREE.CanvasTexture(canvas);
-  texture.wrapS = texture.wrapT = THREE.RepeatWrapping;
-  texture.repeat.set(repeat, repeat);
-  texture.anisotropy = 8;
-  texture.colorSpace = THREE.SRGBColorSpace;
-  return texture;
-}
-
-/** True when WebGL runs on a CPU rasteriser (SwiftShader, llvmpipe). */
-function softwareGL(canvas) {
-  const gl = canvas.getContext("webgl2");
-  const info = gl && gl.getExtension("WEBGL_debug_renderer_info");
-  const renderer = info ? String(gl.getParameter(info.UNMASKED_RENDERER_WEBGL)) : "";
-  return /swiftshader|llvmpipe|software/i.test(renderer);
-}
-
-function srgbToLinear(c) {
-  return c <= 0.04045 ? c / 12.92 : Math.pow((c + 0.055) / 1.055, 2.4);
-}
-
-/** (LUT_SIZE * 3) linear-space colours of the heatmap scale. */
-function heatmapLut() {
-  const lut = new Float32Array(LUT_SIZE * 3);
-  for (let i = 0; i < LUT_SIZE; i += 1) {
-    colourAt(i / (LUT_SIZE - 1), lut, i * 3);
-    for (let k = 0; k < 3; k += 1) lut[i * 3 + k] = srgbToLinear(lut[i * 3 + k]);
-  }
-  return lut;
-}
-
 export class Viewer {
   /** quality: {antialias, shadows} (both default on; ?lite=1 turns them off for software GL). */
   constructor(canvas, quality = {}) {
@@ -85,7 +36,7 @@ export class Viewer {
     this.controls.maxPolarAngle = Math.PI * 0.495;
     this.controls.minDistance = 0.8;
     this.controls.maxDistance = 25;
-    this.follow = true;
+    this.rig = new CameraRig(this.camera, this.controls, canvas);
 
     this.scene.add(new THREE.HemisphereLight(0xf4f6ff, 0x7d6e5a, 1.4));
     this.sun = new THREE.DirectionalLight(0xffffff, 2.2);
@@ -122,20 +73,26 @@ export class Viewer {
     this.trail = { on: false, every: 8, count: 12, meshes: [], next: 0, bucket: null };
     this.framesDrawn = 0;
     this.lastTime = null;
+    this.lastFrame = null;        // the newest frame drawn (recoloured when the heat scale changes)
+    this.keepTrailOnce = false;   // a replayed clip: keep the finished run's trail
+    this.compare = null;          // {mesh} while the side-by-side view is on
     this.resize();
-    window.addEventListener("resize", () => this.resize());
+    // the canvas changes size with the window and with the layout (drawer, toolbar wrapping)
+    new ResizeObserver(() => this.resize()).observe(canvas);
   }
 
   resize() {
     const { clientWidth: w, clientHeight: h } = this.canvas;
     if (w === 0 || h === 0) return;
     this.renderer.setSize(w, h, false);
-    this.camera.aspect = w / h;
+    this.camera.aspect = (this.compare ? w / 2 : w) / h;
     this.camera.updateProjectionMatrix();
   }
 
   /** A new topology: rebuild the character mesh and forget the path and trail. */
   setTopology(topology) {
+    const comparing = this.compare !== null;
+    if (comparing) this.setCompare(false);
     this.topology = topology;
     const n = topology.n_vertices;
     if (this.mesh) {
@@ -163,11 +120,13 @@ export class Viewer {
     this.clearPath();
     this.clearTrail();
     this.lastTime = null;
+    this.lastFrame = null;
+    if (comparing) this.setCompare(true);
   }
 
   /** Dequantise (q16) or copy (f32) a frame's root-local vertices into the position attribute. */
-  _writePositions(frame) {
-    const out = this.mesh.geometry.attributes.position.array;
+  _writePositions(frame, mesh = this.mesh) {
+    const out = mesh.geometry.attributes.position.array;
     if (this.topology.codec === "q16") {
       const q = typedView(frame.vertices, Uint16Array);
       const [lx, ly, lz] = this.lo;
@@ -208,10 +167,18 @@ export class Viewer {
   }
 
   setHeatmap(on, scale) {
+    const switched = on !== this.heatmap.on;
     this.heatmap.on = on;
     if (scale !== undefined) this.heatmap.scale = scale;
     this._applyHeatmapMaterial();
-    this.clearTrail();  // old snapshots carry the other colouring
+    // recolour what is on screen now: a paused stream sends no new frame for the new scale
+    if (on && this.mesh && this.lastFrame?.error_um) this._writeColours(this.lastFrame);
+    if (switched) this.clearTrail();  // old snapshots carry the other colouring
+  }
+
+  /** The colours the heatmap gives the drawn mesh now: (n * 3) linear RGB (for tests). */
+  vertexColours() {
+    return this.mesh ? Array.from(this.mesh.geometry.attributes.color.array) : [];
   }
 
   setTrail(on, every, count) {
@@ -246,9 +213,13 @@ export class Viewer {
     if (!this.mesh) return;
     if (this.lastTime !== null && frame.time < this.lastTime - 1e-6) {
       this.clearPath();  // the clock went back (reset, a replayed clip): a new path starts
-      this.clearTrail();
+      // a replayed clip keeps the finished run's trail (the ring replaces it snapshot by
+      // snapshot), so the whole jump stays in view; a reset by the user clears it
+      if (!this.keepTrailOnce) this.clearTrail();
+      this.keepTrailOnce = false;
     }
     this.lastTime = frame.time;
+    this.lastFrame = frame;
     const geometry = this.mesh.geometry;
     this._writePositions(frame);
     geometry.attributes.position.needsUpdate = true;
@@ -352,20 +323,83 @@ export class Viewer {
     }
   }
 
-  /** Per animation frame: follow the character, place the grid and the sun, render. */
-  render(dt) {
-    if (this.mesh && this.mesh.visible && this.follow) {
-      const target = new THREE.Vector3(this.mesh.position.x, this.controls.target.y, this.mesh.position.z);
-      const k = 1 - Math.exp(-dt * 6);
-      const delta = target.sub(this.controls.target).multiplyScalar(k);
-      this.controls.target.add(delta);
-      this.camera.position.add(delta);
+  // ------------------------------------------------------------ side by side
+
+  /** Side by side on/off: the right half shows a second copy drawn from pulled frames. */
+  setCompare(on) {
+    if (on && !this.compare && this.mesh) {
+      const geometry = new THREE.BufferGeometry();
+      const position = this.mesh.geometry.attributes.position.clone();
+      position.setUsage(THREE.DynamicDrawUsage);
+      geometry.setAttribute("position", position);
+      geometry.setIndex(this.mesh.geometry.index);
+      // the plain body colour: pulled frames carry no heatmap distances
+      const mesh = new THREE.Mesh(geometry, new THREE.MeshStandardMaterial({ color: BODY_COLOUR, roughness: 0.65 }));
+      mesh.castShadow = true;
+      mesh.frustumCulled = false;
+      mesh.visible = false;
+      mesh.layers.set(2);
+      this.mesh.layers.set(1);
+      this.scene.add(mesh);
+      this.compare = { mesh, seq: null };
+    } else if (!on && this.compare) {
+      this.scene.remove(this.compare.mesh);
+      this.compare.mesh.geometry.dispose();
+      this.compare.mesh.material.dispose();
+      this.compare = null;
+      if (this.mesh) this.mesh.layers.set(0);
     }
+    this.resize();
+  }
+
+  /** A pulled frame for the right half, placed where the streamed `frame` it matches stands. */
+  showCompareFrame(pulled, frame) {
+    const compare = this.compare;
+    if (!compare || !this.mesh) return;
+    this._writePositions(pulled, compare.mesh);
+    compare.mesh.geometry.attributes.position.needsUpdate = true;
+    compare.mesh.geometry.computeVertexNormals();
+    compare.mesh.position.set(frame.root[0], frame.root[1], frame.root[2]);
+    compare.mesh.rotation.set(0, frame.heading, 0);
+    compare.mesh.visible = true;
+    compare.seq = frame.seq;
+  }
+
+  // ------------------------------------------------------------ camera and drawing
+
+  /** Camera preset: chase, side, front or free (camera.js). */
+  setCameraPreset(name) {
+    this.rig.setPreset(name);
+  }
+
+  /** Per animation frame: camera, grid, sun (over the camera's shoulder: what is seen is lit), render. */
+  render(dt) {
+    const visible = this.mesh && this.mesh.visible;
+    this.rig.update(dt, visible ? this.mesh.position : null, visible ? this.mesh.rotation.y : 0);
     const t = this.controls.target;
     this.ground.position.set(Math.round(t.x / GRID_TILE_M) * GRID_TILE_M, 0, Math.round(t.z / GRID_TILE_M) * GRID_TILE_M);
-    this.sun.position.set(t.x + 2.5, 6, t.z - 3);
+    const [sx, sz] = this.rig.keyLightDirection();
+    this.sun.position.set(t.x + 3 * sx, 6, t.z + 3 * sz);
     this.sun.target.position.set(t.x, 0, t.z);
-    this.controls.update();
-    this.renderer.render(this.scene, this.camera);
+    const { width: w, height: h } = this.renderer.getSize(new THREE.Vector2());
+    if (!this.compare) {
+      this.camera.layers.set(0);
+      this.renderer.render(this.scene, this.camera);
+      return;
+    }
+    // two halves: the streamed mesh (layer 1) left, its comparison (layer 2) right
+    this.renderer.setScissorTest(true);
+    const half = Math.floor(w / 2);
+    this.camera.aspect = half / h;
+    this.camera.updateProjectionMatrix();
+    for (const [x, width, layer] of [[0, half, 1], [half, w - half, 2]]) {
+      this.renderer.setViewport(x, 0, width, h);
+      this.renderer.setScissor(x, 0, width, h);
+      this.camera.layers.set(0);
+      this.camera.layers.enable(layer);
+      this.renderer.render(this.scene, this.camera);
+    }
+    this.renderer.setScissorTest(false);
+    this.renderer.setViewport(0, 0, w, h);
   }
 }

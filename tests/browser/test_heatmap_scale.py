@@ -1,0 +1,33 @@
+"""The heatmap's auto scale while paused (issue 15 item 5): the legend and the colours follow
+the frame on screen."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+
+def test_auto_scale_recolours_the_paused_frame(web_server, open_page):
+    """Failed before: ticking auto while paused set the legend to 0.05 / 0.1 mm (no frame arrived
+    to measure) and left the colours on the fixed scale."""
+    page = open_page(web_server.url + "/app/?space=speed&mode=linear&heatmap=1&scale=100")
+    page.wait_status(lambda s: s["frame"] and s["frame"]["mode"] == "linear" and s["frame"]["errorMax"],
+                     timeout=20, what="linear frames with distances")
+    page.page.click("#pause")
+    paused = page.wait_status(lambda s: s["paused"] and s["frame"]["ack"] >= s["lastParamsSeq"], what="the pause")
+    before = np.asarray(page.page.evaluate("window.morphspace.viewer.vertexColours()"))
+    image_before = page.canvas_pixels("heatmap-paused-100mm")
+    largest = page.status()["frame"]["errorMax"]
+    assert 0 < largest < 0.05  # well under the 100 mm red end the URL set
+    page.page.check("#heat-auto")
+    status = page.status()
+    assert status["heatScale"] == pytest.approx(largest, rel=1e-6)
+    legend = page.page.locator("#legend-max").inner_text()
+    assert float(legend.split()[1]) == pytest.approx(largest * 1000, rel=0.01), legend
+    after = np.asarray(page.page.evaluate("window.morphspace.viewer.vertexColours()"))
+    assert np.abs(after - before).max() > 0.3, "the mesh kept its colours"
+    page.page.evaluate("new Promise(done => requestAnimationFrame(() => requestAnimationFrame(done)))")
+    image_after = page.canvas_pixels("heatmap-paused-auto")
+    changed = np.abs(image_after.astype(int) - image_before.astype(int)).max(axis=2) > 30
+    assert changed.mean() > 0.002, f"only {changed.mean():.3%} of the pixels changed"
+    assert paused["paused"] and page.errors() == []
