@@ -1,7 +1,8 @@
 // Camera presets: chase (behind the character), side (at its left), front (facing it, a little
 // to its left) and free (orbit anywhere). In a preset the camera keeps its place relative to the
 // character's root and heading, smoothly, at the distance the wheel (or a pinch) sets; dragging
-// to orbit makes it free. In free mode it still follows the character unless `follow` is off.
+// with one pointer (mouse or finger) to orbit makes it free. In free mode it still follows the
+// character unless `follow` is off.
 import * as THREE from "three";
 
 export const PRESETS = ["chase", "side", "front", "free"];
@@ -24,12 +25,21 @@ export class CameraRig {
     this.follow = true;
     this.distance = 4.6;
     this.onChange = null;  // (preset) after the user took the camera (free) by dragging
+    // one pointer dragging orbits (free); two (a pinch) only zoom and keep the preset
     let down = null;
-    canvas.addEventListener("pointerdown", (e) => { down = { x: e.clientX, y: e.clientY }; });
-    canvas.addEventListener("pointerup", () => { down = null; });
-    canvas.addEventListener("pointercancel", () => { down = null; });
+    const pointers = new Set();
+    canvas.addEventListener("pointerdown", (e) => {
+      pointers.add(e.pointerId);
+      down = pointers.size === 1 ? { x: e.clientX, y: e.clientY } : null;
+    });
+    const up = (e) => {
+      pointers.delete(e.pointerId);
+      down = null;
+    };
+    canvas.addEventListener("pointerup", up);
+    canvas.addEventListener("pointercancel", up);
     canvas.addEventListener("pointermove", (e) => {
-      if (!down || this.preset === "free") return;
+      if (!down || pointers.size !== 1 || this.preset === "free") return;
       if (Math.hypot(e.clientX - down.x, e.clientY - down.y) > DRAG_PX) {
         this.setPreset("free");
         this.onChange?.("free");
