@@ -1,4 +1,4 @@
-"""Export time and size of a steered clip (issue 16): glTF (int16 and float32), USD, a PLY sequence.
+"""Export time and size of a steered clip (issue 16): glTF (int16 and float32), USD, a PLY sequence, a VAT.
 
 A speed space (a slow walk and a jog of the procedural body at ``--vertices``, built into a
 temporary directory unless ``--space`` names one) plays a clip of ``--seconds`` at ``--fps``
@@ -30,7 +30,8 @@ TARGETS = {"glb_seconds": 5.0, "glb_megabytes": 20.0, "usd_seconds": 5.0}
 FORMATS = [("glb int16", "glb", "clip.glb", {"precision": "int16"}),
            ("glb float32", "glb", "clip32.glb", {"precision": "float32"}),
            ("usd", "usd", "clip.usd", {}),
-           ("ply sequence", "ply", "ply", {})]
+           ("ply sequence", "ply", "ply", {}),
+           ("vat", "vat", "vat.zip", {})]
 
 
 def build_speed_space(path, n_vertices, fps=30.0):

@@ -16,9 +16,9 @@ from pathlib import Path
 
 from engine.export import Clip, play_clip, write_export
 
-SUFFIX = {"glb": ".glb", "usd": ".usd", "obj": ".zip", "ply": ".zip"}
+SUFFIX = {"glb": ".glb", "usd": ".usd", "obj": ".zip", "ply": ".zip", "vat": ".zip"}
 MEDIA_TYPE = {"glb": "model/gltf-binary", "usd": "application/octet-stream", "obj": "application/zip",
-              "ply": "application/zip"}
+              "ply": "application/zip", "vat": "application/zip"}
 
 
 def clip_of(spec):

@@ -138,7 +138,7 @@ def check_export(record, stdout):
     assert record["vertices"] == 1000 and record["frames"] == 61 and record["fps"] == 30
     assert positive(record["play_s"]) and non_negative(record["load_average"])
     formats = record["formats"]
-    assert set(formats) == {"glb int16", "glb float32", "usd", "ply sequence"}
+    assert set(formats) == {"glb int16", "glb float32", "usd", "ply sequence", "vat"}
     for row in formats.values():
         assert positive(row["write_s"]) and row["total_s"] >= row["write_s"] and row["bytes"] > 0
     assert formats["glb int16"]["bytes"] < formats["glb float32"]["bytes"]  # 8 instead of 12 bytes a vertex

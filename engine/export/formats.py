@@ -6,6 +6,7 @@ format     what                                             path
 glb        binary glTF 2.0, morph targets + node animation  a file (.glb)
 usd        USD, time-sampled points + root transform       .usd / .usdc / .usda
 obj, ply   one mesh file per frame + clip.json              a directory, or a .zip
+vat        vertex-animation texture (16-bit PNG) + mesh     a directory, or a .zip
 =========  ===============================================  =======================
 """
 
@@ -17,7 +18,7 @@ from engine.export.gltf import glb_bytes
 from engine.export.sequence import write_mesh_sequence, write_sequence_zip
 from engine.mesh_io.atomic import atomic_write
 
-FORMATS = {"glb": ".glb", "usd": ".usdc", "obj": ".zip", "ply": ".zip"}  # format -> file suffix of a single file
+FORMATS = {"glb": ".glb", "usd": ".usdc", "obj": ".zip", "ply": ".zip", "vat": ".zip"}  # format -> file suffix of a single file
 
 
 def write_export(path, frames, format, *, progress=None, precision="int16", interpolation="LINEAR"):
@@ -41,6 +42,14 @@ def write_export(path, frames, format, *, progress=None, precision="int16", inte
         from engine.export.usd import write_usd
 
         stats.update(write_usd(path, frames, progress=progress))
+    elif format == "vat":
+        from engine.export.vat import write_vat
+
+        record = write_vat(path, frames, progress=progress)
+        stats.update(max_error_m=record["max_error_m"], width=record["width"], height=record["height"])
+        if path.is_dir():
+            stats["bytes"] = sum(p.stat().st_size for p in path.iterdir())
+            return stats
     elif path.suffix.lower() == ".zip":
         write_sequence_zip(path, frames, format, progress=progress)
     else:

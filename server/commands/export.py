@@ -1,4 +1,5 @@
-"""Export a clip of a motion space: binary glTF, USD, or an OBJ / PLY sequence (docs/exports.md).
+"""Export a clip of a motion space: binary glTF, USD, an OBJ / PLY sequence or a vertex-animation
+texture (docs/exports.md).
 
 The clip is played by the real-time player (the frames a stream at that rate shows): start at
 --set parameters, request others --at later times (or from a --track JSON file), for --seconds
@@ -29,8 +30,8 @@ def add_arguments(parser):
     parser.add_argument("space", type=Path, help="a .mspace file with parameters")
     parser.add_argument("--out", type=Path, required=True,
                         help="file (.glb, .usd/.usdc/.usda, .zip) or directory (obj/ply sequence)")
-    parser.add_argument("--format", choices=("glb", "usd", "obj", "ply"),
-                        help="default: from --out's suffix (.glb, .usd*); obj/ply need --format")
+    parser.add_argument("--format", choices=("glb", "usd", "obj", "ply", "vat"),
+                        help="default: from --out's suffix (.glb, .usd*); obj/ply/vat need --format")
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="parameters at t = 0")
     parser.add_argument("--at", nargs="+", action="append", default=[], metavar="T NAME=VALUE",
                         help="at time T (s) request parameters (repeat for a script)")
@@ -52,13 +53,14 @@ def output_format(out, chosen):
     inferred = SUFFIXES.get(out.suffix.lower())
     if chosen is None:
         if inferred is None:
-            raise ValueError(f"--out {out}: cannot tell the format from the name; give --format glb, usd, obj or ply")
+            raise ValueError(f"--out {out}: cannot tell the format from the name; give --format glb, usd, obj, ply "
+                             "or vat")
         return inferred
     if chosen in ("glb", "usd") and inferred != chosen:
         wanted = ".glb" if chosen == "glb" else ".usd, .usdc or .usda"
         raise ValueError(f"--out {out}: a {chosen} export must be a file ending in {wanted}")
-    if chosen in ("obj", "ply") and inferred is not None:
-        raise ValueError(f"--out {out}: an {chosen} sequence is a directory or a .zip file")
+    if chosen in ("obj", "ply", "vat") and inferred is not None:
+        raise ValueError(f"--out {out}: an {chosen} export is a directory or a .zip file")
     return chosen
 
 

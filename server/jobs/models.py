@@ -125,8 +125,9 @@ class TrackEntry(_Body):
 
 class ExportSpec(_Body):
     """A clip to export (docs/exports.md): played by the real-time player, written as ``format``."""
-    format: Literal["glb", "usd", "obj", "ply"] = Field("glb", description="glb, usd, or obj/ply (a zip of one file "
-                                                                          "per frame)")
+    format: Literal["glb", "usd", "obj", "ply", "vat"] = Field(
+        "glb", description="glb, usd, obj/ply (a zip of one file per frame) or vat (a zip: mesh.glb, positions.png, "
+                           "vat.json)")
     params: dict[str, float] = Field(default_factory=dict, description="{name: value} at t = 0 (missing ones: the "
                                                                        "middle of their range)")
     track: list[TrackEntry] = Field(default_factory=list, max_length=1000, description="later requests")

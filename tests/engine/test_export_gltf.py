@@ -2,10 +2,7 @@
 independent reader (gltf_reader.py) plays the player's frames within the format's precision."""
 
 import json
-import shutil
-import subprocess
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,25 +10,7 @@ import pytest
 from engine.export import Clip, play_clip, write_export
 from engine.export.gltf import glb_bytes
 from gltf_reader import Glb, animated_frames
-
-ROOT = Path(__file__).resolve().parents[2]
-VALIDATOR = ROOT / "tests" / "validators"
-
-
-def validate(path):
-    """The Khronos glTF Validator's report on ``path`` (node + the npm package gltf-validator)."""
-    if shutil.which("node") is None or not (VALIDATOR / "node_modules" / "gltf-validator").is_dir():
-        pytest.fail("the glTF Validator is not installed: run scripts/setup-env test (npm ci in tests/validators)")
-    run = subprocess.run(["node", str(VALIDATOR / "validate_gltf.js"), str(path)], capture_output=True, text=True,
-                         timeout=120)
-    assert run.returncode == 0, run.stderr
-    return json.loads(run.stdout)
-
-
-def assert_clean(report):
-    issues = report["issues"]
-    assert issues["numErrors"] == 0 and issues["numWarnings"] == 0, json.dumps(issues["messages"][:10], indent=1)
-
+from gltf_validator import assert_clean, validate
 
 @pytest.fixture(scope="module")
 def steered(export_spaces):

@@ -4,6 +4,7 @@ one-line error with exit status 2; nothing is written outside --out."""
 import json
 import subprocess
 import sys
+import zipfile
 
 import numpy as np
 import pytest
@@ -33,6 +34,9 @@ def test_export_writes_glb_usd_and_sequences(built_spaces, tmp_path):
                  "speed=2", "--seconds", 1, "--fps", 10, cwd=cwd)
     assert run.returncode == 0, run.stderr
     assert read_sequence(tmp_path / "frames").vertices.shape[0] == 11
+    run = export(space, "--out", tmp_path / "vat.zip", "--format", "vat", "--seconds", 1, "--fps", 10, cwd=cwd)
+    assert run.returncode == 0, run.stderr
+    assert sorted(zipfile.ZipFile(tmp_path / "vat.zip").namelist()) == ["mesh.glb", "positions.png", "vat.json"]
     assert list(cwd.iterdir()) == []
 
 

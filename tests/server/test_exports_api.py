@@ -5,9 +5,11 @@ read back as the engine's frames; bad requests are clear errors."""
 from __future__ import annotations
 
 import importlib.util
+import io
 import json
 import subprocess
 import time
+import zipfile
 from pathlib import Path
 
 import httpx
@@ -83,6 +85,10 @@ def test_usd_and_an_obj_zip_at_once(client, reference, tmp_path):
     assert response.status_code == 200 and response.headers["content-type"] == "application/zip"
     (tmp_path / "clip.zip").write_bytes(response.content)
     assert np.abs(read_sequence(tmp_path / "clip.zip").vertices - world).max() < 1e-6
+    response = client.post("/v1/spaces/speed/export", json={"format": "vat", **CLIP})
+    assert response.status_code == 200 and response.headers["content-type"] == "application/zip"
+    archive = zipfile.ZipFile(io.BytesIO(response.content))
+    assert json.loads(archive.read("vat.json"))["frames"] == 61 and archive.read("positions.png")[:4] == b"\x89PNG"
 
 
 @pytest.mark.parametrize("path, body, status, message", [
