@@ -11,6 +11,7 @@ import { setUpDrawer, setUpStatusBox, setUpStick } from "./layout.js";
 import { buildStatusRows, renderStatus, say } from "./overlay.js";
 import { ParameterPanel, ParamSender, Steering } from "./params.js";
 import { StreamStats } from "./stats.js";
+import { Recorder } from "./recording.js";
 import { readUrl, UrlWriter, viewUrl } from "./urlstate.js";
 import { Viewer } from "./viewer.js";
 
@@ -112,6 +113,7 @@ function setTarget(name, value) {
   panel.show(name, value);
   sender.queue(name, value);
   url.changed();
+  recorder.changed(state.space, targets());
 }
 
 const panel = new ParameterPanel($("params"), (name, value) => {
@@ -336,6 +338,10 @@ setUpDialogs(["help-dialog", "share-dialog", "pictures-dialog"]);
 const drawer = setUpDrawer();
 setUpStatusBox();
 setUpStick(steering, null);
+const recorder = new Recorder(() => {
+  const info = state.spaces.find((s) => s.name === state.space);
+  return info && state.topology?.space === state.space ? { space: state.space, info, targets: targets(), mode: state.mode } : null;
+}, say);
 setUpDownloads(() => state.frame && state.topology && state.topology.space === state.space
   ? { space: state.space, defs: state.topology.parameters, frame: state.frame } : null);
 
