@@ -33,6 +33,7 @@ class CaptureAlignment:
     timings : dict   seconds for "similarity", "tree", "tetrahedralize", "align"
     method : str     "tree" or "sequential"
     tets : (V_tet, T)   the root's tet mesh (reusable for another run with the same root)
+    colour_cues : bool  whether vertex colours were used as local matching cues
     """
 
     similarity: object
@@ -41,10 +42,36 @@ class CaptureAlignment:
     timings: dict
     method: str
     tets: tuple
+    colour_cues: bool = False
+
+
+COLOUR_WEIGHT = 1.0   # AlignmentOptions.colour_weight when colour cues are on and the options leave it 0
+FINE_EDGE = 0.014     # "auto" colour cues: root median edge length below this fraction of the model size
+
+
+def colours_carry_texture(vertices, faces):
+    """Whether a mesh is sampled finely enough for its vertex colours to carry surface texture.
+
+    True when the median edge is shorter than ``FINE_EDGE`` (1.4%) of the model size: the studio
+    preset's 10,000-vertex frames have 1.28%, the demo preset's 3,000-vertex ones 1.50%, the tiny
+    preset's 1,000-vertex ones 2.4%. Coarser meshes sample a texture at a few vertices per stripe
+    or check, and colour cues then pull matches the wrong way (tiny preset: mean error 0.79% ->
+    1.22% of the model size with them); on the studio dance they cut it from 0.83% to 0.50%
+    (docs/evaluation.md).
+    """
+    from engine.surface import model_size
+
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    if len(F) == 0:
+        return False
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    median = float(np.median(np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)))
+    return median < FINE_EDGE * model_size(V)
 
 
 def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, options=None, window=2,
-                   workers=1, retries=3, tets=None, use_colors=True, seed=0, similarity=None, repair=True,
+                   workers=1, retries=3, tets=None, use_colors="auto", seed=0, similarity=None, repair=True,
                    repair_budget=0.5, progress=None):
     """Shape similarity, tree and alignment of unstructured frames of several sequences.
 
@@ -66,9 +93,12 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                 independent pieces of the tree
     retries : int               see :func:`engine.align.propagation.align_tree`
     tets : (V_tet, T) or None   a tet mesh of the root (default: tetrahedralised here)
-    use_colors : bool           also use vertex colours as local matching cues (``options.colour_weight``;
-                                without it the weight is 0); when every frame has colours they
-                                always decide between a body and the same body turned front to back
+    use_colors : bool or "auto" also use vertex colours as local matching cues (when every frame has
+                                colours; ``options.colour_weight``, ``COLOUR_WEIGHT`` if that is 0);
+                                "auto": when the root is sampled finely enough for its colours to
+                                carry texture (:func:`colours_carry_texture`). Whatever this says,
+                                colours on every frame decide between a body and the same body
+                                turned front to back
     seed : int
     similarity : ShapeSimilarity or None   reuse an earlier computation on the same frames
     repair : bool               with the tree: align frames of low confidence again from the
@@ -100,12 +130,17 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     base = meshes[tree.root]
     # colours, when every frame has them, always settle front-back ambiguities (PairwiseAligner
     # ._orientation_score); ``use_colors`` adds them as local matching cues (options.colour_weight)
+    if use_colors not in (True, False, "auto"):
+        raise ValueError(f"use_colors must be True, False or 'auto', got {use_colors!r}")
     colours = all(getattr(m, "colors", None) is not None for m in meshes)
-    options = options or AlignmentOptions()
-    if not use_colors and options.colour_weight:
-        options = replace(options, colour_weight=0.0)
     # the root's floating fragments would become part of every aligned frame: leave them out
     V_root, F_root, kept = main_components(base.vertices, base.faces)
+    cues = colours and (use_colors is True or (use_colors == "auto" and colours_carry_texture(V_root, F_root)))
+    options = options or AlignmentOptions()
+    if cues and not options.colour_weight:
+        options = replace(options, colour_weight=COLOUR_WEIGHT)
+    elif not cues and options.colour_weight:
+        options = replace(options, colour_weight=0.0)
     C_root = np.asarray(base.colors)[kept] if colours else None
     started = time.perf_counter()
     if tets is None:
@@ -127,7 +162,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
         _confidence_only(aligned)
     timings["repair"] = time.perf_counter() - started
     return CaptureAlignment(similarity=similarity, tree=tree, aligned=aligned, timings=timings, method=method,
-                            tets=tets)
+                            tets=tets, colour_cues=bool(cues))
 
 
 
@@ -143,4 +178,4 @@ def _confidence_only(aligned):
     return aligned
 
 
-__all__ = ["CaptureAlignment", "align_captures"]
+__all__ = ["COLOUR_WEIGHT", "CaptureAlignment", "align_captures", "colours_carry_texture"]

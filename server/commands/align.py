@@ -56,6 +56,8 @@ from server.units import (
 ALIGNMENT_FORMAT = "morphspace-alignment"
 ALIGNMENT_VERSION = 1
 
+COLOUR_MODES = {"auto": "auto", "on": True, "off": False}  # --colors -> align_captures(use_colors=...)
+
 
 def add_arguments(parser):
     parser.add_argument("inputs", nargs="+", type=Path, metavar="DIR",
@@ -77,8 +79,10 @@ def add_arguments(parser):
     parser.add_argument("--repair-budget", type=float, default=0.5, metavar="B",
                         help="pairwise alignments per frame the repair of low-confidence frames may spend, "
                              "the worst frames first (default 0.5; 0 turns the repair off)")
-    parser.add_argument("--colors", action="store_true",
-                        help="use vertex colours as matching cues when every frame has them")
+    parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
+                        help="vertex colours as local matching cues when every frame has them: auto (default) "
+                             "when the meshes are fine enough for colours to carry texture (median edge "
+                             "under 1.4%% of the model size), on (--colors alone), off")
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate of inputs without meta.json (default 30)")
     add_units_arguments(parser)
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
@@ -340,11 +344,10 @@ def run(args):
         meshes, conventions = convert_inputs(meshes, sequences, lengths, args.units, args.up,
                                              say=lambda line: tqdm.write(f"morphspace align: {line}", file=sys.stderr))
         root = parse_root(args.root, sequences, lengths)
-        options = AlignmentOptions(patches=args.patches, levels=args.levels,
-                                   colour_weight=AlignmentOptions().colour_weight if not args.colors else 0.5)
+        options = AlignmentOptions(patches=args.patches, levels=args.levels)
         result = align_captures(meshes, lengths, method="sequential" if args.sequential else "tree", tree_kind=args.tree,
                                 root=root, options=options, window=args.window, workers=args.workers, retries=args.retries,
-                                use_colors=args.colors, seed=args.seed, repair_budget=args.repair_budget,
+                                use_colors=COLOUR_MODES[args.colors], seed=args.seed, repair_budget=args.repair_budget,
                                 progress=progress)
         staging = out.with_name(f".{out.name}.partial-{os.getpid()}")
         if staging.exists():
@@ -353,7 +356,8 @@ def run(args):
         try:
             write_alignment(staging, sequences, meshes, lengths, result, fps=args.fps,
                             options_record={"patches": args.patches, "levels": args.levels, "window": args.window,
-                                            "retries": args.retries, "repair_budget": args.repair_budget, "tree": args.tree, "colors": bool(args.colors), "seed": args.seed,
+                                            "retries": args.retries, "repair_budget": args.repair_budget, "tree": args.tree, "colors": args.colors,
+                                            "colour_cues": result.colour_cues, "seed": args.seed,
                                             "units": args.units, "up": args.up},
                             progress=progress, conventions=conventions)
         except BaseException:

@@ -33,7 +33,7 @@ from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
 from engine.mesh_io.units import UNITS_PER_METRE, resolve_convention, to_metres_y_up
 from engine.surface import model_size
-from server.commands.align import Progress, convert_inputs, parse_root, read_inputs, resolve_inputs
+from server.commands.align import COLOUR_MODES, Progress, convert_inputs, parse_root, read_inputs, resolve_inputs
 from server.units import (
     DISPLAY_PER_METRE,
     add_units_arguments,
@@ -54,7 +54,8 @@ def add_arguments(parser):
                         help=f"the similarity tree: paths or mst (see `morphspace align --help`; default {DEFAULT_TREE})")
     parser.add_argument("--no-sequential", action="store_true", help="skip the frame-to-frame baseline")
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global index (default: the tree's)")
-    parser.add_argument("--colors", action="store_true", help="use vertex colours as matching cues")
+    parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
+                        help="vertex colours as local matching cues (see `morphspace align --help`; default auto)")
     parser.add_argument("--out", type=Path, help="directory for results.json and the pictures "
                         "(default: <dataset>-align-eval next to the dataset)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
@@ -222,14 +223,15 @@ def run(args):
             truth = _truth_in_metres(parts, conventions)  # in the same units and axes as the frames
             size = _model_size(manifest, conventions, truth)
             root = parse_root(args.root, sequences, lengths)
-            options = AlignmentOptions(colour_weight=0.5 if args.colors else AlignmentOptions().colour_weight)
+            options = AlignmentOptions()
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names,
                           **_units_report(names, conventions))
             tree_run = align_captures(meshes, lengths, method="tree", tree_kind=args.tree, root=root, options=options,
-                                      workers=args.workers, use_colors=args.colors, seed=args.seed,
+                                      workers=args.workers, use_colors=COLOUR_MODES[args.colors], seed=args.seed,
                                       progress=progress)
             root = tree_run.aligned.root
             report["root"] = int(root)
+            report["colour_cues"] = bool(tree_run.colour_cues)
             report["similarity_seconds"] = round(tree_run.timings["similarity"], 3)
             report["tree_seconds"] = round(tree_run.timings["tree"], 4)
             report["tree"] = {"kind": args.tree, "depth_max": int(tree_run.tree.depth.max()),
@@ -238,7 +240,7 @@ def run(args):
             runs = {"tree": tree_run}
             if not args.no_sequential:
                 runs["sequential"] = align_captures(meshes, lengths, method="sequential", root=root, options=options,
-                                                    use_colors=args.colors, seed=args.seed,
+                                                    use_colors=COLOUR_MODES[args.colors], seed=args.seed,
                                                     similarity=tree_run.similarity, tets=tree_run.tets,
                                                     progress=lambda stage, done, total: progress(
                                                         "align sequential" if stage == "align" else stage,

@@ -95,6 +95,9 @@ class AlignJob(_Body):
     tree: Literal["mst", "paths"] = Field(
         "mst", description="mst: the paper's minimum spanning tree; paths: every frame's cheapest path "
                            "from the root with big steps penalised (shallower)")
+    colors: Literal["auto", "on", "off"] = Field(
+        "auto", description="vertex colours as local matching cues: auto when the meshes are fine enough "
+                            "for colours to carry texture (median edge under 1.4% of the model size)")
     window: int = Field(2, ge=0, le=10)
     patches: int = Field(30, ge=1, le=500)
     levels: int = Field(4, ge=1, le=8)

@@ -238,7 +238,8 @@ def run_graph(payload, reporter):
 def run_align(payload, reporter):
     from engine.align import AlignmentOptions, align_captures
     from engine.surface import model_size
-    from server.commands.align import convert_inputs, parse_root, read_inputs, resolve_inputs, write_alignment
+    from server.commands.align import (COLOUR_MODES, convert_inputs, parse_root, read_inputs, resolve_inputs,
+                                       write_alignment)
     from server.units import common_convention, display_unit
 
     params, staging = payload["params"], Path(payload["staging"])
@@ -263,13 +264,15 @@ def run_align(payload, reporter):
     result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree",
                             tree_kind=params.get("tree", "mst"), root=root,
                             options=options, window=params["window"], workers=1, retries=params["retries"],
-                            use_colors=False, seed=params["seed"], progress=reporter.progress)
+                            use_colors=COLOUR_MODES[params.get("colors", "auto")],
+                            seed=params["seed"], progress=reporter.progress)
     out = staging / "dataset"
     out.mkdir()
     fps = float((sequences[0].get("meta") or {}).get("fps", 30.0))
     write_alignment(out, sequences, meshes, lengths, result, fps=fps,
                     options_record={**{k: params[k] for k in ("patches", "levels", "window", "retries", "seed")},
-                                    "tree": params.get("tree", "mst"),
+                                    "tree": params.get("tree", "mst"), "colors": params.get("colors", "auto"),
+                                    "colour_cues": result.colour_cues,
                                     "units": params.get("units", "auto"), "up": params.get("up", "auto")},
                     progress=reporter.progress, conventions=conventions)
     aligned = result.aligned
