@@ -6,8 +6,9 @@ Definitions (docs/evaluation.md, "Motion graph"):
 - smoothness: the largest per-vertex step between consecutive frames during a transition (from
   the frame before the blend starts to the frame it ends), divided by the largest step within
   the two nodes' own motion at the same weights and frame rate (1.0 = as smooth as captured);
-- root: the largest root step (position, and heading) during the transition divided by the
-  largest in the half second before and after it;
+- root: the largest root step during the transition divided by the largest in the half second
+  before and after it or in either node's own motion at the same weights (1 or less: no step
+  larger than the motion around it); the heading's largest step in degrees;
 - foot sliding: per step, of a foot's vertices on the ground (less than ``contact`` above the
   rest mesh's lowest point) in both frames, the horizontal travel of the one that moved least
   (the point the foot pivots on; ``clock.foot_slide``), summed over the transition, the worse foot;
@@ -101,19 +102,21 @@ def play_requests(graph, search, requests, *, fps=30.0, start="walk", params=Non
 
 
 def own_motion_step(graph, node, weights, fps):
-    """The largest per-vertex step between consecutive frames of ``node`` played alone at
-    ``weights`` for one cycle (or its whole clip)."""
+    """The largest per-vertex step and the largest root step between consecutive frames of
+    ``node`` played alone at ``weights`` for one cycle (or its whole clip), metres."""
     n = graph.node(node)
     clock = NodeClock(n.space, weights, 0.0)
     position, heading = np.zeros(3), 0.0
-    previous, largest = None, 0.0
+    previous, largest, root = None, 0.0, 0.0
     for _ in range(int(np.ceil(clock.duration * fps)) + 1):
         V = place(clock.mesh("linear"), position, heading)
         if previous is not None:
             largest = max(largest, float(np.linalg.norm(V - previous, axis=1).max()))
         previous = V
-        position, heading = move(position, heading, *clock.advance(1.0 / fps))
-    return largest
+        moved, heading = move(position, heading, *clock.advance(1.0 / fps))
+        root = max(root, float(np.linalg.norm(moved - position)))
+        position = moved
+    return largest, root
 
 
 def transition_measures(graph, frames, transitions, *, fps, contact=0.01):
@@ -132,7 +135,8 @@ def transition_measures(graph, frames, transitions, *, fps, contact=0.01):
         for key, w in zip(keys, (t["source_weights"], t["target_weights"])):
             if key not in cache:
                 cache[key] = own_motion_step(graph, key[0], w, fps)
-        reference = max(cache[keys[0]], cache[keys[1]])
+        reference = max(cache[keys[0]][0], cache[keys[1]][0])
+        root_reference = max(cache[keys[0]][1], cache[keys[1]][1])
         steps = np.linalg.norm(np.diff(V[a:b + 1], axis=0), axis=2).max(axis=1)
         root_steps = np.linalg.norm(np.diff(root, axis=0), axis=1)
         turn_steps = np.abs(np.diff(heading))
@@ -141,7 +145,8 @@ def transition_measures(graph, frames, transitions, *, fps, contact=0.01):
                     for foot in feet)
         out.append({
             "source": t["source"], "target": t["target"], "smoothness": float(steps.max() / reference),
-            "root_ratio": float(root_steps[a:b].max() / max(root_steps[around].max(), 1e-6)) if len(around) else 0.0,
+            "root_ratio": float(root_steps[a:b].max() / max(root_steps[around].max() if len(around) else 0.0,
+                                                            root_reference, 1e-3 / fps)),
             "turn_step_deg": float(np.degrees(turn_steps[a:b].max())),
             "foot_slide_m": slide, "latency_s": (t["enter"] - t["request"]) / fps if t["request"] is not None else None,
             "seam_m": t["dissimilarity"], "length_s": t["length"]})

@@ -30,7 +30,7 @@ class SearchOptions:
     model size apart over the reference length); lengths : transition lengths tried (s);
     reference_length : s; max_entry : latest phase a one-shot target may be entered at."""
 
-    latency_weight: float = 2.0
+    latency_weight: float = 0.5
     lengths: tuple = (0.15, 0.25, 0.35, 0.5, 0.7)
     reference_length: float = 0.3
     max_entry: float = 0.35

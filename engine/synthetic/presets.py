@@ -59,6 +59,7 @@ PRESETS = {
             _reach("reach_low", 0.7), _reach("reach_mid", 1.3), _reach("reach_high", 1.95),
             _stand("stand", breath=0.008), _stand("stand_shift", breath=0.006, sway=0.02, period=2.4),
             _walk_change("walk_stop", "stop", 1.3), _walk_change("walk_start", "start", 1.3),
+            _walk_change("walk_stop_slow", "stop", 1.0), _walk_change("walk_start_slow", "start", 1.0),
             _performance("performance", 1.3, 0.45, 0.8, walk=1.5),
         )),
     "tiny": Preset(
