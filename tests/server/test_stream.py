@@ -381,10 +381,14 @@ def test_heatmap_frames_carry_the_distance_from_the_nonlinear_blend(server, spee
                                          "rate": 30, "smoothing": 1.0}))
             topology = P.decode_server(await asyncio.wait_for(ws.recv(), 10))
             await ws.send(msgpack.packb({"type": "params", "params": {"speed": 2.2}, "seq": 1}))
-            while len(frames) < 40:
+            # until 40 frames of which 30 carry distances (the first ones wait for the first
+            # heatmap, later on a loaded host), at most 400 frames
+            carried = 0
+            while (len(frames) < 40 or carried < 30) and len(frames) < 400:
                 raw = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 10))
                 if raw["type"] == "frame":
                     frames[raw["seq"]] = raw
+                    carried += raw["error_seq"] is not None
         return topology, frames
     topology, frames = run(go())
     carrying = [f for f in frames.values() if f["error_seq"] is not None]
