@@ -11,11 +11,12 @@ finished, for instance) share one target.
 
 Precision (``precision``):
 
-- ``"int16"`` (default): base and targets stored as normalized 16-bit integers
+- ``"int16"`` (default): base and targets stored as 16-bit integers, not normalized
   (KHR_mesh_quantization, listed as required): the ``mesh`` node's translation and per-axis
-  scale map them back to metres. The box spans every frame's root-local vertices and every
-  displacement, so the error is at most half a step (box half-extent / 32767) per axis, e.g.
-  14 micrometres on a 1.8 m character. 8 bytes per vertex and frame (6 plus the 4-byte alignment
+  scale (one integer step) map them back to metres, so a reader that ignores the accessors'
+  ``normalized`` flag (trimesh) reads them right too. The box spans every frame's root-local
+  vertices and every displacement, so the error is at most half a step (box half-extent / 32767)
+  per axis, e.g. 14 micrometres on a 1.8 m character. 8 bytes per vertex and frame (6 plus the 4-byte alignment
   of vertex attributes).
 - ``"float32"``: plain float32 (no extension): 12 bytes per vertex and frame, exact to float32.
 
@@ -52,7 +53,7 @@ def target_of_frame(local):
 
 def quantisation(local, base):
     """(centre (3,), scale (3,)): vertices and displacements map into [-1, 1] per axis as
-    (x - centre) / scale, so both fit normalized 16-bit integers."""
+    (x - centre) / scale, so both fit 16-bit integers as (x - centre) / scale * 32767."""
     lo, hi = local.min(axis=(0, 1)).astype(np.float64), local.max(axis=(0, 1)).astype(np.float64)
     centre = (lo + hi) / 2
     reach = np.maximum(hi - centre, centre - lo)
@@ -95,9 +96,9 @@ def glb_bytes(frames, *, precision="int16", interpolation="LINEAR"):
         padded = np.zeros((n, 4), dtype="<i2")
         padded[:, :3] = qbase
         view = glb.view(padded, target=ARRAY_BUFFER, stride=8)
-        position = glb.accessor(view, SHORT, n, "VEC3", normalized=True, minimum=qbase.min(axis=0),
+        position = glb.accessor(view, SHORT, n, "VEC3", minimum=qbase.min(axis=0),
                                 maximum=qbase.max(axis=0))
-        mesh_node.update(translation=centre.tolist(), scale=scale.tolist())
+        mesh_node.update(translation=centre.tolist(), scale=(scale / QMAX).tolist())  # integer steps -> metres
         extensions = ["KHR_mesh_quantization"]
         error = float(np.max(scale) / QMAX / 2)
     else:
@@ -159,7 +160,7 @@ def _morph_targets(glb, local, first, precision, centre, scale):
     if precision == "int16":
         qbase = _quantise(local[0], centre, scale)
         deltas = (np.clip(_quantise(local[k], centre, scale) - qbase, -QMAX, QMAX).astype("<i2") for k in first)
-        component, normalized = SHORT, True
+        component, normalized = SHORT, False  # plain integers: readers that ignore 'normalized' agree
     else:
         base = local[0]
         deltas = ((local[k] - base).astype("<f4") for k in first)

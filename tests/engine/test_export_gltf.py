@@ -45,6 +45,17 @@ def test_validator_finds_no_issue_and_frames_come_back(steered, tmp_path, precis
     assert {s["interpolation"] for s in doc["animations"][0]["samplers"]} == {interpolation, "LINEAR"}
 
 
+def test_the_projects_glb_reader_sees_the_first_frame(steered, tmp_path):
+    """engine.mesh_io (trimesh, which ignores accessors' 'normalized' flag) reads the base mesh
+    placed by the nodes: the first frame, to the 16-bit step."""
+    from engine.mesh_io import read_mesh
+
+    stats = write_export(tmp_path / "clip.glb", steered, "glb")
+    mesh = read_mesh(tmp_path / "clip.glb")
+    assert np.array_equal(mesh.faces, steered.faces)
+    assert np.abs(mesh.vertices - steered.world(0)).max() <= stats["max_error_m"] + 2e-6
+
+
 def test_the_int16_file_is_two_thirds_of_the_float32_one(steered):
     small, _ = glb_bytes(steered, precision="int16")
     large, _ = glb_bytes(steered, precision="float32")

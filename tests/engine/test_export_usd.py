@@ -13,7 +13,8 @@ from engine.export import Clip, play_clip, write_export  # noqa: E402
 
 
 def validation_errors(stage):
-    """Errors of every registered validator except the usdz packaging ones (usdchecker's default set)."""
+    """Errors of every registered UsdValidation validator except the usdz packaging ones (usd-core
+    26 has no Python ComplianceChecker and its wheel no usdchecker program)."""
     registry = UsdValidation.ValidationRegistry()
     validators = [registry.GetOrLoadValidatorByName(m.name) for m in registry.GetAllValidatorMetadata()
                   if "UsdzValidators" not in m.GetKeywords()]
