@@ -147,8 +147,20 @@ def check_export(record, stdout):
     assert "glb int16" in stdout and "targets: glTF <= 5 s" in stdout
 
 
+def check_dask_align(records, stdout):
+    (record,) = records
+    assert record["frames"] == 4 and record["equal"] is True and record["local_equal"] is True
+    assert [row["workers"] for row in record["clusters"]] == [1, 2]
+    for row in record["clusters"]:
+        assert positive(row["median_s"]) and row["tasks"] >= 3 and row["repeats_equal"]
+        assert {"similarity", "align", "repair"} <= set(row["stages_s"])
+    assert positive(record["speedup"]) and non_negative(record["load_average"])
+    assert "speedup 2 vs 1 workers" in stdout and "full figure: " in stdout and "results equal" in stdout
+
+
 CHECKS = {
     "blend_scaling.py": check_blend_scaling,
+    "dask_align.py": check_dask_align,
     "export.py": check_export,
     "graph_search.py": check_graph_search,
     "open_blends.py": check_open_blends,

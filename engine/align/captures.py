@@ -72,7 +72,7 @@ def colours_carry_texture(vertices, faces):
 
 def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, options=None, window=2,
                    workers=1, retries=3, tets=None, use_colors="auto", seed=0, similarity=None, repair=True,
-                   repair_budget=0.5, progress=None):
+                   repair_budget=0.5, progress=None, runner=None):
     """Shape similarity, tree and alignment of unstructured frames of several sequences.
 
     Parameters
@@ -107,6 +107,9 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                 worst frames first; None: every flagged frame is repaired)
     progress : callable(stage, done, total) or None
         stages "histograms", "dissimilarity", "align", "repair"
+    runner : task runner or None   runs the histogram chunks, matrix blocks, tree pieces and repairs as
+                                tasks (:mod:`engine.tasks`, e.g. on a Dask cluster) instead of
+                                ``workers``; the result is the same
 
     Returns
     -------
@@ -120,7 +123,8 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     timings = {}
     started = time.perf_counter()
     if similarity is None:
-        similarity = shape_dissimilarity(meshes, lengths, window=window, workers=workers, progress=progress)
+        similarity = shape_dissimilarity(meshes, lengths, window=window, workers=workers, progress=progress,
+                                         runner=runner)
     timings["similarity"] = time.perf_counter() - started
     started = time.perf_counter()
     tree = similarity_tree(similarity.dissimilarity, root=root, kind=tree_kind)
@@ -150,14 +154,15 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     started = time.perf_counter()
     aligned = align_tree(aligner, meshes, tree, yaw=similarity.yaw,
                          dissimilarity=similarity.dissimilarity if method == "tree" else None,
-                         retries=retries if method == "tree" else 0, workers=workers,
+                         retries=retries if method == "tree" else 0, workers=workers, runner=runner,
                          progress=(lambda d, t: progress("align", d, t)) if progress else None)
     aligned.root_kept = kept
     timings["align"] = time.perf_counter() - started
     started = time.perf_counter()
     if method == "tree" and repair:
         repair_alignment(aligner, meshes, aligned, dissimilarity=similarity.dissimilarity, yaw=similarity.yaw,
-                         candidates=retries, budget=repair_budget, progress=(lambda d, t: progress("repair", d, t)) if progress else None)
+                         candidates=retries, budget=repair_budget, progress=(lambda d, t: progress("repair", d, t)) if progress else None,
+                         runner=runner)
     else:
         _confidence_only(aligned)
     timings["repair"] = time.perf_counter() - started

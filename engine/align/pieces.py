@@ -33,6 +33,35 @@ def run_piece(job):
     return align_piece(_WORKER["aligner"], job, tick=(lambda: ticks.put(1)) if ticks is not None else None)
 
 
+def portable_aligner(aligner):
+    """The aligner as an :class:`engine.tasks.Rebuilt`: it travels as its inputs and is built once
+    per worker, exactly as the process pool's workers build theirs."""
+    from engine.tasks import Rebuilt
+
+    state = (aligner.V, aligner.F, aligner.colors, (aligner.V_tet, aligner.T), aligner.options, aligner.seed)
+    return Rebuilt(_aligner_from_state, (state,), value=aligner)
+
+
+def _aligner_from_state(state):
+    V, F, colors, tets, options, seed = state
+    return PairwiseAligner(V, F, colors, tets=tets, options=options, seed=seed)
+
+
+def piece_task(shared, job, parent_out):
+    """Runner task (:mod:`engine.tasks`, ``tree``): :func:`align_piece` of a piece that starts
+    from its parent piece's output (the entry pose, and the qualities of all earlier pieces on its
+    path to the root). Adds ``chain``: this piece's qualities, then its history, for its children."""
+    from engine.tasks import shared_value
+
+    if parent_out is not None:
+        job = dict(job, entry_pose=parent_out["poses"][job["entry"]], history=parent_out["chain"])
+    else:
+        job = dict(job, entry_pose=None, history=[])
+    out = align_piece(shared_value(shared), job)
+    out["chain"] = out["quality"] + list(job["history"])
+    return out
+
+
 def align_piece(aligner, job, tick=None):
     """Align one piece of the tree: its frames in breadth-first order, from the head's parent.
 
@@ -103,4 +132,4 @@ def align_piece(aligner, job, tick=None):
     return out
 
 
-__all__ = ["align_piece", "init_worker", "run_piece"]
+__all__ = ["align_piece", "init_worker", "piece_task", "portable_aligner", "run_piece"]

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from engine.align.pieces import align_piece, init_worker, run_piece
+from engine.align.pieces import align_piece, init_worker, piece_task, portable_aligner, run_piece
 
 
 @dataclass
@@ -107,7 +107,7 @@ def partition_tree(parent, order, chunk):
 
 
 def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3, retry_factor=2.5, chunk=48,
-               workers=1, progress=None):
+               workers=1, progress=None, runner=None):
     """Align every frame along a rooted tree, each from its parent's aligned pose.
 
     Parameters
@@ -126,6 +126,9 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
                                     the result does not depend on ``workers``
     workers : int                   processes aligning independent pieces at the same time
     progress : callable(done, total) or None
+    runner : task runner or None    run the pieces as a task graph of this runner instead
+                                    (:mod:`engine.tasks`: a piece waits for its parent piece); the
+                                    result is the same
 
     Returns
     -------
@@ -200,7 +203,13 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
     children = [[] for _ in heads]
     for t in range(1, len(heads)):
         children[task_parent[t]].append(t)
-    if workers <= 1 or len(heads) == 1:
+    if runner is not None:
+        jobs = [job_for(t, None) for t in range(len(heads))]  # entry pose and history: from the parent task
+        outs = runner.tree(piece_task, jobs, task_parent.tolist(), shared=portable_aligner(aligner),
+                           sizes=[len(m) for m in members], progress=progress)
+        for t, out in enumerate(outs):
+            collect(t, out)
+    elif workers <= 1 or len(heads) == 1:
         stack = [0]
         while stack:
             t = stack.pop(0)

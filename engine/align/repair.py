@@ -33,7 +33,7 @@ def alignment_confidence(residual, distortion_tail, model_size):
 
 
 def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, candidates=2, budget=None,
-                     progress=None):
+                     progress=None, runner=None):
     """Align low-confidence frames again from the root and from trusted similar frames.
 
     Parameters
@@ -50,6 +50,10 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
                                      flagged frames would need more, the worst of them (lowest
                                      confidence) are repaired first and the others stay flagged
     progress : callable(done, total) or None
+    runner : task runner or None     align the repairs as tasks of this runner (:mod:`engine.tasks`):
+                                     in waves, every remaining frame's alignments at once from the
+                                     frames as they stand, then applied in order while the sources
+                                     the serial pass would pick are among them; the same result
 
     Returns
     -------
@@ -75,9 +79,11 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
                 chosen.add(f)
                 planned += cost[f]
         flagged = [f for f in flagged if f in chosen]
-    spent = 0
     use_colours = aligner.colors is not None
-    for done, frame in enumerate(flagged):
+    versions = {}  # frame -> how often its pose was replaced: the runner's results name the pose they started from
+
+    def plan(frame, spent):
+        """The sources the frame is aligned from now (the trusted set grows as frames are repaired)."""
         trusted = np.flatnonzero(confidence >= TRUSTED)
         parent = aligned.parent[frame]
         sources = [] if parent == root else [root]  # the same source again gives the same result
@@ -85,16 +91,17 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             others = trusted[(trusted != root) & (trusted != parent)]
             others = others[np.argsort(np.asarray(dissimilarity)[frame, others], kind="stable")]
             sources += [int(s) for s in others[:max(0, int(candidates))]]
-        V, F, C = mesh_arrays(meshes[frame], use_colours)
-        target = TargetSurface(V, F, C)
-        best, best_source = None, None
-        best_badness = alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size)
         if spent + len(sources) > limit:
             sources = sources[:max(0, int(limit) - spent)]
-        for source in sources:
-            spent += 1
-            hint = None if yaw is None else float(yaw[frame, source])
-            result = aligner.align(aligned.poses[source], target, yaw=hint)
+        return sources
+
+    def starts(frame, sources):
+        return [(aligned.poses[s], None if yaw is None else float(yaw[frame, s])) for s in sources]
+
+    def apply(frame, sources, results):
+        best, best_source = None, None
+        best_badness = alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size)
+        for source, result in zip(sources, results, strict=True):
             badness = alignment_badness(result.residual, result.distortion_tail, size)
             if badness < best_badness:
                 best, best_source, best_badness = result, source, badness
@@ -104,13 +111,63 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             aligned.distortion[frame], aligned.distortion_tail[frame] = best.distortion, best.distortion_tail
             aligned.parent[frame] = best_source
             aligned.poses[frame] = best.X
+            versions[frame] = versions.get(frame, 0) + 1
             repaired[frame] = True
             confidence[frame] = float(np.exp(-best_badness))
-        if progress is not None:
-            progress(done + 1, len(flagged))
+
+    spent, done = 0, 0
+    if runner is None:
+        for frame in flagged:
+            sources = plan(frame, spent)
+            spent += len(sources)
+            apply(frame, sources, repair_task(aligner, (mesh_arrays(meshes[frame], use_colours), starts(frame, sources))))
+            done += 1
+            if progress is not None:
+                progress(done, len(flagged))
+    else:
+        from engine.align.pieces import portable_aligner
+
+        shared, found = portable_aligner(aligner), {}
+        while done < len(flagged):
+            # a wave: every remaining frame's alignments as the frames stand now, all at once ...
+            wanted, planned = {}, spent
+            for frame in flagged[done:]:
+                sources = plan(frame, planned)
+                planned += len(sources)
+                missing = [s for s in sources if (frame, s, versions.get(s, 0)) not in found]
+                if missing:
+                    wanted[frame] = missing
+            jobs = [(mesh_arrays(meshes[f], use_colours), starts(f, sources)) for f, sources in wanted.items()]
+            outs = runner.map(repair_task, jobs, shared=shared, sizes=[len(j[1]) for j in jobs])
+            for (frame, sources), results in zip(wanted.items(), outs, strict=True):
+                found.update({(frame, s, versions.get(s, 0)): r for s, r in zip(sources, results, strict=True)})
+            # ... then the frames in order, as the serial pass does, while the sources it picks were aligned
+            # (a frame repaired in this wave may change a later frame's sources: that one waits for the next)
+            while done < len(flagged):
+                frame = flagged[done]
+                sources = plan(frame, spent)
+                keys = [(frame, s, versions.get(s, 0)) for s in sources]
+                if any(key not in found for key in keys):
+                    break
+                spent += len(sources)
+                apply(frame, sources, [found.pop(key) for key in keys])
+                done += 1
+                if progress is not None:
+                    progress(done, len(flagged))
     aligned.confidence = confidence
     aligned.repaired = repaired
     return aligned
+
+
+def repair_task(shared, job):
+    """Runner task: one frame aligned from several sources. ``job`` is ((V, F, colors), [(pose,
+    yaw hint), ...]); returns a PairAlignment per source."""
+    from engine.tasks import shared_value
+
+    aligner = shared_value(shared)
+    (V, F, C), starts = job
+    target = TargetSurface(V, F, C)
+    return [aligner.align(pose, target, yaw=hint) for pose, hint in starts]
 
 
 def _tree_order(parent, root):
@@ -128,4 +185,4 @@ def _tree_order(parent, root):
     return order
 
 
-__all__ = ["alignment_badness", "alignment_confidence", "repair_alignment"]
+__all__ = ["alignment_badness", "alignment_confidence", "repair_alignment", "repair_task"]

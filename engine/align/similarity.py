@@ -87,7 +87,12 @@ def _histogram_chunk(job):
     return np.stack([shape_histogram(V, F, radius=radius, mode=mode, **options) for V, F in frames])
 
 
-def frame_histograms(meshes, *, radius=None, workers=1, chunk=32, progress=None, **options):
+def histogram_task(shared, frames):
+    """Runner task: histograms of a chunk of (V, F) frames; ``shared`` is (radius, options, mode)."""
+    return _histogram_chunk((frames,) + tuple(shared))
+
+
+def frame_histograms(meshes, *, radius=None, workers=1, chunk=32, progress=None, runner=None, **options):
     """Shape histogram of every frame (all with the same bins).
 
     Parameters
@@ -97,6 +102,8 @@ def frame_histograms(meshes, *, radius=None, workers=1, chunk=32, progress=None,
     workers : int            worker processes (1: compute here)
     chunk : int              frames per task
     progress : callable(done, total) or None
+    runner : task runner or None   run the chunks as tasks of this runner (:mod:`engine.tasks`)
+                             instead of ``workers``; the result is the same
     **options                shells, elevations, harmonics, subdivisions (see
                              ``engine.align.shape_histogram.shape_histogram``)
 
@@ -117,6 +124,11 @@ def frame_histograms(meshes, *, radius=None, workers=1, chunk=32, progress=None,
     if radius is None:
         radius = histogram_radius(frames)
     mode = "volume" if all(is_closed(F) for _, F in frames) else "surface"
+    if runner is not None:
+        chunks = [frames[i:i + chunk] for i in range(0, len(frames), chunk)]
+        parts = runner.map(histogram_task, chunks, shared=(radius, options, mode), sizes=[len(c) for c in chunks],
+                           progress=progress)
+        return np.concatenate(parts), float(radius)
     jobs = [(frames[i:i + chunk], radius, options, mode) for i in range(0, len(frames), chunk)]
     parts = _run(_histogram_chunk, jobs, workers, progress, [len(j[0]) for j in jobs])
     return np.concatenate(parts), float(radius)
@@ -131,8 +143,14 @@ def _init_shared(histograms, norms, steps):
 
 def _distance_block(job):
     """Rows start..stop against columns start..N: distances and best rotations."""
-    start, stop = job
-    H, norms, steps = _SHARED["histograms"], _SHARED["norms"], _SHARED["steps"]
+    return distance_task((_SHARED["histograms"], _SHARED["norms"], _SHARED["steps"]), job)
+
+
+def distance_task(shared, rows):
+    """Runner task: the block of rows (start, stop) against columns start..N; ``shared`` is
+    (histograms, norms, steps)."""
+    H, norms, steps = shared
+    start, stop = rows
     return (start, stop) + _block(H[start:stop], H[start:], norms[start:stop], norms[start:], steps)
 
 
@@ -149,7 +167,8 @@ def _block(H_rows, H_cols, norm_rows, norm_cols, steps):
     return np.sqrt(np.maximum(squared, 0.0)), degrees.astype(np.float32)
 
 
-def dissimilarity_matrix(histograms, *, steps=48, chunk=64, workers=1, parallel_from=3000, progress=None):
+def dissimilarity_matrix(histograms, *, steps=48, chunk=64, workers=1, parallel_from=3000, progress=None,
+                         runner=None):
     """Histogram distance of every pair of frames at its best rotation about the vertical axis.
 
     Parameters
@@ -163,6 +182,8 @@ def dissimilarity_matrix(histograms, *, steps=48, chunk=64, workers=1, parallel_
                      products already use every core through BLAS; 1,500 frames take about 2.5 s
                      here, 5,000 frames 29 s serially and 23 s with 2 processes)
     progress : callable(done, total) or None   in rows
+    runner : task runner or None   run the blocks as tasks of this runner (:mod:`engine.tasks`),
+                     whatever the number of frames; the same blocks, so the same result
 
     Returns
     -------
@@ -188,7 +209,9 @@ def dissimilarity_matrix(histograms, *, steps=48, chunk=64, workers=1, parallel_
     bounds = _balanced_row_blocks(N, chunk)
     jobs = list(zip(bounds[:-1], bounds[1:]))
     sizes = [b - a for a, b in jobs]
-    if workers > 1 and len(jobs) > 1 and N >= parallel_from:
+    if runner is not None:
+        results = runner.map(distance_task, jobs, shared=(H, norms, steps), sizes=sizes, progress=progress)
+    elif workers > 1 and len(jobs) > 1 and N >= parallel_from:
         results = _run(_distance_block, jobs, workers, progress, sizes,
                        initializer=_init_shared, initargs=(H, norms, steps))
     else:
@@ -269,7 +292,7 @@ def temporal_filter(D, lengths, window=2):
     return out
 
 
-def shape_dissimilarity(meshes, lengths, *, window=2, workers=1, progress=None, **options):
+def shape_dissimilarity(meshes, lengths, *, window=2, workers=1, progress=None, runner=None, **options):
     """Histograms, raw and temporally filtered dissimilarities of all frames of all sequences.
 
     Parameters
@@ -279,6 +302,7 @@ def shape_dissimilarity(meshes, lengths, *, window=2, workers=1, progress=None, 
     window : int               temporal filter half-width (frames)
     workers : int              worker processes
     progress : callable(stage, done, total) or None   stage is "histograms" or "dissimilarity"
+    runner : task runner or None   runs the histogram chunks and matrix blocks (:mod:`engine.tasks`)
     **options                  histogram options (shells, elevations, harmonics, subdivisions,
                                radius) and ``steps`` for the rotation search
 
@@ -291,8 +315,8 @@ def shape_dissimilarity(meshes, lengths, *, window=2, workers=1, progress=None, 
         raise ValueError(f"sequence lengths add up to {lengths.sum()} frames, got {len(meshes)} meshes")
     steps = options.pop("steps", 48)
     stage = (lambda name: (lambda done, total: progress(name, done, total))) if progress else (lambda name: None)
-    H, radius = frame_histograms(meshes, workers=workers, progress=stage("histograms"), **options)
-    raw, yaw = dissimilarity_matrix(H, steps=steps, workers=workers, progress=stage("dissimilarity"))
+    H, radius = frame_histograms(meshes, workers=workers, progress=stage("histograms"), runner=runner, **options)
+    raw, yaw = dissimilarity_matrix(H, steps=steps, workers=workers, progress=stage("dissimilarity"), runner=runner)
     filtered = temporal_filter(raw, lengths, window)
     return ShapeSimilarity(histograms=H, raw=raw, dissimilarity=filtered, yaw=yaw, radius=radius,
                            lengths=lengths, window=int(window))
@@ -374,5 +398,5 @@ def _figure(width, height, dpi=100):
     return fig
 
 
-__all__ = ["HISTOGRAM_DEFAULTS", "ShapeSimilarity", "dissimilarity_matrix", "frame_histograms",
-           "histogram_radius", "shape_dissimilarity", "similarity_image", "temporal_filter"]
+__all__ = ["HISTOGRAM_DEFAULTS", "ShapeSimilarity", "dissimilarity_matrix", "distance_task", "frame_histograms",
+           "histogram_radius", "histogram_task", "shape_dissimilarity", "similarity_image", "temporal_filter"]

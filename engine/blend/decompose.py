@@ -113,6 +113,7 @@ class FrameDecomposer:
 
     def __init__(self, embedding, *, fit_weight=3.0, iterations=2):
         self.embedding = embedding
+        self.fit_weight = float(fit_weight)
         self.B = embedding.B
         L = tet_laplacian(embedding.V_tet, embedding.T)
         self.weight = float(np.sqrt(fit_weight * L.diagonal().mean()))
@@ -160,9 +161,21 @@ def _stacked(F):
     return np.ascontiguousarray(np.swapaxes(F, 1, 2)).reshape(-1, 3)
 
 
-def decompose_frames(decomposer, frames, progress=None):
-    """Decompose (m, n, 3) surface frames; returns stacked float32 (quaternions, stretch, detail)."""
+def decompose_frames(decomposer, frames, progress=None, runner=None, chunk=16):
+    """Decompose (m, n, 3) surface frames; returns stacked float32 (quaternions, stretch, detail).
+
+    With ``runner`` (:mod:`engine.tasks`), chunks of ``chunk`` frames are decomposed as its tasks,
+    each where the runner puts it (the decomposer is set up once per worker); the same result.
+    """
     m = len(frames)
+    if runner is not None and m:
+        from engine.tasks import Rebuilt
+
+        shared = Rebuilt(_decomposer, (decomposer.embedding, decomposer.fit_weight, decomposer.iterations),
+                         value=decomposer)
+        chunks = [np.asarray(frames[i:i + chunk]) for i in range(0, m, chunk)]
+        parts = runner.map(decompose_task, chunks, shared=shared, sizes=[len(c) for c in chunks], progress=progress)
+        return tuple(np.concatenate([part[k] for part in parts]) for k in range(3))
     first = decomposer.decompose(frames[0])
     q = np.empty((m,) + first.quaternions.shape, dtype=np.float32)
     s = np.empty((m,) + first.stretch.shape, dtype=np.float32)
@@ -175,4 +188,16 @@ def decompose_frames(decomposer, frames, progress=None):
     return q, s, d
 
 
-__all__ = ["SYMMETRIC", "VolumetricEmbedding", "FrameDecomposition", "FrameDecomposer", "decompose_frames"]
+def _decomposer(embedding, fit_weight, iterations):
+    return FrameDecomposer(embedding, fit_weight=fit_weight, iterations=iterations)
+
+
+def decompose_task(shared, frames):
+    """Runner task: ``decompose_frames`` of a chunk of frames with the shared decomposer."""
+    from engine.tasks import shared_value
+
+    return decompose_frames(shared_value(shared), frames)
+
+
+__all__ = ["SYMMETRIC", "VolumetricEmbedding", "FrameDecomposition", "FrameDecomposer", "decompose_frames",
+           "decompose_task"]

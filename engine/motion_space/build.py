@@ -247,7 +247,8 @@ BUILT_METADATA = ("format", "version", "name", "cyclic", "n_sources", "n_phases"
 
 
 def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005, rest=None,
-                       embedding=None, hybrid_options=None, parameters=None, metadata=None, progress=None):
+                       embedding=None, hybrid_options=None, parameters=None, metadata=None, progress=None,
+                       runner=None):
     """Build and write a motion space.
 
     Parameters
@@ -270,6 +271,7 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
                                   ``source_up``, ``input``: see ``server.units.source_metadata``);
                                   the keys the builder writes itself (``BUILT_METADATA``) are refused
     progress : callable(stage: str, done: int, total: int) or None
+    runner : task runner or None  decomposes chunks of source frames as its tasks (engine.tasks)
 
     Returns
     -------
@@ -319,7 +321,7 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
     frames = sources.reshape(n_phases * N, n, 3)
     decomposer = FrameDecomposer(embedding)
     quaternions, stretch, detail = decompose_frames(
-        decomposer, frames, progress=lambda d, t: report_progress("decompose", d, t))
+        decomposer, frames, progress=lambda d, t: report_progress("decompose", d, t), runner=runner)
     timings["decompose_s"] = time.perf_counter() - t0
 
     sources32 = np.ascontiguousarray(sources, dtype=np.float32)

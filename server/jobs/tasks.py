@@ -15,6 +15,7 @@ never leaves a partial space or dataset. Progress goes through a ``Reporter``
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import shutil
@@ -92,19 +93,23 @@ def _relative(text, data_dir):
     return str(text).replace(prefix, "")
 
 
-def run_task(payload, reporter):
-    """Run the job ``payload`` describes; returns its JSON result. Raises JobError, JobCancelled."""
+def run_task(payload, reporter, runner=None):
+    """Run the job ``payload`` describes; returns its JSON result. Raises JobError, JobCancelled.
+
+    ``runner`` (``engine.tasks``; on Dask a ``server.jobs.dask_runner.DaskRunner``) runs the
+    split stages of align and build as tasks; None runs them here. The result is the same."""
     kind = payload["kind"]
     staging = Path(payload["staging"])
     staging.mkdir(parents=True, exist_ok=True)
     if kind == "ingest":
-        from server.jobs.ingest import run_ingest as runner
+        from server.jobs.ingest import run_ingest as run
     elif kind == "export":
-        from server.exports import run_export as runner
+        from server.exports import run_export as run
     else:
-        runner = {"build": run_build, "align": run_align, "graph": run_graph}[kind]
+        run = {"build": functools.partial(run_build, runner=runner), "align": functools.partial(run_align, runner=runner),
+               "graph": run_graph}[kind]
     try:
-        return runner(payload, reporter)
+        return run(payload, reporter)
     except (JobCancelled, JobError):
         raise
     except (ValueError, OSError, KeyError) as exc:
@@ -159,7 +164,7 @@ def check_build_sources(dataset_dir, spec):
             raise JobError(f"sequence {source!r} of dataset {Path(dataset_dir).name!r} has no meta.json")
 
 
-def run_build(payload, reporter):
+def run_build(payload, reporter, runner=None):
     from engine.motion_space import build_motion_space
     from server.commands.build import choose_rest, load_sources, read_spec, sources_to_metres
     from server.units import say_conventions, source_metadata
@@ -188,7 +193,7 @@ def run_build(payload, reporter):
                                 epsilon=epsilon_mm / 1000.0, rest=rest, parameters=spec["parameters"],
                                 metadata=source_metadata([clip.name for clip in clips], conventions[:-1],
                                                          conventions[-1]),
-                                progress=reporter.progress)
+                                progress=reporter.progress, runner=runner)
     reporter.progress("write", 1, 1)
     hybrid = report["hybrid"]
     reporter.log(f"built {params['space']}: {report['n_sources']} sources x {report['n_phases']} phases, "
@@ -235,7 +240,7 @@ def run_graph(payload, reporter):
 
 
 # --- align ----------------------------------------------------------------------------------------
-def run_align(payload, reporter):
+def run_align(payload, reporter, runner=None):
     from engine.align import AlignmentOptions, align_captures
     from engine.surface import model_size
     from server.commands.align import (COLOUR_MODES, convert_inputs, parse_root, read_inputs, resolve_inputs,
@@ -265,7 +270,7 @@ def run_align(payload, reporter):
                             tree_kind=params.get("tree", "mst"), root=root,
                             options=options, window=params["window"], workers=1, retries=params["retries"],
                             use_colors=COLOUR_MODES[params.get("colors", "auto")],
-                            seed=params["seed"], progress=reporter.progress)
+                            seed=params["seed"], progress=reporter.progress, runner=runner)
     out = staging / "dataset"
     out.mkdir()
     fps = float((sequences[0].get("meta") or {}).get("fps", 30.0))
@@ -330,6 +335,8 @@ def dask_entry(payload_json, topic):
     """
     from distributed import get_worker
 
+    from server.jobs.dask_runner import DaskRunner
+
     payload = json.loads(payload_json)
     worker = get_worker()
 
@@ -342,7 +349,8 @@ def dask_entry(payload_json, topic):
     reporter = Reporter(payload["kind"], emit, cancel_file=os.path.join(payload["staging"], "..", "CANCEL"))
     emit({"t": "worker", "info": {"address": worker.address, "pid": os.getpid()}})
     try:
-        return json.dumps({"result": run_task(payload, reporter)})
+        runner = DaskRunner(topic, check=reporter.check)  # the split stages as tasks on this cluster
+        return json.dumps({"result": run_task(payload, reporter, runner)})
     except JobCancelled as exc:
         shutil.rmtree(payload["staging"], ignore_errors=True)
         return json.dumps({"cancelled": str(exc)})

@@ -1,0 +1,92 @@
+"""Task runners: where the engine's split work runs.
+
+The slow stages are cut into independent tasks (shape histograms of chunks of frames, blocks of
+the dissimilarity matrix, pieces of the similarity tree, decompositions of chunks of source
+frames). A function that accepts ``runner=`` hands its tasks to that runner instead of running
+its own loop; the tasks are module-level functions of plain arguments, so a runner may run them
+in this process (:class:`SerialRunner`) or ship them to other machines (the server's
+``server.jobs.dask_runner.DaskRunner``). Every task's result depends only on its arguments, so
+every runner gives the same result, bit for bit.
+
+A runner has two methods:
+
+``map(function, jobs, *, shared=None, sizes=None, progress=None)``
+    ``[function(shared, job) for job in jobs]``, in any order or at the same time; results in
+    the order of ``jobs``. ``shared`` is sent once per machine rather than once per job.
+``tree(function, jobs, parents, *, shared=None, sizes=None, progress=None)``
+    ``results[t] = function(shared, jobs[t], results[parents[t]])`` (``None`` for a task whose
+    parent is -1); ``parents[t] < t``. A task starts once its parent is done; tasks whose
+    parents are done may run at the same time.
+
+``sizes`` weigh the tasks for ``progress(done, total)``, called as tasks finish.
+"""
+
+from __future__ import annotations
+
+import threading
+
+
+class SerialRunner:
+    """Runs every task here, one after the other (the reference for every other runner)."""
+
+    def map(self, function, jobs, *, shared=None, sizes=None, progress=None):
+        sizes = list(sizes) if sizes is not None else [1] * len(jobs)
+        total, done, results = int(sum(sizes)), 0, []
+        for job, size in zip(jobs, sizes, strict=True):
+            results.append(function(shared, job))
+            done += size
+            if progress is not None:
+                progress(done, total)
+        return results
+
+    def tree(self, function, jobs, parents, *, shared=None, sizes=None, progress=None):
+        check_parents(parents)
+        sizes = list(sizes) if sizes is not None else [1] * len(jobs)
+        total, done = int(sum(sizes)), 0
+        results = [None] * len(jobs)
+        for t, job in enumerate(jobs):
+            results[t] = function(shared, job, None if parents[t] < 0 else results[parents[t]])
+            done += sizes[t]
+            if progress is not None:
+                progress(done, total)
+        return results
+
+
+def check_parents(parents):
+    """Every task's parent comes before it (or is -1)."""
+    for t, p in enumerate(parents):
+        if not -1 <= int(p) < t:
+            raise ValueError(f"task {t} has parent {int(p)}: a parent must be an earlier task or -1")
+
+
+class Rebuilt:
+    """Something expensive to set up that travels as its inputs and is set up once where it lands.
+
+    ``Rebuilt(make, state)``: ``value`` is ``make(*state)``, built on first use (once per
+    process: a runner keeps one unpickled copy per worker and hands it to every task there).
+    Pickling sends ``make`` and ``state`` only, never the built object.
+    """
+
+    def __init__(self, make, state, value=None):
+        self.make, self.state = make, tuple(state)
+        self._value = value
+        self._lock = threading.Lock()
+
+    @property
+    def value(self):
+        if self._value is None:
+            with self._lock:
+                if self._value is None:
+                    self._value = self.make(*self.state)
+        return self._value
+
+    def __reduce__(self):
+        return (Rebuilt, (self.make, self.state))
+
+
+def shared_value(shared):
+    """The object a task works with: ``shared.value`` for a :class:`Rebuilt`, else ``shared``."""
+    return shared.value if isinstance(shared, Rebuilt) else shared
+
+
+__all__ = ["Rebuilt", "SerialRunner", "check_parents", "shared_value"]

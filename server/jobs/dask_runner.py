@@ -1,0 +1,112 @@
+"""The engine's tasks (``engine.tasks``) as Dask tasks, submitted by a job's task on the cluster.
+
+A job on Dask is one task (``server.jobs.tasks.dask_entry``): the coordinator. It reads the
+inputs and calls the engine with ``runner=DaskRunner(...)``; the engine hands its split work
+(histogram chunks, matrix blocks, tree pieces, source decompositions) to the runner, which
+submits it to the same cluster and waits. While it waits the coordinator has seceded from its
+worker's thread pool (``distributed.worker_client``), so a cluster of one single-threaded
+worker runs the sub-tasks too instead of deadlocking. ``shared`` data is scattered once; the
+tree's pieces are submitted together, each depending on its parent piece's future, so a piece
+starts on whichever worker is free as soon as its parent is done, without a round trip through
+the coordinator.
+
+Progress comes back as tasks finish (``progress(done, total)``, weighted by ``sizes``) and goes to
+the job record through the coordinator's reporter. ``check()`` is called while waiting; when it
+raises (the job was cancelled), the sub-tasks not yet finished are cancelled and the exception
+goes on.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+from engine.tasks import check_parents
+
+POLL = 0.25  # seconds between cancellation checks while waiting for sub-tasks
+
+
+class DaskRunner:
+    """Runs engine tasks on the Dask cluster the calling task runs on.
+
+    Parameters
+    ----------
+    prefix : str                 task keys are ``<prefix>-<function>-<n>`` (one prefix per job
+                                 attempt, so the dashboard shows whose tasks they are)
+    check : callable() or None   raises to stop (e.g. ``Reporter.check``)
+    """
+
+    def __init__(self, prefix, check=None):
+        self.prefix = prefix
+        self.check = check or (lambda: None)
+        self.counter = itertools.count()
+        self.tasks = 0
+
+    def map(self, function, jobs, *, shared=None, sizes=None, progress=None):
+        from distributed import worker_client
+
+        with worker_client() as client:
+            shared_future = self._scatter(client, shared)
+            job_futures = client.scatter(list(jobs), hash=False)
+            futures = [client.submit(function, shared_future, job, key=self._key(function), pure=False)
+                       for job in job_futures]
+            return self._gather(client, futures, sizes, progress)
+
+    def tree(self, function, jobs, parents, *, shared=None, sizes=None, progress=None):
+        from distributed import worker_client
+
+        check_parents(parents)
+        with worker_client() as client:
+            shared_future = self._scatter(client, shared)
+            job_futures = client.scatter(list(jobs), hash=False)
+            futures = []
+            for job, parent in zip(job_futures, parents, strict=True):
+                futures.append(client.submit(function, shared_future, job,
+                                             futures[parent] if parent >= 0 else None,
+                                             key=self._key(function), pure=False))
+            return self._gather(client, futures, sizes, progress)
+
+    def _key(self, function):
+        self.tasks += 1
+        return f"{self.prefix}-{function.__name__.replace('_', '-')}-{next(self.counter)}"
+
+    @staticmethod
+    def _scatter(client, shared):
+        if shared is None:
+            return None
+        return client.scatter([shared], hash=False, broadcast=False)[0]
+
+    def _gather(self, client, futures, sizes, progress):
+        sizes = list(sizes) if sizes is not None else [1] * len(futures)
+        index = {future.key: i for i, future in enumerate(futures)}
+        total, done = int(sum(sizes)), 0
+        pending = set(futures)
+        try:
+            while pending:
+                self.check()
+                finished, pending = _first_finished(pending)
+                for future in finished:
+                    if future.status == "error":
+                        future.result()  # raises the task's exception here
+                    done += sizes[index[future.key]]
+                if finished and progress is not None:
+                    progress(done, total)
+            return client.gather(futures)
+        except BaseException:
+            client.cancel([f for f in futures if not f.done()])
+            raise
+
+
+def _first_finished(pending):
+    """(finished, still pending) after waiting at most ``POLL`` seconds for one of ``pending``."""
+    import asyncio
+
+    from distributed import wait
+
+    try:
+        finished, still = wait(pending, timeout=POLL, return_when="FIRST_COMPLETED")
+    except (TimeoutError, asyncio.TimeoutError):
+        return set(), pending
+    return set(finished), set(still)
+
+
+__all__ = ["DaskRunner"]
