@@ -77,7 +77,21 @@ def align(dataset, only, frames, tiny, options, runner):
     for array in (run.aligned.vertices, run.aligned.parent, run.aligned.residual, run.aligned.confidence,
                   run.similarity.dissimilarity, run.similarity.yaw):
         digest.update(array.tobytes())
-    return digest.hexdigest(), int(lengths.sum()), {k: round(v, 3) for k, v in run.timings.items()}
+    stages = {k: round(v, 3) for k, v in run.timings.items()}
+    return digest.hexdigest(), int(lengths.sum()), {**stages, **tree_pieces(run.tree)}
+
+
+def tree_pieces(tree, chunk=48):
+    """How parallel the tree's pieces can be: their count and the frames on the heaviest chain of
+    pieces from the root (pieces there wait for each other whatever the number of workers)."""
+    from engine.align import partition_tree
+
+    task_of, heads, task_parent = partition_tree(tree.parent, tree.order, chunk)
+    sizes = [int((task_of == t).sum()) for t in range(len(heads))]
+    chain = [0] * len(heads)
+    for t in range(len(heads)):
+        chain[t] = sizes[t] + (chain[task_parent[t]] if task_parent[t] >= 0 else 0)
+    return {"pieces": len(heads), "critical_path_frames": max(chain)}
 
 
 def coordinate(dataset, only, frames, tiny, options):
@@ -135,6 +149,9 @@ def main(argv=None):
     for row in rows:
         print(f"{row['workers']} worker(s): {record['frames']} frames, median {row['median_s']:.2f} s of "
               f"{row['seconds']}, {row['tasks']} tasks; stages {row['stages_s']}")
+    pieces = rows[0]["stages_s"]
+    print(f"tree: {pieces['pieces']} pieces; {pieces['critical_path_frames']} of {record['frames']} frames on the "
+          f"longest chain of pieces (the align stage cannot go faster than that chain)")
     print(f"speedup 2 vs 1 workers: {record['speedup']:.2f}x (target >= 1.7x on the demo's 973 frames); results "
           f"{'equal' if record['equal'] else 'DIFFER'}; load average {record['load_average']} on {record['cpus']} CPUs")
     if args.tiny or args.frames:

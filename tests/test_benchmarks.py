@@ -153,7 +153,7 @@ def check_dask_align(records, stdout):
     assert [row["workers"] for row in record["clusters"]] == [1, 2]
     for row in record["clusters"]:
         assert positive(row["median_s"]) and row["tasks"] >= 3 and row["repeats_equal"]
-        assert {"similarity", "align", "repair"} <= set(row["stages_s"])
+        assert {"similarity", "align", "repair", "pieces", "critical_path_frames"} <= set(row["stages_s"])
     assert positive(record["speedup"]) and non_negative(record["load_average"])
     assert "speedup 2 vs 1 workers" in stdout and "full figure: " in stdout and "results equal" in stdout
 
