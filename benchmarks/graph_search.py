@@ -2,7 +2,7 @@
 
 1. Search time: ``--searches`` transition searches from random states (a node, a weight sample,
    a phase) to random successors at random parameters, one at a time on one core; median and
-   99th percentile.
+   99th percentile of the wall time and of the thread's CPU time.
 2. The same ``--requests`` random requests (a random node at random parameters every 2-4 s)
    played at ``--fps`` by the graph player with the search, an immediate cut and a fixed 0.3 s
    crossfade (engine.graph.baselines); per strategy the medians and tails of smoothness, latency,
@@ -30,10 +30,11 @@ from engine.graph.evaluate import play_requests, random_requests, summarise, tra
 
 
 def search_times(graph, search, count, seed):
-    """Seconds per search from random states to random successors."""
+    """(wall seconds, thread CPU seconds) per search from random states to random successors
+    (CPU time leaves out the time the process waited for a core on a busy host)."""
     rng = np.random.default_rng(seed)
     sources = [n for n in graph.nodes if graph.successors(n.name)]
-    seconds = []
+    seconds, cpu = [], []
     for _ in range(count):
         a = sources[int(rng.integers(len(sources)))]
         targets = graph.successors(a.name)
@@ -41,10 +42,11 @@ def search_times(graph, search, count, seed):
         w = a.samples.weights[int(rng.integers(len(a.samples.weights)))]
         wb = b.samples.weights[int(rng.integers(len(b.samples.weights)))]
         phase = float(rng.uniform(0, 1))
-        started = time.perf_counter()
+        started, started_cpu = time.perf_counter(), time.thread_time()
         search.search(a.name, w, phase, b.name, wb)
+        cpu.append(time.thread_time() - started_cpu)
         seconds.append(time.perf_counter() - started)
-    return seconds
+    return seconds, cpu
 
 
 def main(argv=None):
@@ -72,12 +74,14 @@ def main(argv=None):
             options = SearchOptions() if args.latency_weight is None else SearchOptions(
                 latency_weight=args.latency_weight)
             search = TransitionSearch(graph, options)
-            seconds = search_times(graph, search, args.searches, args.seed)
-            ms = np.asarray(seconds) * 1e3
+            seconds, cpu = search_times(graph, search, args.searches, args.seed)
+            ms, cpu_ms = np.asarray(seconds) * 1e3, np.asarray(cpu) * 1e3
             result = {"graph": graph.name, "vertices": graph.metadata["n_vertices"],
                       "nodes": [n.name for n in graph.nodes], "latency_weight": options.latency_weight,
                       "search_ms": {"median": float(np.median(ms)), "p99": float(np.percentile(ms, 99)),
                                     "max": float(ms.max()), "count": len(ms)},
+                      "search_cpu_ms": {"median": float(np.median(cpu_ms)), "p99": float(np.percentile(cpu_ms, 99)),
+                                        "max": float(cpu_ms.max())},
                       "fps": args.fps, "requests": args.requests, "load_average": os.getloadavg()[0],
                       "strategies": {}}
             requests = random_requests(graph, args.requests, seed=args.seed)
@@ -88,7 +92,8 @@ def main(argv=None):
                 result["strategies"][name] = summarise(measures, searched)
     print(f"{result['graph']} ({result['vertices']} vertices): search median {result['search_ms']['median']:.3f} ms, "
           f"p99 {result['search_ms']['p99']:.3f} ms over {len(seconds)} searches (load average "
-          f"{result['load_average']:.1f})")
+          f"{result['load_average']:.1f}); CPU time median {result['search_cpu_ms']['median']:.3f} ms, "
+          f"p99 {result['search_cpu_ms']['p99']:.3f} ms")
     print(f"{'strategy':<10} {'n':>3} {'smooth p50':>10} {'p95':>6} {'latency p50':>11} {'p95':>6} "
           f"{'slide p50 cm':>12} {'p95':>6} {'root max':>8} {'seam p50 mm':>11}")
     for name, s in result["strategies"].items():

@@ -54,11 +54,12 @@ def check_blend_scaling(rows, stdout):
 def check_graph_search(result, stdout):
     assert result["graph"] == "tiny" and result["vertices"] == 1000 and result["search_ms"]["count"] == 500
     assert positive(result["search_ms"]["median"]) and result["search_ms"]["p99"] >= result["search_ms"]["median"]
+    assert positive(result["search_cpu_ms"]["p99"]) and result["search_cpu_ms"]["max"] >= result["search_cpu_ms"]["p99"]
     assert set(result["strategies"]) == {"search", "cut", "crossfade"}
     for figures in result["strategies"].values():
         assert figures["transitions"] >= 3 and positive(figures["smoothness_p95"])
         assert non_negative(figures["foot_slide_p95_cm"]) and non_negative(figures["latency_p50_s"])
-    assert "search median" in stdout and "crossfade" in stdout
+    assert "search median" in stdout and "CPU time median" in stdout and "crossfade" in stdout
 
 
 def check_similarity_scaling(records, stdout):
