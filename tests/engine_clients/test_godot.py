@@ -1,0 +1,157 @@
+"""The Godot 3 add-on (engine_clients/godot/) run headless against a real server.
+
+A real ``morphspace serve`` streams the test's speed space; Debian's ``godot3-server`` runs the
+project in tests/engine_clients/godot_project/ (copied with the add-on into a temporary
+directory, HOME and the XDG directories pointed there too). Its script streams frames in both
+codecs through a MorphspaceMesh, steers half way, pulls, then pulls on the engine's clock, and
+writes every frame it applied (the vertices the mesh holds, the node's transform) and its decode
+and mesh update times. Here every frame is checked against the engine's own blend at the
+frame's weights and phase (within the codec's bound), pulled frames against the same pulls made
+by server/client.py, and the placement against the root transform.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+import subprocess
+from pathlib import Path
+
+import msgpack
+import numpy as np
+import pytest
+
+from engine.motion_space import MotionSpace
+from engine.rotations import rot_y
+from live_server import LiveServer, data_dir_with_spaces
+from server.client import StreamClient
+from server.codecs import quantisation_error
+
+ROOT = Path(__file__).resolve().parents[2]
+ADDON = ROOT / "engine_clients" / "godot" / "addons"
+PROJECT = Path(__file__).resolve().parent / "godot_project"
+GODOT = Path(os.environ.get("MORPHSPACE_TEST_GODOT", "/usr/bin/godot3-server"))
+FRAMES = 60
+PULLS = (0.1, 0.37, 0.8, 1.25)
+PULL_VALUE = 1.5
+VALUES = (1.2, 2.0)
+ENGINE_FRAMES = 30
+ROUNDING = 2e-6  # metres: float32 rounding of the same blend computed two ways (phase tables, weights)
+
+pytestmark = pytest.mark.skipif(not GODOT.exists(), reason=f"needs Debian's godot3-server at {GODOT} "
+                                "(apt-get install -y godot3-server; scripts/test installs it)")
+
+
+def _tracked_state():
+    """git's view of the add-on and the test project (ignored files included)."""
+    return subprocess.run(["git", "status", "--porcelain", "--ignored", "--untracked-files=all",
+                           "engine_clients", "tests/engine_clients/godot_project"],
+                          cwd=ROOT, capture_output=True, text=True, check=True).stdout
+
+
+def _godot_env(home):
+    home.mkdir(parents=True)
+    return dict(os.environ, HOME=str(home), XDG_DATA_HOME=str(home / "data"), XDG_CONFIG_HOME=str(home / "config"),
+                XDG_CACHE_HOME=str(home / "cache"), LC_ALL="C.UTF-8")
+
+
+def _run_godot(tmp_path, ws_url):
+    project = tmp_path / "project"
+    shutil.copytree(PROJECT, project)
+    shutil.copytree(ADDON, project / "addons")
+    out = tmp_path / "out"
+    out.mkdir()
+    env = _godot_env(tmp_path / "home")
+    args = [str(GODOT), "--path", str(project), "--", f"--out={out}", f"--url={ws_url}", "--space=speed",
+            "--param=speed", f"--values={VALUES[0]},{VALUES[1]}", f"--frames={FRAMES}",
+            f"--pulls={','.join(map(str, PULLS))}", f"--pull-value={PULL_VALUE}",
+            f"--engine-frames={ENGINE_FRAMES}", "--engine-fps=60", "--timeout=90"]
+    run = subprocess.run(args, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=150)
+    error = out / "error.txt"
+    assert run.returncode == 0 and not error.exists(), (
+        f"godot exited {run.returncode}: {error.read_text() if error.exists() else ''}\n{run.stdout[-3000:]}\n"
+        f"{run.stderr[-3000:]}")
+    with open(out / "records.msgpack", "rb") as f:
+        records = list(msgpack.Unpacker(f, raw=False))
+    summary = msgpack.unpackb((out / "summary.msgpack").read_bytes(), raw=False)
+    return records, summary
+
+
+async def _python_pulls(ws_url, times):
+    """The same pulls through server/client.py: {time: frame} in f32."""
+    async with StreamClient.connect(ws_url, "speed", codec="f32", rate=0, smoothing=0.0,
+                                    params={"speed": VALUES[0]}) as client:
+        return {t: await client.pull({"speed": PULL_VALUE}, time=t) for t in times}, client.topology
+
+
+def test_godot_client_decodes_places_and_pulls_frames(built_spaces, tmp_path):
+    before = _tracked_state()
+    data = data_dir_with_spaces(tmp_path / "server data", built_spaces, names=("speed",))
+    with LiveServer(data) as live:
+        records, summary = _run_godot(tmp_path / "godot run", live.ws_url)
+        times = sorted({r["time"] for r in records if r["kind"] == "pull"})
+        assert times == pytest.approx(PULLS)
+        expected_pulls, topology = asyncio.run(_python_pulls(live.ws_url, times))
+    assert _tracked_state() == before  # nothing written into the repository
+    bound = {"f32": 0.0, "q16": quantisation_error((topology.bounds_min, topology.bounds_max))}
+    assert 0 < bound["q16"] < 1e-4
+
+    worst = {}
+    with MotionSpace.open(built_spaces / "speed.mspace") as space:
+        for r in records:
+            V = np.frombuffer(r["vertices"], dtype="<f4").reshape(-1, 3)
+            assert r["n_vertices"] == space.n_vertices == len(V)
+            if r["kind"] == "pull":
+                reference = expected_pulls[r["time"]]
+                assert r["weights"] == reference.weights.tolist() and r["phase"] == reference.phase
+                assert r["root"] == reference.root.tolist() and r["heading"] == reference.heading
+                expected = reference.vertices
+                if r["codec"] == "f32":
+                    assert np.array_equal(V, expected)  # the same float32 bytes, decoded
+            else:
+                expected = space.blender(r["mode"]).blend(np.asarray(r["weights"]), r["phase"])
+            error = float(np.abs(V.astype(np.float64) - expected).max())
+            key = f"{r['kind']}-{r['codec']}"
+            worst[key] = max(worst.get(key, 0.0), error)
+            assert error <= bound[r["codec"]] + ROUNDING, (key, r["seq"], error)
+            if "basis" in r:  # placed by the root transform: rotate by heading about +Y, then translate
+                assert np.allclose(np.reshape(r["basis"], (3, 3)), rot_y(r["heading"]), atol=1e-6)
+                assert np.allclose(r["origin"], r["root"], atol=1e-5)
+    kinds = {key: sum(f"{r['kind']}-{r['codec']}" == key for r in records) for key in worst}
+    assert kinds["pull-f32"] == kinds["pull-q16"] == len(PULLS) and kinds["engine-f32"] == ENGINE_FRAMES
+    assert kinds["stream-f32"] >= FRAMES and kinds["stream-q16"] >= FRAMES  # (and the frame answering the pause)
+
+    for codec in ("f32", "q16"):  # the steer: frames acknowledging it show the new speed at once
+        stream = [r for r in records if r["kind"] == "stream" and r["codec"] == codec]
+        steer = summary["codecs"][f"stream-{codec}"]["steer_seq"]
+        assert steer > 0 and all(r["requested"] == pytest.approx([VALUES[r["ack"] >= steer]]) for r in stream)
+        assert any(r["ack"] >= steer for r in stream) and stream[0]["ack"] < steer
+        assert [r["seq"] for r in stream] == sorted({r["seq"] for r in stream})
+    engine = [r for r in records if r["kind"] == "engine"]
+    assert all(r["time"] == pytest.approx(r["pull_time"], abs=0.1) for r in engine)
+    assert [r["time"] for r in engine] == sorted(r["time"] for r in engine)
+
+    print("\nGodot 3 add-on, headless (dummy renderer: the mesh update is the CPU side, no GPU upload):")
+    for key, figures in sorted(summary["codecs"].items()):
+        rows = [r for r in records if f"{r['kind']}-{r['codec']}" == key]
+        decode = np.array([r["decode_usec"] for r in rows], dtype=float)
+        update = np.array([r["update_usec"] for r in rows], dtype=float)
+        total = decode + update
+        print(f"  {key}: {figures['frames']} frames applied at {figures['frames_per_second']:.1f} frames/s "
+              f"(received {figures['received']}, {figures['superseded']} superseded before the next engine frame, "
+              f"{figures['server_dropped']} dropped by the server; engine {figures['engine_fps']} fps); decode median "
+              f"{np.median(decode):.0f} us, mesh update median {np.median(update):.0f} us, decode + update "
+              f"median {np.median(total):.0f} us, p95 {np.percentile(total, 95):.0f} us, max {total.max():.0f} us; "
+              f"largest error {worst[key] * 1e6:.2f} um (bound {bound[key.split('-')[1]] * 1e6:.2f} um)")
+
+
+def test_example_project_loads_and_runs_a_frame(tmp_path):
+    """engine_clients/godot/ opens as a project: its example scene and the add-on's scripts
+    parse and run their first frame (no server: the add-on only schedules a reconnect)."""
+    project = tmp_path / "example"
+    shutil.copytree(ROOT / "engine_clients" / "godot", project)
+    run = subprocess.run([str(GODOT), "--path", str(project), "--quit"], cwd=tmp_path, env=_godot_env(tmp_path / "home"),
+                         capture_output=True, text=True, timeout=60)
+    output = run.stdout + run.stderr
+    assert run.returncode == 0 and "SCRIPT ERROR" not in output and "Parse Error" not in output, output[-3000:]
