@@ -19,15 +19,15 @@ def parse_arguments(parser, argv, tiny_defaults):
     return args
 
 
-def build_tiny_speed_space(path):
+def build_tiny_speed_space(path, n_vertices=TINY_VERTICES):
     """Build a two-gait speed space at ``path``: a slow walk (0.8 m/s) and a jog (2.8 m/s) of a
-    1,000-vertex body at 15 fps straight from the generator, in a speed chain, epsilon 5 mm
-    (a few seconds). Returns the body (engine.synthetic.Body)."""
+    1,000-vertex body (``n_vertices``) at 15 fps straight from the generator, in a speed chain,
+    epsilon 5 mm (a few seconds at 1,000 vertices). Returns the body (engine.synthetic.Body)."""
     from engine.motion_space import SourceClip, build_motion_space  # not for parse_arguments' users
     from engine.parameters import Layout
     from engine.synthetic import animate, build_body, gait
 
-    body = build_body(TINY_VERTICES)
+    body = build_body(n_vertices)
     clips = []
     for name, speed in (("walk_slow", 0.8), ("jog", 2.8)):
         motion = gait(body.skeleton, speed, fps=TINY_FPS, cycles=2.0)

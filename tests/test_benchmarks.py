@@ -159,10 +159,22 @@ def check_dask_align(records, stdout):
     assert "speedup 2 vs 1 workers" in stdout and "full figure: " in stdout and "results equal" in stdout
 
 
+def check_godot_client(result, stdout):
+    assert result["vertices"] == 1000 and result["seconds"] == 2.0 and result["engine_fps_target"] == 60
+    assert set(result["runs"]) == {"stream-f32", "stream-q16", "engine-f32"}
+    for key, row in result["runs"].items():
+        assert row["frames"] == 120 and positive(row["frames_per_second"]) and positive(row["engine_fps"]), key
+        assert non_negative(row["received_per_second"]) and row["superseded"] >= 0 and row["server_dropped"] >= 0
+        for figure in ("decode_us", "update_us", "decode_update_us"):
+            assert 0 < row[figure]["median"] <= row[figure]["p95"] <= row[figure]["max"], (key, figure)
+        assert f"{key}: 1000 vertices, decode median" in stdout
+
+
 CHECKS = {
     "blend_scaling.py": check_blend_scaling,
     "dask_align.py": check_dask_align,
     "export.py": check_export,
+    "godot_client.py": check_godot_client,
     "graph_search.py": check_graph_search,
     "open_blends.py": check_open_blends,
     "similarity_scaling.py": check_similarity_scaling,

@@ -16,6 +16,7 @@ import asyncio
 import os
 import shutil
 import subprocess
+import time
 from pathlib import Path
 
 import msgpack
@@ -26,7 +27,7 @@ from engine.motion_space import MotionSpace
 from engine.rotations import rot_y
 from live_server import LiveServer, data_dir_with_spaces
 from server.client import StreamClient
-from server.codecs import quantisation_error
+from server.codecs import decode_vertices, quantisation_error
 
 ROOT = Path(__file__).resolve().parents[2]
 ADDON = ROOT / "engine_clients" / "godot" / "addons"
@@ -155,3 +156,89 @@ def test_example_project_loads_and_runs_a_frame(tmp_path):
                          capture_output=True, text=True, timeout=60)
     output = run.stdout + run.stderr
     assert run.returncode == 0 and "SCRIPT ERROR" not in output and "Parse Error" not in output, output[-3000:]
+
+
+def test_godot_client_reconnects_with_its_parameters(built_spaces, tmp_path):
+    """The add-on retries (with a doubling delay) until the server is up, and after a server
+    restart reconnects on its own, sending hello again with the parameters it last requested."""
+    data = data_dir_with_spaces(tmp_path / "server data", built_spaces, names=("speed",))
+    live = LiveServer(data)  # its port is chosen; nothing listens there yet
+    project = tmp_path / "project"
+    shutil.copytree(PROJECT, project)
+    shutil.copytree(ADDON, project / "addons")
+    out = tmp_path / "out"
+    out.mkdir()
+    args = [str(GODOT), "--path", str(project), "res://reconnect.tscn", "--", f"--out={out}", f"--url={live.ws_url}",
+            "--space=speed", "--param=speed", f"--value={VALUES[1]}", "--frames=10", "--timeout=90"]
+    godot = subprocess.Popen(args, cwd=tmp_path, env=_godot_env(tmp_path / "home"), stdout=subprocess.PIPE,
+                             stderr=subprocess.STDOUT, text=True)
+    try:
+        time.sleep(1.5)  # a few failed attempts
+        live.start()
+        deadline = time.monotonic() + 60
+        while not (out / "first.txt").exists():
+            assert godot.poll() is None and time.monotonic() < deadline, "no frames on the first connection"
+            time.sleep(0.1)
+        live.stop()
+        time.sleep(1.0)
+        live.start()
+        output, _ = godot.communicate(timeout=90)
+    finally:
+        if godot.poll() is None:
+            godot.kill()
+            godot.wait()
+        live.stop()
+    error = out / "error.txt"
+    assert godot.returncode == 0 and not error.exists(), (error.read_text() if error.exists() else "") + output[-3000:]
+    summary = msgpack.unpackb((out / "summary.msgpack").read_bytes(), raw=False)
+    assert summary["topologies"] == 2
+    before = [d for d in summary["disconnects"] if d["after_topologies"] == 0]
+    after = [d for d in summary["disconnects"] if d["after_topologies"] == 1]
+    assert len(before) >= 2 and len(after) >= 1
+    delays = [d["retry_in"] for d in before]
+    assert delays[:3] == pytest.approx([0.2, 0.4, 0.8][:len(delays[:3])]) and max(delays) <= 1.0
+    assert after[0]["retry_in"] == pytest.approx(0.2)  # the topology reset the delay
+    first, second = summary["frames"]
+    assert all(f["requested"] == pytest.approx([VALUES[1]]) for f in first + second)
+    assert second[0]["seq"] < first[-1]["seq"]  # a new connection: frame numbers restarted
+
+
+def test_gdscript_msgpack_and_codecs_against_python(tmp_path):
+    """msgpack.gd decodes every family the protocol uses (and says what is wrong with broken
+    bytes), its encoder gives them back; codecs.gd's q16 decoding (native and the plain loop)
+    equals the server's own decoder bit for bit at sizes that fill one Image row, several rows,
+    and a padded last row; faces come back with Godot's clockwise winding."""
+    rng = np.random.default_rng(7)
+    values = {"nil": None, "t": True, "f": False, "fixint": [0, 1, 127, -1, -32], "uint": [128, 255, 256, 65535, 65536,
+              2**32 - 1, 2**32, 2**53], "int": [-33, -128, -129, -32768, -32769, -2**31, -2**31 - 1, -2**53],
+              "float64": [0.1, -2.5e-300, 1e300, 1 / 3], "str": ["", "a" * 31, "b" * 32, "é" * 200, "x" * 70000],
+              "bin": [b"", b"\x00\xff" * 200, bytes(70000)], "nested": [{"k": [1, [2, {"z": None}]]}],
+              "map16": {f"key{i}": i for i in range(20)}, 5: "int key"}
+    malformed = [b"", b"\xc1", b"\x92\x01", b"\xa5abc", b"\xc4\x05ab", b"\x01\x02", b"\xdd\xff\xff\xff\xff",
+                 b"\xcf\xff\xff\xff\xff\xff\xff\xff\xff"]
+    bounds = (np.array([-1.1, -0.2, -0.9], dtype=np.float32), np.array([1.3, 2.1, 1.05], dtype=np.float32))
+    cases = []
+    for n in (1, 1000, 4096, 4097, 10000):
+        q = rng.integers(0, 65536, size=(n, 3), dtype=np.uint16)
+        q[0] = (0, 65535, 1)
+        cases.append({"n": n, "data": q.astype("<u2").tobytes(), "lo": bounds[0].tolist(), "hi": bounds[1].tolist()})
+    F = rng.integers(0, 1000, size=(50, 3)).astype("<u4")
+    source = tmp_path / "in.msgpack"
+    source.write_bytes(msgpack.packb({"values": values, "malformed": malformed, "q16": cases,
+                                      "faces": {"n": len(F), "data": F.tobytes()}}, use_bin_type=True))
+    project = tmp_path / "project"
+    shutil.copytree(PROJECT, project)
+    shutil.copytree(ADDON, project / "addons")
+    out = tmp_path / "out.msgpack"
+    run = subprocess.run([str(GODOT), "--path", str(project), "res://codecs_check.tscn", "--", f"--in={source}",
+                          f"--out={out}"], cwd=tmp_path, env=_godot_env(tmp_path / "home"), capture_output=True,
+                         text=True, timeout=60)
+    assert run.returncode == 0 and out.exists(), run.stdout[-3000:] + run.stderr[-3000:]
+    result = msgpack.unpackb(out.read_bytes(), raw=False, strict_map_key=False)
+    assert result["echo"] == values
+    assert all(error for error in result["errors"]), result["errors"]  # every broken input named as such
+    for case, fast, plain in zip(cases, result["q16"], result["q16_loop"]):
+        expected = decode_vertices(case["data"], "q16", case["n"], *bounds)
+        assert np.array_equal(np.frombuffer(fast, "<f4").reshape(-1, 3), expected), case["n"]
+        assert np.array_equal(np.frombuffer(plain, "<f4").reshape(-1, 3), expected), case["n"]
+    assert result["faces"] == F[:, [0, 2, 1]].reshape(-1).tolist()

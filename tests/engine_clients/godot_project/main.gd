@@ -3,7 +3,8 @@
 # User arguments (after "--"): --out=DIR --url=ws://... --space=NAME --param=NAME
 # --values=A,B (the parameter at the start and after the steer) --frames=N (streamed frames per
 # codec) --pulls=T1,T2,... (times pulled per codec, at --pull-value) --engine-frames=M (frames
-# pulled on the engine's clock) --engine-fps=F --timeout=S.
+# pulled on the engine's clock) --engine-fps=F --timeout=S --record-vertices=1 (0: timings only,
+# no vertices and no read-back of the mesh: benchmarks/godot_client.py).
 # For each codec (f32, q16): a MorphspaceMesh streams N frames (steered half way with
 # set_param), then pulls; then a MorphspaceMesh in pull_mode takes M frames. Every frame is
 # written to DIR/records.msgpack (one msgpack map per frame, written with the add-on's encoder):
@@ -28,6 +29,7 @@ var pulls_sent = false
 var pulls_received = 0
 var first_usec = 0
 var received = 0
+var received_first = 0
 var superseded = 0
 var server_dropped = 0
 var last_usec = 0
@@ -101,8 +103,11 @@ func _on_applied(frame):
 	var now = OS.get_ticks_usec()
 	if first_usec == 0:
 		first_usec = now
-	var mesh_vertices = node.mesh.surface_get_arrays(0)[Mesh.ARRAY_VERTEX]
-	_record(kind, frame, mesh_vertices, node.transform)
+		received_first = node.client.received_frames
+	if options.get("record-vertices", "1") == "1":
+		_record(kind, frame, node.mesh.surface_get_arrays(0)[Mesh.ARRAY_VERTEX], node.transform)
+	else:
+		_record(kind, frame, null, null)
 	streamed += 1
 	if kind == "engine":
 		last_usec = now
@@ -137,12 +142,14 @@ func _finish_stage(kind):
 	var seconds = (last_usec - first_usec) / 1e6
 	if kind == "engine":
 		received = streamed
+		received_first = 0
 		superseded = node.client.skipped_frames
 		server_dropped = 0
 	var applied = min(streamed, int(options["frames"])) if kind == "stream" else streamed
 	summary["codecs"]["%s-%s" % [kind, node.codec]] = {
 		"frames": applied, "seconds": seconds, "frames_per_second": (applied - 1) / seconds if seconds > 0 else 0.0,
-		"received": received, "superseded": superseded, "server_dropped": server_dropped,
+		"received": received, "received_in_window": received - received_first, "superseded": superseded,
+		"server_dropped": server_dropped,
 		"steer_seq": steer_seq,
 		"engine_fps": Engine.get_frames_per_second()}
 	call_deferred("_next_stage")
@@ -154,8 +161,9 @@ func _record(kind, frame, vertices, placed):
 			"dropped", "pull_id", "decode_usec", "msgpack_usec"]:
 		record[key] = frame.get(key)
 	record["update_usec"] = frame.get("update_usec", -1)
-	record["vertices"] = var2bytes(vertices).subarray(8, 8 + 12 * vertices.size() - 1)
-	record["n_vertices"] = vertices.size()
+	if vertices != null:
+		record["vertices"] = var2bytes(vertices).subarray(8, 8 + 12 * vertices.size() - 1)
+		record["n_vertices"] = vertices.size()
 	if placed != null:
 		var b = placed.basis
 		record["basis"] = [b.x.x, b.y.x, b.z.x, b.x.y, b.y.y, b.z.y, b.x.z, b.y.z, b.z.z]  # rows
