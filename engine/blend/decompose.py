@@ -161,13 +161,17 @@ def _stacked(F):
     return np.ascontiguousarray(np.swapaxes(F, 1, 2)).reshape(-1, 3)
 
 
-def decompose_frames(decomposer, frames, progress=None, runner=None, chunk=16):
+def decompose_frames(decomposer, frames, progress=None, runner=None, chunk=None):
     """Decompose (m, n, 3) surface frames; returns stacked float32 (quaternions, stretch, detail).
 
     With ``runner`` (:mod:`engine.tasks`), chunks of ``chunk`` frames are decomposed as its tasks,
     each where the runner puts it (the decomposer is set up once per worker); the same result.
+    ``chunk`` defaults to about m / 16 frames, at most 16: at least 16 tasks when there are
+    that many frames, so the work spreads over the workers and progress comes in small steps.
     """
     m = len(frames)
+    if chunk is None:
+        chunk = min(16, max(1, -(-m // 16)))
     if runner is not None and m:
         from engine.tasks import Rebuilt
 
