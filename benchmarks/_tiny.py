@@ -19,9 +19,9 @@ def parse_arguments(parser, argv, tiny_defaults):
     return args
 
 
-def build_tiny_speed_space(path, n_vertices=TINY_VERTICES):
+def build_tiny_speed_space(path, n_vertices=TINY_VERTICES, fps=TINY_FPS):
     """Build a two-gait speed space at ``path``: a slow walk (0.8 m/s) and a jog (2.8 m/s) of a
-    1,000-vertex body (``n_vertices``) at 15 fps straight from the generator, in a speed chain,
+    1,000-vertex body (``n_vertices``) at 15 fps (``fps``) straight from the generator, in a speed chain,
     epsilon 5 mm (a few seconds at 1,000 vertices). Returns the body (engine.synthetic.Body)."""
     from engine.motion_space import SourceClip, build_motion_space  # not for parse_arguments' users
     from engine.parameters import Layout
@@ -30,8 +30,8 @@ def build_tiny_speed_space(path, n_vertices=TINY_VERTICES):
     body = build_body(n_vertices)
     clips = []
     for name, speed in (("walk_slow", 0.8), ("jog", 2.8)):
-        motion = gait(body.skeleton, speed, fps=TINY_FPS, cycles=2.0)
-        clips.append(SourceClip(name, animate(body, motion), TINY_FPS, True, motion.frames_per_cycle))
+        motion = gait(body.skeleton, speed, fps=fps, cycles=2.0)
+        clips.append(SourceClip(name, animate(body, motion), fps, True, motion.frames_per_cycle))
     build_motion_space(path, clips, body.F, name=path.stem, epsilon=0.005, rest=body.V,
                        parameters={"layout": Layout("chain", 2, chain=(0, 1)), "names": ["speed"]})
     return body

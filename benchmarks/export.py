@@ -23,7 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _tiny import parse_arguments
+from _tiny import build_tiny_speed_space, parse_arguments
 from engine.export import Clip, play_clip, write_export
 
 TARGETS = {"glb_seconds": 5.0, "glb_megabytes": 20.0, "usd_seconds": 5.0}
@@ -32,21 +32,6 @@ FORMATS = [("glb int16", "glb", "clip.glb", {"precision": "int16"}),
            ("usd", "usd", "clip.usd", {}),
            ("ply sequence", "ply", "ply", {}),
            ("vat", "vat", "vat.zip", {})]
-
-
-def build_speed_space(path, n_vertices, fps=30.0):
-    """A slow walk (0.8 m/s) and a jog (2.8 m/s) of an ``n_vertices`` body in a speed chain."""
-    from engine.motion_space import SourceClip, build_motion_space
-    from engine.parameters import Layout
-    from engine.synthetic import animate, build_body, gait
-
-    body = build_body(n_vertices)
-    clips = []
-    for name, speed in (("walk_slow", 0.8), ("jog", 2.8)):
-        motion = gait(body.skeleton, speed, fps=fps, cycles=2.0)
-        clips.append(SourceClip(name, animate(body, motion), fps, True, motion.frames_per_cycle))
-    build_motion_space(path, clips, body.F, name=path.stem, epsilon=0.005, rest=body.V,
-                       parameters={"layout": Layout("chain", 2, chain=(0, 1)), "names": ["speed"]})
 
 
 def steered_clip(space, seconds, fps):
@@ -99,7 +84,7 @@ def main(argv=None):
         if path is None:
             path = scratch / "speed.mspace"
             started = time.perf_counter()
-            build_speed_space(path, args.vertices)
+            build_tiny_speed_space(path, args.vertices, fps=30.0)
             print(f"built a {args.vertices}-vertex speed space in {time.perf_counter() - started:.1f} s")
         with MotionSpace.open(path) as space:
             clip = steered_clip(space, args.seconds, args.fps)

@@ -119,6 +119,8 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
 
     if method not in ("tree", "sequential"):
         raise ValueError(f"method must be 'tree' or 'sequential', got {method!r}")
+    if use_colors not in (True, False, "auto"):
+        raise ValueError(f"use_colors must be True, False or 'auto', got {use_colors!r}")
     lengths = np.asarray(lengths, dtype=np.int64)
     timings = {}
     started = time.perf_counter()
@@ -134,8 +136,6 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     base = meshes[tree.root]
     # colours, when every frame has them, always settle front-back ambiguities (PairwiseAligner
     # ._orientation_score); ``use_colors`` adds them as local matching cues (options.colour_weight)
-    if use_colors not in (True, False, "auto"):
-        raise ValueError(f"use_colors must be True, False or 'auto', got {use_colors!r}")
     colours = all(getattr(m, "colors", None) is not None for m in meshes)
     # the root's floating fragments would become part of every aligned frame: leave them out
     V_root, F_root, kept = main_components(base.vertices, base.faces)

@@ -65,15 +65,20 @@ def load_source(directory, *, fps, cyclic):
     return SourceClip(name=directory.stem, vertices=sequence.vertices, fps=fps, cyclic=cyclic), sequence.faces
 
 
+def read_toml(path, what, missing=None):
+    """A TOML file as a dict; a missing or malformed file is a ValueError naming it and ``what`` it is."""
+    try:
+        return tomllib.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{path}: {missing or 'no such ' + what}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"{path}: not a valid TOML {what}: {exc}") from None
+
+
 def read_spec(path):
     """Parse and check a space spec; returns a dict with resolved source directories."""
     path = Path(path)
-    try:
-        spec = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such spec file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not a valid TOML spec: {exc}") from None
+    spec = read_toml(path, "spec", missing="no such spec file")
     base = path.parent
     captures = base / spec["captures"] if "captures" in spec else None
     sources = spec.get("sources")

@@ -11,10 +11,10 @@ two spaces, which the run-time transition search looks up. Example:
 from __future__ import annotations
 
 import sys
-import tomllib
 from pathlib import Path
 
 from engine.graph import GraphError, NodeSpec, WindowOptions, build_graph
+from server.commands.build import read_toml
 from server.progress import StageBars
 
 WINDOW_KEYS = {"window_frames": "frames", "window_step": "step", "vertices": "vertices",
@@ -32,12 +32,7 @@ def read_graph_spec(path):
     """Parse and check a graph spec; returns {name, nodes: [NodeSpec], edges: [(a, b)], options,
     spaces (directory)}. Errors name the spec and the problem."""
     path = Path(path)
-    try:
-        spec = tomllib.loads(path.read_text())
-    except FileNotFoundError:
-        raise ValueError(f"{path}: no such graph spec") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ValueError(f"{path}: not a valid TOML graph spec: {exc}") from None
+    spec = read_toml(path, "graph spec")
     base = path.parent
     spaces = base / spec.get("spaces", ".")
     nodes = spec.get("nodes")

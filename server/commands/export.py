@@ -21,7 +21,7 @@ from pathlib import Path
 from engine.export import Clip, check_clip, parse_track, play_clip, write_export
 from engine.export.gltf import INTERPOLATIONS, PRECISIONS
 from engine.motion_space import MotionSpace
-from server.commands.play import _assignments
+from server.commands.play import _assignments, scripted
 
 SUFFIXES = {".glb": "glb", ".usd": "usd", ".usdc": "usd", ".usda": "usd"}
 
@@ -73,12 +73,7 @@ def clip_from_arguments(args, names):
             raise ValueError(f"--track {args.track}: not JSON ({exc})") from None
         params, track = parse_track(document, str(args.track))
     params.update(_assignments(args.set, names))
-    for entry in args.at:
-        try:
-            when = float(entry[0])
-        except ValueError:
-            raise ValueError(f"--at needs a time first, got {entry[0]!r}") from None
-        track.append((when, _assignments(entry[1:], names)))
+    track.extend(scripted(args.at, names))
     return Clip(params=params, track=tuple(track), duration=args.seconds, rate=args.fps, mode=args.mode,
                 smoothing=args.smoothing)
 

@@ -61,6 +61,19 @@ def _assignments(items, names):
     return out
 
 
+def at_time(entry):
+    """The time that starts an ``--at TIME ...`` entry."""
+    try:
+        return float(entry[0])
+    except ValueError:
+        raise ValueError(f"--at needs a time first, got {entry[0]!r}") from None
+
+
+def scripted(entries, names):
+    """``--at TIME NAME=VALUE ...`` entries as [(time, {name: value})]."""
+    return [(at_time(entry), _assignments(entry[1:], names)) for entry in entries]
+
+
 def run(args):
     if args.space.suffix == ".mgraph":
         from server.commands.play_graph import run_graph
@@ -75,14 +88,7 @@ def run(args):
     names = player.names
     if args.set:
         player.set_params(_assignments(args.set, names), immediate=True)
-    script = []
-    for entry in args.at:
-        try:
-            when = float(entry[0])
-        except ValueError:
-            raise ValueError(f"--at needs a time first, got {entry[0]!r}") from None
-        script.append((when, _assignments(entry[1:], names)))
-    script.sort(key=lambda item: item[0])
+    script = sorted(scripted(args.at, names), key=lambda item: item[0])
     duration = args.seconds or (10.0 if space.cyclic or args.loop else
                                 player.track.duration(player._solution.weights) + 0.5)
     dt = 1.0 / args.fps

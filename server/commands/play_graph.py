@@ -16,6 +16,7 @@ import numpy as np
 from engine.graph import GraphError, MotionGraph
 from engine.graph.recording import perform, read_recording, recording
 from engine.mesh_io import write_obj
+from server.commands.play import at_time
 
 
 def _assignments(items, node):
@@ -63,10 +64,7 @@ def run_graph(args):
             for entry in args.at:
                 if len(entry) < 2:
                     raise ValueError(f"--at needs a time and a node, got {' '.join(entry)!r}")
-                try:
-                    when = float(entry[0])
-                except ValueError:
-                    raise ValueError(f"--at needs a time first, got {entry[0]!r}") from None
+                when = at_time(entry)
                 node = graph.node(entry[1])
                 values, budget = _assignments(entry[2:], node)
                 requests.append({"frame": int(round(when * fps)), "node": node.name, "params": values,

@@ -1,43 +1,26 @@
 """Browser tests: the page in Debian's headless Chromium, driven by Playwright, against a real server.
 
 The server fixtures (small real motion spaces built once per run, a ``morphspace serve``
-subprocess) come from tests/server/conftest.py (and the live_server module it imports), loaded by path so
-the two conftest modules do not shadow each other. Screenshots go to tests/browser/artifacts/ (kept after the run, gitignored).
+subprocess) come from tests/conftest.py and tests/server/live_server.py (loaded there by path).
+Screenshots go to tests/browser/artifacts/ (kept after the run, gitignored).
 """
 
 from __future__ import annotations
 
-import importlib.util
 import io
 import os
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from live_server import LiveServer, data_dir_with_spaces
+
 CHROMIUM = Path(os.environ.get("MORPHSPACE_TEST_CHROMIUM", "/usr/bin/chromium"))
 ARTIFACTS = Path(__file__).resolve().parent / "artifacts"
 VENDOR = Path(__file__).resolve().parents[2] / "web_client" / "static" / "vendor"
 VIEWPORT = {"width": 1000, "height": 640}
-
-
-
-def _load(name, path):
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules.setdefault(name, module)
-    spec.loader.exec_module(module)
-    return sys.modules[name]
-
-
-_SERVER_TESTS = Path(__file__).resolve().parents[1] / "server"
-_load("live_server", _SERVER_TESTS / "live_server.py")  # what tests/server/conftest.py imports
-server_fixtures = _load("morphspace_server_fixtures", _SERVER_TESTS / "conftest.py")
-LiveServer = server_fixtures.LiveServer
-data_dir_with_spaces = server_fixtures.data_dir_with_spaces
-built_spaces = server_fixtures.built_spaces  # the session fixture, shared through its lock file
 
 
 SKIP_REASON = (f"browser tests need Debian's chromium at {CHROMIUM} (apt-get install -y chromium; "

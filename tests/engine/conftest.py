@@ -52,26 +52,12 @@ def export_spaces(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
-def graph_spaces(tmp_path_factory):
+def graph_spaces(build_once):
     """Directory with the tiny graph's walk, stand and jump spaces (engine.graph.tiny; built once
     for all workers)."""
-    import fcntl
-    import os
-
     from engine.graph.tiny import build_tiny_spaces
 
-    base = tmp_path_factory.getbasetemp()
-    if os.environ.get("PYTEST_XDIST_WORKER"):
-        base = base.parent  # the run's directory, shared by its workers
-    root = base / "morphspace-graph-spaces"
-    root.mkdir(exist_ok=True)
-    with open(root / ".lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (root / "done").exists():
-            build_tiny_spaces(root)
-            (root / "done").write_text("ok")
-        fcntl.flock(lock, fcntl.LOCK_UN)
-    return root
+    return build_once("morphspace-graph-spaces", build_tiny_spaces)
 
 
 @pytest.fixture(scope="session")

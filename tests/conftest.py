@@ -1,0 +1,78 @@
+"""Fixtures every test directory shares.
+
+- ``build_once(name, build)``: a directory built once per test run and shared by the xdist
+  workers (a lock file, then a ``done`` marker);
+- ``built_spaces``: speed.mspace and jump.mspace, small real motion spaces from the synthetic body
+  at 1,000 vertices (a two-gait speed chain and a two-jump distance chain), used by the server,
+  browser and engine-client tests.
+
+tests/server/live_server.py (``LiveServer``, ``data_dir_with_spaces``) is loaded here by path, so
+every test directory can ``from live_server import ...`` without putting tests/server on the path.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import importlib.util
+import os
+import sys
+from pathlib import Path
+
+import pytest
+
+FPS = 15.0
+
+
+def _load(name, path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules.setdefault(name, module)
+    spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+_load("live_server", Path(__file__).resolve().parent / "server" / "live_server.py")
+
+
+@pytest.fixture(scope="session")
+def build_once(tmp_path_factory):
+    """``build_once(name, build)``: the run's directory ``name``, ``build(directory)`` called once
+    for all workers (not shared with other runs)."""
+    base = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        base = base.parent  # the run's directory, shared by its workers
+
+    def once(name, build):
+        root = base / name
+        root.mkdir(exist_ok=True)
+        with open(root / ".lock", "w") as lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+            if not (root / "done").exists():
+                build(root)
+                (root / "done").write_text("ok")
+            fcntl.flock(lock, fcntl.LOCK_UN)
+        return root
+
+    return once
+
+
+def _build_spaces(directory):
+    from engine.motion_space import SourceClip, build_motion_space
+    from engine.parameters import Layout
+    from engine.synthetic import animate, build_body, gait, jump
+
+    body = build_body(1000)
+    clips = [SourceClip(f"gait_{v}", animate(body, gait(body.skeleton, v, cycles=2.0, fps=FPS)), FPS, True)
+             for v in (0.9, 2.6)]
+    build_motion_space(directory / "speed.mspace", clips, body.F, name="speed", epsilon=0.008, rest=body.V,
+                       parameters={"layout": Layout("chain", 2, chain=(0, 1)), "names": ["speed"]})
+    clips = [SourceClip(f"jump_{d}", animate(body, jump(body.skeleton, 0.3, d, fps=FPS)), FPS, False)
+             for d in (0.3, 1.0)]
+    build_motion_space(directory / "jump.mspace", clips, body.F, name="jump", epsilon=0.008, rest=body.V,
+                       parameters={"layout": Layout("chain", 2, chain=(0, 1)), "names": ["jump_distance"]})
+
+
+@pytest.fixture(scope="session")
+def built_spaces(build_once):
+    """Directory with speed.mspace and jump.mspace (built once for all workers)."""
+    return build_once("morphspace-test-spaces", _build_spaces)
