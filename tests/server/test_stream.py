@@ -17,6 +17,7 @@ import websockets
 from engine.motion_space import MotionSpace
 from server import protocol as P
 from server.client import StreamClient
+from server.stream.messages import BEFORE_HELLO, HANDLERS
 
 
 def run(coroutine):
@@ -315,6 +316,13 @@ def test_messages_before_hello_are_refused(server):
             return msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
     reply = run(go())
     assert reply["type"] == "error" and reply["code"] == "not_ready" and reply["seq"] == 3
+
+
+def test_every_client_message_has_one_handler():
+    """server/stream/messages.py maps each client message of the protocol to its handler, and
+    only hello and ack are taken before a hello."""
+    assert set(HANDLERS) == set(P.CLIENT_MESSAGES)
+    assert BEFORE_HELLO == {"hello", "ack"}
 
 
 def test_a_message_flood_is_rate_limited_not_fatal(server):

@@ -1,0 +1,220 @@
+"""A connection's frames: ``FrameOutput``, the part of a StreamSession the scheduler drives.
+
+The FrameScheduler (server/scheduler.py) calls ``advance(now)`` (step the player for a frame on
+the connection's rate grid, or say none is to be sent: paused, the window full, the transport
+still holding earlier bytes), ``frame_source()`` (a phase table to gather the vertices from, or
+None), ``send_frame(payload)`` (write it), ``after_frame()`` (ask for the next one) and
+``fail(exc)``. Ticks missed are counted in ``dropped``, never queued; a connection that takes no
+due frame for ``stream_stall_timeout`` seconds is closed (``protocol.CLOSE_STALLED``). Pulled
+frames (``send_pulled``) are written here too.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+
+import numpy as np
+from starlette.websockets import WebSocketDisconnect
+
+from server import protocol as P
+from server.frames import frame_parts, joined
+from server.scheduler import URGENT, send_now
+
+log = logging.getLogger("morphspace.stream")
+MAX_DT = 0.25  # a stalled connection does not jump the clock by more than this per frame
+RETRY = 0.01   # seconds between looks at a full transport holding back an urgent frame
+
+
+class FrameOutput:
+    """The frame side of a StreamSession (mixed into it; the state lives on the session)."""
+
+    # ------------------------------------------------------------ the scheduler's side
+
+    def advance(self, now):
+        """Step the player for a frame at loop time ``now``; False when none is to be sent."""
+        if not self.ready or self.player is None or self.rate <= 0:
+            return False
+        urgent = self.urgent
+        streaming = not self.paused and self.rate > 0
+        if not urgent:
+            if not streaming:
+                return False
+            if self.window > 0 and self.seq - self.acked_frame >= self.window:
+                self.waiting_ack = True  # the next ack reschedules
+                if not self._stalled(now):  # or else, the stall timeout
+                    self.scheduler.schedule(self, self.stalled_since + self.settings.stream_stall_timeout)
+                return False
+        if self.gauge is not None and not self.gauge.ready():
+            self._transport_full(now, streaming)
+            return False
+        self.urgent = False
+        dt = 0.0
+        if streaming:
+            period = 1.0 / self.rate
+            if urgent:  # an extra frame now; the grid restarts from it
+                self.next_due = now + period
+            else:       # stay on the grid; ticks missed by a whole period are dropped, not caught up
+                late = now - self.next_due
+                missed = int(late / period) if late >= period else 0
+                self.dropped += missed
+                self.next_due += (missed + 1) * period
+            dt = 0.0 if self.last_step is None else min(now - self.last_step, MAX_DT)
+            self.last_step = now
+        self.player.advance(dt)
+        return True
+
+    def _stalled(self, now):
+        """A due frame cannot be written at loop time ``now``: start (or check) the stall clock;
+        True when it ran out and the connection is being closed."""
+        if self.stalled_since is None:
+            self.stalled_since = now
+        timeout = self.settings.stream_stall_timeout
+        if now - self.stalled_since < timeout:
+            return False
+        log.info("stream: closing a connection to %s that took no frame for %.0f s", self.space_name, timeout)
+        self.shut(P.CLOSE_STALLED, f"stalled: no frame could be delivered for {timeout:g} s")
+        return True
+
+    def _transport_full(self, now, streaming):
+        """The transport still holds earlier bytes: skip this tick (counted in ``dropped``) and
+        look again at the next one (an urgent frame sooner). Only a streaming connection can
+        stall: a paused one waits for its reader as long as keepalive pings are answered."""
+        self.scheduler.transport_full += 1
+        if streaming and self._stalled(now):
+            return
+        due = now + RETRY
+        if streaming:
+            if not self.urgent or now >= self.next_due:  # grid ticks have passed: skip them
+                period = 1.0 / self.rate
+                missed = max(0, int((now - self.next_due) / period)) + 1  # this tick and any before it
+                self.dropped += missed
+                self.next_due += missed * period
+            due = min(due, self.next_due) if self.urgent else self.next_due
+        self.scheduler.schedule(self, due)
+
+    def frame_source(self):
+        """(phase table or None, codec): a table when this frame is one interpolation of it
+        (linear or hybrid at weights that recur; heatmaps too: server/heatmap.py works off the
+        loop); q16 tables are in codec units."""
+        player = self.player
+        if player.mode == "nonlinear":
+            return None, self.codec
+        table = player.space.frame_blender(player.mode).lookup(player.weights)
+        if table is not None and self.codec == "q16":
+            table = self.quantiser.table(table)
+        return table, self.codec
+
+    def send_frame(self, payload):
+        """Write the frame at the player's state; ``payload``: its encoded vertices, or None to
+        blend them here."""
+        player = self.player
+        error_um = error_max = error_seq = None
+        if payload is None:
+            space, mode, weights, phase = player.space, player.mode, player.weights, player.phase
+            vertices = space.frame_blender(mode).blend(weights, phase)
+            payload = self._vertex_bytes(vertices)
+        if self.heatmap:  # off the event loop (server/heatmap.py)
+            distances = self.scheduler.heatmaps.frame_error(self, player.space, player.mode, player.weights,
+                                                            player.phase, self.seq + 1)
+            if distances is not None:
+                error_um, error_max, error_seq = distances
+        parts = self._frame_parts(time_=player.time, phase=player.phase, mode=player.mode,
+                                  requested=player.requested, realised=player.realised, clamped=player.clamped,
+                                  weights=player.weights, root=player.position, heading=player.heading,
+                                  vertices=payload, finished=player.finished, error_um=error_um, error_max=error_max,
+                                  error_seq=error_seq)
+        try:
+            if self.gauge is not None:  # straight to the transport, one copy (server/transport.py)
+                sent = self.gauge.write_message(parts)
+                if not sent:  # the connection is closing
+                    self.closed = True
+                    return
+            else:
+                sent = send_now(self.ws.send_bytes(joined(parts)))
+        except (WebSocketDisconnect, OSError, RuntimeError):
+            self.shut(P.CLOSE_INTERNAL, "sending failed")
+            return
+        if not sent:  # it would have waited for the transport (no gauge): dropped, not queued
+            self.dropped += 1
+            self._stalled(asyncio.get_running_loop().time())
+            return
+        self.stalled_since = None
+        if self.gauge is not None:
+            held = self.gauge.held()
+            if held > self.scheduler.transport_bytes_max:
+                self.scheduler.transport_bytes_max = held
+
+    def after_frame(self):
+        """Ask the scheduler for the next frame (now if one is urgent)."""
+        if self.closed or not self.ready:
+            return
+        if self.urgent:
+            self.scheduler.schedule(self, URGENT)
+        elif not self.paused and self.rate > 0:
+            self.scheduler.schedule(self, self.next_due)
+
+    def fail(self, exc):
+        """The scheduler failed on this connection: report, close it, keep everyone else."""
+        log.error("stream: frame for %s failed", self.space_name, exc_info=exc)
+        self.stats.errors += 1
+        self.closed = True
+        asyncio.get_running_loop().create_task(self._fail_message(exc))
+
+    async def _fail_message(self, exc):
+        try:
+            await self.ws.send_bytes(P.to_wire(P.Error(code="internal", message=f"the server failed to produce a "
+                                                       f"frame: {type(exc).__name__}: {exc}")))
+            await self.ws.close(code=P.CLOSE_INTERNAL)
+        except (WebSocketDisconnect, OSError, RuntimeError):
+            pass
+
+    # ------------------------------------------------------------ pulled frames
+
+    async def send_pulled(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
+                          vertices, pull_id, space):
+        """A pulled frame (streamed ones go through the scheduler: send_frame)."""
+        error_um = error_max = error_seq = None
+        if self.heatmap:
+            error_um, error_max = self._heatmap(mode, weights, phase, vertices, space)
+            error_seq = self.seq + 1
+        await self.send(joined(self._frame_parts(
+            time_=time_, phase=phase, mode=mode, requested=requested, realised=realised, clamped=clamped,
+            weights=weights, root=root, heading=heading, vertices=self._vertex_bytes(vertices), finished=False,
+            pull_id=pull_id, error_um=error_um, error_max=error_max, error_seq=error_seq)))
+
+    def _heatmap(self, mode, weights, phase, vertices, space):
+        """(error_um bytes, error_max) of ``vertices`` against the non-linear blend."""
+        if mode == "nonlinear":
+            distance = np.zeros(len(vertices), dtype=np.float32)
+        else:
+            reference = space.blender("nonlinear").blend(weights, phase)
+            distance = np.linalg.norm(vertices - reference, axis=1)
+        return np.minimum(np.rint(distance * 1e6), 65535).astype("<u2").tobytes(), float(distance.max())
+
+    # ------------------------------------------------------------ encoding
+
+    def _vertex_bytes(self, vertices):
+        if self.codec == "q16":
+            return self.quantiser.encode(vertices)
+        return P.encode_vertices(vertices, "f32", None)
+
+    def _frame_parts(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
+                     vertices, finished, pull_id=None, error_um=None, error_max=None, error_seq=None):
+        """The next frame's msgpack body as buffers (server/frames.py; numbers as arrays or
+        sequences, ``vertices`` and ``error_um`` encoded: bytes or arrays, not copied here)."""
+        self.seq += 1
+        self.stats.frames += 1
+        small = {"type": "frame", "seq": self.seq, "ack": self.ack, "time": float(time_), "phase": float(phase),
+                 "mode": mode, "requested": np.asarray(requested, dtype=float).tolist(),
+                 "realised": np.asarray(realised, dtype=float).tolist(), "clamped": bool(clamped),
+                 "weights": np.asarray(weights, dtype=float).tolist(), "root": np.asarray(root, dtype=float).tolist(),
+                 "heading": float(heading), "dropped": self.dropped, "finished": bool(finished),
+                 "sent_at": time.time(), "pull_id": pull_id, "error_max": error_max, "error_seq": error_seq}
+        bulk = [("vertices", vertices)]
+        if error_um is None:
+            small["error_um"] = None
+        else:
+            bulk.append(("error_um", error_um))
+        return frame_parts(small, bulk)
