@@ -1,4 +1,4 @@
-"""Capture datasets: upload (zip or multipart), list, describe, delete (server/uploads.py does the work)."""
+"""Capture datasets: upload (zip or multipart), list, describe, delete (server/uploads/ does the work)."""
 
 from __future__ import annotations
 
