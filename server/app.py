@@ -21,8 +21,9 @@ from fastapi.responses import RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
 from server import __version__
-from server.api import datasets, exports, jobs, spaces
+from server.api import datasets, exports, graphs, jobs, spaces
 from server.jobs import JobService
+from server.graphs import GraphRegistry
 from server.registry import SpaceRegistry
 from server.scheduler import FrameScheduler
 from server.settings import Settings
@@ -75,6 +76,7 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
     app.state.worker = worker
     app.state.started_at = time.time()
     app.state.registry = SpaceRegistry(settings.spaces_dir, derived=settings.derived_dir)
+    app.state.graphs = GraphRegistry(app.state.registry)
     app.state.stream_stats = StreamStats()
     app.state.frame_scheduler = FrameScheduler()
     app.state.jobs = JobService(settings, app.state.registry, runs_jobs=worker is None or worker.runs_jobs,
@@ -86,6 +88,7 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
                            allow_headers=["Authorization", "Content-Type"])
 
     app.include_router(spaces.router, prefix="/v1")
+    app.include_router(graphs.router, prefix="/v1")
     app.include_router(datasets.router, prefix="/v1")
     app.include_router(jobs.router, prefix="/v1")
     app.include_router(exports.router, prefix="/v1")

@@ -4,7 +4,9 @@
   workers (a lock file, then a ``done`` marker);
 - ``built_spaces``: speed.mspace and jump.mspace, small real motion spaces from the synthetic body
   at 1,000 vertices (a two-gait speed chain and a two-jump distance chain), used by the server,
-  browser and engine-client tests.
+  browser and engine-client tests;
+- ``built_graph``: the tiny motion graph with a reach (engine.graph.tiny: walk, stand, jump, reach
+  and tiny.mgraph in one directory, as a server's spaces directory holds them).
 
 tests/server/live_server.py (``LiveServer``, ``data_dir_with_spaces``) is loaded here by path, so
 every test directory can ``from live_server import ...`` without putting tests/server on the path.
@@ -70,6 +72,20 @@ def _build_spaces(directory):
              for d in (0.3, 1.0)]
     build_motion_space(directory / "jump.mspace", clips, body.F, name="jump", epsilon=0.008, rest=body.V,
                        parameters={"layout": Layout("chain", 2, chain=(0, 1)), "names": ["jump_distance"]})
+
+
+def _build_graph(directory):
+    from engine.graph.tiny import build_tiny_graph, build_tiny_spaces
+
+    build_tiny_spaces(directory, reach=True)
+    build_tiny_graph(directory, directory / "tiny.mgraph", reach=True)
+
+
+@pytest.fixture(scope="session")
+def built_graph(build_once):
+    """Directory with walk, stand, jump and reach .mspace files and tiny.mgraph joining them
+    (walk <-> stand, stand -> jump, walk -> jump, jump -> stand, stand <-> reach; built once)."""
+    return build_once("morphspace-test-graph", _build_graph)
 
 
 @pytest.fixture(scope="session")

@@ -132,6 +132,37 @@ class GraphPlayer:
             return {"status": "set", **note}
         return {**self._plan(node, budget), **note}
 
+    def set_params(self, params):
+        """Change the parameters of the node the frames show (during a blend: its target) at
+        once, the names not given keeping what that node was last asked for; no transition.
+
+        Returns {"status": "set", "node", "clamped", "message"}.
+        """
+        node = self.graph.node(self.blend.plan.target) if self.blend is not None else self.node
+        merged = {**self._params[node.name], **dict(params or {})}
+        weights, realised, clamped, message = node.solve(merged)  # validates before anything changes
+        self.requests.append({"frame": self.frames, "node": node.name, "params": dict(params or {}), "budget": None,
+                              "set": True})
+        self._params[node.name] = merged
+        if self.blend is not None:
+            self.blend.clock.set_weights(weights)
+        else:
+            self.clock.set_weights(weights)
+            self._realised = realised
+        self._cached = None
+        return {"status": "set", "node": node.name, "clamped": clamped, "message": message}
+
+    def params_of(self, node):
+        """{name: value} ``node`` was last asked for (names not asked: the middle of their range)."""
+        return dict(self._params[self.graph.node(node).name])
+
+    def set_mode(self, mode):
+        """Blend the nodes' spaces in ``mode`` from the next frame on."""
+        if mode not in MODES:
+            raise ValueError(f"unknown blend mode {mode!r}; choose one of {', '.join(MODES)}")
+        self.mode = mode
+        self._cached = None
+
     def _can_redirect(self, node):
         return self.graph.node(node).cyclic and (self.node.name, node) in self.graph.edges
 
@@ -239,8 +270,9 @@ class GraphPlayer:
             dx, dz = min(moves, key=lambda d: float(d @ d))
             self.position = self.position - np.array([dx, 0.0, dz])
 
-    def frame(self, events=None):
-        """The frame at the current state (nothing advances)."""
+    def frame(self, events=None, *, placed=True):
+        """The frame at the current state (nothing advances); ``placed=False``: its vertices are
+        root-local (the player's buffer, overwritten by the next step: encode or copy them)."""
         mesh, progress = self._local()
         target = None
         if progress is not None:
@@ -250,5 +282,6 @@ class GraphPlayer:
         params = dict(zip(self.node.parameters, np.asarray(self._realised, dtype=float).tolist()))
         return GraphFrame(time=self.time, node=self.node.name, phase=self.clock.phase, target=target,
                           progress=progress, params=params, root_position=self.position.copy(),
-                          heading=float(self.heading), vertices=place(mesh, self.position, self.heading),
+                          heading=float(self.heading),
+                          vertices=place(mesh, self.position, self.heading) if placed else mesh,
                           events=list(events or []))

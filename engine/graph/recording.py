@@ -23,7 +23,8 @@ RECORDING_VERSION = 1
 def perform(graph, *, start, params, fps, steps, mode="hybrid", requests=(), on_frame=None, player=None):
     """Play ``steps`` frames after the first at ``fps``; ``requests`` (dicts with ``frame``,
     ``node``, ``params``, ``budget``) are made once the player has taken ``frame`` steps (frame
-    n is n / fps seconds in), as ``GraphPlayer.requests`` records them.
+    n is n / fps seconds in), as ``GraphPlayer.requests`` records them (one with ``set`` true is
+    a ``GraphPlayer.set_params``).
 
     Returns
     -------
@@ -39,8 +40,11 @@ def perform(graph, *, start, params, fps, steps, mode="hybrid", requests=(), on_
     for k in range(steps + 1):
         while pending and pending[0]["frame"] <= player.frames:  # frame n: after n steps
             r = pending.pop(0)
-            answers.append({"frame": player.frames, "node": r["node"],
-                            **player.request(r["node"], r.get("params") or {}, budget=r.get("budget"))})
+            if r.get("set"):  # GraphPlayer.set_params: the shown node's parameters, no transition
+                answers.append({"frame": player.frames, **player.set_params(r.get("params") or {})})
+            else:
+                answers.append({"frame": player.frames, "node": r["node"],
+                                **player.request(r["node"], r.get("params") or {}, budget=r.get("budget"))})
         frame = player.step(dt) if k else player.frame()
         digest.update(np.ascontiguousarray(frame.vertices, dtype="<f4").tobytes())
         if on_frame is not None:

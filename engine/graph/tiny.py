@@ -1,21 +1,25 @@
 """A small motion graph straight from the capture generator, for tests and the benchmarks'
 ``--tiny`` runs: a walk (speed chain, cyclic), a standing idle (no parameters, cyclic) and a
 jump (height chain, one-shot) of the 1,000-vertex body at 15 fps, at cheap settings (12 phases,
-a coarse hybrid), joined walk <-> stand -> jump -> stand, walk -> jump. About 10 CPU seconds."""
+a coarse hybrid), joined walk <-> stand -> jump -> stand, walk -> jump. About 10 CPU seconds.
+``reach=True`` adds a reach (height chain, one-shot) joined stand <-> reach, for the stream's
+walk -> jump -> walk -> reach tests."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 TINY_EDGES = [("walk", "stand"), ("stand", "walk"), ("stand", "jump"), ("jump", "stand"), ("walk", "jump")]
+REACH_EDGES = [("stand", "reach"), ("reach", "stand")]
 
 
-def build_tiny_spaces(directory, *, fps=15.0):
-    """Write walk.mspace, stand.mspace and jump.mspace into ``directory``."""
+def build_tiny_spaces(directory, *, fps=15.0, reach=False):
+    """Write walk.mspace, stand.mspace and jump.mspace (and reach.mspace) into ``directory``."""
     from engine.blend import VolumetricEmbedding
     from engine.motion_space import SourceClip, build_motion_space
     from engine.parameters import Layout
     from engine.synthetic import animate, build_body, gait, jump
+    from engine.synthetic import reach as reach_motion
     from engine.synthetic.transitions import stand
 
     directory = Path(directory)
@@ -35,12 +39,18 @@ def build_tiny_spaces(directory, *, fps=15.0):
              for h in (0.2, 0.45)]
     build_motion_space(directory / "jump.mspace", clips, body.F, name="jump",
                        parameters={"layout": chain, "names": ["jump_height"], "resolution": 5}, **cheap)
+    if reach:
+        clips = [SourceClip(f"reach_{h}", animate(body, reach_motion(body.skeleton, h, fps=fps)), fps, False)
+                 for h in (0.9, 1.7)]
+        build_motion_space(directory / "reach.mspace", clips, body.F, name="reach",
+                           parameters={"layout": chain, "names": ["reach_height"], "resolution": 5}, **cheap)
 
 
-def build_tiny_graph(spaces, path, **options):
+def build_tiny_graph(spaces, path, *, reach=False, **options):
     """Write the tiny graph over ``spaces`` (``build_tiny_spaces``) to ``path``; returns its report."""
     from engine.graph.build import NodeSpec, build_graph
 
     spaces = Path(spaces)
-    nodes = [NodeSpec(name, spaces / f"{name}.mspace") for name in ("walk", "stand", "jump")]
-    return build_graph(path, nodes, TINY_EDGES, name="tiny", **options)
+    names = ("walk", "stand", "jump", "reach") if reach else ("walk", "stand", "jump")
+    nodes = [NodeSpec(name, spaces / f"{name}.mspace") for name in names]
+    return build_graph(path, nodes, TINY_EDGES + (REACH_EDGES if reach else []), name="tiny", **options)

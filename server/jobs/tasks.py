@@ -310,7 +310,7 @@ def publish(result, staging, data_dir, replace):
                            "to replace it")
         target.parent.mkdir(parents=True, exist_ok=True)
         os.replace(source, target)
-        url = f"/v1/spaces/{output['name']}" if output["type"] == "space" else None
+        url = f"/v1/{'spaces' if output['type'] == 'space' else 'graphs'}/{output['name']}"
     elif output["type"] == "export":  # named by the job's id: never replaces another
         target = Path(data_dir) / "exports" / output["name"]
         target.parent.mkdir(parents=True, exist_ok=True)

@@ -99,3 +99,44 @@ def test_feet_stay_put_entering_a_jump_from_the_stand(graph):
     assert {(m["source"], m["target"]) for m in measures} == {("stand", "jump"), ("jump", "stand")}
     assert max(m["foot_slide_m"] for m in measures) < 0.01
     assert max(m["smoothness"] for m in measures) < 1.0
+
+
+def test_set_params_changes_the_shown_node_at_once_and_replays(graph):
+    player = GraphPlayer(graph, node="walk", params={"speed": 1.0}, mode="linear")
+    _play(player, 0.2)
+    answer = player.set_params({"speed": 1.5})
+    assert answer["status"] == "set" and answer["node"] == "walk" and player.pending is None
+    frame = player.step(1 / 30)
+    _, realised, _, _ = graph.node("walk").solve({"speed": 1.5})
+    assert frame.node == "walk" and frame.params["speed"] == pytest.approx(float(realised[0]))
+    assert player.params_of("walk") == {"speed": 1.5}
+    player.request("jump", {"jump_height": 0.3})
+    while player.blend is None:
+        player.step(1 / 30)
+    assert player.set_params({"jump_height": 0.45})["node"] == "jump"  # during the blend: its target
+    assert player.blend.clock.weights == pytest.approx(graph.node("jump").solve({"jump_height": 0.45})[0])
+    with pytest.raises(GraphError, match="unknown parameter"):
+        player.set_params({"speed": 1.0})
+    requests = [{"frame": 5, "node": "walk", "params": {"speed": 1.4}, "budget": None, "set": True},
+                {"frame": 20, "node": "jump", "params": {"jump_height": 0.3}, "budget": None}]
+    played, digest, answers = perform(graph, start="walk", params={"speed": 1.0}, fps=30.0, steps=90, mode="linear",
+                                      requests=requests)
+    assert answers[0]["status"] == "set" and played.requests == requests
+    _, again, _ = perform(graph, start="walk", params={"speed": 1.0}, fps=30.0, steps=90, mode="linear",
+                          requests=played.requests)
+    assert again == digest
+
+
+def test_root_local_frames_place_to_the_world_frames(graph):
+    from engine.graph.clock import place
+
+    player = GraphPlayer(graph, node="walk", params={"speed": 1.2}, mode="linear")
+    player.request("jump", {"jump_height": 0.3})
+    for _ in range(12):
+        player.step(1 / 30)
+    local, world = player.frame(placed=False), player.frame()
+    np.testing.assert_array_equal(place(local.vertices, local.root_position, local.heading), world.vertices)
+    player.set_mode("hybrid")
+    assert player.mode == "hybrid"
+    with pytest.raises(ValueError, match="unknown blend mode"):
+        player.set_mode("cubic")

@@ -1,4 +1,5 @@
-"""A real ``morphspace serve`` for tests: ``LiveServer``, ``free_port``, ``data_dir_with_spaces``.
+"""A real ``morphspace serve`` for tests: ``LiveServer``, ``free_port``, ``data_dir_with_spaces``,
+``data_dir_with_graph``.
 
 A module of its own (not conftest.py) so test files import it by a name no other test
 directory uses: ``from live_server import LiveServer`` works whichever test directories one
@@ -80,4 +81,14 @@ def data_dir_with_spaces(path, built_spaces, names=("speed", "jump")):
     spaces.mkdir(parents=True, exist_ok=True)
     for name in names:
         shutil.copyfile(built_spaces / f"{name}.mspace", spaces / f"{name}.mspace")
+    return Path(path)
+
+
+def data_dir_with_graph(path, built_graph):
+    """A data directory whose spaces/ holds copies of the built test graph (tiny.mgraph) and its
+    spaces (walk, stand, jump, reach)."""
+    spaces = Path(path) / "spaces"
+    spaces.mkdir(parents=True, exist_ok=True)
+    for name in ("walk.mspace", "stand.mspace", "jump.mspace", "reach.mspace", "tiny.mgraph"):
+        shutil.copyfile(built_graph / name, spaces / name)
     return Path(path)

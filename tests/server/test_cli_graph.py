@@ -93,6 +93,10 @@ def test_graph_job_over_rest(built_spaces, tmp_path_factory):
         job = _wait(client, r.json()["id"])
         assert job["status"] == "succeeded", job
         assert job["kind"] == "graph" and job["result"]["nodes"] == ["run", "leap"]
+        assert job["result"]["url"] == "/v1/graphs/gaits"
+        described = client.get("/v1/graphs/gaits").json()  # served at once, beside its spaces
+        assert [n["name"] for n in described["nodes"]] == ["run", "leap"] and described["start"] == "run"
+        assert described["edges"] == [{"from": "run", "to": "leap"}, {"from": "leap", "to": "run"}]
         assert [e["from"] for e in job["result"]["edges"]] == ["run", "leap"]
         assert client.get("/v1/jobs", params={"kind": "graph"}).json()["jobs"][0]["id"] == job["id"]
         again = client.post("/v1/jobs", headers=AUTH, json=request)
