@@ -11,7 +11,8 @@ import numpy as np
 from engine.rotations import rot_x, rot_y
 
 
-def _figure(width, height, dpi=100):
+def offscreen_figure(width, height, dpi=100):
+    """An off-screen matplotlib figure of the given pixel size (Agg canvas, no pyplot state)."""
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -71,7 +72,7 @@ def render_meshes(meshes, *, azimuth=30.0, elevation=10.0, width=800, height=800
     polys = np.concatenate(polys)
     shades = np.concatenate(shades)
     order = np.argsort(np.concatenate(depths))
-    fig = _figure(width, height)
+    fig = offscreen_figure(width, height)
     top = 0.92 if title else 1.0
     ax = fig.add_axes([0, 0, 1, top] if colorbar is None else [0, 0, 0.86, top])
     ax.set_facecolor(background)

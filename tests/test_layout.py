@@ -24,3 +24,12 @@ def test_ci_runs_the_readme_test_command():
     readme = (ROOT / "README.md").read_text()
     ci = (ROOT / ".ci" / "run").read_text()
     assert "scripts/test" in readme and "scripts/test" in ci
+
+
+def test_alignment_is_one_package_of_modules_under_400_lines():
+    """Issue 12, item 8: ``engine/align/`` is one concept split by concept, no module over ~400 lines."""
+    package = ROOT / "engine" / "align"
+    assert (package / "__init__.py").exists()
+    long = {path.name: n for path in sorted(package.glob("*.py"))
+            if (n := len(path.read_text().splitlines())) > 400}
+    assert not long, f"modules over 400 lines in engine/align: {long}"

@@ -34,6 +34,7 @@ from engine.align.facing import body_facing, body_frame
 from engine.align.matching import TargetSurface
 from engine.align.pairwise import AlignmentOptions, PairAlignment, PairwiseAligner
 from engine.align.patches import farthest_point_patches
+from engine.align.pictures import similarity_image, tree_image
 from engine.align.propagation import AlignedFrames, align_tree, partition_tree
 from engine.align.repair import alignment_confidence, repair_alignment
 from engine.align.rigid import rotation_fit
@@ -56,7 +57,6 @@ from engine.align.similarity import (
     frame_histograms,
     histogram_radius,
     shape_dissimilarity,
-    similarity_image,
     temporal_filter,
 )
 from engine.align.similarity_tree import (
@@ -67,7 +67,6 @@ from engine.align.similarity_tree import (
     reconnect_components,
     rooted_tree,
     similarity_tree,
-    tree_image,
     tree_root,
 )
 

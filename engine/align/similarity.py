@@ -350,53 +350,5 @@ def _run(function, jobs, workers, progress, sizes, initializer=None, initargs=()
     return results
 
 
-def similarity_image(D, lengths, names=None, *, size=900, title=None):
-    """Picture of a dissimilarity matrix, blue = similar, red = dissimilar (paper fig. 1c).
-
-    Parameters
-    ----------
-    D : (N, N) float array
-    lengths : (S,) int array   frames per sequence, drawn as block boundaries
-    names : list of str or None   sequence names for the axes
-    size : int                 image width and height in pixels
-
-    Returns
-    -------
-    image : (size, size, 3) uint8 array
-    """
-    D = np.asarray(D, dtype=np.float64)
-    lengths = np.asarray(lengths, dtype=np.int64)
-    fig = _figure(size, size)
-    ax = fig.add_axes([0.16, 0.16, 0.72, 0.74])
-    off = D[~np.eye(len(D), dtype=bool)] if len(D) > 1 else D.ravel()
-    vmax = float(np.percentile(off, 98)) if off.size else 1.0
-    shown = ax.imshow(D, cmap="jet", vmin=0.0, vmax=max(vmax, 1e-12), interpolation="nearest")
-    bounds = np.cumsum(lengths)[:-1] - 0.5
-    for b in bounds:
-        ax.axhline(b, color="white", lw=0.6)
-        ax.axvline(b, color="white", lw=0.6)
-    if names is not None:
-        centres = np.cumsum(lengths) - lengths / 2.0 - 0.5
-        ax.set_xticks(centres)
-        ax.set_xticklabels(names, rotation=90, fontsize=7)
-        ax.set_yticks(centres)
-        ax.set_yticklabels(names, fontsize=7)
-    cax = fig.add_axes([0.9, 0.16, 0.025, 0.74])
-    fig.colorbar(shown, cax=cax, label="dissimilarity")
-    fig.text(0.5, 0.95, title or f"shape dissimilarity, {len(D)} frames", ha="center", fontsize=11)
-    fig.canvas.draw()
-    return np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
-
-
-def _figure(width, height, dpi=100):
-    """An off-screen matplotlib figure of the given pixel size (Agg canvas, no pyplot state)."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi)
-    FigureCanvasAgg(fig)
-    return fig
-
-
 __all__ = ["HISTOGRAM_DEFAULTS", "ShapeSimilarity", "dissimilarity_matrix", "distance_task", "frame_histograms",
-           "histogram_radius", "histogram_task", "shape_dissimilarity", "similarity_image", "temporal_filter"]
+           "histogram_radius", "histogram_task", "shape_dissimilarity", "temporal_filter"]

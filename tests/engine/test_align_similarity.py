@@ -9,9 +9,9 @@ from engine.align.similarity import (
     dissimilarity_matrix,
     frame_histograms,
     shape_dissimilarity,
-    similarity_image,
     temporal_filter,
 )
+from engine.align.pictures import similarity_image
 from engine.rotations import rot_y
 
 

@@ -10,9 +10,9 @@ from engine.align.similarity_tree import (
     pruning_threshold,
     reconnect_components,
     similarity_tree,
-    tree_image,
     tree_root,
 )
+from engine.align.pictures import tree_image
 
 
 def _symmetric(upper):

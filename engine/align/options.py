@@ -1,0 +1,121 @@
+"""What goes into and comes out of a pairwise alignment: its options and its result.
+
+:class:`AlignmentOptions` parameterises :class:`engine.align.pairwise.PairwiseAligner`;
+:class:`PairAlignment` is what ``aligner.align`` returns (the aligned surface, the tet pose to
+start children from, and the fit and distortion measures the tree's repair and the per-frame
+confidence are built on).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class AlignmentOptions:
+    """Parameters of the pairwise aligner (defaults tuned on 3,000-vertex bodies).
+
+    Attributes
+    ----------
+    patches : int               patches at the coarsest level (paper: 30), doubled per level
+    levels : int                coarse-to-fine levels
+    rounds : tuple of int       patch matching + deformation rounds, per level
+    icp_steps : int             rigid ICP steps per patch and round
+    arap_steps : int            local/global steps per deformation
+    final_rounds : int          per-vertex closest-point rounds before the projection
+    max_normal_angle : float    degrees; pairs with normals further apart are rejected
+    neighbours : int            target vertices examined per correspondence
+    stiffness : tuple of float  constraint weight^2 / mean Laplacian diagonal, per level
+    final_stiffness : float     the same for the per-vertex rounds
+    colour_sigma : float        RGB distance (0..1 per channel) at which colour cues fade
+    colour_weight : float       tangential weight of colour cues (0 disables them)
+    tangential_damping : float  weight keeping patches from sliding along the surface
+    outlier_factor : float      pairs farther than this times the median distance are outliers
+    rigid_iterations : int      ICP iterations of the rigid start
+    rotation_prior : float      pull of each tet's rotation towards the source pose's
+    search_levels : int         coarse levels whose patches also try articulated hypotheses
+                                (rotations about the joint with the best-fitting neighbour,
+                                the neighbours' motions) and keep the best fitting one
+    search_rounds : int         rounds per such level that search
+    search_angles : tuple       rotation angles tried about each axis (degrees, both signs)
+    search_samples : int        vertices per patch used to score hypotheses
+    search_cap : float          distance (m) at which a sample counts as unmatched
+    match_samples : int         source vertices and target vertices that drive each patch's
+                                rigid matching (a fixed random subset of each when a mesh has
+                                more; all vertices still move with their patch, and the final
+                                per-vertex rounds use all of them)
+    match_sample_levels : int   the coarse levels that subsample so; finer ones use every vertex
+    orientation_margin : float  a rigid start facing more than 90 degrees away from the best
+                                one whose fit score is within this factor of the best's is
+                                aligned from too (front-back ambiguity, see ``_rigid_starts``)
+    tet_resolution : float      lattice cells along the model size when the root is
+                                tetrahedralised here (``engine.tetmesh.tetrahedralize``)
+    """
+
+    patches: int = 30
+    levels: int = 4
+    rounds: tuple = (6, 3, 2, 1)
+    icp_steps: int = 3
+    arap_steps: int = 2
+    final_rounds: int = 2
+    max_normal_angle: float = 60.0
+    neighbours: int = 8
+    stiffness: tuple = (0.5, 2.0, 8.0, 30.0)
+    final_stiffness: float = 100.0
+    colour_sigma: float = 0.12
+    colour_weight: float = 0.0
+    tangential_damping: float = 0.05
+    outlier_factor: float = 3.0
+    rigid_iterations: int = 15
+    rotation_prior: float = 0.0
+    search_levels: int = 1
+    search_rounds: int = 3
+    search_angles: tuple = (30.0, 60.0, 90.0)
+    search_samples: int = 24
+    search_cap: float = 0.05
+    tet_resolution: float = 48.0
+    orientation_margin: float = 1.25
+    match_samples: int = 3000
+    match_sample_levels: int = 2
+
+
+@dataclass
+class PairAlignment:
+    """Result of one pairwise alignment.
+
+    Attributes
+    ----------
+    V : (n, 3) float array      the root mesh's vertices on the target surface
+    X : (k, 3) float array      tet vertices of the deformation (the start for children)
+    residual : float            mean two-sided distance between V and the target surface (m)
+    residual_max : float        the largest of those distances (m)
+    distortion : float          volume-weighted mean of ||F - R||^2 over the tets (0 for a
+                                rigid motion of the root; large when the fit tore or twisted)
+    distortion_tail : float     the same over the worst 5% of the solid's volume (a torn hip
+                                or shoulder where a limb slid onto another's place)
+    seconds : float
+    colour_distance : float     median RGB distance between the root's vertex colours and the
+                                target's where they landed (NaN when either has no colours, or
+                                when only one orientation was aligned and nothing was compared)
+    orientations : int          rigid starts aligned from (2 when front and back were ambiguous)
+    """
+
+    V: np.ndarray
+    X: np.ndarray
+    residual: float
+    residual_max: float
+    distortion: float = 0.0
+    distortion_tail: float = 0.0
+    seconds: float = 0.0
+    colour_distance: float = float("nan")
+    orientations: int = 1
+
+    @property
+    def quality(self):
+        """A single badness score: distortion plus mean residual in units of 5 cm."""
+        return self.distortion + self.residual / 0.05
+
+
+__all__ = ["AlignmentOptions", "PairAlignment"]
