@@ -105,7 +105,7 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
     @app.websocket("/v1/stream")
     async def stream(websocket: WebSocket):
         await StreamSession(websocket, app.state.registry, settings, app.state.stream_stats,
-                            app.state.frame_scheduler).run()
+                            app.state.frame_scheduler, graphs=app.state.graphs).run()
 
     if WEB_CLIENT.is_dir():
         app.mount("/app", StaticFiles(directory=WEB_CLIENT, html=True), name="web_client")

@@ -6,6 +6,9 @@
             draw(frame.world_vertices(), c.faces)
         frame = await c.pull({"speed": 1.5}, time=0.4)   # engines with their own clock
 
+    async with StreamClient.connect(url, graph="demo", params={"speed": 1.2}) as c:   # a motion graph
+        await c.action("jump", {"jump_height": 0.5})   # frame.node, frame.target, frame.progress follow it
+
 Frames arrive as numpy arrays (root-local ``vertices`` plus the root transform). A reader task
 keeps only the newest streamed frame if the caller falls behind (latest-wins on this side too)
 and sends acks when the connection asked for a window. Errors from the server are raised by the
@@ -56,6 +59,9 @@ class ClientFrame:
     pull_id: int | None = None
     error: np.ndarray | None = None   # (n,) float32 metres from the non-linear blend (heatmap)
     error_seq: int | None = None      # the frame ``error`` describes (this one once parameters settle)
+    node: str | None = None           # graph streams: the node shown, the transition's target, its progress
+    target: str | None = None
+    progress: float | None = None
 
     def world_vertices(self):
         """(n, 3) float32 vertices placed by the root transform."""
@@ -87,10 +93,11 @@ class StreamClient:
     # ------------------------------------------------------------ connection
 
     @classmethod
-    def connect(cls, url, space, *, codec="f32", rate=60.0, mode="hybrid", params=None, smoothing=0.25,
-                window=0, heatmap=False, token=None, open_timeout=10.0):
-        return _Connection(cls, url, dict(space=space, codec=codec, rate=rate, mode=mode, params=params,
-                                          smoothing=smoothing, window=window, heatmap=heatmap),
+    def connect(cls, url, space=None, *, graph=None, node=None, codec="f32", rate=60.0, mode="hybrid", params=None,
+                smoothing=0.25, window=0, heatmap=False, token=None, open_timeout=10.0):
+        """Stream ``space``, or the motion graph ``graph`` (from ``node``)."""
+        return _Connection(cls, url, dict(space=space, graph=graph, node=node, codec=codec, rate=rate, mode=mode,
+                                          params=params, smoothing=smoothing, window=window, heatmap=heatmap),
                            token, open_timeout)
 
     async def _start(self, hello, timeout):
@@ -129,7 +136,8 @@ class StreamClient:
                     self.errors.append(error)
                     if error.ref == "pull" and error.seq in self._pulls:
                         self._pulls.pop(error.seq).set_exception(StreamError(error))
-                    elif error.code in ("unknown_space", "not_playable", "server_busy") and not self._topology_ready.is_set():
+                    elif error.ref == "hello" and not self._topology_ready.is_set() or (
+                            error.code == "server_busy" and not self._topology_ready.is_set()):
                         self._topology_error = StreamError(error)
                         self._topology_ready.set()
                 elif kind == "notice":
@@ -148,6 +156,7 @@ class StreamClient:
         self.topology = t
         self.faces = np.frombuffer(t.faces, dtype="<u4").reshape(t.n_faces, 3)
         self.names = [p["name"] for p in t.parameters]
+        self.node_names = {n["name"]: [p["name"] for p in n["parameters"]] for n in (t.nodes or [])}
         self._topology_error = None
         self._topology_ready.set()
 
@@ -156,14 +165,16 @@ class StreamClient:
         error = None
         if raw.get("error_um") is not None:
             error = np.frombuffer(raw["error_um"], dtype="<u2").astype(np.float32) * 1e-6
+        names = self.node_names.get(raw.get("node"), self.names)
         frame = ClientFrame(
             seq=raw["seq"], ack=raw["ack"], time=raw["time"], phase=raw["phase"], mode=raw["mode"],
-            requested=dict(zip(self.names, raw["requested"])), realised=dict(zip(self.names, raw["realised"])),
+            requested=dict(zip(names, raw["requested"])), realised=dict(zip(names, raw["realised"])),
             clamped=raw["clamped"], weights=np.asarray(raw["weights"]), root=np.asarray(raw["root"]),
             heading=raw["heading"],
             vertices=P.decode_vertices(raw["vertices"], t.codec, t.n_vertices, t.bounds_min, t.bounds_max),
             dropped=raw["dropped"], finished=raw["finished"], sent_at=raw["sent_at"], received_at=time.time(),
-            pull_id=raw.get("pull_id"), error=error, error_seq=raw.get("error_seq"))
+            pull_id=raw.get("pull_id"), error=error, error_seq=raw.get("error_seq"), node=raw.get("node"),
+            target=raw.get("target"), progress=raw.get("progress"))
         if self.window:
             asyncio.get_running_loop().create_task(self._ack(frame.seq))
         if frame.pull_id is not None:
@@ -182,13 +193,13 @@ class StreamClient:
 
     # ------------------------------------------------------------ requests
 
-    async def hello(self, space, codec="f32", rate=60.0, mode="hybrid", params=None, smoothing=0.25, window=0,
-                    heatmap=False):
-        """(Re)start streaming ``space``; a new topology follows."""
+    async def hello(self, space=None, codec="f32", rate=60.0, mode="hybrid", params=None, smoothing=0.25, window=0,
+                    heatmap=False, graph=None, node=None):
+        """(Re)start streaming ``space`` (or the motion graph ``graph``, from ``node``); a new topology follows."""
         self._topology_ready.clear()
         self.window = window
-        await self._control(P.Hello, space=space, codec=codec, rate=rate, mode=mode, params=params,
-                            smoothing=smoothing, window=window, heatmap=heatmap)
+        await self._control(P.Hello, space=space, graph=graph, node=node, codec=codec, rate=rate, mode=mode,
+                            params=params, smoothing=smoothing, window=window, heatmap=heatmap)
 
     async def _control(self, message_type, **fields):
         """Send a control message with the next sequence number; returns it (frames with
@@ -220,6 +231,11 @@ class StreamClient:
 
     async def heatmap(self, on=True):
         return await self._control(P.Heatmap, on=on)
+
+    async def action(self, node, params=None, *, budget=None):
+        """On a graph stream: go to ``node`` at ``params`` (within ``budget`` seconds); returns the
+        message's seq. The server's notice (planned or queued) lands in ``notices``."""
+        return await self._control(P.Action, node=node, params=params, budget=budget)
 
     async def pull(self, params=None, *, time=None, phase=None, mode=None, timeout=10.0):
         """The frame at ``params`` and ``time`` (s) or ``phase``, independent of the stream's clock."""

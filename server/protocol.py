@@ -40,8 +40,9 @@ KINDS = {
     "objects": "array of maps",
 }
 
-# the keys of each topology.parameters entry and of topology.limits, in order
+# the keys of each topology.parameters entry, topology.nodes entry and of topology.limits, in order
 PARAMETER_KEYS = ("name", "unit", "min", "max", "default", "value")
+NODE_KEYS = ("name", "space", "cyclic", "return_to", "parameters")
 LIMITS = {"max_message": "bytes", "max_rate": "messages/s", "burst": "messages", "max_fps": "frames/s",
           "stall_timeout": "s"}
 
@@ -87,22 +88,28 @@ class ProtocolError(ValueError):
 
 @dataclass(frozen=True)
 class Hello:
-    """Start (or switch) streaming a motion space. The server answers with Topology, then frames."""
+    """Start (or switch) streaming a motion space, or a motion graph (its nodes are spaces; steer it
+    with Action). The server answers with Topology, then frames."""
     type = "hello"
-    space: str = wire("str", "motion space name (GET /v1/spaces lists them)")
+    space: str = wire("str", "motion space name (GET /v1/spaces lists them)", optional=True, one_of="stream")
+    graph: str = wire("str", "or a motion graph name (GET /v1/graphs lists them)", optional=True, one_of="stream")
+    node: str = wire("str", "with graph: the start node (default: the graph's first cyclic node)", optional=True)
     codec: str = wire("str", "vertex codec: 'f32' (float32) or 'q16' (16-bit quantised over bounds)", default="f32",
                       choices=CODECS)
     rate: float = wire("float", "frames per second wanted; 0 = pull only (no streamed frames at all)", default=60.0,
                        low=0.0, high="max_fps")
     mode: str = wire("str", "blend mode", default="hybrid", choices=MODES)
-    params: dict = wire("params", "initial parameters (default: the middle of each range)", optional=True)
+    params: dict = wire("params", "initial parameters (default: the middle of each range); with graph: the start "
+                        "node's", optional=True)
     smoothing: float = wire("float", "time constant (s) of the critically damped spring that moves the parameters "
                             "to a new request: 50% / 90% / 99% of the way after "
-                            f"{_SPRING[0]} / {_SPRING[1]} / {_SPRING[2]} x smoothing; 0 = at once", default=0.25,
+                            f"{_SPRING[0]} / {_SPRING[1]} / {_SPRING[2]} x smoothing; 0 = at once (a graph's "
+                            "nodes take new parameters at once)", default=0.25,
                             low=0.0, high=10.0)
     window: int = wire("int", "frames in flight before the server waits for Ack (0 = no acks, TCP backpressure only)",
                        default=0, low=0, high=64)
-    heatmap: bool = wire("bool", "send each frame's per-vertex distance from the non-linear blend", default=False)
+    heatmap: bool = wire("bool", "send each frame's per-vertex distance from the non-linear blend (spaces only)",
+                         default=False)
     seq: int = wire("int", "client sequence number, echoed as the frames' ack", default=0)
 
 
@@ -185,6 +192,24 @@ class Pull:
 
 
 @dataclass(frozen=True)
+class Action:
+    """On a graph stream: go to a node at these parameters (walk -> jump 0.5 m high). The server
+    plans the transition at once (when to leave, where to enter, how long to blend) and plays it;
+    frames say the node, the target and the blend's progress. A node without an edge from the
+    current one is reached along the shortest route; an action during a blend, or during a
+    one-shot that cannot be left for that node, waits for it to end. A one-shot returns to its
+    cyclic node by itself."""
+    type = "action"
+    node: str = wire("str", "target node (topology.nodes lists them)")
+    params: dict = wire("params", "the node's parameters (missing ones: what the node was last asked for, at first "
+                        "the middle of each range)", optional=True)
+    budget: float = wire("float", "seconds within which the transition should be complete (default: the search's "
+                         "own balance of smoothness and latency; if nothing fits, the quickest)", optional=True,
+                         low=0.05, high=60.0)
+    seq: int = wire("int", "client sequence number, echoed as the frames' ack", default=0)
+
+
+@dataclass(frozen=True)
 class Ack:
     """Acknowledge a frame (needed only when Hello asked for a window)."""
     type = "ack"
@@ -216,6 +241,11 @@ class Topology:
     rate: float = wire("float", "frames per second the server will send")
     model_size: float = wire("float", "largest extent of the rest mesh (m)")
     limits: dict = wire("numbers", ", ".join(f"{k} ({unit})" for k, unit in LIMITS.items()))
+    graph: str = wire("str", "the motion graph streamed, or nil for a space (then space, parameters, sources, "
+                      "durations and cyclic describe the start node; bounds cover every node)", optional=True)
+    nodes: list = wire("objects", "with graph: per node {" + ", ".join(NODE_KEYS) + "}; parameters as in "
+                       "`parameters` (value: what the node is asked for now)", optional=True)
+    edges: list = wire("objects", "with graph: the allowed transitions, {from, to} node names", optional=True)
 
 
 @dataclass(frozen=True)
@@ -245,13 +275,21 @@ class Frame:
                                  "loop: an earlier frame, a few frames or, with dozens of heatmap viewers, a few "
                                  "tenths of a second back; this one in nonlinear mode); nil until the first is ready",
                           optional=True)
+    node: str = wire("str", "graph streams: the node shown (during a blend, the one being left); nil for a space",
+                     optional=True)
+    target: str = wire("str", "graph streams: the node a planned or blending transition goes to, else nil",
+                       optional=True)
+    progress: float = wire("float", "graph streams: the blend's progress 0..1, nil when not blending (phase, "
+                           "requested, realised, clamped and weights are the node's)", optional=True)
 
 
 @dataclass(frozen=True)
 class Notice:
     """Something the client should know that is not an error (e.g. a request was clamped)."""
     type = "notice"
-    code: str = wire("str", "'clamped' (a request was outside the reachable domain)")
+    code: str = wire("str", "'clamped' (a request was outside the reachable domain), 'planned' (an action's "
+                     "transition: when it leaves, how long it blends), 'queued' (an action waits for a blend or a "
+                     "one-shot to end)")
     message: str = wire("str", "human-readable explanation")
     seq: int = wire("int", "the client message it answers", default=0)
 
@@ -271,6 +309,10 @@ ERROR_CODES = {
     "unknown_type": "`type` names no client message",
     "invalid_field": "a field is missing, of the wrong kind, non-finite or out of range",
     "unknown_space": "no motion space of that name",
+    "unknown_graph": "no motion graph of that name, or its file cannot be used (the message says why)",
+    "unknown_node": "the graph has no node of that name",
+    "unsupported": "the message does not apply to this stream (`action` on a space; `seek`, `heatmap`, `pull` "
+                   "or a hello's `heatmap` on a graph)",
     "not_playable": "the space has no parameter map",
     "not_ready": "a message other than hello (or ack) before the first hello",
     "too_large": "the message exceeds `limits.max_message` bytes",
@@ -292,7 +334,10 @@ CHECK_ORDER = (
                       "`invalid_params`)"),
     ("not_ready", "a `hello` first (an `ack` before it is ignored)"),
     ("unknown_space", "the space (then `not_playable`), for `hello`"),
-    ("invalid_params", "parameter names, for `hello`, `params` and `pull`"),
+    ("unknown_graph", "the graph, for a `hello` naming one"),
+    ("unsupported", "the message for what the connection streams (a space or a graph)"),
+    ("unknown_node", "the node, for `action` and a `hello` naming a graph"),
+    ("invalid_params", "parameter names, for `hello`, `params`, `pull` and `action`"),
 )
 
 # WebSocket close codes the server sends (the connection ends; see docs/protocol.md)
@@ -310,7 +355,8 @@ def websocket_max_size(max_message):
     return max(1 << 20, 4 * max_message)
 
 
-CLIENT_MESSAGES = {m.type: m for m in (Hello, Params, Mode, Rate, Pause, Resume, Seek, Reset, Heatmap, Pull, Ack)}
+CLIENT_MESSAGES = {m.type: m for m in (Hello, Params, Mode, Rate, Pause, Resume, Seek, Reset, Heatmap, Pull, Action,
+                                        Ack)}
 SERVER_MESSAGES = {m.type: m for m in (Topology, Frame, Notice, Error)}
 
 

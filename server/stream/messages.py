@@ -19,11 +19,14 @@ import asyncio
 import numpy as np
 
 from engine.player import Player
+from server import graph_stream
 from server import protocol as P
 from server.registry import BrokenSpace, UnknownSpace
 
 
 async def on_hello(session, m):
+    if m.graph is not None:  # a motion graph: server/graph_stream.py
+        return await graph_stream.on_hello(session, m)
     try:
         space = await asyncio.to_thread(session.registry.get, m.space)
     except UnknownSpace as exc:
@@ -45,6 +48,7 @@ async def on_hello(session, m):
         player.set_params(m.params, immediate=True)
     session.ready = False  # no frames until the new topology has gone out
     session.player, session.space_name, session.rate = player, m.space, m.rate
+    session.graph = None
     session.codec, session.window, session.heatmap = m.codec, m.window, m.heatmap
     description = session.registry.describe(m.space)
     session.bounds = np.asarray(description["bounds"], dtype=np.float32)
@@ -175,5 +179,6 @@ HANDLERS = {
     P.Reset.type: on_reset,
     P.Heatmap.type: on_heatmap,
     P.Pull.type: on_pull,
+    P.Action.type: graph_stream.on_action,  # answered unsupported on a space stream
 }
 BEFORE_HELLO = frozenset({P.Hello.type, P.Ack.type})  # the others answer not_ready until a hello

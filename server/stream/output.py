@@ -99,7 +99,7 @@ class FrameOutput:
         (linear or hybrid at weights that recur; heatmaps too: server/heatmap.py works off the
         loop); q16 tables are in codec units."""
         player = self.player
-        if player.mode == "nonlinear":
+        if player.mode == "nonlinear" or self.graph is not None:  # a graph's state moves between spaces
             return None, self.codec
         table = player.space.frame_blender(player.mode).lookup(player.weights)
         if table is not None and self.codec == "q16":
@@ -112,8 +112,11 @@ class FrameOutput:
         player = self.player
         error_um = error_max = error_seq = None
         if payload is None:
-            space, mode, weights, phase = player.space, player.mode, player.weights, player.phase
-            vertices = space.frame_blender(mode).blend(weights, phase)
+            if self.graph is not None:  # blended by its GraphStream as it advanced
+                vertices = player.vertices()
+            else:
+                space, mode, weights, phase = player.space, player.mode, player.weights, player.phase
+                vertices = space.frame_blender(mode).blend(weights, phase)
             payload = self._vertex_bytes(vertices)
         if self.heatmap:  # off the event loop (server/heatmap.py)
             distances = self.scheduler.heatmaps.frame_error(self, player.space, player.mode, player.weights,
@@ -211,7 +214,11 @@ class FrameOutput:
                  "realised": np.asarray(realised, dtype=float).tolist(), "clamped": bool(clamped),
                  "weights": np.asarray(weights, dtype=float).tolist(), "root": np.asarray(root, dtype=float).tolist(),
                  "heading": float(heading), "dropped": self.dropped, "finished": bool(finished),
-                 "sent_at": time.time(), "pull_id": pull_id, "error_max": error_max, "error_seq": error_seq}
+                 "sent_at": time.time(), "pull_id": pull_id, "error_max": error_max, "error_seq": error_seq,
+                 "node": None, "target": None, "progress": None}
+        graph = self.graph
+        if graph is not None:
+            small["node"], small["target"], small["progress"] = graph.node, graph.target, graph.progress
         bulk = [("vertices", vertices)]
         if error_um is None:
             small["error_um"] = None

@@ -18,6 +18,7 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 
 from server import protocol as P
 from server.decoding import decode_client
+from server.graph_stream import HANDLERS as GRAPH_HANDLERS
 from server.scheduler import URGENT
 from server.stream.messages import BEFORE_HELLO, HANDLERS
 from server.stream.output import FrameOutput
@@ -55,11 +56,14 @@ class StreamStats:
 
 
 class StreamSession(FrameOutput):
-    """One connection's state; ``await StreamSession(ws, registry, settings, stats, scheduler).run()``."""
+    """One connection's state; ``await StreamSession(ws, registry, settings, stats, scheduler).run()``
+    (``graphs``: the server's GraphRegistry, for hellos naming a motion graph)."""
 
-    def __init__(self, websocket: WebSocket, registry, settings, stats: StreamStats, scheduler):
+    def __init__(self, websocket: WebSocket, registry, settings, stats: StreamStats, scheduler, graphs=None):
         self.ws, self.registry, self.settings, self.stats = websocket, registry, settings, stats
         self.scheduler = scheduler
+        self.graphs = graphs
+        self.graph = None       # a GraphStream (server/graph_stream.py) while streaming a motion graph
         self.bucket = TokenBucket(settings.stream_max_rate, settings.stream_burst)
         self.player = None
         self.space_name = None
@@ -197,7 +201,9 @@ class StreamSession(FrameOutput):
             await self.error("internal", f"the server failed on this message: {type(exc).__name__}: {exc}")
 
     async def _apply(self, m):
-        """Hand client message ``m`` to its handler (server/stream/messages.py)."""
+        """Hand client message ``m`` to its handler (server/stream/messages.py; on a graph stream,
+        server/graph_stream.py's where it has one)."""
         if self.player is None and m.type not in BEFORE_HELLO:
             raise P.ProtocolError("not_ready", f"send hello before {m.type}", ref=m.type, seq=getattr(m, "seq", None))
-        await HANDLERS[m.type](self, m)
+        handler = GRAPH_HANDLERS.get(m.type) if self.graph is not None else None
+        await (handler or HANDLERS[m.type])(self, m)

@@ -7,6 +7,8 @@ export const CLIENT_MESSAGES = {
   "hello": [
     "type",
     "space",
+    "graph",
+    "node",
     "codec",
     "rate",
     "mode",
@@ -62,6 +64,13 @@ export const CLIENT_MESSAGES = {
     "phase",
     "mode"
   ],
+  "action": [
+    "type",
+    "node",
+    "params",
+    "budget",
+    "seq"
+  ],
   "ack": [
     "type",
     "frame"
@@ -87,7 +96,10 @@ export const SERVER_MESSAGES = {
     "modes",
     "rate",
     "model_size",
-    "limits"
+    "limits",
+    "graph",
+    "nodes",
+    "edges"
   ],
   "frame": [
     "type",
@@ -109,7 +121,10 @@ export const SERVER_MESSAGES = {
     "pull_id",
     "error_um",
     "error_max",
-    "error_seq"
+    "error_seq",
+    "node",
+    "target",
+    "progress"
   ],
   "notice": [
     "type",
@@ -125,4 +140,4 @@ export const SERVER_MESSAGES = {
     "seq"
   ]
 };
-export const ERROR_CODES = ["malformed", "unknown_type", "invalid_field", "unknown_space", "not_playable", "not_ready", "too_large", "rate_limited", "invalid_params", "server_busy", "internal"];
+export const ERROR_CODES = ["malformed", "unknown_type", "invalid_field", "unknown_space", "unknown_graph", "unknown_node", "unsupported", "not_playable", "not_ready", "too_large", "rate_limited", "invalid_params", "server_busy", "internal"];
