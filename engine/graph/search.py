@@ -28,16 +28,19 @@ from engine.graph.build import GraphError
 class SearchOptions:
     """latency_weight : cost per second of latency (1 = a second costs as much as a seam one
     model size apart over the reference length); lengths : transition lengths tried (s);
-    reference_length : s; max_entry : latest phase a one-shot target may be entered at."""
+    reference_length : s; max_entry : latest phase a one-shot target may be entered at; min_exit :
+    earliest phase a one-shot source may be left at (so a reach or a jump, whose first frames match
+    the stand they came from, is performed before its return is blended in)."""
 
     latency_weight: float = 0.5
     lengths: tuple = (0.15, 0.25, 0.35, 0.5, 0.7)
     reference_length: float = 0.3
     max_entry: float = 0.35
+    min_exit: float = 0.65
 
     def __post_init__(self):
         if not (self.latency_weight >= 0 and len(self.lengths) > 0 and all(0 < x <= 5 for x in self.lengths)
-                and self.reference_length > 0 and 0 <= self.max_entry <= 1):
+                and self.reference_length > 0 and 0 <= self.max_entry <= 1 and 0 <= self.min_exit <= 1):
             raise ValueError(f"search options out of range: {self}")
 
 
@@ -113,12 +116,13 @@ class TransitionSearch:
             j0 = int(x) % len(phases)
             j1, f = (j0 + 1) % len(phases), x - int(x)
         else:
-            waits = np.where(phases >= phase - 1e-9, (phases - phase) * duration, np.nan)  # no going back
+            leavable = (phases >= phase - 1e-9) & (phases >= self.options.min_exit - 1e-9)  # no going back
+            waits = np.where(leavable, (phases - phase) * duration, np.nan)
             x = min(max(phase, 0.0), 1.0) * (len(phases) - 1)
             j0 = min(int(x), len(phases) - 2)
             j1, f = j0 + 1, x - j0
         now = (1 - f) * D[j0] + f * D[j1]  # leaving at once: the current phase's row
-        waits = np.concatenate([[0.0], waits])
+        waits = np.concatenate([[0.0 if a.cyclic or phase >= self.options.min_exit - 1e-9 else np.nan], waits])
         rows = np.where(np.isnan(waits)[:, None], np.inf, np.vstack([now[None], D]))
         waits = np.nan_to_num(waits, nan=0.0)
         leave = np.concatenate([[phase], phases])
@@ -128,9 +132,13 @@ class TransitionSearch:
         weight = self.options.latency_weight if latency_weight is None else float(latency_weight)
         total = waits[:, None] + self._lengths[None, :]  # (rows, lengths)
         cost = rows[:, :, None] * self._spread[None, None, :] + weight * total[:, None, :]
-        allowed = np.isfinite(cost)
+        finite = np.isfinite(cost)
+        allowed = finite.copy()
         if finish_by is not None:
             allowed &= (total <= finish_by + 1e-9)[:, None, :]
+            if not allowed.any():  # nothing ends in time: the quickest, the best seam among them
+                quickest = np.where(finite, total[:, None, :], np.inf).min()
+                allowed = finite & (total <= quickest + 1e-9)[:, None, :]
         if budget is not None:
             fits = allowed & (total <= budget + 1e-9)[:, None, :]
             if fits.any():
@@ -139,7 +147,7 @@ class TransitionSearch:
                 quickest = np.where(allowed, total[:, None, :], np.inf).min()
                 allowed &= (total <= quickest + 1e-9)[:, None, :]
         if not allowed.any():
-            allowed = np.isfinite(cost)
+            allowed = finite
         flat = int(np.argmin(np.where(allowed, cost, np.inf)))
         j, e, k = np.unravel_index(flat, cost.shape)
         return Transition(source=source, target=target, leave_in=float(waits[j]), leave_phase=float(leave[j] % 1.0

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from engine.graph import GraphError, GraphPlayer, MotionGraph, TransitionSearch
+from engine.graph import GraphError, GraphPlayer, MotionGraph, SearchOptions, TransitionSearch
 from engine.graph.evaluate import Request, play_requests, transition_measures
 from engine.graph.recording import perform, read_recording, recording
 
@@ -140,3 +140,15 @@ def test_root_local_frames_place_to_the_world_frames(graph):
     assert player.mode == "hybrid"
     with pytest.raises(ValueError, match="unknown blend mode"):
         player.set_mode("cubic")
+
+
+def test_a_one_shot_is_performed_before_it_returns(graph):
+    """The jump's first frames match the stand it came from: its return must not be blended in
+    before ``min_exit`` of the clip (before, a reach was left at once and never seen)."""
+    player = GraphPlayer(graph, node="stand", mode="linear")
+    player.request("jump", {"jump_height": 0.45})
+    frames = _play(player, 5.0)
+    left = next(f for f in frames if "leave jump -> stand" in f.events)
+    assert left.phase >= player.search.options.min_exit - 1e-6
+    with pytest.raises(ValueError, match="out of range"):
+        SearchOptions(min_exit=1.5)

@@ -59,8 +59,12 @@ def test_budget_and_finish_by_are_kept(graph):
     assert search.search(*args, budget=0.4).latency <= 0.4 + 1e-9
     assert search.search(*args, budget=0.01).latency == min(search.options.lengths)  # nothing fits: quickest
     jump = graph.node("jump")
+    plan = search.search("jump", jump.samples.weights[0], 0.6, "stand", idle.samples.weights[0], finish_by=0.6)
+    assert plan.leave_phase >= search.options.min_exit and plan.latency <= 0.6 + 1e-9
+    # from phase 0.5 nothing ends within 0.6 s (a one-shot is not left before min_exit): the quickest
     plan = search.search("jump", jump.samples.weights[0], 0.5, "stand", idle.samples.weights[0], finish_by=0.6)
-    assert plan.leave_phase >= 0.5 and plan.latency <= 0.6 + 1e-9
+    first = jump.samples.phases[jump.samples.phases >= search.options.min_exit][0]
+    assert plan.leave_phase == pytest.approx(first) and plan.length == min(search.options.lengths)
 
 
 def test_no_edge_is_a_clear_error(graph):
