@@ -81,16 +81,17 @@ def free_port():
         return s.getsockname()[1]
 
 
-def start_server(data, workers, max_clients, timeout=90.0):
+def start_server(data, workers, max_clients, timeout=90.0, root=ROOT):
     """``morphspace serve --workers N`` on 127.0.0.1 over ``data`` (its own process group), once
-    every worker answers; returns (process, port)."""
+    every worker answers; returns (process, port). ``root``: the source tree whose server runs
+    (default this one; ``--baseline`` passes another checkout)."""
     import httpx
 
     port = free_port()
     env = dict(os.environ, MORPHSPACE_STREAM_MAX_CLIENTS=str(max_clients))
     server = subprocess.Popen([sys.executable, "-m", "server.cli", "serve", "--data-dir", str(data), "--host",
                                "127.0.0.1", "--port", str(port), "--workers", str(workers), "--log-level",
-                               "warning"], cwd=ROOT, env=env, start_new_session=True)
+                               "warning"], cwd=root, env=env, start_new_session=True)
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         if server.poll() is not None:

@@ -5,6 +5,7 @@
     .venv/bin/python benchmarks/stream_load.py --soak 300            # + 5-minute connect/leave soak
     .venv/bin/python benchmarks/stream_load.py --compare-workers 1,2     # 1 and 2 worker processes side by side
     .venv/bin/python benchmarks/stream_load.py --heatmap-clients 50  # 50 of the 200 with the heatmap on
+    .venv/bin/python benchmarks/stream_load.py --baseline /tmp/before --repeat 3   # against another checkout
     .venv/bin/python benchmarks/stream_load.py --tiny --out /tmp/stream_load.json   # smoke run, ~30 s
 
 Starts ``morphspace serve`` (``--workers``, default one process) on 127.0.0.1 over a data directory holding the space
@@ -31,7 +32,11 @@ their CPU is reported so that the comparison can be read against it (docs/evalua
 Results go to benchmarks/results/stream_load.json. ``--tiny`` (the test suite's smoke run) builds a
 1,000-vertex speed space in a temporary directory unless ``--space`` is given, and runs 4 clients
 x 30 fps for 4 s (1.5 s of warm-up) in one client process, every client sending parameters, then
-the same 4 clients against a 1-worker and a 2-worker server side by side; it needs ``--out``. The server always binds 127.0.0.1 and is stopped (its whole process group) at
+the same 4 clients against a 1-worker and a 2-worker server side by side; it needs ``--out``.
+
+``--baseline DIR`` replaces the rounds above by this tree's server against the server of the
+source tree ``DIR`` (another checkout), one worker each, ``--repeat`` rounds each, alternating
+(benchmarks/_baseline.py): the medians of their CPU per delivered frame and frames delivered. The server always binds 127.0.0.1 and is stopped (its whole process group) at
 the end, whatever happens.
 """
 
@@ -51,6 +56,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from _baseline import compare_code
 from _tiny import parse_arguments
 from _load_clients import client_process, soak_process
 from _workers import (
@@ -287,6 +293,9 @@ def main(argv=None):
                              "the client counts of --levels in turn until it misses 95%% delivered")
     parser.add_argument("--levels", type=_counts, default=[100, 150, 200, 250, 300, 350, 400, 450, 500],
                         metavar="N,N,...", help="client counts of --compare-workers (default 100,150,...,500)")
+    parser.add_argument("--baseline", type=Path, metavar="DIR",
+                        help="instead of the rounds above: this tree's server against DIR's (another checkout of "
+                             "the project), --repeat rounds each, alternating")
     parser.add_argument("--soak", type=float, default=0.0, help="seconds of connect/leave soak (0: none)")
     parser.add_argument("--soak-clients", type=int, default=50)
     parser.add_argument("--tiny", action="store_true",
@@ -300,7 +309,11 @@ def main(argv=None):
     try:
         (data / "spaces").mkdir()
         space_path = served_space(data, args.space, args.tiny)
-        if args.compare_workers and not args.tiny:
+        if args.baseline is not None:
+            name, n_vertices, params = space_figures(space_path)
+            result = {"baseline_comparison": compare_code(args, data, name, n_vertices, params, load_round,
+                                                          stop_process_group)}
+        elif args.compare_workers and not args.tiny:
             result = {"workers_comparison": measure_workers(args, data, space_path)}
         else:
             result = serve_and_measure(args, data, space_path)

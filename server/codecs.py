@@ -35,12 +35,16 @@ class Quantiser:
 
     def encode(self, V):
         """Raw little-endian uint16 bytes of (n, 3) vertices."""
+        return self.encode_array(V).tobytes()
+
+    def encode_array(self, V):
+        """The encoded (3 n,) little-endian uint16 array of (n, 3) vertices (a new array each
+        call: its raw bytes are ``encode(V)``)."""
         q = self._q
         np.multiply(np.asarray(V, dtype=np.float32).reshape(-1), self._scale, out=q)
         np.add(q, self._offset, out=q)
-        np.maximum(q, np.float32(0.0), out=q)
-        np.minimum(q, np.float32(65535.0), out=q)
-        return q.astype("<u2").tobytes()
+        np.clip(q, np.float32(0.0), np.float32(65535.0), out=q)
+        return q.astype("<u2")
 
     def table(self, table):
         """A PhaseTable (engine.blend.cache) in codec units: interpolating its rows and

@@ -5,8 +5,8 @@ small fields and one to two large ``bin`` values (vertices, heatmap distances). 
 dict copies the arrays into msgpack's buffer, and the WebSocket layers above the socket copy the
 result twice more. Here the small fields are packed once (one ``packb``), the map and ``bin``
 headers are built by hand, and the arrays stay where they are: ``frame_parts`` returns the body
-as a list of buffers, which ``TransportGauge.write_message`` (server/transport.py) copies once
-into the complete WebSocket message. The bytes are exactly ``msgpack.packb`` of the whole map in
+as a list of buffers, which ``TransportGauge.write_message`` (server/transport.py) hands to the
+transport behind the WebSocket frame header in one gathered write, without joining them. The bytes are exactly ``msgpack.packb`` of the whole map in
 the same key order (a test checks).
 """
 

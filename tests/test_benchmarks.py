@@ -215,3 +215,21 @@ def test_tiny_mode_needs_out(script, tmp_path):
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "--tiny needs --out" in run.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_stream_load_compares_a_baseline_tree_side_by_side(tmp_path):
+    """``stream_load.py --baseline DIR``: a server from DIR (here this same tree) and this tree's take
+    alternating rounds under the same load; the record has both, their medians and the ratio."""
+    out, cwd = tmp_path / "result.json", tmp_path / "cwd"
+    cwd.mkdir()
+    run = subprocess.run([sys.executable, str(BENCHMARKS / "stream_load.py"), "--tiny", "--out", str(out),
+                          "--baseline", str(BENCHMARKS.parent), "--repeat", "2", "--heatmap-clients", "0"],
+                         cwd=cwd, capture_output=True, text=True, timeout=180)
+    assert run.returncode == 0, f"stream_load.py --baseline failed:\n{run.stdout[-2000:]}\n{run.stderr[-4000:]}"
+    comparison = json.loads(out.read_text())["baseline_comparison"]
+    assert set(comparison["summary"]) == {"baseline", "this tree"} and comparison["repeat"] == 2
+    for label, summary in comparison["summary"].items():
+        assert len(comparison["rounds"][label]) == 2 and all(r["connected"] == 4 for r in comparison["rounds"][label])
+        assert positive(summary["server_cpu_us_per_frame_median"]) and positive(summary["delivered_mean_median"])
+    assert positive(comparison["ratio_cpu_per_frame"]) and "this tree / baseline" in run.stdout
+    assert not list(cwd.iterdir())

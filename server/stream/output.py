@@ -102,6 +102,7 @@ class FrameOutput:
         if player.mode == "nonlinear" or self.graph is not None:  # a graph's state moves between spaces
             return None, self.codec
         table = player.space.frame_blender(player.mode).lookup(player.weights)
+        self.table_missed = table is None  # send_frame blends without asking again
         if table is not None and self.codec == "q16":
             table = self.quantiser.table(table)
         return table, self.codec
@@ -116,8 +117,14 @@ class FrameOutput:
                 vertices = player.vertices()
             else:
                 space, mode, weights, phase = player.space, player.mode, player.weights, player.phase
-                vertices = space.frame_blender(mode).blend(weights, phase)
+                blender = space.frame_blender(mode)
+                if self.table_missed:  # no phase table at these weights: blend (what blend() would do)
+                    vertices = np.asarray(blender.blender.blend(np.asarray(weights, dtype=np.float64), phase),
+                                          dtype=np.float32)
+                else:
+                    vertices = blender.blend(weights, phase)
             payload = self._vertex_bytes(vertices)
+        self.table_missed = False
         if self.heatmap:  # off the event loop (server/heatmap.py)
             distances = self.scheduler.heatmaps.frame_error(self, player.space, player.mode, player.weights,
                                                             player.phase, self.seq + 1)
@@ -199,9 +206,10 @@ class FrameOutput:
     # ------------------------------------------------------------ encoding
 
     def _vertex_bytes(self, vertices):
+        """The frame's encoded vertices: a new buffer (the transport may keep it a while)."""
         if self.codec == "q16":
-            return self.quantiser.encode(vertices)
-        return P.encode_vertices(vertices, "f32", None)
+            return self.quantiser.encode_array(vertices)
+        return P.encode_vertices(vertices, "f32", None)  # a copy: ``vertices`` may be a blender's scratch
 
     def _frame_parts(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
                      vertices, finished, pull_id=None, error_um=None, error_max=None, error_seq=None):

@@ -83,6 +83,7 @@ class StreamSession(FrameOutput):
         self.ready = False      # the topology has gone out: frames may follow
         self.version = 0        # the scheduler's bookkeeping
         self.payload = None     # encoded vertices the scheduler prepared for the next frame
+        self.table_missed = False  # frame_source found no phase table for this frame
         self.heatmap_job = None   # server/heatmap.py: this connection's distances being computed
         self.heatmap_last = None  # and the newest finished: (error_um, error_max, error_seq)
         self.loop = None

@@ -17,7 +17,9 @@ The block holds blobs of at most ``BLOB`` bytes, each with one writer:
   worker's connections are closed).
 
 A blob is JSON behind a sequence lock: the writer makes the sequence odd, writes, makes it even;
-a reader copies the bytes and retries when the sequence was odd or changed meanwhile. Counters are
+a reader copies the bytes and retries when the sequence was odd or changed meanwhile. A worker
+killed in the middle of a write leaves its sequence odd: its blob reads as empty until the next
+write (the supervisor's ``retire``), which starts again from the next even number. Counters are
 summed key by key (nested dicts too; a key ending in ``_max`` is a peak and takes the largest),
 so a counter added to the stream statistics or the scheduler is aggregated without a change here.
 """
@@ -50,6 +52,7 @@ class CounterBoard:
             raise ValueError(f"counter board: {len(payload)} bytes do not fit in a {BLOB}-byte blob")
         offset = blob * BLOB
         sequence, _ = _HEAD.unpack_from(self._memory, offset)
+        sequence += sequence & 1  # odd: its writer was killed mid-write; go on from the next even
         _HEAD.pack_into(self._memory, offset, sequence + 1, 0)  # odd: being written
         self._memory[offset + _HEAD.size:offset + _HEAD.size + len(payload)] = payload
         _HEAD.pack_into(self._memory, offset, sequence + 2, len(payload))
