@@ -51,6 +51,7 @@ function describeError(data) {
 
 export const api = {
   spaces: () => request("GET", "/spaces", undefined, { timeoutMs: 8000 }),
+  graphs: () => request("GET", "/graphs", undefined, { timeoutMs: 8000 }),
   health: () => request("GET", "/health", undefined, { timeoutMs: 3000 }),
   request,
 };

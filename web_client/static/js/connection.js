@@ -124,7 +124,7 @@ export class StreamConnection {
   /** (Re)start streaming with the current hello fields (a new topology follows). */
   sayHello() {
     const fields = this.hello();
-    if (!fields || !fields.space) return null;
+    if (!fields || !(fields.space || fields.graph)) return null;
     this.window = fields.window ?? 0;
     this.ready = false;
     this.helloSeq = this.send("hello", fields);

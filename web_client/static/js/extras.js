@@ -6,11 +6,11 @@ import { openDialog } from "./dialogs.js";
 const $ = (id) => document.getElementById(id);
 
 /** Fill the help dialog with the keys of the current space and open it. */
-export function showHelp(steering, spaceName) {
+export function showHelp(steering, spaceName, graphKeys = null) {
   const rows = [
     ...steering.keys(),
-    { keys: "Space", what: "pause / resume" },
-    { keys: "R", what: "reset to the origin (a clip plays again)" },
+    ...(graphKeys ?? [{ keys: "Space", what: "pause / resume" },
+      { keys: "R", what: "reset to the origin (a clip plays again)" }]),
     { keys: "C", what: "next camera preset (chase, side, front, free)" },
     { keys: "?", what: "this list" },
     { keys: "Esc", what: "close this list (or the controls drawer)" },

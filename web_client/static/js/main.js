@@ -1,10 +1,13 @@
-// The page: picks a motion space, streams it from /v1/stream, renders and steers it.
-// The server blends; this file wires the panel, the connection, the viewer and the overlay.
+// The page: picks a motion space (or a motion graph), streams it from /v1/stream, renders and
+// steers it. The server blends; this file wires the panel, the connection, the viewer and the
+// overlay. A graph is picked as "graph:NAME" (state.space); its actions come from keys (Space:
+// jump, R: reach, 1-9: the nodes in order) and clicks on the diagram (graph.js).
 import { api } from "./api.js";
 import { PRESETS } from "./camera.js";
 import { StreamConnection } from "./connection.js";
 import { closeDialog, dialogOpen, setUpDialogs } from "./dialogs.js";
 import { Comparison, setUpDownloads, shareLink, showHelp } from "./extras.js";
+import { GraphView } from "./graph.js";
 import { HeatmapControls } from "./heatmap.js";
 import { JobsPanel } from "./jobs.js";
 import { setUpDrawer, setUpStatusBox, setUpStick } from "./layout.js";
@@ -17,9 +20,14 @@ import { Viewer } from "./viewer.js";
 
 const $ = (id) => document.getElementById(id);
 const fromUrl = readUrl();
+const GRAPH = "graph:";  // state.space of a motion graph: "graph:NAME"
+const graphName = (key) => (key && key.startsWith(GRAPH) ? key.slice(GRAPH.length) : null);
+const keyOf = (topology) => (topology ? (topology.graph ? GRAPH + topology.graph : topology.space) : null);
 
 const state = {
   spaces: [],                 // GET /v1/spaces entries
+  graphs: [],                 // GET /v1/graphs entries
+  action: null,               // the last action asked on a graph: {node, seq, sentAt, entered (s) or null}
   space: fromUrl.space,
   codec: fromUrl.codec ?? "q16",
   mode: fromUrl.mode ?? "hybrid",
@@ -52,10 +60,7 @@ let pendingDraw = null;
 
 const FRAME_WINDOW = 3;  // frames the server may have in flight before our ack (see connection.js)
 const wsUrl = `${location.protocol === "https:" ? "wss:" : "ws:"}//${location.host}/v1/stream`;
-const connection = new StreamConnection(wsUrl, () => state.space && {
-  space: state.space, codec: state.codec, rate: state.rate, mode: state.mode, heatmap: state.heatmap,
-  params: state.targets[state.space], smoothing: state.smoothing, window: FRAME_WINDOW,
-}, {
+const connection = new StreamConnection(wsUrl, () => state.space && helloFields(), {
   state: (s) => {
     state.connection = s;
     if (s === "open") {
@@ -66,12 +71,14 @@ const connection = new StreamConnection(wsUrl, () => state.space && {
   },
   topology: onTopology,
   frame: (frame) => {
-    if (!state.topology || state.topology.space !== state.space) return;  // an older hello's frames
+    if (!state.topology || keyOf(state.topology) !== state.space) return;  // an older hello's frames
     stats.frame(frame);
     state.frame = frame;
     heat.frame(frame);
     pendingDraw = frame;
-    if (frame.finished && $("loop").checked && !state.resetPending && !state.paused) {
+    if (state.topology.graph) {
+      graphFrame(frame);
+    } else if (frame.finished && $("loop").checked && !state.resetPending && !state.paused) {
       state.resetPending = true;
       setTimeout(() => {
         if (!state.resetPending || state.paused) return;
@@ -91,7 +98,8 @@ const connection = new StreamConnection(wsUrl, () => state.space && {
     if (notice.code === "space_changed") connection.sayHello();  // the file was rebuilt: new topology
     state.notices.push(notice);
     if (state.notices.length > 20) state.notices.shift();
-    say(notice.message, "warn", 2500, `notice:${notice.code}`);  // steering can clamp 20 times a second
+    // steering can clamp 20 times a second; a graph's plans (planned, queued) are news, not warnings
+    say(notice.message, notice.code === "clamped" ? "warn" : "info", 2500, `notice:${notice.code}`);
   },
   error: (error) => {
     state.errors.push(error);
@@ -102,7 +110,12 @@ const connection = new StreamConnection(wsUrl, () => state.space && {
 });
 comparison.connection = connection;
 
-const sender = new ParamSender((params) => stats.sent(connection.send("params", { params })));
+const sender = new ParamSender((params) => {
+  // on a graph, only the shown node's parameters go out (the others wait for its actions)
+  const names = state.topology?.graph ? shownNode()?.parameters.map((p) => p.name) ?? [] : null;
+  const sent = names ? Object.fromEntries(Object.entries(params).filter(([name]) => names.includes(name))) : params;
+  if (Object.keys(sent).length) stats.sent(connection.send("params", { params: sent }));
+});
 
 function targets() {
   return state.targets[state.space] || {};
@@ -113,7 +126,97 @@ function setTarget(name, value) {
   panel.show(name, value);
   sender.queue(name, value);
   url.changed();
-  recorder.changed(state.space, targets());
+  if (!state.topology?.graph) recorder.changed(state.space, targets());
+}
+
+// ------------------------------------------------------------------ motion graphs
+
+const graphView = new GraphView($("graph-view"), (node) => act(node));
+
+/** The hello's fields: a space's, or a graph's (its start node at the targets). */
+function helloFields() {
+  const common = { codec: state.codec, rate: state.rate, mode: state.mode, smoothing: state.smoothing,
+    window: FRAME_WINDOW };
+  const graph = graphName(state.space);
+  if (!graph) return { ...common, space: state.space, heatmap: state.heatmap, params: state.targets[state.space] };
+  const info = state.graphs.find((g) => g.name === graph);
+  const start = info?.nodes.find((n) => n.name === info.start);
+  return { ...common, graph, params: start ? paramsOf(start) : undefined };
+}
+
+/** The targets of a node's parameters ({name: value}; undefined when it has none or none is set). */
+function paramsOf(node) {
+  const mine = targets();
+  const entries = node.parameters.filter((p) => Number.isFinite(mine[p.name])).map((p) => [p.name, mine[p.name]]);
+  return entries.length ? Object.fromEntries(entries) : undefined;
+}
+
+function nodeInfo(name) {
+  return state.topology?.nodes?.find((n) => n.name === name) ?? null;
+}
+
+/** The node whose parameters `params` changes: the one shown, or a blend's target. */
+function shownNode() {
+  const frame = state.frame;
+  if (!frame) return nodeInfo(state.topology?.nodes?.[0]?.name);
+  return nodeInfo(frame.progress !== null && frame.progress !== undefined ? frame.target : frame.node);
+}
+
+/** The union of the graph's parameters (one slider per name, across nodes). */
+function graphDefs(topology) {
+  const defs = new Map();
+  for (const node of topology.nodes) {
+    for (const p of node.parameters) if (!defs.has(p.name)) defs.set(p.name, { ...p, nodes: [node.name] });
+    else defs.get(p.name).nodes.push(node.name);
+  }
+  return [...defs.values()];
+}
+
+/** Ask for a node at the targets of its parameters (an action); false when the graph has no such node. */
+function act(name) {
+  const node = nodeInfo(name);
+  if (!node || !connection.open) return false;
+  const seq = connection.send("action", { node: name, params: paramsOf(node) });
+  state.action = { node: name, seq, sentAt: performance.now(), entered: null };
+  say(`action: ${name}`, "info", 1500, "action");
+  return true;
+}
+
+/** The node a key asks for: Space a jump, R a reach, 1-9 the nodes in order. */
+function actionKey(event) {
+  const nodes = state.topology?.nodes ?? [];
+  const named = (word) => nodes.find((n) => n.name === word) ?? nodes.find((n) => n.name.includes(word));
+  if (event.code === "Space") return named("jump")?.name ?? null;
+  if (event.code === "KeyR") return named("reach")?.name ?? null;
+  const digit = /^Digit([1-9])$/.exec(event.code);
+  return digit ? nodes[Number(digit[1]) - 1]?.name ?? null : null;
+}
+
+let shownOn = null;  // the node the status rows describe
+function graphFrame(frame) {
+  graphView.update(frame);
+  const action = state.action;
+  if (action && action.entered === null && frame.ack >= action.seq && frame.node === action.node &&
+      (frame.progress === null || frame.progress === undefined)) {
+    action.entered = (performance.now() - action.sentAt) / 1000;
+  }
+  if (frame.node !== shownOn) {  // the frame's numbers are this node's now
+    shownOn = frame.node;
+    const node = nodeInfo(frame.node);
+    state.topology.parameters = node?.parameters ?? [];
+    buildStatusRows(state.topology.parameters);
+    // parameters changed on the sliders while another node played: this node takes them now
+    const wanted = node ? paramsOf(node) : undefined;
+    if (wanted && node.parameters.some((p, i) => Math.abs((frame.requested[i] ?? NaN) - wanted[p.name]) > 1e-9)) {
+      stats.sent(connection.send("params", { params: wanted }));
+    }
+  }
+  const where = frame.progress !== null && frame.progress !== undefined
+    ? `${frame.node} → ${frame.target} ${(100 * frame.progress).toFixed(0)}%`
+    : frame.target ? `${frame.node} (then ${frame.target})` : frame.node;
+  const entered = action?.entered !== null && action?.entered !== undefined
+    ? ` · ${action.node} entered ${action.entered.toFixed(2)} s after its key` : "";
+  $("graph-state").textContent = `${where}${entered}`;
 }
 
 const panel = new ParameterPanel($("params"), (name, value) => {
@@ -123,12 +226,21 @@ const panel = new ParameterPanel($("params"), (name, value) => {
 const steering = new Steering({ getTarget: (name) => targets()[name], setTarget });
 steering.attach(window, { onPause: togglePause, onReset: userReset, onKey });
 
-/** Page keys that are not parameters: ? help, C camera preset. Returns true when handled. */
+/** Page keys that are not parameters: ? help, C camera preset, a graph's actions. Returns true when handled. */
 function onKey(event) {
   if (event.key === "?") {
     if (dialogOpen()) closeDialog();
-    else showHelp(steering, state.space);
+    else help();
     return true;
+  }
+  if (state.topology?.graph && !dialogOpen() && !event.repeat) {
+    const node = actionKey(event);
+    if (node) return act(node);
+    if (event.code === "KeyP") {
+      togglePause();
+      return true;
+    }
+    if (event.code === "Space" || event.code === "KeyR") return true;  // no such node: nothing
   }
   if (event.code === "KeyC" && !dialogOpen()) {
     setCamera(PRESETS[(PRESETS.indexOf(viewer.rig.preset) + 1) % PRESETS.length], true);
@@ -146,16 +258,25 @@ function describeSpace(space) {
     `${space.layout ?? "no"} layout · hybrid ε ${(space.epsilon * 1000).toFixed(1)} mm · sources: ${sources}`;
 }
 
+function describeGraph(graph) {
+  return `motion graph · ${graph.nodes.length} nodes (${graph.nodes.map((n) => n.name).join(", ")}) · ` +
+    `${graph.edges.length} transitions · ${graph.n_vertices.toLocaleString()} vertices`;
+}
+
 function fillPicker() {
   const select = $("space");
-  const names = state.spaces.map((s) => s.name);
-  const current = [...select.options].map((o) => o.value);
+  const names = [...state.spaces.map((s) => s.name), ...state.graphs.map((g) => GRAPH + g.name)];
+  const current = [...select.querySelectorAll("option")].map((o) => o.value);
   if (current.join("\n") !== names.join("\n")) {
-    select.replaceChildren(...state.spaces.map((s) => {
+    const options = state.spaces.map((s) => {
       const option = new Option(s.playable ? s.name : `${s.name} (not playable)`, s.name);
       option.disabled = !s.playable;
       return option;
-    }));
+    });
+    const group = document.createElement("optgroup");
+    group.label = "motion graphs";
+    group.append(...state.graphs.map((g) => new Option(`${g.name} (graph)`, GRAPH + g.name)));
+    select.replaceChildren(...options, ...(state.graphs.length ? [group] : []));
   }
   if (state.space) select.value = state.space;
 }
@@ -163,9 +284,10 @@ function fillPicker() {
 const reported = new Set();
 async function refreshSpaces() {
   try {
-    const listing = await api.spaces();
+    const [listing, graphs] = await Promise.all([api.spaces(), api.graphs()]);
     state.spaces = listing.spaces;
-    for (const bad of listing.unreadable || []) {
+    state.graphs = graphs.graphs;
+    for (const bad of [...(listing.unreadable || []), ...(graphs.unreadable || [])]) {
       if (!reported.has(bad.name)) console.info(`morphspace: ${bad.name} is unreadable: ${bad.error}`);
       reported.add(bad.name);
     }
@@ -173,7 +295,9 @@ async function refreshSpaces() {
     return false;
   }
   const playable = state.spaces.filter((s) => s.playable);
-  if (!state.space || !playable.some((s) => s.name === state.space)) {
+  const known = graphName(state.space) ? state.graphs.some((g) => g.name === graphName(state.space))
+    : playable.some((s) => s.name === state.space);
+  if (!state.space || !known) {
     const preferred = playable.find((s) => s.name === "locomotion") ?? playable[0];
     if (preferred) chooseSpace(preferred.name);
   } else if (connection.state === "idle") {
@@ -184,16 +308,19 @@ async function refreshSpaces() {
 }
 
 function chooseSpace(name) {
-  const info = state.spaces.find((s) => s.name === name);
+  const graph = state.graphs.find((g) => g.name === graphName(name));
+  const info = graph ? null : state.spaces.find((s) => s.name === name);
   state.space = name;
-  if (!state.targets[name] && info) {
+  const defs = graph ? graphDefs(graph) : info?.parameters;
+  if (!state.targets[name] && defs) {
     const fromLink = name === fromUrl.space ? state.urlParams : {};
-    state.targets[name] = Object.fromEntries(info.parameters.map((p) => {
+    state.targets[name] = Object.fromEntries(defs.map((p) => {
       const asked = fromLink[p.name];
       return [p.name, Number.isFinite(asked) ? Math.min(p.max, Math.max(p.min, asked)) : p.default];
     }));
   }
   if (info) $("space-info").textContent = describeSpace(info);
+  if (graph) $("space-info").textContent = describeGraph(graph);
   sender.clear();
   stats.reset();
   url.changed();
@@ -211,22 +338,33 @@ function onTopology(topology) {
   state.frame = null;
   pendingDraw = null;
   stats.reset();
-  if (topology.space !== state.space) return;  // an older hello's answer
+  if (keyOf(topology) !== state.space) return;  // an older hello's answer
   viewer.setTopology(topology);
-  const defs = topology.parameters;
+  const isGraph = Boolean(topology.graph);
+  const defs = isGraph ? graphDefs(topology) : topology.parameters;
   const mine = targets();
   for (const def of defs) if (!(def.name in mine)) mine[def.name] = def.value;
   state.targets[state.space] = mine;
   panel.build(defs, mine);
-  const hint = steering.configure(defs);
-  $("steer-hint").textContent = hint ? `Keys: ${hint}. Space pauses, R resets, ? lists every key.` : "";
+  // on a graph the arrows steer the cyclic nodes' parameters (the walk's speed and turn)
+  const cyclic = new Set((topology.nodes ?? []).filter((n) => n.cyclic).map((n) => n.name));
+  const hint = steering.configure(isGraph ? defs.filter((d) => d.nodes.some((n) => cyclic.has(n))) : defs);
+  $("steer-hint").textContent = isGraph ? `Keys: ${hint ? `${hint}; ` : ""}Space: jump, R: reach, 1–9: go to a node ` +
+    "(or click it), P pauses, ? lists every key." : hint ? `Keys: ${hint}. Space pauses, R resets, ? lists every key.` : "";
+  graphView.build(topology);
+  shownOn = null;
+  state.action = null;
+  $("graph-section").hidden = !isGraph;
+  $("graph-state").textContent = "";
+  for (const id of ["heatmap", "compare"]) $(id).disabled = isGraph;  // pulls and heatmaps are for spaces
+  if (isGraph && comparison.on) $("compare").click();
   const names = steering.keys().length ? [steering.forward, steering.turn].filter(Boolean).map((d) => d.name.replace(/_/g, " ")) : [];
   $("steer-keys").textContent = steering.centre ? "arrows / WASD: steer" : names.length ? `arrows / WASD: ${names.join(", ")}` : "";
   state.mode = topology.mode;
   buildModes(topology.modes);
-  const info = state.spaces.find((s) => s.name === topology.space);
+  const info = isGraph ? null : state.spaces.find((s) => s.name === topology.space);
   if (info) $("space-info").textContent = describeSpace(info);
-  buildStatusRows(defs);
+  buildStatusRows(topology.parameters);
   // each space's camera: chase for cyclic motion (walks), front for clips (jumps, reaches),
   // unless the user picked one
   if (!state.camera) setCamera(info && !info.cyclic ? "front" : "chase", false);
@@ -333,17 +471,26 @@ $("share").addEventListener("click", () => {
   shareLink(viewUrl({ space: state.space, mode: state.mode, heatmap: state.heatmap, camera: viewer.rig.preset,
     trail: $("trail").checked, scale: heat.urlScale(), params: targets() }));
 });
-$("help-button").addEventListener("click", () => showHelp(steering, state.space));
+function help() {
+  const nodes = state.topology?.graph ? state.topology.nodes : null;
+  const graphKeys = nodes && [
+    { keys: "Space", what: "jump (at the jump sliders)" }, { keys: "R", what: "reach (at the reach slider)" },
+    { keys: `1–${Math.min(9, nodes.length)}`, what: `go to ${nodes.slice(0, 9).map((n) => n.name).join(", ")}` },
+    { keys: "P", what: "pause / resume" }];
+  showHelp(steering, state.space, graphKeys);
+}
+$("help-button").addEventListener("click", help);
 setUpDialogs(["help-dialog", "share-dialog", "pictures-dialog"]);
 const drawer = setUpDrawer();
 setUpStatusBox();
 setUpStick(steering, null);
 const recorder = new Recorder(() => {
   const info = state.spaces.find((s) => s.name === state.space);
-  return info && state.topology?.space === state.space ? { space: state.space, info, targets: targets(), mode: state.mode } : null;
+  return info && keyOf(state.topology) === state.space ? { space: state.space, info, targets: targets(), mode: state.mode } : null;
 }, say);
-setUpDownloads(() => state.frame && state.topology && state.topology.space === state.space
-  ? { space: state.space, defs: state.topology.parameters, frame: state.frame } : null);
+setUpDownloads(() => state.frame && state.topology && keyOf(state.topology) === state.space
+  ? { space: state.topology.graph ? `${state.topology.graph}-${state.frame.node}` : state.space,
+    defs: state.topology.parameters, frame: state.frame } : null);
 
 // ------------------------------------------------------------------ loop
 
@@ -371,11 +518,14 @@ window.morphspace = {
     const pick = (values) => (frame ? Object.fromEntries(names.map((n, i) => [n, values[i]])) : null);
     return {
       connection: state.connection, reconnects: connection.reconnects, space: state.space, mode: state.mode,
-      codec: state.codec, heatmap: state.heatmap, paused: state.paused, topologySpace: state.topology?.space ?? null,
+      codec: state.codec, heatmap: state.heatmap, paused: state.paused, topologySpace: keyOf(state.topology),
       targets: { ...targets() }, requested: frame && pick(frame.requested), realised: frame && pick(frame.realised),
       frame: frame && { seq: frame.seq, ack: frame.ack, phase: frame.phase, mode: frame.mode, clamped: frame.clamped,
         root: frame.root, heading: frame.heading, errorMax: frame.error_max ?? null, time: frame.time,
-        finished: frame.finished },
+        finished: frame.finished, node: frame.node ?? null, target: frame.target ?? null,
+        progress: frame.progress ?? null },
+      graph: state.topology?.graph ?? null, graphs: state.graphs.map((g) => g.name),
+      action: state.action && { ...state.action }, shownParameters: (state.topology?.parameters ?? []).map((p) => p.name),
       stats: stats.snapshot(), framesDrawn: viewer.framesDrawn, errors: state.errors.map((e) => `${e.code}: ${e.message}`),
       spaces: state.spaces.map((s) => s.name), lastParamsSeq: connection.seq, replays: state.replays,
       camera: frame ? viewer.rig.describe(frame.root, frame.heading) : { preset: viewer.rig.preset },

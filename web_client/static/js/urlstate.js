@@ -1,6 +1,7 @@
 // The view's state in the page URL, so a reload or a shared link opens the same view:
 // ?space=locomotion&mode=linear&heatmap=1&scale=auto&camera=side&p.speed=2.1&p.turn_rate=-20
-// (plus codec, rate, smoothing, lite and trail when set). Written with history.replaceState,
+// (plus codec, rate, smoothing, lite and trail when set); ?graph=demo for a motion graph (the
+// page's space is then "graph:demo"). Written with history.replaceState,
 // at most every 250 ms; read once at start.
 import { MODES, CODECS } from "../protocol.js";
 import { PRESETS } from "./camera.js";
@@ -17,7 +18,7 @@ export function readUrl(search = location.search) {
   }
   const scale = query.get("scale");
   return {
-    space: query.get("space") || null,
+    space: query.get("graph") ? `graph:${query.get("graph")}` : query.get("space") || null,
     mode: MODES.includes(query.get("mode")) ? query.get("mode") : null,
     codec: CODECS.includes(query.get("codec")) ? query.get("codec") : null,
     rate: number("rate"),
@@ -37,7 +38,9 @@ export function viewUrl(view, base = location.href) {
   const query = url.searchParams;
   for (const key of [...query.keys()]) if (key.startsWith("p.")) query.delete(key);
   const set = (key, value) => (value === null || value === undefined || value === false ? query.delete(key) : query.set(key, value));
-  set("space", view.space);
+  const graph = view.space && view.space.startsWith("graph:") ? view.space.slice(6) : null;
+  set("space", graph ? null : view.space);
+  set("graph", graph);
   set("mode", view.mode);
   set("heatmap", view.heatmap ? "1" : null);
   set("scale", view.heatmap ? view.scale : null);
