@@ -60,6 +60,14 @@ def check_graph_search(result, stdout):
         assert figures["transitions"] >= 3 and positive(figures["smoothness_p95"])
         assert non_negative(figures["foot_slide_p95_cm"]) and non_negative(figures["latency_p50_s"])
     assert "search median" in stdout and "CPU time median" in stdout and "crossfade" in stdout
+    performance = result["performance"]  # against the true continuous performance generated for the tiny body
+    assert set(performance["strategies"]) == {"search", "cut", "crossfade"} and performance["true_frames"] > 200
+    for figures in performance["strategies"].values():
+        assert figures["frames"] == performance["true_frames"] and non_negative(figures["end_offset_m"])
+        for key in ("aligned", "slack", "pose_aligned", "pose_slack"):
+            assert positive(figures[key]["p50_mm"]) and figures[key]["p95_mm"] >= figures[key]["p50_mm"]
+        assert figures["slack"]["p50_mm"] <= figures["aligned"]["p50_mm"]
+    assert "against the true performance" in stdout
 
 
 def check_similarity_scaling(records, stdout):
