@@ -8,6 +8,7 @@ import { StreamConnection } from "./connection.js";
 import { closeDialog, dialogOpen, setUpDialogs } from "./dialogs.js";
 import { Comparison, setUpDownloads, shareLink, showHelp } from "./extras.js";
 import { GraphView } from "./graph.js";
+import { GRAPH, GraphPlay, graphDefs, graphName, keyOf } from "./graphplay.js";
 import { HeatmapControls } from "./heatmap.js";
 import { JobsPanel } from "./jobs.js";
 import { setUpDrawer, setUpStatusBox, setUpStick } from "./layout.js";
@@ -20,9 +21,6 @@ import { Viewer } from "./viewer.js";
 
 const $ = (id) => document.getElementById(id);
 const fromUrl = readUrl();
-const GRAPH = "graph:";  // state.space of a motion graph: "graph:NAME"
-const graphName = (key) => (key && key.startsWith(GRAPH) ? key.slice(GRAPH.length) : null);
-const keyOf = (topology) => (topology ? (topology.graph ? GRAPH + topology.graph : topology.space) : null);
 
 const state = {
   spaces: [],                 // GET /v1/spaces entries
@@ -60,7 +58,8 @@ let pendingDraw = null;
 
 const FRAME_WINDOW = 3;  // frames the server may have in flight before our ack (see connection.js)
 const wsUrl = `${location.protocol === "https:" ? "wss:" : "ws:"}//${location.host}/v1/stream`;
-const connection = new StreamConnection(wsUrl, () => state.space && helloFields(), {
+const connection = new StreamConnection(wsUrl, () => state.space && graph.helloFields({
+  codec: state.codec, rate: state.rate, mode: state.mode, smoothing: state.smoothing, window: FRAME_WINDOW }), {
   state: (s) => {
     state.connection = s;
     if (s === "open") {
@@ -77,7 +76,7 @@ const connection = new StreamConnection(wsUrl, () => state.space && helloFields(
     heat.frame(frame);
     pendingDraw = frame;
     if (state.topology.graph) {
-      graphFrame(frame);
+      graph.frame(frame);
     } else if (frame.finished && $("loop").checked && !state.resetPending && !state.paused) {
       state.resetPending = true;
       setTimeout(() => {
@@ -112,7 +111,7 @@ comparison.connection = connection;
 
 const sender = new ParamSender((params) => {
   // on a graph, only the shown node's parameters go out (the others wait for its actions)
-  const names = state.topology?.graph ? shownNode()?.parameters.map((p) => p.name) ?? [] : null;
+  const names = state.topology?.graph ? graph.shownNode()?.parameters.map((p) => p.name) ?? [] : null;
   const sent = names ? Object.fromEntries(Object.entries(params).filter(([name]) => names.includes(name))) : params;
   if (Object.keys(sent).length) stats.sent(connection.send("params", { params: sent }));
 });
@@ -131,93 +130,10 @@ function setTarget(name, value) {
 
 // ------------------------------------------------------------------ motion graphs
 
-const graphView = new GraphView($("graph-view"), (node) => act(node));
-
-/** The hello's fields: a space's, or a graph's (its start node at the targets). */
-function helloFields() {
-  const common = { codec: state.codec, rate: state.rate, mode: state.mode, smoothing: state.smoothing,
-    window: FRAME_WINDOW };
-  const graph = graphName(state.space);
-  if (!graph) return { ...common, space: state.space, heatmap: state.heatmap, params: state.targets[state.space] };
-  const info = state.graphs.find((g) => g.name === graph);
-  const start = info?.nodes.find((n) => n.name === info.start);
-  return { ...common, graph, params: start ? paramsOf(start) : undefined };
-}
-
-/** The targets of a node's parameters ({name: value}; undefined when it has none or none is set). */
-function paramsOf(node) {
-  const mine = targets();
-  const entries = node.parameters.filter((p) => Number.isFinite(mine[p.name])).map((p) => [p.name, mine[p.name]]);
-  return entries.length ? Object.fromEntries(entries) : undefined;
-}
-
-function nodeInfo(name) {
-  return state.topology?.nodes?.find((n) => n.name === name) ?? null;
-}
-
-/** The node whose parameters `params` changes: the one shown, or a blend's target. */
-function shownNode() {
-  const frame = state.frame;
-  if (!frame) return nodeInfo(state.topology?.nodes?.[0]?.name);
-  return nodeInfo(frame.progress !== null && frame.progress !== undefined ? frame.target : frame.node);
-}
-
-/** The union of the graph's parameters (one slider per name, across nodes). */
-function graphDefs(topology) {
-  const defs = new Map();
-  for (const node of topology.nodes) {
-    for (const p of node.parameters) if (!defs.has(p.name)) defs.set(p.name, { ...p, nodes: [node.name] });
-    else defs.get(p.name).nodes.push(node.name);
-  }
-  return [...defs.values()];
-}
-
-/** Ask for a node at the targets of its parameters (an action); false when the graph has no such node. */
-function act(name) {
-  const node = nodeInfo(name);
-  if (!node || !connection.open) return false;
-  const seq = connection.send("action", { node: name, params: paramsOf(node) });
-  state.action = { node: name, seq, sentAt: performance.now(), entered: null };
-  say(`action: ${name}`, "info", 1500, "action");
-  return true;
-}
-
-/** The node a key asks for: Space a jump, R a reach, 1-9 the nodes in order. */
-function actionKey(event) {
-  const nodes = state.topology?.nodes ?? [];
-  const named = (word) => nodes.find((n) => n.name === word) ?? nodes.find((n) => n.name.includes(word));
-  if (event.code === "Space") return named("jump")?.name ?? null;
-  if (event.code === "KeyR") return named("reach")?.name ?? null;
-  const digit = /^Digit([1-9])$/.exec(event.code);
-  return digit ? nodes[Number(digit[1]) - 1]?.name ?? null : null;
-}
-
-let shownOn = null;  // the node the status rows describe
-function graphFrame(frame) {
-  graphView.update(frame);
-  const action = state.action;
-  if (action && action.entered === null && frame.ack >= action.seq && frame.node === action.node &&
-      (frame.progress === null || frame.progress === undefined)) {
-    action.entered = (performance.now() - action.sentAt) / 1000;
-  }
-  if (frame.node !== shownOn) {  // the frame's numbers are this node's now
-    shownOn = frame.node;
-    const node = nodeInfo(frame.node);
-    state.topology.parameters = node?.parameters ?? [];
-    buildStatusRows(state.topology.parameters);
-    // parameters changed on the sliders while another node played: this node takes them now
-    const wanted = node ? paramsOf(node) : undefined;
-    if (wanted && node.parameters.some((p, i) => Math.abs((frame.requested[i] ?? NaN) - wanted[p.name]) > 1e-9)) {
-      stats.sent(connection.send("params", { params: wanted }));
-    }
-  }
-  const where = frame.progress !== null && frame.progress !== undefined
-    ? `${frame.node} → ${frame.target} ${(100 * frame.progress).toFixed(0)}%`
-    : frame.target ? `${frame.node} (then ${frame.target})` : frame.node;
-  const entered = action?.entered !== null && action?.entered !== undefined
-    ? ` · ${action.node} entered ${action.entered.toFixed(2)} s after its key` : "";
-  $("graph-state").textContent = `${where}${entered}`;
-}
+const graph = new GraphPlay(state, connection, {
+  view: new GraphView($("graph-view"), (node) => graph.act(node)),
+  targets, say, statusRows: buildStatusRows, sent: (seq) => stats.sent(seq), line: $("graph-state"),
+});
 
 const panel = new ParameterPanel($("params"), (name, value) => {
   steering.sliderMoved(name);  // a turn set on its slider holds
@@ -234,8 +150,8 @@ function onKey(event) {
     return true;
   }
   if (state.topology?.graph && !dialogOpen() && !event.repeat) {
-    const node = actionKey(event);
-    if (node) return act(node);
+    const node = graph.actionKey(event);
+    if (node) return graph.act(node);
     if (event.code === "KeyP") {
       togglePause();
       return true;
@@ -308,10 +224,10 @@ async function refreshSpaces() {
 }
 
 function chooseSpace(name) {
-  const graph = state.graphs.find((g) => g.name === graphName(name));
-  const info = graph ? null : state.spaces.find((s) => s.name === name);
+  const chosen = state.graphs.find((g) => g.name === graphName(name));
+  const info = chosen ? null : state.spaces.find((s) => s.name === name);
   state.space = name;
-  const defs = graph ? graphDefs(graph) : info?.parameters;
+  const defs = chosen ? graphDefs(chosen) : info?.parameters;
   if (!state.targets[name] && defs) {
     const fromLink = name === fromUrl.space ? state.urlParams : {};
     state.targets[name] = Object.fromEntries(defs.map((p) => {
@@ -320,7 +236,7 @@ function chooseSpace(name) {
     }));
   }
   if (info) $("space-info").textContent = describeSpace(info);
-  if (graph) $("space-info").textContent = describeGraph(graph);
+  if (chosen) $("space-info").textContent = describeGraph(chosen);
   sender.clear();
   stats.reset();
   url.changed();
@@ -351,11 +267,8 @@ function onTopology(topology) {
   const hint = steering.configure(isGraph ? defs.filter((d) => d.nodes.some((n) => cyclic.has(n))) : defs);
   $("steer-hint").textContent = isGraph ? `Keys: ${hint ? `${hint}; ` : ""}Space: jump, R: reach, 1–9: go to a node ` +
     "(or click it), P pauses, ? lists every key." : hint ? `Keys: ${hint}. Space pauses, R resets, ? lists every key.` : "";
-  graphView.build(topology);
-  shownOn = null;
-  state.action = null;
+  graph.topology(topology);
   $("graph-section").hidden = !isGraph;
-  $("graph-state").textContent = "";
   for (const id of ["heatmap", "compare"]) $(id).disabled = isGraph;  // pulls and heatmaps are for spaces
   if (isGraph && comparison.on) $("compare").click();
   const names = steering.keys().length ? [steering.forward, steering.turn].filter(Boolean).map((d) => d.name.replace(/_/g, " ")) : [];
