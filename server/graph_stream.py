@@ -104,7 +104,8 @@ class GraphStream:
     def reset(self):
         """Back to the start node at its start parameters, at the origin facing +Z, time 0."""
         try:
-            self.player = GraphPlayer(self.graph, node=self.start, params=self.start_params, mode=self.mode)
+            self.player = GraphPlayer(self.graph, node=self.start, params=self.start_params, mode=self.mode,
+                                      record=False)  # a stream is not recorded: its requests are not kept
         except GraphError as exc:  # a start parameter that is not a number the node can take
             raise P.ProtocolError("invalid_params", f"hello: {exc}", "hello") from None
         self._frame = self.player.frame(placed=False)

@@ -73,10 +73,12 @@ class GraphPlayer:
     foot_lock : bool         during a blend, move the root against the drift of a foot that stays on
                              the ground (the one that drifts least), so it does not slide
     contact : float          metres above the rest mesh's lowest point that count as on the ground
+    record : bool            keep every request in ``requests`` (for a recording); a stream that
+                             is never recorded says False, so a long session does not grow it
     """
 
     def __init__(self, graph, *, node=None, params=None, mode="hybrid", search=None, foot_lock=True,
-                 contact=0.01):
+                 contact=0.01, record=True):
         if mode not in MODES:
             raise ValueError(f"unknown blend mode {mode!r}; choose one of {', '.join(MODES)}")
         self.graph, self.mode = graph, mode
@@ -94,6 +96,7 @@ class GraphPlayer:
         self.queued = None       # a request waiting for the current transition
         self.route = []          # nodes still to visit after the pending transition's target
         self.requests = []       # every request: {"frame", "node", "params", "budget"} (for replay)
+        self.record = bool(record)
         self.left = None         # (plan, source weights) of the last transition started
         self._buffer = None
         self.foot_lock = bool(foot_lock)
@@ -118,7 +121,8 @@ class GraphPlayer:
         if budget is not None and not (np.isfinite(budget) and budget > 0):
             raise GraphError(f"budget must be a positive number of seconds, got {budget}")
         weights, realised, clamped, message = target.solve(params)  # validates before anything changes
-        self.requests.append({"frame": self.frames, "node": node, "params": dict(params or {}), "budget": budget})
+        if self.record:
+            self.requests.append({"frame": self.frames, "node": node, "params": dict(params or {}), "budget": budget})
         self._params[node] = dict(params or {})
         note = {"clamped": clamped, "message": message}
         if self.blend is not None or (not self.node.cyclic and not self._can_redirect(node)):
@@ -141,8 +145,9 @@ class GraphPlayer:
         node = self.graph.node(self.blend.plan.target) if self.blend is not None else self.node
         merged = {**self._params[node.name], **dict(params or {})}
         weights, realised, clamped, message = node.solve(merged)  # validates before anything changes
-        self.requests.append({"frame": self.frames, "node": node.name, "params": dict(params or {}), "budget": None,
-                              "set": True})
+        if self.record:
+            self.requests.append({"frame": self.frames, "node": node.name, "params": dict(params or {}),
+                                  "budget": None, "set": True})
         self._params[node.name] = merged
         if self.blend is not None:
             self.blend.clock.set_weights(weights)

@@ -152,3 +152,13 @@ def test_a_one_shot_is_performed_before_it_returns(graph):
     assert left.phase >= player.search.options.min_exit - 1e-6
     with pytest.raises(ValueError, match="out of range"):
         SearchOptions(min_exit=1.5)
+
+
+def test_an_unrecorded_player_keeps_no_requests(graph):
+    """A stream's player (record=False) plays the same but does not grow a list per message."""
+    player = GraphPlayer(graph, node="walk", params={"speed": 1.0}, mode="linear", record=False)
+    for k in range(50):
+        player.set_params({"speed": 1.0 + 0.01 * k})
+        player.step(1 / 30)
+    player.request("jump", {"jump_height": 0.3})
+    assert player.requests == [] and player.pending is not None
