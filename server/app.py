@@ -67,6 +67,7 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
                 with contextlib.suppress(asyncio.CancelledError):
                     await publisher
             await app.state.jobs.stop()
+            app.state.frame_scheduler.close()
             app.state.registry.close()
 
     app = FastAPI(title="morphspace", version=__version__, lifespan=lifespan,

@@ -89,11 +89,16 @@ class FrameScheduler:
 
     @property
     def heatmaps(self):
-        """The HeatmapService of these sessions (server/heatmap.py), started on first use."""
+        """The HeatmapService of these sessions (server/heatmap/), started on first use."""
         if self._heatmaps is None:
             from server.heatmap import HeatmapService
             self._heatmaps = HeatmapService()
         return self._heatmaps
+
+    def close(self):
+        """End the heatmap helper process, if one was started (the app's shutdown)."""
+        if self._heatmaps is not None:
+            self._heatmaps.close()
 
     def counters(self):
         """Ticks, frames, frames from phase tables, frames skipped for a full transport, the

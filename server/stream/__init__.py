@@ -14,7 +14,7 @@ reset, resume) makes the next frame due at once, so it reflects the change withi
 
 All blending runs on the event loop thread (the engine's blenders keep scratch buffers); only
 the slow one-off set-up (opening a space, building the non-linear solver) goes to a thread, and
-heatmap distances to server/heatmap.py's worker thread.
+heatmap distances to a helper process (server/heatmap/).
 
 One concept per module:
 

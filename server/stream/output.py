@@ -96,7 +96,7 @@ class FrameOutput:
 
     def frame_source(self):
         """(phase table or None, codec): a table when this frame is one interpolation of it
-        (linear or hybrid at weights that recur; heatmaps too: server/heatmap.py works off the
+        (linear or hybrid at weights that recur; heatmaps too: server/heatmap/ works off the
         loop); q16 tables are in codec units."""
         player = self.player
         if player.mode == "nonlinear" or self.graph is not None:  # a graph's state moves between spaces
@@ -125,7 +125,7 @@ class FrameOutput:
                     vertices = blender.blend(weights, phase)
             payload = self._vertex_bytes(vertices)
         self.table_missed = False
-        if self.heatmap:  # off the event loop (server/heatmap.py)
+        if self.heatmap:  # off the event loop, in a helper process (server/heatmap/)
             distances = self.scheduler.heatmaps.frame_error(self, player.space, player.mode, player.weights,
                                                             player.phase, self.seq + 1)
             if distances is not None:

@@ -84,9 +84,8 @@ class StreamSession(FrameOutput):
         self.version = 0        # the scheduler's bookkeeping
         self.payload = None     # encoded vertices the scheduler prepared for the next frame
         self.table_missed = False  # frame_source found no phase table for this frame
-        self.heatmap_job = None   # server/heatmap.py: this connection's distances being computed
+        self.heatmap_job = None   # server/heatmap/: the id of this connection's distances being computed
         self.heatmap_last = None  # and the newest finished: (error_um, error_max, error_seq)
-        self.loop = None
         self.quantiser = None
         self.gauge = (websocket.scope.get("extensions") or {}).get(GAUGE)  # None under other servers
         self.limits = {"max_message": settings.stream_max_message, "max_rate": settings.stream_max_rate,
@@ -148,7 +147,6 @@ class StreamSession(FrameOutput):
     # ------------------------------------------------------------ connection
 
     async def run(self):
-        self.loop = asyncio.get_running_loop()
         await self.ws.accept()
         if self.stats.connections >= self.settings.stream_max_clients:
             await self.error("server_busy", f"the server streams to at most {self.settings.stream_max_clients} "
