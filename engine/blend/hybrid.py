@@ -178,9 +178,11 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         "hybrid with 1 / 3 references" rows are depths 1 and 2 for two sources).
     test_weights : (M, N) float array or None
         Where the bound must hold: the weights a player can reach (a parameter layout's sheet).
-        Each cell is tested at those of them inside it and only split if one fails; cells with
-        none are never split. Default: a barycentric grid of ``level`` in every cell (the whole
-        simplex).
+        Each cell is tested at those of them inside it and only split if one fails, on the
+        longest edge they straddle (``SimplexTree.longest_edge(node, points)``: references stay
+        on the sheet, e.g. on a chain's own edges of the simplex); cells with none are never
+        split. Default: a barycentric grid of ``level`` in every cell (the whole simplex; the
+        longest edge).
     prune : bool
         After the bisection, drop stored entries whose removal keeps every test point and every
         reference within margin * epsilon, or no further off than it was
@@ -256,6 +258,7 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
     while queue:
         node = queue.pop(0)
         depth = int(tree.depth[node])
+        points = None  # uniform subdivision: the longest edge
         if uniform_depth is not None:
             split, worst = depth < uniform_depth, float("nan")
         else:
@@ -264,8 +267,10 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
             split = worst > margin * epsilon and depth < max_depth
         if split:
             cell = tree.cells[node]
-            a, b = tree.longest_edge(node)
-            r, is_new, split_nodes = tree.bisect_conforming(node)
+            # With a layout's sheet: the longest edge its points straddle (references stay on the
+            # sheet); on the whole simplex: the longest edge
+            a, b = tree.longest_edge(node, None if test_weights is None else points)
+            r, is_new, split_nodes = tree.bisect_conforming(node, (a, b))
             if is_new:
                 add_reference(r, cell[a], cell[b])
             for other in split_nodes[1:]:  # leaves beside the split edge: their halves are tested instead

@@ -88,11 +88,28 @@ class SimplexTree:
         """(N, N) weight vectors of a node's vertices."""
         return np.array([self._references[r] for r in self._cells[node]])
 
-    def longest_edge(self, node):
+    def longest_edge(self, node, points=None):
+        """Positions (i, j) in the node's vertex list of its longest edge.
+
+        points : (M, N) float array or None
+            Weight vectors inside the node (where the hybrid is tested). When given, only edges
+            some point straddles count: both ends have a barycentric coordinate above 1e-9 for
+            one of the points (splitting any other edge leaves every point's interpolation as it
+            was: a chain along the simplex's edges is then split only along the chain, never
+            across the triangle it does not visit). The longest of all edges when none does.
+        """
         W = self.vertices(node)
+        allowed = None
+        if points is not None and len(points):
+            g = np.linalg.lstsq(W.T, np.asarray(points, dtype=float).T, rcond=None)[0].T  # (M, N)
+            straddle = np.minimum(g[:, :, None], g[:, None, :]).max(axis=0) > 1e-9     # (N, N)
+            if straddle[np.triu_indices(self.n, 1)].any():
+                allowed = straddle
         best, pair = -1.0, (0, 1)
         for i in range(self.n):
             for j in range(i + 1, self.n):
+                if allowed is not None and not allowed[i, j]:
+                    continue
                 length = np.linalg.norm(W[i] - W[j])
                 if length > best + 1e-12:
                     best, pair = length, (i, j)
@@ -136,8 +153,9 @@ class SimplexTree:
             self._depth.append(self._depth[node] + 1)
         return m, is_new
 
-    def bisect_conforming(self, node):
-        """Split ``node`` on its longest edge and every other leaf with that edge on the same edge.
+    def bisect_conforming(self, node, edge=None):
+        """Split ``node`` on ``edge`` (positions in its vertex list; default its longest edge)
+        and every other leaf with that edge on the same edge.
 
         Returns
         -------
@@ -153,7 +171,7 @@ class SimplexTree:
         hybrid is discontinuous there and not even exact at the reference itself. The neighbours'
         splits add no reference and store nothing: the midpoint's residual is defined by the edge.
         """
-        a, b = self.longest_edge(node)
+        a, b = self.longest_edge(node) if edge is None else edge
         ends = self._cells[node][a], self._cells[node][b]
         reference, is_new = self.bisect(node, (a, b))
         nodes = [node]

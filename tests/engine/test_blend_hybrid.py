@@ -93,3 +93,25 @@ def test_reach_space_bound_holds_on_a_dense_sampling_of_its_sheet(reach_space):
     layout = reach_space.parameter_map.layout
     weights = np.array([layout.weights([u]) for u in np.linspace(0.0, 1.0, 129)])
     assert _worst(reach_space, weights).max() <= 1.02 * EPSILON
+
+
+def test_longest_edge_among_those_the_points_straddle():
+    """Points on one edge of the triangle: only that edge is split, however short it is."""
+    tree = SimplexTree(3)
+    tree.bisect(0, (0, 1))                                 # (0.5, 0.5, 0): cells [0, 3, 2], [3, 1, 2]
+    first = tree.children[0][0]
+    on_edge = np.array([[0.9, 0.1, 0.0], [0.7, 0.3, 0.0]])  # on (1, 0, 0) - (0.5, 0.5, 0)
+    assert tree.longest_edge(first) == (0, 2)              # (1, 0, 0) - (0, 0, 1): longest
+    assert tree.longest_edge(first, on_edge) == (0, 1)     # the edge the points lie on
+    inside = np.array([[0.6, 0.2, 0.2]])                   # straddles every edge: the longest
+    assert tree.longest_edge(first, inside) == (0, 2)
+    corner = np.array([[1.0, 0.0, 0.0]])                   # straddles none: the longest
+    assert tree.longest_edge(first, corner) == (0, 2)
+
+
+def test_a_chain_layout_places_every_reference_on_the_chain(reach_space):
+    """The chain low - mid - high runs along two edges of the weight triangle; references off it
+    (e.g. on the low - high edge) would store corrections the player can never reach."""
+    references = reach_space.tree.references
+    assert len(references) > 4
+    assert np.all((references[:, 0] == 0) | (references[:, 2] == 0)), references
