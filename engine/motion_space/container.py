@@ -1,18 +1,11 @@
 """The `.mspace` container: JSON metadata plus named numpy arrays in one memory-mapped file.
 
-A motion space is stored as one self-describing, versioned, checksummed file. This module knows
-nothing about motion spaces themselves (that is `space.py`); it stores and maps arrays.
-
-Byte layout (all integers little-endian; docs/file-formats.md, "Motion space files"):
-
-    offset 0    8 bytes   magic  b"\\x89MSPACE\\n"
-    offset 8    u32       format version (1)
-    offset 12   u64       header length H in bytes
-    offset 20   16 bytes  header checksum: BLAKE2b-128 of bytes [0, 20) followed by the header
-    offset 36   H bytes   header: UTF-8 JSON (format, version, checksum_algorithm, file_size,
-                          metadata, arrays: {name: {dtype, shape, offset, nbytes, checksum}})
-    zero padding to a multiple of 64, then every array's raw bytes (C order, little-endian),
-    each starting at a multiple of 64 and followed by zero padding to the next multiple of 64.
+A motion space is stored as one self-describing, versioned, checksummed file. These modules know
+nothing about motion spaces themselves (that is `space.py`); they store and map arrays:
+`container_format` is the byte layout (docs/file-formats.md, "Motion space files") and the
+header's checks, `container_write` writes a file atomically, and this module maps one
+(`Container`) or reads its header alone (`inspect_container`). The names other modules use are
+all importable from here.
 
 Nothing is ever pickled: dtypes are restricted to bool and numeric types, metadata is plain JSON.
 """
@@ -21,277 +14,29 @@ from __future__ import annotations
 
 import collections.abc
 import contextlib
-import hashlib
-import json
 import math
 import mmap
-import os
-import re
-import secrets
-import struct
 from pathlib import Path
 
 import numpy as np
 
-MAGIC = b"\x89MSPACE\n"
-FORMAT_NAME = "morphspace-motion-space"
-FORMAT_VERSION = 1
-CHECKSUM_ALGORITHM = "blake2b-128"
-ALIGNMENT = 64
+from engine.motion_space.container_format import (
+    ALIGNMENT,
+    CHECKSUM_ALGORITHM,
+    DTYPES,
+    FORMAT_NAME,
+    FORMAT_VERSION,
+    MAGIC,
+    MissingArrayError,
+    MotionSpaceError,
+    blake2b,
+    open_for_reading,
+    read_header,
+)
+from engine.motion_space.container_write import write_container
 
-_PREAMBLE = struct.Struct("<8sIQ")  # magic, version, header length
-_CHECKSUM_SIZE = 16
-_HEADER_START = _PREAMBLE.size + _CHECKSUM_SIZE  # 36
-_NAME_PATTERN = re.compile(r"[A-Za-z0-9_./-]+")
-# Storable dtypes, as numpy spells them little-endian: bool, integers, IEEE floats, complex.
-# (No long double: its bytes differ between platforms.)
-DTYPES = ("|b1", "|u1", "|i1", "<u2", "<i2", "<u4", "<i4", "<u8", "<i8",
-          "<f2", "<f4", "<f8", "<c8", "<c16")
-_CHUNK_BYTES = 16 * 2**20
-_PLACEHOLDER_CHECKSUM = "0" * (2 * _CHECKSUM_SIZE)
-
-# First bytes of files that are easily mistaken for a motion space, for a helpful message.
-_KNOWN_SIGNATURES = {
-    b"PK\x03\x04": "a zip archive (an .npz?)",
-    b"\x93NUMPY": "a NumPy .npy file",
-    b"\x89PNG": "a PNG image",
-    b"\x80": "a Python pickle",
-    b"{": "a JSON file",
-}
-
-
-class MotionSpaceError(ValueError):
-    """A motion space file is missing, foreign, truncated, corrupt or cannot be written.
-
-    Every message starts with the file it is about, then the problem.
-    """
-
-
-class MissingArrayError(MotionSpaceError, KeyError):
-    """`container[name]` for a name the file does not hold (also a KeyError)."""
-
-    def __str__(self):
-        return str(self.args[0]) if self.args else ""
-
-
-# --------------------------------------------------------------------------------------------
-# Writing
-
-
-def write_container(path, arrays, metadata):
-    """Write named arrays and JSON metadata into one `.mspace` file, atomically.
-
-    Parameters
-    ----------
-    path : str or os.PathLike         destination; missing parent directories are created
-    arrays : mapping str -> array     names made of `A-Z a-z 0-9 _ . / -`; any shape (0-d and
-                                      empty included) of a bool or numeric dtype (integers,
-                                      floats, complex). Stored in C order, little-endian, in the
-                                      mapping's order.
-    metadata : dict                   JSON data: dict (str keys), list, tuple, str, int, finite
-                                      float, bool, None; numpy scalars are converted. Tuples come
-                                      back as lists.
-
-    Returns
-    -------
-    path : pathlib.Path   the written file
-
-    Raises
-    ------
-    MotionSpaceError   bad name, object/string/structured dtype, non-JSON or non-finite metadata
-                       (checked before anything is written)
-    OSError            the file system failed; the destination is then left untouched
-
-    Notes
-    -----
-    Arrays are streamed to a hidden temporary file in the destination directory in chunks of
-    about 16 MB (only one chunk is converted at a time), checksummed on the way, and the header
-    is rewritten once the checksums are known. The temporary file is fsynced and renamed onto
-    `path` with `os.replace`, then the directory is fsynced: a reader sees the old file or the
-    complete new one, never a part, and a crash leaves at most a hidden `.NAME.*.tmp` file.
-    """
-    path = Path(path)
-    if not isinstance(arrays, collections.abc.Mapping):
-        raise MotionSpaceError(f"{path}: arrays must be a mapping of name -> array, "
-                               f"got {type(arrays).__name__}")
-    if not isinstance(metadata, dict):
-        raise MotionSpaceError(f"{path}: metadata must be a dict, got {type(metadata).__name__}")
-    prepared = [_prepare_array(path, name, value) for name, value in arrays.items()]
-    metadata = _json_value(path, metadata, "metadata", ancestors=set())
-
-    entries, data_start, file_size = _layout(metadata, prepared)
-    header = _header_bytes(metadata, entries, file_size)
-
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = _create_temporary(path)
-    try:
-        with os.fdopen(handle, "wb") as file:
-            file.write(_preamble_and_header(header))
-            file.write(bytes(data_start - _HEADER_START - len(header)))
-            for (_, array, dtype), entry in zip(prepared, entries.values()):
-                entry["checksum"] = _stream_array(file, array, dtype)
-                file.write(bytes(_align(entry["nbytes"]) - entry["nbytes"]))
-            if file.tell() != file_size:
-                raise AssertionError(f"wrote {file.tell()} bytes, laid out {file_size}")
-            final_header = _header_bytes(metadata, entries, file_size)
-            if len(final_header) != len(header):
-                raise AssertionError("the header changed length when its checksums were filled in")
-            file.seek(0)
-            file.write(_preamble_and_header(final_header))
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(temp_name, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temp_name)
-        raise
-    _fsync_directory(path.parent)
-    return path
-
-
-def _prepare_array(path, name, value):
-    """Check one (name, array) pair; return (name, array, little-endian dtype)."""
-    if not isinstance(name, str) or not name:
-        raise MotionSpaceError(f"{path}: array names must be non-empty strings, got {name!r}")
-    if not _NAME_PATTERN.fullmatch(name):
-        raise MotionSpaceError(
-            f"{path}: array name {name!r} has characters other than A-Z a-z 0-9 _ . / -"
-        )
-    try:
-        array = value if isinstance(value, np.ndarray) else np.asarray(value)
-    except (TypeError, ValueError) as err:
-        raise MotionSpaceError(f"{path}: array {name!r} is not an array: {err}") from None
-    dtype = array.dtype
-    if dtype.fields is None and dtype.subdtype is None and dtype.kind in "biufc":
-        dtype = dtype.newbyteorder("<") if dtype.itemsize > 1 else dtype
-    if dtype.str not in DTYPES:
-        raise MotionSpaceError(
-            f"{path}: array {name!r} has dtype {array.dtype} ({_describe_kind(array.dtype)}); "
-            "only bool, integer, float (16, 32, 64 bit) and complex dtypes can be stored "
-            "(nothing is pickled)"
-        )
-    return name, array, dtype
-
-
-def _describe_kind(dtype):
-    kinds = {"O": "Python objects", "U": "unicode strings", "S": "byte strings",
-             "V": "raw or structured records", "M": "datetimes", "m": "timedeltas"}
-    return kinds.get(dtype.kind, "not portable")
-
-
-def _json_value(path, value, where, ancestors):
-    """Return `value` as plain JSON data (tuples -> lists, numpy scalars -> Python); or raise."""
-    if value is None or isinstance(value, (bool, str)):
-        return value
-    if isinstance(value, np.bool_):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        if not math.isfinite(value):
-            raise MotionSpaceError(
-                f"{path}: {where} is {float(value)}; JSON metadata must be finite"
-            )
-        return float(value)
-    if isinstance(value, (dict, list, tuple)):
-        if id(value) in ancestors:
-            raise MotionSpaceError(f"{path}: {where} contains itself")
-        ancestors = ancestors | {id(value)}
-        if isinstance(value, dict):
-            result = {}
-            for key, item in value.items():
-                if not isinstance(key, str):
-                    raise MotionSpaceError(
-                        f"{path}: {where} has key {key!r} of type {type(key).__name__}; "
-                        "metadata keys must be strings"
-                    )
-                result[key] = _json_value(path, item, f"{where}[{key!r}]", ancestors)
-            return result
-        return [_json_value(path, item, f"{where}[{i}]", ancestors) for i, item in enumerate(value)]
-    hint = "; store arrays in `arrays`, not in metadata" if isinstance(value, np.ndarray) else ""
-    raise MotionSpaceError(
-        f"{path}: {where} has type {type(value).__name__}, which is not JSON (use dict, list, str, "
-        f"int, float, bool or None){hint}"
-    )
-
-
-def _layout(metadata, prepared):
-    """Place the arrays; return (header entries, offset of the first array, file size)."""
-    data_start = _align(_HEADER_START)
-    while True:
-        entries, cursor = {}, data_start
-        for name, array, dtype in prepared:
-            nbytes = array.size * dtype.itemsize
-            entries[name] = {"dtype": dtype.str, "shape": list(array.shape), "offset": cursor,
-                             "nbytes": nbytes, "checksum": _PLACEHOLDER_CHECKSUM}
-            cursor += _align(nbytes)
-        header = _header_bytes(metadata, entries, cursor)
-        needed = _align(_HEADER_START + len(header))
-        if needed <= data_start:
-            return entries, data_start, cursor
-        data_start = needed  # the header grew past the first array; lengths only grow, so this ends
-
-
-def _header_bytes(metadata, entries, file_size):
-    header = {"format": FORMAT_NAME, "version": FORMAT_VERSION,
-              "checksum_algorithm": CHECKSUM_ALGORITHM, "file_size": file_size,
-              "metadata": metadata, "arrays": entries}
-    return json.dumps(header, ensure_ascii=False, allow_nan=False,
-                      separators=(",", ":")).encode("utf-8")
-
-
-def _preamble_and_header(header):
-    preamble = _PREAMBLE.pack(MAGIC, FORMAT_VERSION, len(header))
-    return preamble + _blake2b(preamble, header).digest() + header
-
-
-def _stream_array(file, array, dtype):
-    """Write `array` as `dtype` in C order, chunk by chunk; return the BLAKE2b-128 hex digest."""
-    digest = _blake2b()
-    for chunk in _array_chunks(array, dtype):
-        raw = chunk.reshape(-1).view(np.uint8)
-        digest.update(raw)
-        file.write(raw)
-    return digest.hexdigest()
-
-
-def _array_chunks(array, dtype):
-    """Yield C-contiguous pieces of `array` in `dtype` (whole rows, about 16 MB each)."""
-    if array.size == 0:
-        return
-    if array.ndim == 0:
-        yield np.ascontiguousarray(array, dtype=dtype)
-        return
-    row_bytes = array[0].size * dtype.itemsize
-    rows = max(1, _CHUNK_BYTES // row_bytes)
-    for start in range(0, array.shape[0], rows):
-        yield np.ascontiguousarray(array[start:start + rows], dtype=dtype)
-
-
-def _create_temporary(path):
-    """Create a new, empty, hidden file next to `path`; return (file descriptor, name)."""
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
-    while True:
-        name = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
-        try:
-            return os.open(name, flags, 0o666), name
-        except FileExistsError:
-            continue
-
-
-def _fsync_directory(directory):
-    """Make the rename durable (POSIX); platforms that cannot open directories skip it."""
-    if not hasattr(os, "O_DIRECTORY"):
-        return
-    handle = os.open(directory, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(handle)
-    finally:
-        os.close(handle)
-
-
-# --------------------------------------------------------------------------------------------
-# Reading
+__all__ = ["ALIGNMENT", "CHECKSUM_ALGORITHM", "DTYPES", "FORMAT_NAME", "FORMAT_VERSION", "MAGIC", "Container",
+           "MissingArrayError", "MotionSpaceError", "inspect_container", "write_container"]
 
 
 class Container(collections.abc.Mapping):
@@ -345,8 +90,8 @@ class Container(collections.abc.Mapping):
                            truncated file, trailing data, corrupt header or (verify) corrupt array
         """
         path = Path(path)
-        with _open_for_reading(path) as file:
-            header = _read_header(path, file)
+        with open_for_reading(path) as file:
+            header = read_header(path, file)
             try:
                 mapping = mmap.mmap(file.fileno(), 0, access=mmap.ACCESS_READ)
             except (OSError, ValueError) as err:
@@ -412,7 +157,7 @@ class Container(collections.abc.Mapping):
             entry = self._entry(each)
             start, stop = entry["offset"], entry["offset"] + entry["nbytes"]
             with memoryview(mapping) as whole, whole[start:stop] as data:
-                actual = _blake2b(data).hexdigest()
+                actual = blake2b(data).hexdigest()
             if actual != entry["checksum"]:
                 raise MotionSpaceError(
                     f"{self.path}: array {each!r} is corrupt: checksum {actual} does not match "
@@ -472,168 +217,9 @@ def inspect_container(path):
     MotionSpaceError   as `Container.open`, except that array checksums are not checked
     """
     path = Path(path)
-    with _open_for_reading(path) as file:
-        header = _read_header(path, file)
+    with open_for_reading(path) as file:
+        header = read_header(path, file)
     summary = {"path": str(path)}
     summary.update(header)
     return summary
 
-
-def _open_for_reading(path):
-    try:
-        return open(path, "rb")
-    except FileNotFoundError:
-        raise MotionSpaceError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise MotionSpaceError(f"{path}: is a directory, not a motion space file") from None
-    except OSError as err:
-        raise MotionSpaceError(f"{path}: cannot open: {err.strerror or err}") from err
-
-
-def _read_header(path, file):
-    """Read, check and parse the preamble and header of an open file; return the header dict.
-
-    The returned dict also has `header_bytes` and `header_checksum` (hex).
-    """
-    size = os.fstat(file.fileno()).st_size
-    start = file.read(_HEADER_START)
-    if len(start) < len(MAGIC) or not start.startswith(MAGIC):
-        if MAGIC.startswith(start) and start:
-            raise MotionSpaceError(f"{path}: truncated: the file has only {size} bytes")
-        raise MotionSpaceError(f"{path}: not a motion space file ({_describe_foreign(start)})")
-    if len(start) < _HEADER_START:
-        raise MotionSpaceError(
-            f"{path}: truncated: the preamble needs {_HEADER_START} bytes, file has {size}"
-        )
-    _, version, header_length = _PREAMBLE.unpack_from(start)
-    if version > FORMAT_VERSION:
-        raise MotionSpaceError(
-            f"{path}: format version {version} is newer than this morphspace supports "
-            f"(up to {FORMAT_VERSION}); upgrade morphspace to read it"
-        )
-    if version < 1:
-        raise MotionSpaceError(f"{path}: unknown format version {version}")
-    header_end = _HEADER_START + header_length
-    if header_end > size:
-        raise MotionSpaceError(
-            f"{path}: truncated: the header needs {header_end} bytes, file has {size}"
-        )
-    raw = file.read(header_length)
-    stored_checksum = start[_PREAMBLE.size:_HEADER_START]
-    actual_checksum = _blake2b(start[:_PREAMBLE.size], raw).digest()
-    if actual_checksum != stored_checksum:
-        raise MotionSpaceError(
-            f"{path}: the header is corrupt: checksum {actual_checksum.hex()} does not match "
-            f"the stored {stored_checksum.hex()}"
-        )
-    try:
-        header = json.loads(raw.decode("utf-8"), object_pairs_hook=_unique_keys,
-                            parse_constant=_reject_constant)
-    except (UnicodeDecodeError, ValueError) as err:
-        raise MotionSpaceError(f"{path}: malformed header: not UTF-8 JSON ({err})") from None
-    _check_header(path, header, version, header_end)
-    if header["file_size"] > size:
-        raise MotionSpaceError(
-            f"{path}: truncated: header says {header['file_size']} bytes, file has {size}"
-        )
-    if header["file_size"] < size:
-        raise MotionSpaceError(
-            f"{path}: unexpected trailing data: header says {header['file_size']} bytes, "
-            f"file has {size}"
-        )
-    header["header_bytes"] = header_length
-    header["header_checksum"] = stored_checksum.hex()
-    return header
-
-
-def _describe_foreign(start):
-    if not start:
-        return "the file is empty"
-    for signature, description in _KNOWN_SIGNATURES.items():
-        if start.startswith(signature):
-            return f"it looks like {description}"
-    return f"it starts with {start[:len(MAGIC)]!r}, expected {MAGIC!r}"
-
-
-def _unique_keys(pairs):
-    result = {}
-    for key, value in pairs:
-        if key in result:
-            raise ValueError(f"duplicate key {key!r}")
-        result[key] = value
-    return result
-
-
-def _reject_constant(name):
-    raise ValueError(f"{name} is not allowed")
-
-
-def _check_header(path, header, version, header_end):
-    """Check the parsed header's structure and array placement; raise MotionSpaceError."""
-
-    def bad(problem):
-        return MotionSpaceError(f"{path}: malformed header: {problem}")
-
-    if not isinstance(header, dict):
-        raise bad("not a JSON object")
-    expected = {"format": FORMAT_NAME, "version": version, "checksum_algorithm": CHECKSUM_ALGORITHM}
-    for key, value in expected.items():
-        if header.get(key) != value:
-            raise bad(f"{key} is {header.get(key)!r}, expected {value!r}")
-    if not isinstance(header.get("metadata"), dict):
-        raise bad("metadata is not a JSON object")
-    if not _is_count(header.get("file_size")):
-        raise bad(f"file_size is {header.get('file_size')!r}")
-    arrays = header.get("arrays")
-    if not isinstance(arrays, dict):
-        raise bad("arrays is not a JSON object")
-    cursor = _align(header_end)
-    for name, entry in arrays.items():
-        if not _NAME_PATTERN.fullmatch(name):
-            raise bad(f"array name {name!r} has characters other than A-Z a-z 0-9 _ . / -")
-        _check_entry(name, entry, bad)
-        if entry["offset"] < cursor:
-            raise bad(f"array {name!r} at offset {entry['offset']} overlaps the header or the "
-                      f"previous array (which end at {cursor})")
-        cursor = entry["offset"] + entry["nbytes"]
-    if cursor > header["file_size"]:
-        raise bad(f"arrays end at byte {cursor}, past file_size {header['file_size']}")
-
-
-def _check_entry(name, entry, bad):
-    if not isinstance(entry, dict) or set(entry) != {"dtype", "shape", "offset", "nbytes",
-                                                     "checksum"}:
-        raise bad(f"array {name!r} needs exactly dtype, shape, offset, nbytes and checksum")
-    dtype_str, shape = entry["dtype"], entry["shape"]
-    if dtype_str not in DTYPES:
-        raise bad(f"array {name!r} has unsupported dtype {dtype_str!r}")
-    dtype = np.dtype(dtype_str)
-    if not isinstance(shape, list) or len(shape) > 64 or not all(map(_is_count, shape)):
-        raise bad(f"array {name!r} has invalid shape {shape!r}")
-    if not _is_count(entry["offset"]) or entry["offset"] % ALIGNMENT:
-        raise bad(f"array {name!r} has offset {entry['offset']!r}, not a multiple of {ALIGNMENT}")
-    if entry["nbytes"] != math.prod(shape) * dtype.itemsize:
-        raise bad(f"array {name!r} has nbytes {entry['nbytes']!r}, but shape {shape} of "
-                  f"{dtype_str} needs {math.prod(shape) * dtype.itemsize}")
-    checksum = entry["checksum"]
-    if not isinstance(checksum, str) or not re.fullmatch(r"[0-9a-f]{32}", checksum):
-        raise bad(f"array {name!r} has checksum {checksum!r}, expected 32 hex digits")
-
-
-def _is_count(value):
-    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
-
-
-# --------------------------------------------------------------------------------------------
-# Shared
-
-
-def _align(offset):
-    return -(-offset // ALIGNMENT) * ALIGNMENT
-
-
-def _blake2b(*parts):
-    digest = hashlib.blake2b(digest_size=_CHECKSUM_SIZE)
-    for part in parts:
-        digest.update(part)
-    return digest

@@ -27,6 +27,7 @@ from engine.motion_space import (
     write_container,
 )
 from engine.motion_space import container as container_module
+from engine.motion_space import container_write
 
 PACKAGE_DIR = Path(container_module.__file__).parent
 
@@ -251,7 +252,7 @@ def test_open_keeps_mapping_valid_when_the_file_is_replaced(space_file):
 
 def test_failure_mid_write_keeps_the_old_file_and_leaves_no_temporary(space_file, monkeypatch):
     before = space_file.read_bytes()
-    original = container_module._array_chunks
+    original = container_write._array_chunks
     calls = []
 
     def failing_chunks(array, dtype):
@@ -260,7 +261,7 @@ def test_failure_mid_write_keeps_the_old_file_and_leaves_no_temporary(space_file
             raise OSError(28, "No space left on device")
         yield from original(array, dtype)
 
-    monkeypatch.setattr(container_module, "_array_chunks", failing_chunks)
+    monkeypatch.setattr(container_write, "_array_chunks", failing_chunks)
     with pytest.raises(OSError, match="No space"):
         write_container(space_file, sample_arrays(), {"new": True})
     assert space_file.read_bytes() == before
@@ -273,7 +274,7 @@ def test_interrupt_before_rename_keeps_the_old_file(space_file, monkeypatch):
     def interrupted_fsync(fd):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(container_module.os, "fsync", interrupted_fsync)
+    monkeypatch.setattr(container_write.os, "fsync", interrupted_fsync)
     with pytest.raises(KeyboardInterrupt):
         write_container(space_file, {"x": np.zeros(10)}, {})
     monkeypatch.undo()
@@ -288,7 +289,7 @@ def test_write_creates_parents_and_returns_the_path(tmp_path):
 
 
 def test_large_arrays_are_streamed_in_chunks(tmp_path, monkeypatch):
-    monkeypatch.setattr(container_module, "_CHUNK_BYTES", 1000)
+    monkeypatch.setattr(container_write, "_CHUNK_BYTES", 1000)
     array = np.arange(3000, dtype=">i8").reshape(100, 30)  # converted one chunk at a time
     path = write_container(tmp_path / "c.mspace", {"a": array, "b": array[::-1].T}, {})
     with Container.open(path) as container:
