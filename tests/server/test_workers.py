@@ -209,11 +209,12 @@ def test_a_killed_worker_is_started_again_and_reported(built_spaces, tmp_path):
             record = wait_health(live, lambda r: all_alive(r) and r["workers"][index]["pid"] != pid)
             restarted = record["workers"][index]
             # the kill is reported; a restarted worker that then ends again is restarted again (seen
-            # once in a clean-clone run under load: restarts 2), and the server log says why
+            # once in a clean-clone run under load: restarts 2; not reproduced since in 28 runs, 16
+            # of them beside the full suite), and then the server log must say how each one ended
             log = live.log.read_text()
-            assert f"worker {index} (pid {pid}) was killed by SIGKILL" in log, log[-3000:]
-            assert restarted["restarts"] >= 1, (restarted, log[-3000:])
-            assert restarted["restarts"] == 1 or "starting it again" in log, log[-3000:]
+            ends = [line for line in log.splitlines() if line.startswith(f"morphspace: worker {index} (pid ")]
+            assert ends and ends[0].startswith(f"morphspace: worker {index} (pid {pid}) was killed by SIGKILL"), log[-3000:]
+            assert 1 <= restarted["restarts"] <= len(ends), (restarted, ends, log[-3000:])  # (log read after health)
             assert record["frames_sent"] >= sent  # the dead worker's counters are kept
         assert record["restarts"] >= 2 and record["status"] == "ok"
         assert wait_dead(job["worker"]["pid"]), "the job's process outlived its server worker"
