@@ -15,6 +15,7 @@ import numpy as np
 from engine.align.pairwise import AlignmentOptions, PairwiseAligner
 from engine.align.propagation import AlignedFrames, align_tree
 from engine.align.repair import alignment_confidence, repair_alignment
+from engine.align.root_choice import choose_root
 from engine.align.similarity import shape_dissimilarity
 from engine.align.similarity_tree import DEFAULT_TREE, chain_tree, similarity_tree
 from engine.surface import main_components
@@ -30,7 +31,8 @@ class CaptureAlignment:
     tree : engine.align.similarity_tree.SimilarityTree   the tree the frames were aligned along
                                                     (a chain for ``method="sequential"``)
     aligned : AlignedFrames
-    timings : dict   seconds for "similarity", "tree", "tetrahedralize", "align"
+    timings : dict   seconds for "similarity", "tree" (with choosing the root), "tetrahedralize", "align",
+                     "repair"
     method : str     "tree" or "sequential"
     tets : (V_tet, T)   the root's tet mesh (reusable for another run with the same root)
     colour_cues : bool  whether vertex colours were used as local matching cues
@@ -70,7 +72,11 @@ def colours_carry_texture(vertices, faces):
     return median < FINE_EDGE * model_size(V)
 
 
-def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, options=None, window=2,
+ROOT_CHOICES = ("apart", "central")
+
+
+def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, root_choice="apart",
+                   options=None, window=2,
                    workers=1, retries=3, tets=None, use_colors="auto", seed=0, similarity=None, repair=True,
                    repair_budget=0.5, progress=None, runner=None):
     """Shape similarity, tree and alignment of unstructured frames of several sequences.
@@ -86,7 +92,13 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     tree_kind : {"mst", "paths"}   the similarity tree (:func:`engine.align.similarity_tree.similarity_tree`):
                                 the paper's minimum spanning tree, or cheapest paths from the
                                 root with big steps penalised
-    root : int or None          root frame (default: the minimum spanning tree's most central frame)
+    root : int or None          root frame (default: chosen by ``root_choice``)
+    root_choice : {"apart", "central"}
+                                without ``root``: "central" is the paper's, the minimum spanning
+                                tree's most central frame; "apart" (default) a frame nearly as
+                                central whose limbs are apart, so no merged contact (a hand on a
+                                hip, a sleeve against a skirt) is tied into every aligned frame
+                                (:func:`engine.align.root_choice.choose_root`)
     options : AlignmentOptions
     window : int                temporal filter half-width
     workers : int               processes for the dissimilarity matrix and for aligning
@@ -106,7 +118,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     repair_budget : float or None   pairwise alignments per frame the repair may spend (the
                                 worst frames first; None: every flagged frame is repaired)
     progress : callable(stage, done, total) or None
-        stages "histograms", "dissimilarity", "align", "repair"
+        stages "histograms", "dissimilarity", "root", "align", "repair"
     runner : task runner or None   runs the histogram chunks, matrix blocks, tree pieces and repairs as
                                 tasks (:mod:`engine.tasks`, e.g. on a Dask cluster) instead of
                                 ``workers``; the result is the same
@@ -119,6 +131,8 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
 
     if method not in ("tree", "sequential"):
         raise ValueError(f"method must be 'tree' or 'sequential', got {method!r}")
+    if root_choice not in ROOT_CHOICES:
+        raise ValueError(f"root_choice must be one of {ROOT_CHOICES}, got {root_choice!r}")
     if use_colors not in (True, False, "auto"):
         raise ValueError(f"use_colors must be True, False or 'auto', got {use_colors!r}")
     lengths = np.asarray(lengths, dtype=np.int64)
@@ -129,7 +143,8 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                          runner=runner)
     timings["similarity"] = time.perf_counter() - started
     started = time.perf_counter()
-    tree = similarity_tree(similarity.dissimilarity, root=root, kind=tree_kind)
+    tree = similarity_tree(similarity.dissimilarity, root=root, kind=tree_kind,
+                           choose_root=_apart(meshes, progress) if root is None and root_choice == "apart" else None)
     if method == "sequential":
         tree = chain_tree(lengths, tree.root)
     timings["tree"] = time.perf_counter() - started
@@ -172,6 +187,13 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
 
 
 
+def _apart(meshes, progress):
+    """``choose_root`` for :func:`similarity_tree`: central, with the limbs apart."""
+    def choose(centrality):
+        return choose_root(meshes, centrality, progress=(lambda d, t: progress("root", d, t)) if progress else None)[0]
+    return choose
+
+
 def _confidence_only(aligned):
     """Fill ``confidence`` (and an all-false ``repaired``) without aligning anything again."""
     from engine.surface import model_size
@@ -183,4 +205,4 @@ def _confidence_only(aligned):
     return aligned
 
 
-__all__ = ["COLOUR_WEIGHT", "CaptureAlignment", "align_captures", "colours_carry_texture"]
+__all__ = ["COLOUR_WEIGHT", "ROOT_CHOICES", "CaptureAlignment", "align_captures", "colours_carry_texture"]

@@ -149,6 +149,46 @@ def reconnect_components(D, graph):
     return (sp.csr_matrix(graph) + extra).tocsr(), n_components
 
 
+def tree_centrality(parent_graph_edges, weights, n):
+    """Every node's sum of path lengths to all nodes of a weighted tree (lower is more central).
+
+    Parameters
+    ----------
+    parent_graph_edges : (n - 1, 2) int array   undirected tree edges
+    weights : (n - 1,) float array              edge lengths
+    n : int
+
+    Returns
+    -------
+    total : (n,) float array
+    """
+    if n == 1:
+        return np.zeros(1)
+    edges = np.asarray(parent_graph_edges, dtype=np.int64)
+    adjacency = _adjacency(edges, weights, n)
+    order, parent = breadth_first_order(adjacency, 0, directed=False, return_predecessors=True)
+    length = np.zeros(n)  # length of the edge to the parent (rooted at 0)
+    child_nodes = order[1:]
+    length[child_nodes] = np.asarray(adjacency[parent[child_nodes], child_nodes]).ravel()
+    # Sum of distances by rerooting: S(child) = S(parent) + w * (n - 2 size(child)).
+    size = np.ones(n)
+    down = np.zeros(n)  # sum of distances to the nodes of the subtree
+    for node in order[:0:-1]:
+        size[parent[node]] += size[node]
+        down[parent[node]] += down[node] + length[node] * size[node]
+    total = np.zeros(n)
+    total[order[0]] = down[order[0]]
+    for node in child_nodes:
+        total[node] = total[parent[node]] + length[node] * (n - 2.0 * size[node])
+    return total
+
+
+def _adjacency(edges, weights, n):
+    return sp.csr_matrix((np.concatenate([weights, weights]),
+                          (np.concatenate([edges[:, 0], edges[:, 1]]),
+                           np.concatenate([edges[:, 1], edges[:, 0]]))), shape=(n, n))
+
+
 def tree_root(parent_graph_edges, weights, n, *, criterion="median"):
     """The most central node of a weighted tree.
 
@@ -158,8 +198,8 @@ def tree_root(parent_graph_edges, weights, n, *, criterion="median"):
     weights : (n - 1,) float array              edge lengths
     n : int
     criterion : {"median", "center"}
-        "median" minimises the sum of path lengths to all nodes (the average alignment path),
-        "center" the longest path (the worst one).
+        "median" minimises the sum of path lengths to all nodes (the average alignment path,
+        :func:`tree_centrality`), "center" the longest path (the worst one).
 
     Returns
     -------
@@ -169,26 +209,10 @@ def tree_root(parent_graph_edges, weights, n, *, criterion="median"):
         return 0
     if criterion not in ("median", "center"):
         raise ValueError(f"criterion must be 'median' or 'center', got {criterion!r}")
-    edges = np.asarray(parent_graph_edges, dtype=np.int64)
-    adjacency = sp.csr_matrix((np.concatenate([weights, weights]),
-                               (np.concatenate([edges[:, 0], edges[:, 1]]),
-                                np.concatenate([edges[:, 1], edges[:, 0]]))), shape=(n, n))
-    order, parent = breadth_first_order(adjacency, 0, directed=False, return_predecessors=True)
-    length = np.zeros(n)  # length of the edge to the parent (rooted at 0)
-    child_nodes = order[1:]
-    length[child_nodes] = np.asarray(adjacency[parent[child_nodes], child_nodes]).ravel()
     if criterion == "median":
-        # Sum of distances by rerooting: S(child) = S(parent) + w * (n - 2 size(child)).
-        size = np.ones(n)
-        down = np.zeros(n)  # sum of distances to the nodes of the subtree
-        for node in order[:0:-1]:
-            size[parent[node]] += size[node]
-            down[parent[node]] += down[node] + length[node] * size[node]
-        total = np.zeros(n)
-        total[order[0]] = down[order[0]]
-        for node in child_nodes:
-            total[node] = total[parent[node]] + length[node] * (n - 2.0 * size[node])
-        return int(np.argmin(total))
+        return int(np.argmin(tree_centrality(parent_graph_edges, weights, n)))
+    edges = np.asarray(parent_graph_edges, dtype=np.int64)
+    adjacency = _adjacency(edges, weights, n)
     # Eccentricity: the farthest node from any node is an end of a longest path (tree diameter).
     first = _farthest(adjacency, 0)[0]
     second, dist_first = _farthest(adjacency, first)
@@ -207,7 +231,8 @@ TREE_KINDS = ("paths", "mst")
 DEFAULT_TREE = "mst"
 
 
-def similarity_tree(D, *, root=None, threshold=None, criterion="median", kind=DEFAULT_TREE, power=3.0):
+def similarity_tree(D, *, root=None, threshold=None, criterion="median", kind=DEFAULT_TREE, power=3.0,
+                    choose_root=None):
     """Spanning tree of the pruned, reconnected similarity graph, rooted.
 
     Parameters
@@ -221,6 +246,10 @@ def similarity_tree(D, *, root=None, threshold=None, criterion="median", kind=DE
         "mst": the minimum spanning tree (the paper's eq. 1). "paths": every frame's cheapest
         path from the root over the same graph, an edge costing ``(D / threshold) ** power``.
     power : float            for ``kind="paths"``
+    choose_root : callable(centrality) -> int, or None
+        picks the root when ``root`` is None, from every frame's sum of path lengths in the
+        minimum spanning tree (:func:`tree_centrality`), instead of ``criterion``
+        (e.g. :func:`engine.align.root_choice.choose_root`: central, with its limbs apart)
 
     Returns
     -------
@@ -256,7 +285,11 @@ def similarity_tree(D, *, root=None, threshold=None, criterion="median", kind=DE
     if len(edges) != n - 1:
         raise RuntimeError(f"spanning tree has {len(edges)} edges for {n} frames")
     weights = D[edges[:, 0], edges[:, 1]]
-    if root is None:
+    if root is None and choose_root is not None:
+        root = int(choose_root(tree_centrality(edges, weights, n)))
+        if not 0 <= root < n:
+            raise ValueError(f"choose_root gave {root}, not a frame index in 0..{n - 1}")
+    elif root is None:
         root = tree_root(edges, weights, n, criterion=criterion)
     if kind == "paths":
         costs = graph.copy()
@@ -314,4 +347,4 @@ def chain_tree(lengths, root):
 
 
 __all__ = ["SimilarityTree", "chain_tree", "pruned_graph", "pruning_threshold", "reconnect_components",
-           "rooted_tree", "similarity_tree", "tree_root"]
+           "rooted_tree", "similarity_tree", "tree_centrality", "tree_root"]

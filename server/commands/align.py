@@ -37,6 +37,7 @@ from tqdm import tqdm
 
 from engine.align import AlignmentOptions, align_captures
 from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
+from engine.align.captures import ROOT_CHOICES
 from engine.align.repair import TRUSTED
 from engine.mesh_io import read_frames, write_obj, write_sequence
 from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
@@ -65,7 +66,11 @@ def add_arguments(parser):
     parser.add_argument("--out", required=True, type=Path, help="output directory")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="with a capture dataset: only these sequences")
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global frame index "
-                        "(default: the most central frame of the tree)")
+                        "(default: chosen by --root-choice)")
+    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="apart",
+                        help="without --root: apart (default) takes a frame nearly as central as the most central "
+                             "one whose limbs are apart (no merged contact tied into every frame); central is "
+                             "the paper's most central frame of the tree")
     parser.add_argument("--sequential", action="store_true",
                         help="frame-to-frame tracking from the root instead of the tree (the baseline)")
     parser.add_argument("--tree", choices=TREE_KINDS, default=DEFAULT_TREE,
@@ -95,7 +100,7 @@ class Progress:
     """tqdm bars on stderr, one per stage."""
 
     LABELS = {"read": "read frames", "histograms": "shape histograms", "dissimilarity": "dissimilarity",
-              "align": "align", "align sequential": "align (sequential)",
+              "root": "choose root", "align": "align", "align sequential": "align (sequential)", "repair": "repair",
               "write": "write"}
 
     def __init__(self):
@@ -346,7 +351,8 @@ def run(args):
         root = parse_root(args.root, sequences, lengths)
         options = AlignmentOptions(patches=args.patches, levels=args.levels)
         result = align_captures(meshes, lengths, method="sequential" if args.sequential else "tree", tree_kind=args.tree,
-                                root=root, options=options, window=args.window, workers=args.workers, retries=args.retries,
+                                root=root, root_choice=args.root_choice, options=options, window=args.window,
+                                workers=args.workers, retries=args.retries,
                                 use_colors=COLOUR_MODES[args.colors], seed=args.seed, repair_budget=args.repair_budget,
                                 progress=progress)
         staging = out.with_name(f".{out.name}.partial-{os.getpid()}")
@@ -356,7 +362,8 @@ def run(args):
         try:
             write_alignment(staging, sequences, meshes, lengths, result, fps=args.fps,
                             options_record={"patches": args.patches, "levels": args.levels, "window": args.window,
-                                            "retries": args.retries, "repair_budget": args.repair_budget, "tree": args.tree, "colors": args.colors,
+                                            "retries": args.retries, "repair_budget": args.repair_budget, "tree": args.tree,
+                                            "root_choice": args.root_choice, "colors": args.colors,
                                             "colour_cues": result.colour_cues, "seed": args.seed,
                                             "units": args.units, "up": args.up},
                             progress=progress, conventions=conventions)

@@ -27,6 +27,7 @@ from tqdm import tqdm
 
 from engine.align import AlignmentOptions, align_captures, error_summary, pattern_sheet, score_alignment
 from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
+from engine.align.captures import ROOT_CHOICES
 from engine.align.repair import TRUSTED
 from engine.mesh_io import read_mesh, read_sequence
 from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
@@ -54,6 +55,8 @@ def add_arguments(parser):
                         help=f"the similarity tree: paths or mst (see `morphspace align --help`; default {DEFAULT_TREE})")
     parser.add_argument("--no-sequential", action="store_true", help="skip the frame-to-frame baseline")
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global index (default: the tree's)")
+    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="apart",
+                        help="without --root: apart (default) or central (see `morphspace align --help`)")
     parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
                         help="vertex colours as local matching cues (see `morphspace align --help`; default auto)")
     parser.add_argument("--out", type=Path, help="directory for results.json and the pictures "
@@ -226,7 +229,8 @@ def run(args):
             options = AlignmentOptions()
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names,
                           **_units_report(names, conventions))
-            tree_run = align_captures(meshes, lengths, method="tree", tree_kind=args.tree, root=root, options=options,
+            tree_run = align_captures(meshes, lengths, method="tree", tree_kind=args.tree, root=root,
+                                      root_choice=args.root_choice, options=options,
                                       workers=args.workers, use_colors=COLOUR_MODES[args.colors], seed=args.seed,
                                       progress=progress)
             root = tree_run.aligned.root

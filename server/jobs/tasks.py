@@ -28,7 +28,8 @@ from pathlib import Path
 STAGES = {
     "build": [("read", 0.05), ("tetrahedralise", 0.25), ("time-warp", 0.05), ("decompose", 0.3), ("hybrid", 0.15),
               ("parameters", 0.17), ("write", 0.03)],
-    "align": [("read", 0.05), ("histograms", 0.15), ("dissimilarity", 0.05), ("align", 0.65), ("write", 0.1)],
+    "align": [("read", 0.05), ("histograms", 0.15), ("dissimilarity", 0.05), ("root", 0.03), ("align", 0.62),
+              ("write", 0.1)],
     "ingest": [("validate", 0.75), ("write", 0.25)],
     "export": [("play", 0.4), ("write", 0.6)],
     "graph": [("windows", 0.75), ("edges", 0.2), ("write", 0.05)],
@@ -267,7 +268,7 @@ def run_align(payload, reporter, runner=None):
     root = parse_root(params.get("root"), sequences, lengths)
     options = AlignmentOptions(patches=params["patches"], levels=params["levels"])
     result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree",
-                            tree_kind=params.get("tree", "mst"), root=root,
+                            tree_kind=params.get("tree", "mst"), root=root, root_choice=params.get("root_choice", "apart"),
                             options=options, window=params["window"], workers=1, retries=params["retries"],
                             use_colors=COLOUR_MODES[params.get("colors", "auto")],
                             seed=params["seed"], progress=reporter.progress, runner=runner)
@@ -276,7 +277,8 @@ def run_align(payload, reporter, runner=None):
     fps = float((sequences[0].get("meta") or {}).get("fps", 30.0))
     write_alignment(out, sequences, meshes, lengths, result, fps=fps,
                     options_record={**{k: params[k] for k in ("patches", "levels", "window", "retries", "seed")},
-                                    "tree": params.get("tree", "mst"), "colors": params.get("colors", "auto"),
+                                    "tree": params.get("tree", "mst"), "root_choice": params.get("root_choice", "apart"),
+                                    "colors": params.get("colors", "auto"),
                                     "colour_cues": result.colour_cues,
                                     "units": params.get("units", "auto"), "up": params.get("up", "auto")},
                     progress=reporter.progress, conventions=conventions)

@@ -1,0 +1,83 @@
+"""The root frame: central in the tree, and with its limbs apart (engine.align.root_choice)."""
+
+import numpy as np
+import pytest
+from skimage.measure import marching_cubes
+
+from engine.align.root_choice import choose_root, geodesic_spread
+from engine.align.similarity_tree import similarity_tree, tree_centrality, tree_root
+from engine.mesh_io import Mesh
+
+CELL = 0.01
+
+
+def _body(arm_gap, *, bend=0.0):
+    """A torso with an arm hanging beside it from a shoulder, as a reconstruction would mesh it.
+
+    ``arm_gap`` (m) between the arm and the torso's side: 0 merges the hand with the hip, as a
+    studio reconstruction does where they touch. ``bend`` (m) swings the lower arm outwards
+    (posing: the surface bends, nearly isometrically).
+    """
+    field = np.zeros((70, 80, 30))
+    field[5:25, 10:70, 8:22] = 1.0                                   # torso, 20 x 60 x 14 cm
+    x0 = 25 + int(round(arm_gap / CELL))
+    field[25:x0 + 7, 62:70, 10:20] = 1.0                             # shoulder
+    for y in range(20, 70):                                          # arm, 7 cm thick, hanging down
+        shift = int(round(bend / CELL * max(0.0, (45 - y) / 25.0)))
+        field[x0 + shift:x0 + shift + 7, y, 11:19] = 1.0
+    V, F, _, _ = marching_cubes(np.pad(field, 2), level=0.5, spacing=(CELL, CELL, CELL))
+    return Mesh(vertices=V.astype(np.float64), faces=F.astype(np.int64))
+
+
+def test_merged_contacts_shrink_the_geodesic_spread_and_posing_does_not():
+    apart, merged, posed = _body(0.05), _body(0.0), _body(0.05, bend=0.08)
+    s_apart = geodesic_spread(apart.vertices, apart.faces)
+    s_merged = geodesic_spread(merged.vertices, merged.faces)
+    s_posed = geodesic_spread(posed.vertices, posed.faces)
+    assert s_merged < 0.9 * s_apart, (s_merged, s_apart)
+    assert abs(s_posed - s_apart) < 0.07 * s_apart, (s_posed, s_apart)  # 4.6% here; merged: 16%
+
+
+def test_holes_do_not_pass_for_limbs_apart():
+    whole = _body(0.0)
+    centre = whole.vertices[whole.faces].mean(axis=1)
+    lo, hi = whole.vertices.min(axis=0), whole.vertices.max(axis=0)
+    # a wide hole through the front of the torso and one across the arm: walks would go round them
+    torso = (centre[:, 2] < lo[2] + 0.03) & (centre[:, 1] > lo[1] + 0.25) & (centre[:, 1] < lo[1] + 0.45)
+    arm = (centre[:, 0] > hi[0] - 0.08) & (centre[:, 1] > lo[1] + 0.3) & (centre[:, 1] < lo[1] + 0.34)
+    holed = Mesh(vertices=whole.vertices, faces=whole.faces[~(torso | arm)])
+    assert len(holed.faces) < len(whole.faces) - 50
+    s_whole = geodesic_spread(whole.vertices, whole.faces)
+    assert abs(geodesic_spread(holed.vertices, holed.faces) - s_whole) < 0.03 * s_whole
+
+
+def test_the_root_is_nearly_central_with_its_limbs_apart():
+    frames = [_body(0.0), _body(0.05), _body(0.0)]
+    # nearly as central as the most central frame: the one with the arm apart wins
+    root, report = choose_root(frames, np.array([10.0, 10.04, 10.0]))
+    assert root == 1 and report["central"] == 0
+    assert report["spread"][list(report["candidates"]).index(1)] == report["spread"].max()
+    # much less central: depth costs more than the merge, the central frame stays the root
+    root, _ = choose_root(frames, np.array([10.0, 14.0, 10.0]))
+    assert root == 0
+    # a few per cent wider from posing alone is no reason to leave the central frame
+    posed = [_body(0.05, bend=0.08), _body(0.05), _body(0.05, bend=0.08)]
+    root, report = choose_root(posed, np.array([10.0, 10.01, 10.0]))
+    assert root == 0 and report["spread"][list(report["candidates"]).index(1)] > report["spread"][0]
+
+
+def test_tree_centrality_is_what_the_median_root_minimises_and_choose_root_overrides_it():
+    rng = np.random.default_rng(3)
+    P = np.cumsum(rng.normal(size=(12, 2)), axis=0)
+    D = np.linalg.norm(P[:, None] - P[None], axis=2)
+    tree = similarity_tree(D)
+    mst = similarity_tree(D, root=0)
+    total = tree_centrality(mst.edges, mst.weights, len(D))
+    assert tree.root == int(np.argmin(total)) == tree_root(mst.edges, mst.weights, len(D))
+    # brute force: the sum of tree path lengths from every node
+    assert np.allclose(total, [similarity_tree(D, root=r).cost.sum() for r in range(len(D))])
+    seen = []
+    chosen = similarity_tree(D, choose_root=lambda c: seen.append(c) or 5)
+    assert chosen.root == 5 and np.allclose(seen[0], total)
+    with pytest.raises(ValueError, match="choose_root gave 99"):
+        similarity_tree(D, choose_root=lambda c: 99)
