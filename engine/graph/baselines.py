@@ -19,7 +19,7 @@ class _Immediate:
         self.options = SearchOptions(lengths=(self.length,))
 
     def search(self, source, weights, phase, target, target_weights, *, budget=None, latency_weight=None,
-               finish_by=None):
+               finish_by=None, early=False):
         if (source, target) not in self.graph.edges:
             from engine.graph.build import GraphError
 

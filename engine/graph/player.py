@@ -134,7 +134,7 @@ class GraphPlayer:
             self._cached = None
             self._realised = realised
             return {"status": "set", **note}
-        return {**self._plan(node, budget), **note}
+        return {**self._plan(node, budget, asked=True), **note}
 
     def set_params(self, params):
         """Change the parameters of the node the frames show (during a blend: its target) at
@@ -171,17 +171,27 @@ class GraphPlayer:
     def _can_redirect(self, node):
         return self.graph.node(node).cyclic and (self.node.name, node) in self.graph.edges
 
-    def _plan(self, goal, budget=None, *, latency_weight=None):
+    def _plan(self, goal, budget=None, *, asked=False):
+        """Plan the first hop towards ``goal``. From a one-shot, a transition the user ``asked``
+        for along another edge than its return (stop -> walk: walk on instead of stopping) leaves
+        as the search's latency weight says, also before ``min_exit`` where the seam is as good
+        (``early``: a stop still walking, not a jump in the air); otherwise (its own return,
+        asked for or not, the next hop of a route) the one-shot is performed: left no earlier
+        than ``min_exit`` of its clip, at the best seam before its end."""
         here = self.node.name
         route = self.graph.route(here, goal)
         hop = self.graph.node(route[1])
         weights, _, _, _ = hop.solve(self._params[hop.name])
-        finish_by = None
-        if not self.node.cyclic:  # a one-shot is played to (near) its end
+        finish_by = latency_weight = None
+        early = False
+        if not self.node.cyclic:  # a one-shot is left before its end
             finish_by = max((1.0 - self.clock.phase) * self.clock.duration, self.search.options.lengths[0])
-            latency_weight = 0.0 if latency_weight is None else latency_weight
+            if asked and hop.name != self.node.meta.get("return_to"):  # another way out than its own
+                early = True
+            else:
+                latency_weight = 0.0
         plan = self.search.search(here, self.clock.weights, self.clock.phase, hop.name, weights, budget=budget,
-                                  latency_weight=latency_weight, finish_by=finish_by)
+                                  latency_weight=latency_weight, finish_by=finish_by, early=early)
         self.pending = [plan, plan.leave_in]
         self.route = route[2:]
         return {"status": "planned", "route": route, "leave_in": plan.leave_in, "enter_phase": plan.enter_phase,
@@ -240,7 +250,7 @@ class GraphPlayer:
             node, budget = self.queued
             self.queued = None
             if node != self.node.name:
-                self._plan(node, budget)
+                self._plan(node, budget, asked=True)
         if self.pending is None and not self.node.cyclic:
             self._plan_return()
         return f"enter {plan.target}"

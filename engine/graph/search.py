@@ -84,7 +84,7 @@ class TransitionSearch:
         self._spread = self.options.reference_length / self._lengths / graph.model_size
 
     def search(self, source, weights, phase, target, target_weights, *, budget=None, latency_weight=None,
-               finish_by=None):
+               finish_by=None, early=False):
         """The cheapest transition from ``source`` (at ``weights``, ``phase``) to ``target``.
 
         Parameters
@@ -96,6 +96,10 @@ class TransitionSearch:
                                         (if nothing fits, the quickest one is taken)
         latency_weight : float or None  overrides the options'
         finish_by : float or None       seconds: the blend must end by then (a one-shot's end)
+        early : bool                    a one-shot source may also be left before ``min_exit``,
+                                        where the seam is no worse than the best from ``min_exit``
+                                        on (a stop left for a walk while it still walks; a jump is
+                                        not left in the air)
 
         Returns
         -------
@@ -110,25 +114,31 @@ class TransitionSearch:
         D = table[a.sample_of(weights), :, b.sample_of(target_weights), :]  # (MA, MB)
         duration = a.space.root_track.duration(weights)
         phases = a.samples.phases
+        earliest = self.options.min_exit
+        late = np.ones(len(phases) + 1, dtype=bool)  # rows left no earlier than min_exit: (now, samples)
         if a.cyclic:
             waits = ((phases - phase) % 1.0) * duration
             x = (phase % 1.0) * len(phases)
             j0 = int(x) % len(phases)
             j1, f = (j0 + 1) % len(phases), x - int(x)
         else:
-            leavable = (phases >= phase - 1e-9) & (phases >= self.options.min_exit - 1e-9)  # no going back
-            waits = np.where(leavable, (phases - phase) * duration, np.nan)
+            ahead = phases >= phase - 1e-9  # no going back
+            late = np.concatenate([[phase >= earliest - 1e-9], ahead & (phases >= earliest - 1e-9)])
+            waits = np.where(ahead if early else late[1:], (phases - phase) * duration, np.nan)
             x = min(max(phase, 0.0), 1.0) * (len(phases) - 1)
             j0 = min(int(x), len(phases) - 2)
             j1, f = j0 + 1, x - j0
         now = (1 - f) * D[j0] + f * D[j1]  # leaving at once: the current phase's row
-        waits = np.concatenate([[0.0 if a.cyclic or phase >= self.options.min_exit - 1e-9 else np.nan], waits])
+        waits = np.concatenate([[0.0 if a.cyclic or early or late[0] else np.nan], waits])
         rows = np.where(np.isnan(waits)[:, None], np.inf, np.vstack([now[None], D]))
         waits = np.nan_to_num(waits, nan=0.0)
         leave = np.concatenate([[phase], phases])
         entries = b.samples.phases
         if not b.cyclic:
             rows = np.where(entries[None, :] <= self.options.max_entry + 1e-9, rows, np.inf)
+        if early and not a.cyclic:  # before min_exit only where the seam is as good as from it on
+            best_late = rows[late].min() if late.any() else np.inf
+            rows = np.where(late[:, None] | (rows <= best_late), rows, np.inf)
         weight = self.options.latency_weight if latency_weight is None else float(latency_weight)
         total = waits[:, None] + self._lengths[None, :]  # (rows, lengths)
         cost = rows[:, :, None] * self._spread[None, None, :] + weight * total[:, None, :]

@@ -46,11 +46,14 @@ def build_tiny_spaces(directory, *, fps=15.0, reach=False):
                            parameters={"layout": chain, "names": ["reach_height"], "resolution": 5}, **cheap)
 
 
-def build_tiny_graph(spaces, path, *, reach=False, **options):
-    """Write the tiny graph over ``spaces`` (``build_tiny_spaces``) to ``path``; returns its report."""
+def build_tiny_graph(spaces, path, *, reach=False, edges=None, **options):
+    """Write the tiny graph over ``spaces`` (``build_tiny_spaces``) to ``path`` (``edges``: others
+    than the tiny ones); returns its report."""
     from engine.graph.build import NodeSpec, build_graph
 
     spaces = Path(spaces)
     names = ("walk", "stand", "jump", "reach") if reach else ("walk", "stand", "jump")
-    nodes = [NodeSpec(name, spaces / f"{name}.mspace") for name in names]
-    return build_graph(path, nodes, TINY_EDGES + (REACH_EDGES if reach else []), name="tiny", **options)
+    nodes = [NodeSpec(name, spaces / f"{name}.mspace", "stand" if name in ("jump", "reach") else None)
+             for name in names]
+    edges = edges if edges is not None else TINY_EDGES + (REACH_EDGES if reach else [])
+    return build_graph(path, nodes, edges, name="tiny", **options)

@@ -162,3 +162,43 @@ def test_an_unrecorded_player_keeps_no_requests(graph):
         player.step(1 / 30)
     player.request("jump", {"jump_height": 0.3})
     assert player.requests == [] and player.pending is not None
+
+
+class _Recording:
+    """A search that records how it was called."""
+
+    def __init__(self, search):
+        self.inner, self.options, self.calls = search, search.options, []
+
+    def search(self, *args, **kwargs):
+        self.calls.append((args[0], args[3], kwargs))
+        return self.inner.search(*args, **kwargs)
+
+
+def test_a_one_shot_left_for_another_node_may_leave_early(graph_spaces, tmp_path):
+    """Asked for a cyclic node along another edge than its return (jump -> walk here), a one-shot
+    is left as the latency weight says, early where the seam allows; its own return is performed
+    (from min_exit, no latency cost), asked for or not."""
+    from engine.graph.tiny import TINY_EDGES, build_tiny_graph
+
+    path = tmp_path / "abort.mgraph"
+    build_tiny_graph(graph_spaces, path, edges=TINY_EDGES + [("jump", "walk")])
+    with MotionGraph.open(path) as g:
+        search = _Recording(TransitionSearch(g))
+        player = GraphPlayer(g, node="stand", mode="linear", search=search)
+        player.request("jump", {"jump_height": 0.3})
+        while player.node.name != "jump" or player.blend is not None:
+            player.step(1 / 30)
+        source, target, kwargs = search.calls[-1]  # planned on entering the jump: its return
+        assert (source, target) == ("jump", "stand") and not kwargs["early"] and kwargs["latency_weight"] == 0.0
+        player.request("stand")
+        assert not search.calls[-1][2]["early"]  # its own return, asked for: still performed
+        player.request("walk", {"speed": 1.2})
+        source, target, kwargs = search.calls[-1]
+        assert (source, target) == ("jump", "walk") and kwargs["early"] and kwargs["latency_weight"] is None
+        # early, but not through a worse seam than leaving from min_exit on would give
+        plan = player.pending[0]
+        late = TransitionSearch(g).search("jump", player.clock.weights, player.clock.phase, "walk",
+                                          plan.target_weights, latency_weight=0.0)
+        assert plan.leave_phase >= g.node("jump").samples.phases[0] and (
+            plan.leave_phase >= search.options.min_exit or plan.dissimilarity <= late.dissimilarity + 1e-12)
