@@ -7,7 +7,9 @@ codecs through a MorphspaceMesh, steers half way, pulls, then pulls on the engin
 writes every frame it applied (the vertices the mesh holds, the node's transform) and its decode
 and mesh update times. Here every frame is checked against the engine's own blend at the
 frame's weights and phase (within the codec's bound), pulled frames against the same pulls made
-by server/client.py, and the placement against the root transform.
+by server/client.py, and the placement against the root transform. On the tiny motion graph
+(tests/conftest.py's built_graph) its graph.gd asks for a jump and records the frames' nodes, the
+add-on's node_changed signals and properties.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ import pytest
 
 from engine.motion_space import MotionSpace
 from engine.rotations import rot_y
-from live_server import LiveServer, data_dir_with_spaces
+from live_server import LiveServer, data_dir_with_graph, data_dir_with_spaces
 from server.client import StreamClient
 from server.codecs import decode_vertices, quantisation_error
 
@@ -145,6 +147,80 @@ def test_godot_client_decodes_places_and_pulls_frames(built_spaces, tmp_path):
               f"{np.median(decode):.0f} us, mesh update median {np.median(update):.0f} us, decode + update "
               f"median {np.median(total):.0f} us, p95 {np.percentile(total, 95):.0f} us, max {total.max():.0f} us; "
               f"largest error {worst[key] * 1e6:.2f} um (bound {bound[key.split('-')[1]] * 1e6:.2f} um)")
+
+
+def test_godot_client_plays_a_motion_graph_action(built_graph, tmp_path):
+    """A MorphspaceMesh on the tiny motion graph (walk, stand, jump, reach) from walk: after 10
+    frames a game script calls action("jump", {jump_height: 0.4}); the server plans it (its
+    notice answers the action's seq) and the frames go walk -> jump -> stand by themselves. The
+    add-on's node_changed signals, current_node / target_node / progress and the parameters
+    named by each node follow the frames; frames outside a blend are that node's own blend."""
+    data = data_dir_with_graph(tmp_path / "server data", built_graph)
+    project = tmp_path / "project"
+    shutil.copytree(PROJECT, project)
+    shutil.copytree(ADDON, project / "addons")
+    out = tmp_path / "out"
+    out.mkdir()
+    with LiveServer(data) as live:
+        args = [str(GODOT), "--path", str(project), "res://graph.tscn", "--", f"--out={out}", f"--url={live.ws_url}",
+                "--graph=tiny", "--node=walk", "--param=speed", "--value=1.2", "--codec=q16", "--before=10",
+                "--action=jump", "--action-param=jump_height", "--action-value=0.4", "--after=5", "--timeout=90"]
+        run = subprocess.run(args, cwd=tmp_path, env=_godot_env(tmp_path / "home"), capture_output=True, text=True,
+                             timeout=150)
+    output = run.stdout + run.stderr
+    error = out / "error.txt"
+    assert run.returncode == 0 and not error.exists(), (error.read_text() if error.exists() else "") + output[-3000:]
+    assert "SCRIPT ERROR" not in output and "Parse Error" not in output, output[-3000:]
+    summary = msgpack.unpackb((out / "summary.msgpack").read_bytes(), raw=False)
+    with open(out / "records.msgpack", "rb") as f:
+        records = list(msgpack.Unpacker(f, raw=False))
+
+    assert summary["topologies"] == 1
+    assert [n["name"] for n in summary["nodes"]] == ["walk", "stand", "jump", "reach"]
+    cyclic = {n["name"]: n["cyclic"] for n in summary["nodes"]}
+    assert cyclic["walk"] and cyclic["stand"] and not cyclic["jump"]
+    assert {"from": "walk", "to": "jump"} in summary["edges"] and len(summary["edges"]) == 7
+    seq = summary["action_seq"]
+    assert seq > 0 and [(n["code"], n["seq"]) for n in summary["notices"]] == [("planned", seq)]
+    assert summary["notices"][0]["message"].startswith("walk -> jump:")
+
+    nodes = [r["node"] for r in records]
+    visited = [n for i, n in enumerate(nodes) if i == 0 or nodes[i - 1] != n]
+    assert visited == ["walk", "jump", "stand"]  # to the action's node, and back to a cyclic node by itself
+    assert all(r["node"] == "walk" for r in records if r["ack"] < seq)
+    changes = [(c["previous"], c["node"]) for c in summary["changes"]]
+    assert changes == [("", "walk"), ("walk", "jump"), ("jump", "stand")]
+    starts = [i for i in range(len(nodes)) if i == 0 or nodes[i - 1] != nodes[i]]
+    assert [c["frame"] for c in summary["changes"]] == starts  # emitted just before that frame's frame_applied
+    assert sum(1 for r in records if r["node"] == "stand") == 5
+    blending = [r for r in records if r["progress"] is not None]
+    assert blending and all(0.0 <= r["progress"] <= 1.0 and r["target"] is not None for r in blending)
+    assert any(r["node"] == "walk" and r["target"] == "jump" for r in records)
+    assert all(r["target"] == "stand" for r in records if r["node"] == "jump" and r["progress"] is None)
+    for r in records:
+        assert (r["current_node"], r["target_node"], r["progress_property"]) == (r["node"], r["target"], r["progress"])
+        names = {"walk": ["speed"], "stand": [], "jump": ["jump_height"]}[r["node"]]
+        assert list(r["requested_params"]) == names and r["requested_params"] == dict(zip(names, r["requested"]))
+        if r["node"] == "walk":
+            assert r["requested_params"] == {"speed": pytest.approx(1.2)} and r["get_param"] == pytest.approx(1.2)
+    assert any(r["requested_params"] == {"jump_height": pytest.approx(0.4)} for r in records if r["node"] == "jump")
+
+    spaces = {name: MotionSpace.open(built_graph / f"{name}.mspace") for name in ("walk", "stand", "jump")}
+    try:
+        bound = summary["quantisation_error"]  # the topology's: the box covers every node
+        assert 0 < bound < 1e-4
+        checked = 0
+        for r in records:
+            if r["progress"] is None:  # not blending: exactly the node's own blend, decoded within q16's bound
+                V = np.frombuffer(r["vertices"], dtype="<f4").reshape(-1, 3)
+                expected = spaces[r["node"]].blend(np.asarray(r["weights"]), r["phase"], "linear")
+                error = float(np.abs(V.astype(np.float64) - expected).max())
+                assert error <= bound + 1e-5, (r["seq"], r["node"], error)  # 1e-5: as tests/server's graph test
+                checked += 1
+        assert checked >= 15
+    finally:
+        for space in spaces.values():
+            space.close()
 
 
 def test_example_project_loads_and_runs_a_frame(tmp_path):

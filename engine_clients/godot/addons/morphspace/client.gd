@@ -8,8 +8,11 @@
 #   client.start()
 #   ...  client.poll(delta) in _process
 #
-# Sends hello (space, codec, rate, mode, smoothing, window, params), then params / mode / rate /
-# pause / resume / seek / reset / heatmap with a sequence number each, and pull with an id.
+# Sends hello (space, or graph and node; codec, rate, mode, smoothing, window, params), then
+# params / mode / rate / pause / resume / seek / reset / heatmap / action with a sequence number
+# each, and pull with an id. On a motion graph every streamed frame names the node shown, the
+# transition's target and its progress: graph_state (graph_state.gd) keeps them with the
+# topology's nodes and edges, and the client emits node_changed when the node shown changes.
 # Decodes every message itself (msgpack.gd) and the vertices (codecs.gd). Streamed frames are
 # latest-wins here too: of the frames that arrived since the last poll only the newest is
 # decoded and emitted (the others are counted in skipped_frames); every pulled frame is emitted.
@@ -20,6 +23,7 @@ extends Reference
 
 const Msgpack = preload("res://addons/morphspace/msgpack.gd")
 const Codecs = preload("res://addons/morphspace/codecs.gd")
+const GraphState = preload("res://addons/morphspace/graph_state.gd")
 
 signal connected()
 signal disconnected(reason, retry_in)  # retry_in: seconds until the next attempt, -1 for none
@@ -28,12 +32,15 @@ signal frame_received(frame)           # a streamed frame (see _frame for its fi
 signal pull_received(frame)            # a frame answering pull(); frame.pull_id is its id
 signal error_received(error)           # {code, message, ref, seq}: a message was not acted on
 signal notice_received(notice)         # {code, message, seq}
+signal node_changed(node, previous)    # graphs: the emitted frames' node changed (previous "" at first)
 
 enum State { IDLE, CONNECTING, OPEN, WAITING }
 
 # The hello.
 var url = "ws://127.0.0.1:8000/v1/stream"
 var space = ""
+var graph = ""                # or a motion graph's name (then space is not sent)
+var node = ""                 # with graph: the start node ("": the graph's first cyclic node)
 var codec = "f32"
 var rate = 60.0
 var mode = "hybrid"
@@ -55,6 +62,7 @@ var last_seq = 0              # the seq of the last control message (frames with
 var skipped_frames = 0        # streamed frames superseded before they were decoded
 var received_frames = 0       # streamed frames that arrived (decoded or superseded)
 var attempts = 0              # connection attempts since the last topology
+var graph_state = GraphState.new()  # motion graphs: nodes, edges, node / target / progress
 
 var _socket = null
 var _next_seq = 1
@@ -107,21 +115,45 @@ func poll(delta):
 # ------------------------------------------------------------------ requests
 
 func hello(new_space = null):
-	# (Re)start streaming: a new topology follows and frame numbers restart at 1.
+	# (Re)start streaming (the space, or the graph when graph is set): a new topology follows and
+	# frame numbers restart at 1.
 	if new_space != null:
 		space = new_space
+		graph = ""
 	topology = null
-	var message = {"type": "hello", "space": space, "codec": codec, "rate": float(rate), "mode": mode,
+	graph_state.clear_frame()
+	var message = {"type": "hello", "codec": codec, "rate": float(rate), "mode": mode,
 			"smoothing": float(smoothing), "window": int(window), "heatmap": heatmap}
+	if graph != "":
+		message["graph"] = graph
+		if node != "":
+			message["node"] = node
+	else:
+		message["space"] = space
 	if not params.empty():
 		message["params"] = params.duplicate()
 	return _control(message)
 
 
+func hello_graph(new_graph, start_node = ""):
+	# (Re)start streaming the motion graph new_graph from start_node ("": its first cyclic node).
+	# params are the start node's: those of another graph's nodes are dropped.
+	if new_graph != graph:
+		params = {}
+	graph = new_graph
+	node = start_node
+	return hello()
+
+
 func set_params(values, immediate = false):
-	# Request parameters (only the named ones change); returns the message's seq.
-	for name in values:
-		params[name] = values[name]
+	# Request parameters (only the named ones change); returns the message's seq. On a graph they
+	# are the shown node's (during a blend: its target's).
+	var shown = graph_state.steered_node()
+	if graph == "" or shown == graph_state.start_node:
+		for name in values:
+			params[name] = values[name]
+	if graph != "":
+		graph_state.remember(shown, values)
 	return _control({"type": "params", "params": values.duplicate(), "immediate": immediate})
 
 
@@ -154,6 +186,22 @@ func reset():
 func set_heatmap(on):
 	heatmap = on
 	return _control({"type": "heatmap", "on": on})
+
+
+func action(node_name, action_params = {}, budget = null):
+	# On a graph: go to node_name at these parameters (missing ones: what the node was last asked
+	# for), within budget seconds if given. Returns the message's seq; the server answers with a
+	# notice (planned or queued, notice_received) and frames with ack >= seq follow the action.
+	var message = {"type": "action", "node": node_name}
+	if not action_params.empty():
+		message["params"] = action_params.duplicate()
+	if budget != null:
+		message["budget"] = float(budget)
+	graph_state.remember(node_name, action_params)
+	if node_name == graph_state.start_node:
+		for name in action_params:
+			params[name] = action_params[name]
+	return _control(message)
 
 
 func pull(pull_params = null, time = null, phase = null, pull_mode = null):
@@ -313,6 +361,7 @@ func _on_topology(message):
 		if not params.has(p["name"]):
 			params[p["name"]] = p["value"]
 	codec = message["codec"]
+	graph_state.read_topology(message)
 	_delay = reconnect_min
 	attempts = 0
 	emit_signal("topology_received", message)
@@ -332,16 +381,23 @@ func _emit_frame(frame, signal_name):
 	frame["vertices"] = vertices
 	var root = frame["root"]
 	frame["transform"] = Transform(Basis(Vector3.UP, frame["heading"]), Vector3(root[0], root[1], root[2]))
-	frame["requested_params"] = _named(frame["requested"])
-	frame["realised_params"] = _named(frame["realised"])
+	var names = parameter_names
+	if frame.get("node") != null:
+		names = graph_state.parameter_names(frame["node"], parameter_names)
+	frame["requested_params"] = _named(frame["requested"], names)
+	frame["realised_params"] = _named(frame["realised"], names)
 	frame["decode_usec"] = frame["msgpack_usec"] + OS.get_ticks_usec() - started
 	if frame.get("pull_id") != null:
 		_pending_pulls.erase(frame["pull_id"])
+	elif frame.get("node") != null:
+		var previous = graph_state.follow(frame)
+		if previous != null:
+			emit_signal("node_changed", frame["node"], previous)
 	emit_signal(signal_name, frame)
 
 
-func _named(values):
+func _named(values, names):
 	var out = {}
-	for i in range(min(values.size(), parameter_names.size())):
-		out[parameter_names[i]] = values[i]
+	for i in range(min(values.size(), names.size())):
+		out[names[i]] = values[i]
 	return out

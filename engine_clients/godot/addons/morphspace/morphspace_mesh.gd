@@ -1,11 +1,14 @@
 # MorphspaceMesh: a MeshInstance that plays a morphspace motion space streamed from a server.
 #
 # Add it to a scene (the plugin registers it; or attach this script to a MeshInstance), set
-# url and space, and run: it connects, builds the mesh from the topology, replaces the vertices
-# with every frame and, with follow_root, sets its own transform (relative to its parent) to the
-# frame's root transform. Game scripts steer it with set_param / set_params and listen to its
-# signals. With pull_mode on it asks for frames on the engine's clock instead (hello rate 0, one
-# pull at a time at pull_time, which advances by delta * time_scale).
+# url and space (or graph, and optionally node, for a motion graph), and run: it connects,
+# builds the mesh from the topology, replaces the vertices with every frame and, with
+# follow_root, sets its own transform (relative to its parent) to the frame's root transform.
+# Game scripts steer it with set_param / set_params and listen to its signals; on a graph they
+# call action(node, params, budget) and follow current_node, target_node and progress
+# (node_changed when the node shown changes). With pull_mode on it asks for frames on the
+# engine's clock instead (hello rate 0, one pull at a time at pull_time, which advances by
+# delta * time_scale).
 extends MeshInstance
 
 const Client = preload("res://addons/morphspace/client.gd")
@@ -17,10 +20,13 @@ signal topology_received(topology)
 signal frame_applied(frame)      # a frame is on the mesh; frame.update_usec is the mesh update's cost
 signal frame_pulled(frame)       # a frame answering pull() (applied too in pull_mode)
 signal error_received(error)     # {code, message, ref, seq}
-signal notice_received(notice)
+signal notice_received(notice)   # {code, message, seq}: also an action's planned / queued
+signal node_changed(node, previous)  # graphs: the applied frames' node changed (previous "" at first)
 
 export(String) var url = "ws://127.0.0.1:8000/v1/stream"
 export(String) var space = ""
+export(String) var graph = ""    # a motion graph instead of a space
+export(String) var node = ""     # with graph: the start node ("": the graph's first cyclic node)
 export(String, "f32", "q16") var codec = "f32"
 export(float, 0, 120) var rate = 60.0
 export(String, "hybrid", "linear", "nonlinear") var mode = "hybrid"
@@ -38,6 +44,9 @@ var client = Client.new()
 var pull_time = 0.0       # seconds on the engine's clock (pull_mode)
 var frames_applied = 0
 var last_frame = null     # the last frame applied (its vertices are the mesh's)
+var current_node = ""     # graphs: the node of the last frame applied (during a blend: the one being left)
+var target_node = null    # graphs: where a planned or blending transition goes, else null
+var progress = null       # graphs: 0..1 across a blend, else null
 var _indices = null
 var _pull_id = -1
 
@@ -54,7 +63,7 @@ func _ready():
 		var material = ShaderMaterial.new()
 		material.shader = FlatShader
 		material_override = material
-	if autostart and space != "":
+	if autostart and (space != "" or graph != ""):
 		start()
 
 
@@ -66,6 +75,8 @@ func start():
 	# Connect with the exported settings (again, if connected).
 	client.url = url
 	client.space = space
+	client.graph = graph
+	client.node = node
 	client.codec = codec
 	client.rate = 0.0 if pull_mode else rate
 	client.mode = mode
@@ -97,18 +108,49 @@ func set_param(name, value, immediate = false):
 
 
 func set_params(values, immediate = false):
-	for name in values:
-		params[name] = values[name]
-	return client.set_params(values, immediate)
+	# On a graph: the node shown's (during a blend: its target's); params keeps the start node's.
+	var seq = client.set_params(values, immediate)
+	params = client.params.duplicate()
+	return seq
 
 
 func get_param(name):
+	# The value last requested (on a graph: of the node shown).
+	var state = client.graph_state
+	if graph != "" and state.node_params.has(current_node):
+		return state.node_params[current_node].get(name)
 	return client.params.get(name)
 
 
 func parameters():
-	# The space's parameters from the topology: [{name, unit, min, max, default, value}], or [].
+	# The space's parameters from the topology: [{name, unit, min, max, default, value}], or [];
+	# on a graph, the node shown's (value: as the topology had it).
+	if graph != "" and client.graph_state.nodes.has(current_node):
+		return client.graph_state.nodes[current_node]["parameters"]
 	return client.topology["parameters"] if client.topology != null else []
+
+
+func action(node_name, node_params = {}, budget = null):
+	# On a graph: go to node_name (e.g. action("jump", {"jump_height": 0.5})), within budget
+	# seconds if given; returns the message's seq. The server's planned / queued notice comes as
+	# notice_received; node_changed follows the frames.
+	return client.action(node_name, node_params, budget)
+
+
+func graph_nodes():
+	# The graph's nodes from the topology: [{name, space, cyclic, return_to, parameters}], or [].
+	var out = []
+	if client.topology != null and client.topology.get("nodes") != null:
+		out = client.topology["nodes"]
+	return out
+
+
+func graph_edges():
+	# The graph's allowed transitions from the topology: [{from, to}], or [].
+	var out = []
+	if client.topology != null and client.topology.get("edges") != null:
+		out = client.topology["edges"]
+	return out
 
 
 func set_mode(new_mode):
@@ -144,6 +186,9 @@ func _on_topology(topology):
 	_indices = topology["indices"]
 	mesh = ArrayMesh.new()
 	last_frame = null
+	current_node = ""
+	target_node = null
+	progress = null
 	emit_signal("topology_received", topology)
 
 
@@ -173,6 +218,13 @@ func _apply(frame):
 	frame["update_usec"] = OS.get_ticks_usec() - started
 	last_frame = frame
 	frames_applied += 1
+	var previous = current_node
+	if frame.get("node") != null:
+		current_node = frame["node"]
+		target_node = frame.get("target")
+		progress = frame.get("progress")
+	if current_node != previous:
+		emit_signal("node_changed", current_node, previous)
 	emit_signal("frame_applied", frame)
 
 
