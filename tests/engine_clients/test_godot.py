@@ -151,7 +151,8 @@ def test_godot_client_decodes_places_and_pulls_frames(built_spaces, tmp_path):
 
 def test_godot_client_plays_a_motion_graph_action(built_graph, tmp_path):
     """A MorphspaceMesh on the tiny motion graph (walk, stand, jump, reach) from walk: after 10
-    frames a game script calls action("jump", {jump_height: 0.4}); the server plans it (its
+    frames a game script calls action("jump", {jump_height: 0.4}, 3.0) (after steering the walk
+    from speed 1.2 to 1.5 with set_param at 5 frames); the server plans it (its
     notice answers the action's seq) and the frames go walk -> jump -> stand by themselves. The
     add-on's node_changed signals, current_node / target_node / progress and the parameters
     named by each node follow the frames; frames outside a blend are that node's own blend."""
@@ -163,8 +164,8 @@ def test_godot_client_plays_a_motion_graph_action(built_graph, tmp_path):
     out.mkdir()
     with LiveServer(data) as live:
         args = [str(GODOT), "--path", str(project), "res://graph.tscn", "--", f"--out={out}", f"--url={live.ws_url}",
-                "--graph=tiny", "--node=walk", "--param=speed", "--value=1.2", "--codec=q16", "--before=10",
-                "--action=jump", "--action-param=jump_height", "--action-value=0.4", "--after=5", "--timeout=90"]
+                "--graph=tiny", "--node=walk", "--param=speed", "--value=1.2", "--steer=1.5", "--codec=q16", "--before=10",
+                "--action=jump", "--action-param=jump_height", "--action-value=0.4", "--budget=3", "--after=5", "--timeout=90"]
         run = subprocess.run(args, cwd=tmp_path, env=_godot_env(tmp_path / "home"), capture_output=True, text=True,
                              timeout=150)
     output = run.stdout + run.stderr
@@ -201,8 +202,12 @@ def test_godot_client_plays_a_motion_graph_action(built_graph, tmp_path):
         assert (r["current_node"], r["target_node"], r["progress_property"]) == (r["node"], r["target"], r["progress"])
         names = {"walk": ["speed"], "stand": [], "jump": ["jump_height"]}[r["node"]]
         assert list(r["requested_params"]) == names and r["requested_params"] == dict(zip(names, r["requested"]))
-        if r["node"] == "walk":
-            assert r["requested_params"] == {"speed": pytest.approx(1.2)} and r["get_param"] == pytest.approx(1.2)
+        if r["node"] == "walk":  # steered by set_param: from the frame acknowledging it
+            speed = 1.5 if r["ack"] >= summary["steer_seq"] else 1.2
+            assert r["requested_params"] == {"speed": pytest.approx(speed)}
+            assert r["get_param"] == pytest.approx(speed) or r["ack"] < summary["steer_seq"]
+    assert 0 < summary["steer_seq"] < seq and any(r["ack"] >= summary["steer_seq"] and r["node"] == "walk"
+                                                  for r in records)
     assert any(r["requested_params"] == {"jump_height": pytest.approx(0.4)} for r in records if r["node"] == "jump")
 
     spaces = {name: MotionSpace.open(built_graph / f"{name}.mspace") for name in ("walk", "stand", "jump")}
@@ -221,6 +226,9 @@ def test_godot_client_plays_a_motion_graph_action(built_graph, tmp_path):
     finally:
         for space in spaces.values():
             space.close()
+    counts = {n: nodes.count(n) for n in visited}
+    print(f"\nGodot 3 add-on on the tiny graph: {summary['notices'][0]['message']}; frames applied per node {counts}, "
+          f"{len(blending)} blending, {checked} checked against their node's blend")
 
 
 def test_example_project_loads_and_runs_a_frame(tmp_path):

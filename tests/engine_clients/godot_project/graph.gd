@@ -2,15 +2,17 @@
 # res://graph.tscn).
 #
 # User arguments: --out=DIR --url=... --graph=NAME --node=START --param=NAME --value=X (the start
-# node's parameter) --codec=f32|q16 --before=N (frames before the action) --action=NODE
-# --action-param=NAME --action-value=Y --after=M (frames on a cyclic node after the action's node)
-# --timeout=S.
+# node's parameter) --steer=Z (set_param(NAME, Z) after N / 2 frames) --codec=f32|q16 --before=N
+# (frames before the action) --action=NODE
+# --action-param=NAME --action-value=Y [--budget=SECONDS] --after=M (frames on a cyclic node after
+# the action's node) --timeout=S.
 # A MorphspaceMesh streams the graph from START, takes N frames, calls action(NODE, {NAME: Y})
-# and goes on until the frames have shown NODE and then M frames of a cyclic node. Every applied
-# frame is written to DIR/records.msgpack (its fields, the vertices the mesh holds, and the
-# node's current_node / target_node / progress after it); DIR/summary.msgpack holds the graph's
-# nodes and edges as graph_nodes() / graph_edges() give them, the action's seq, the notices and
-# every node_changed. Exit code 0, or 1 with DIR/error.txt.
+# (within the budget, if given) and goes on until the frames have shown NODE and then M frames
+# of a cyclic node. Every applied frame is written to DIR/records.msgpack (its fields, the
+# vertices the mesh holds, and the node's current_node / target_node / progress after it);
+# DIR/summary.msgpack holds the graph's nodes and edges as graph_nodes() / graph_edges() give
+# them, the topology's quantisation_error, the action's seq, the notices and every node_changed.
+# Exit code 0, or 1 with DIR/error.txt.
 extends Node
 
 const MorphspaceMesh = preload("res://addons/morphspace/morphspace_mesh.gd")
@@ -88,8 +90,12 @@ func _on_frame(frame):
 			"requested_params", "realised_params", "weights", "root", "heading", "finished"]:
 		record[key] = frame.get(key)
 	records.store_buffer(Msgpack.encode(record))
+	if applied == int(options["before"]) / 2:
+		summary["steer_seq"] = mesh_node.set_param(options["param"], options["steer"].to_float())
 	if applied == int(options["before"]):
-		action_seq = mesh_node.action(options["action"], {options["action-param"]: options["action-value"].to_float()})
+		var budget = options["budget"].to_float() if options.has("budget") else null
+		action_seq = mesh_node.action(options["action"], {options["action-param"]: options["action-value"].to_float()},
+				budget)
 		summary["action_seq"] = action_seq
 	if action_seq < 0 or frame["ack"] < action_seq:
 		return
