@@ -1,4 +1,4 @@
-"""``/v1/stream``: one WebSocket connection streaming a motion space under live parameters.
+"""``/v1/stream``: one WebSocket connection streaming a motion space or a motion graph live.
 
 A connection is a task receiving, checking and applying client messages; its frames are
 produced by the server's FrameScheduler (server/scheduler.py), which steps every connection's
@@ -24,6 +24,10 @@ One concept per module:
   handler (the one place to add a message kind).
 - ``output.py``: the connection's frames: what the scheduler calls (advance on the rate grid,
   window and stall handling, the frame's source, writing it), and pulled frames.
+
+A graph stream (``hello`` names ``graph`` instead of ``space``) plays a GraphPlayer; its
+``action`` message and the frames' ``node``, ``target`` and ``progress`` are in
+``server/graph_stream.py``.
 """
 
 from server.stream.session import CLOSE_GRACE, StreamSession, StreamStats
