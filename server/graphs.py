@@ -14,7 +14,7 @@ from pathlib import Path
 
 from engine.graph import GraphError, MotionGraph
 from engine.motion_space.space import MotionSpace
-from server.registry import NAME, BrokenSpace, UnknownSpace
+from server.registry import BrokenSpace, UnknownSpace, named_files, named_path
 
 SUFFIX = ".mgraph"
 
@@ -38,16 +38,11 @@ class GraphRegistry:
         self._lock = threading.Lock()
 
     def path(self, name):
-        if not isinstance(name, str) or not NAME.match(name) or ".." in name:
-            raise UnknownGraph(f"{name!r} is not a motion graph name (letters, digits, '_', '-', '.')")
-        return self.directory / f"{name}{SUFFIX}"
+        return named_path(self.directory, name, SUFFIX, UnknownGraph, "motion graph")
 
     def names(self):
         """Sorted names of the graphs in the directory now."""
-        if not self.directory.is_dir():
-            return []
-        return sorted(p.name[:-len(SUFFIX)] for p in self.directory.iterdir()
-                      if p.name.endswith(SUFFIX) and p.is_file() and NAME.match(p.name[:-len(SUFFIX)]))
+        return named_files(self.directory, SUFFIX)
 
     def _space_opener(self, used):
         """MotionGraph.open's ``open_space``: spaces in the directory through the SpaceRegistry

@@ -25,6 +25,22 @@ NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
 SUFFIX = ".mspace"
 
 
+def named_path(directory, name, suffix, error, what):
+    """``directory / (name + suffix)`` for a valid file-stem name, else ``error`` naming ``what``."""
+    if not isinstance(name, str) or not NAME.match(name) or ".." in name:
+        raise error(f"{name!r} is not a {what} name (letters, digits, '_', '-', '.')")
+    return Path(directory) / f"{name}{suffix}"
+
+
+def named_files(directory, suffix):
+    """Sorted stems of the files ``*suffix`` in ``directory`` whose stems are valid names."""
+    directory = Path(directory)
+    if not directory.is_dir():
+        return []
+    return sorted(p.name[:-len(suffix)] for p in directory.iterdir()
+                  if p.name.endswith(suffix) and p.is_file() and NAME.match(p.name[:-len(suffix)]))
+
+
 class UnknownSpace(LookupError):
     """No such motion space (or an unusable name)."""
 
@@ -67,16 +83,11 @@ class SpaceRegistry:
         self._lock = threading.Lock()
 
     def path(self, name):
-        if not isinstance(name, str) or not NAME.match(name) or ".." in name:
-            raise UnknownSpace(f"{name!r} is not a motion space name (letters, digits, '_', '-', '.')")
-        return self.directory / f"{name}{SUFFIX}"
+        return named_path(self.directory, name, SUFFIX, UnknownSpace, "motion space")
 
     def names(self):
         """Sorted names of the spaces in the directory now."""
-        if not self.directory.is_dir():
-            return []
-        return sorted(p.name[:-len(SUFFIX)] for p in self.directory.iterdir()
-                      if p.name.endswith(SUFFIX) and p.is_file() and NAME.match(p.name[:-len(SUFFIX)]))
+        return named_files(self.directory, SUFFIX)
 
     def _open(self, name):
         path = self.path(name)

@@ -122,8 +122,10 @@ def choose_root(meshes, centrality, *, slack=ROOT_SLACK, max_candidates=ROOT_CAN
             progress(i + 1, len(candidates))
     central = max(float(spread[0]), 1e-300)  # candidates[0] is the most central frame
     score = spread / central - centrality_weight * (centrality[candidates] / best_total - 1.0)
-    score[spread < (1.0 + float(min_gain)) * central] = -np.inf
-    score[0] = 1.0  # the central frame's own score: a wider one must beat it, centrality paid
+    # the central frame keeps its own score (1); a wider one must beat it, its centrality paid
+    narrow = spread < (1.0 + float(min_gain)) * central
+    narrow[0] = False
+    score[narrow] = -np.inf
     root = int(candidates[int(np.argmax(score))])
     return root, {"candidates": candidates, "spread": spread, "score": score, "central": int(order[0])}
 

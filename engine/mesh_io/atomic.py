@@ -30,7 +30,7 @@ def atomic_write(path):
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = _create_temporary(path)
+    handle, temp_name = create_temporary(path)
     try:
         with os.fdopen(handle, "wb") as file:
             yield file
@@ -41,7 +41,7 @@ def atomic_write(path):
         raise
 
 
-def _create_temporary(path):
+def create_temporary(path):
     """Create a new, empty, hidden file next to `path`; return (file descriptor, name)."""
     flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
     while True:

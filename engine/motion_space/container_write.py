@@ -10,11 +10,11 @@ import contextlib
 import json
 import math
 import os
-import secrets
 from pathlib import Path
 
 import numpy as np
 
+from engine.mesh_io.atomic import create_temporary
 from engine.motion_space.container_format import (
     CHECKSUM_ALGORITHM,
     CHECKSUM_SIZE,
@@ -79,7 +79,7 @@ def write_container(path, arrays, metadata):
     header = _header_bytes(metadata, entries, file_size)
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = _create_temporary(path)
+    handle, temp_name = create_temporary(path)
     try:
         with os.fdopen(handle, "wb") as file:
             file.write(_preamble_and_header(header))
@@ -222,17 +222,6 @@ def _array_chunks(array, dtype):
     rows = max(1, _CHUNK_BYTES // row_bytes)
     for start in range(0, array.shape[0], rows):
         yield np.ascontiguousarray(array[start:start + rows], dtype=dtype)
-
-
-def _create_temporary(path):
-    """Create a new, empty, hidden file next to `path`; return (file descriptor, name)."""
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
-    while True:
-        name = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
-        try:
-            return os.open(name, flags, 0o666), name
-        except FileExistsError:
-            continue
 
 
 def _fsync_directory(directory):
