@@ -55,7 +55,8 @@ class ClipFrames:
     times : (f,) float64 seconds; local : (f, n, 3) float32 root-local vertices
     root_position : (f, 3) float64 (m); heading : (f,) float64 (rad about +Y)
     faces : (m, 3) int64; params : (f, k) float64 realised parameters; names : parameter names
-    rate : frames/s; space : its name; notes : what was clamped
+    rate : frames/s; space : its name (a graph's, for a graph performance); notes : what was clamped
+    nodes : list of str or None   a graph performance's node shown by each frame
     """
 
     times: np.ndarray
@@ -68,9 +69,15 @@ class ClipFrames:
     rate: float
     space: str
     notes: list
+    nodes: list | None = None
 
     def __len__(self):
         return len(self.times)
+
+    @property
+    def uniform(self):
+        """True when frame k is at time k / rate (a clip; a stream's recording may not be)."""
+        return bool(np.allclose(self.times, np.arange(len(self.times)) / self.rate, rtol=0, atol=1e-9))
 
     def world(self, k):
         """(n, 3) float32 world vertices of frame k, computed as the player places them."""

@@ -129,7 +129,7 @@ def glb_bytes(frames, *, precision="int16", interpolation="LINEAR"):
         "asset": {"version": "2.0", "generator": "morphspace export"},
         "scene": 0,
         "scenes": [{"name": frames.space, "nodes": [0],
-                    "extras": {"space": frames.space, "rate": frames.rate, "parameters": frames.names}}],
+                    "extras": _scene_extras(frames)}],
         "nodes": [{"name": "root", "children": [1],
                    "translation": [float(np.float32(x)) for x in frames.root_position[0]],
                    "rotation": [float(x) for x in quaternion[0]]}, mesh_node],
@@ -149,6 +149,15 @@ def glb_bytes(frames, *, precision="int16", interpolation="LINEAR"):
         document["extensionsUsed"] = extensions
         document["extensionsRequired"] = extensions
     return glb.to_bytes(document), stats
+
+
+def _scene_extras(frames):
+    """What the scene is: the space (or graph) played, its rate and parameters; for a graph
+    performance also the node each frame shows."""
+    extras = {"space": frames.space, "rate": frames.rate, "parameters": frames.names}
+    if frames.nodes is not None:
+        extras.update(graph=frames.space, nodes=list(frames.nodes))
+    return extras
 
 
 def _morph_targets(glb, local, first, precision, centre, scale):

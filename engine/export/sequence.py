@@ -25,12 +25,15 @@ OBJ_DECIMALS = 6
 
 def clip_record(frames):
     """The JSON sidecar of a sequence: what each frame is."""
-    return {"space": frames.space, "rate": frames.rate, "frames": len(frames), "coordinates": "world",
-            "units": "m", "up": "+Y", "parameters": list(frames.names), "notes": list(frames.notes),
-            "times": np.round(frames.times, 9).tolist(),
-            "root_position": np.round(frames.root_position, 9).tolist(),
-            "heading_deg": np.round(np.degrees(frames.heading), 9).tolist(),
-            "realised": np.round(frames.params, 9).tolist()}
+    record = {"space": frames.space, "rate": frames.rate, "frames": len(frames), "coordinates": "world",
+              "units": "m", "up": "+Y", "parameters": list(frames.names), "notes": list(frames.notes),
+              "times": np.round(frames.times, 9).tolist(),
+              "root_position": np.round(frames.root_position, 9).tolist(),
+              "heading_deg": np.round(np.degrees(frames.heading), 9).tolist(),
+              "realised": [[None if np.isnan(x) else x for x in row] for row in np.round(frames.params, 9).tolist()]}
+    if frames.nodes is not None:  # a graph performance: the node of each frame; realised is null off it
+        record["nodes"] = list(frames.nodes)
+    return record
 
 
 def write_mesh_sequence(directory, frames, format="obj", progress=None):

@@ -1,9 +1,10 @@
 """A played clip as USD (usd-core's ``pxr``): time-sampled points under a time-sampled root transform.
 
 Layout of the stage (``upAxis`` Y, ``metersPerUnit`` 1, ``timeCodesPerSecond`` and
-``framesPerSecond`` the clip's rate, time codes 0 .. frames - 1, so time code k is frame k)::
+``framesPerSecond`` the clip's rate, time codes 0 .. frames - 1, so time code k is frame k; a
+recorded stream's frames, not 1 / rate apart, are at time code time x rate)::
 
-    /<space>            Xform, the default prim, kind component
+    /<space>            Xform (a graph performance: the graph's name), the default prim, kind component
         xformOp:translate    root position (m), one sample per frame
         xformOp:rotateY      heading (degrees about +Y), one sample per frame
         /<space>/mesh   Mesh: faces once; points (root-local, float32) and extent per frame
@@ -66,13 +67,17 @@ def _fill(stage, frames, progress):
     stage.SetTimeCodesPerSecond(frames.rate)
     stage.SetFramesPerSecond(frames.rate)
     stage.SetStartTimeCode(0)
-    stage.SetEndTimeCode(n_frames - 1)
+    uniform = frames.uniform  # time code k is frame k; else (a stream's recording) time x rate
+    codes = list(range(n_frames)) if uniform else (np.asarray(frames.times) * frames.rate).tolist()
+    stage.SetEndTimeCode(codes[-1])
     prim_name = _prim_name(frames.space)
     root = UsdGeom.Xform.Define(stage, f"/{prim_name}")
     stage.SetDefaultPrim(root.GetPrim())
     Usd.ModelAPI(root.GetPrim()).SetKind(Kind.Tokens.component)
-    root.GetPrim().SetCustomDataByKey("morphspace", {"space": frames.space, "rate": frames.rate,
-                                                     "parameters": list(frames.names)})
+    custom = {"space": frames.space, "rate": frames.rate, "parameters": list(frames.names)}
+    if frames.nodes is not None:
+        custom["graph"] = frames.space
+    root.GetPrim().SetCustomDataByKey("morphspace", custom)
     translate = root.AddTranslateOp()
     rotate = root.AddRotateYOp()
     mesh = UsdGeom.Mesh.Define(stage, f"/{prim_name}/mesh")
@@ -84,7 +89,7 @@ def _fill(stage, frames, progress):
     points, extent = mesh.CreatePointsAttr(), mesh.CreateExtentAttr()
     lo, hi = frames.local.min(axis=1), frames.local.max(axis=1)
     for k in range(n_frames):
-        time = Usd.TimeCode(k)
+        time = Usd.TimeCode(codes[k])
         points.Set(Vt.Vec3fArray.FromNumpy(frames.local[k]), time)
         extent.Set(Vt.Vec3fArray([Gf.Vec3f(*lo[k].tolist()), Gf.Vec3f(*hi[k].tolist())]), time)
         translate.Set(Gf.Vec3d(*frames.root_position[k].tolist()), time)

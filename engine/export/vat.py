@@ -89,6 +89,8 @@ def vat_files(frames):
               "max_error_m": float(span.max() / LEVELS / 2), "times": np.round(frames.times, 9).tolist(),
               "root_position": np.round(frames.root_position, 9).tolist(),
               "heading_deg": np.round(np.degrees(frames.heading), 9).tolist(), "parameters": list(frames.names)}
+    if frames.nodes is not None:  # a graph performance: the node each frame shows
+        record["nodes"] = list(frames.nodes)
     return {"mesh.glb": _mesh_glb(base, frames.faces, uv, frames.space), "positions.png": png16_bytes(image),
             "vat.json": json.dumps(record, indent=1).encode()}, record
 

@@ -1,5 +1,5 @@
-"""Export a clip of a motion space: binary glTF, USD, an OBJ / PLY sequence or a vertex-animation
-texture (docs/exports.md).
+"""Export a clip of a motion space, or a performance of a motion graph: binary glTF, USD, an OBJ /
+PLY sequence or a vertex-animation texture (docs/exports.md).
 
 The clip is played by the real-time player (the frames a stream at that rate shows): start at
 --set parameters, request others --at later times (or from a --track JSON file), for --seconds
@@ -9,6 +9,11 @@ at --fps. Examples:
         --at 3 speed=2.5 --at 6 turn_rate=30 --seconds 10 --fps 60
     morphspace export data/spaces/jumps.mspace --out jump.usd --set jump_height=0.45 --seconds 2
     morphspace export data/spaces/locomotion.mspace --out frames/ --format ply --track track.json
+
+A motion graph (``.mgraph``) exports a recorded performance (server/commands/export_graph.py):
+
+    morphspace export data/spaces/demo.mgraph --recording session.json --out perf.glb
+    morphspace export data/spaces/demo.mgraph --out perf.usd --at 1 jump jump_height=0.5 --seconds 6
 """
 
 from __future__ import annotations
@@ -27,19 +32,27 @@ SUFFIXES = {".glb": "glb", ".usd": "usd", ".usdc": "usd", ".usda": "usd"}
 
 
 def add_arguments(parser):
-    parser.add_argument("space", type=Path, help="a .mspace file with parameters")
+    parser.add_argument("space", type=Path, help="a .mspace file with parameters, or a .mgraph motion graph")
     parser.add_argument("--out", type=Path, required=True,
                         help="file (.glb, .usd/.usdc/.usda, .zip) or directory (obj/ply sequence)")
     parser.add_argument("--format", choices=("glb", "usd", "obj", "ply", "vat"),
                         help="default: from --out's suffix (.glb, .usd*); obj/ply/vat need --format")
-    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="parameters at t = 0")
+    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
+                        help="parameters at t = 0 (a graph: the start node's)")
     parser.add_argument("--at", nargs="+", action="append", default=[], metavar="T NAME=VALUE",
-                        help="at time T (s) request parameters (repeat for a script)")
+                        help="at time T (s) request parameters (repeat for a script); a graph: "
+                             "T NODE [NAME=VALUE ...] [budget=S], as morphspace play takes it")
+    parser.add_argument("--recording", type=Path,
+                        help="a graph: the recorded performance to export (morphspace play --record, or the "
+                             "browser's Record button)")
+    parser.add_argument("--start", help="a graph: the start node of a scripted performance (default: the first "
+                                        "cyclic node)")
     parser.add_argument("--track", type=Path, help='JSON {"params": {...}, "track": [{"time": T, "params": {...}}]}')
-    parser.add_argument("--seconds", type=float, default=10.0, help="clip length (default 10 s)")
+    parser.add_argument("--seconds", type=float, help="clip length (default 10 s; a scripted graph "
+                                                       "performance: 4 s after the last request)")
     parser.add_argument("--fps", type=float, default=60.0, help="frames per second (default 60)")
     parser.add_argument("--mode", choices=("linear", "hybrid", "nonlinear"), default="hybrid")
-    parser.add_argument("--smoothing", type=float, default=0.25, help="parameter time constant, s (default 0.25)")
+    parser.add_argument("--smoothing", type=float, help="a space: parameter time constant, s (default 0.25)")
     parser.add_argument("--precision", choices=PRECISIONS, default="int16",
                         help="glTF vertex storage (default int16, KHR_mesh_quantization; float32: exact)")
     parser.add_argument("--interpolation", choices=INTERPOLATIONS, default="LINEAR",
@@ -74,8 +87,8 @@ def clip_from_arguments(args, names):
         params, track = parse_track(document, str(args.track))
     params.update(_assignments(args.set, names))
     track.extend(scripted(args.at, names))
-    return Clip(params=params, track=tuple(track), duration=args.seconds, rate=args.fps, mode=args.mode,
-                smoothing=args.smoothing)
+    return Clip(params=params, track=tuple(track), duration=10.0 if args.seconds is None else args.seconds,
+                rate=args.fps, mode=args.mode, smoothing=0.25 if args.smoothing is None else args.smoothing)
 
 
 class _Bar:
@@ -106,6 +119,16 @@ def run(args):
     fmt = output_format(args.out, args.format)
     if args.out.exists() and not args.force:
         raise ValueError(f"--out {args.out} exists; pass --force to replace it")
+    if args.space.suffix == ".mgraph":
+        from server.commands.export_graph import run_graph
+
+        bar = _Bar(args.quiet)
+        try:
+            return run_graph(args, fmt, bar)
+        finally:
+            bar.close()
+    if args.recording or args.start:
+        raise ValueError("--recording and --start are for motion graphs (.mgraph)")
     space = MotionSpace.open(args.space)
     if space.parameter_map is None:
         raise ValueError(f"{args.space}: the space has no parameter map (build it from a spec with parameters)")
