@@ -6,7 +6,9 @@ frames). A function that accepts ``runner=`` hands its tasks to that runner inst
 its own loop; the tasks are module-level functions of plain arguments, so a runner may run them
 in this process (:class:`SerialRunner`) or ship them to other machines (the server's
 ``server.jobs.dask_runner.DaskRunner``). Every task's result depends only on its arguments, so
-every runner gives the same result, bit for bit.
+every runner gives the same result, bit for bit, whatever the order in which the tasks run or
+finish: results are placed by task index, never by arrival, and a task's set-up object
+(:class:`Rebuilt`) is its thread's own, never used by two tasks at the same time.
 
 A runner has two methods:
 
@@ -62,23 +64,29 @@ def check_parents(parents):
 class Rebuilt:
     """Something expensive to set up that travels as its inputs and is set up once where it lands.
 
-    ``Rebuilt(make, state)``: ``value`` is ``make(*state)``, built on first use (once per
-    process: a runner keeps one unpickled copy per worker and hands it to every task there).
-    Pickling sends ``make`` and ``state`` only, never the built object.
+    ``Rebuilt(make, state)``: ``value`` is ``make(*state)``, built on first use by each thread
+    that asks for it (a runner keeps one unpickled copy per worker and hands it to every task
+    there; a worker with several threads, or a cluster whose workers are threads of one process,
+    runs tasks at the same time). A task may therefore use and change the value (a solver's
+    scratch buffers) without another task seeing it: a value shared between threads made the
+    Dask build's ``nl_quaternions`` differ from the local run's now and then, two decompositions
+    writing one solver's right-hand side at once. ``value=`` is the value of the thread that
+    makes the Rebuilt (the caller's own, so a serial runner sets nothing up again). Pickling
+    sends ``make`` and ``state`` only, never a built object.
     """
 
     def __init__(self, make, state, value=None):
         self.make, self.state = make, tuple(state)
-        self._value = value
-        self._lock = threading.Lock()
+        self._local = threading.local()
+        if value is not None:
+            self._local.value = value
 
     @property
     def value(self):
-        if self._value is None:
-            with self._lock:
-                if self._value is None:
-                    self._value = self.make(*self.state)
-        return self._value
+        value = getattr(self._local, "value", None)
+        if value is None:
+            value = self._local.value = self.make(*self.state)
+        return value
 
     def __reduce__(self):
         return (Rebuilt, (self.make, self.state))

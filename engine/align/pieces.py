@@ -35,7 +35,7 @@ def run_piece(job):
 
 def portable_aligner(aligner):
     """The aligner as an :class:`engine.tasks.Rebuilt`: it travels as its inputs and is built once
-    per worker, exactly as the process pool's workers build theirs."""
+    per worker thread, exactly as the process pool's workers build theirs."""
     from engine.tasks import Rebuilt
 
     state = (aligner.V, aligner.F, aligner.colors, (aligner.V_tet, aligner.T), aligner.options, aligner.seed)

@@ -165,7 +165,7 @@ def decompose_frames(decomposer, frames, progress=None, runner=None, chunk=None)
     """Decompose (m, n, 3) surface frames; returns stacked float32 (quaternions, stretch, detail).
 
     With ``runner`` (:mod:`engine.tasks`), chunks of ``chunk`` frames are decomposed as its tasks,
-    each where the runner puts it (the decomposer is set up once per worker); the same result.
+    each where the runner puts it (the decomposer is set up once per worker thread); the same result.
     ``chunk`` defaults to about m / 16 frames, at most 16: at least 16 tasks when there are
     that many frames, so the work spreads over the workers and progress comes in small steps.
     """

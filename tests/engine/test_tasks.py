@@ -1,13 +1,20 @@
-"""Task runners (engine.tasks): the split stages give the same result through a runner as without."""
+"""Task runners (engine.tasks): the split stages give the same result through a runner as without,
+whatever the order in which the tasks run and finish, and with tasks running at the same time on
+several threads of one process (as on a Dask worker with several threads, or a cluster of
+in-process workers)."""
 
 import pickle
+import queue
+import random
+import sys
+import threading
 
 import numpy as np
 import pytest
 
 from engine.align import align_tree, chain_tree
 from engine.align.similarity import dissimilarity_matrix, frame_histograms
-from engine.tasks import Rebuilt, SerialRunner, check_parents
+from engine.tasks import Rebuilt, SerialRunner, check_parents, shared_value
 
 
 class CountingRunner(SerialRunner):
@@ -23,6 +30,131 @@ class CountingRunner(SerialRunner):
     def tree(self, function, jobs, parents, **kwargs):
         self.calls.append((function.__name__, len(jobs)))
         return super().tree(function, jobs, parents, **kwargs)
+
+
+class ThreadRunner:
+    """Runs the tasks on ``threads`` threads at once, started in a shuffled order and finishing in
+    whatever order they finish; results placed by task index, progress on the calling thread as
+    tasks finish (as ``DaskRunner`` does).
+
+    Every thread starts together (a barrier) and first takes its own ``shared_value(shared)`` of a
+    :class:`Rebuilt`: the threads are alive at the same time, so two of them holding the same
+    object means two tasks could use one solver's scratch buffers at once (what made a Dask
+    build's result differ from the local run's now and then). That is checked on every call, so it
+    fails every time rather than when the interleaving happens to hit. A tiny switch interval makes
+    the threads interleave often inside the tasks too.
+    """
+
+    def __init__(self, threads=3, seed=0):
+        self.threads, self.random = threads, random.Random(seed)
+        self.calls = []
+
+    def map(self, function, jobs, *, shared=None, sizes=None, progress=None):
+        self.calls.append((function.__name__, len(jobs)))
+        return self._run(lambda job, parent: function(shared, job), jobs, [-1] * len(jobs), shared, sizes, progress)
+
+    def tree(self, function, jobs, parents, *, shared=None, sizes=None, progress=None):
+        check_parents(parents)
+        self.calls.append((function.__name__, len(jobs)))
+        return self._run(lambda job, parent: function(shared, job, parent), jobs, parents, shared, sizes, progress)
+
+    def _run(self, call, jobs, parents, shared, sizes, progress):
+        sizes = list(sizes) if sizes is not None else [1] * len(jobs)
+        total, done = int(sum(sizes)), 0
+        results, finished = [None] * len(jobs), 0
+        children = [[] for _ in jobs]
+        for t, p in enumerate(parents):
+            if p >= 0:
+                children[p].append(t)
+        ready, answers = queue.Queue(), queue.Queue()
+        start = threading.Barrier(self.threads)
+        held = {}
+
+        def work():
+            start.wait(timeout=30)
+            if isinstance(shared, Rebuilt):
+                held[threading.get_ident()] = shared_value(shared)
+            while (t := ready.get()) is not None:
+                try:
+                    answers.put((t, call(jobs[t], None if parents[t] < 0 else results[parents[t]]), None))
+                except BaseException as error:  # noqa: BLE001 - handed to the calling thread
+                    answers.put((t, None, error))
+
+        def release(tasks):
+            tasks = list(tasks)
+            self.random.shuffle(tasks)
+            for t in tasks:
+                ready.put(t)
+
+        workers = [threading.Thread(target=work, daemon=True) for _ in range(self.threads)]
+        interval = sys.getswitchinterval()
+        sys.setswitchinterval(1e-5)
+        try:
+            for worker in workers:
+                worker.start()
+            release(t for t, p in enumerate(parents) if p < 0)
+            while finished < len(jobs):
+                t, result, error = answers.get(timeout=300)
+                if error is not None:
+                    raise error
+                results[t], finished, done = result, finished + 1, done + sizes[t]
+                release(children[t])
+                if progress is not None:
+                    progress(done, total)
+        finally:
+            for _ in workers:
+                ready.put(None)
+            for worker in workers:
+                worker.join(timeout=60)
+            sys.setswitchinterval(interval)
+        values = list(held.values())
+        assert len({id(v) for v in values}) == len(values) == (self.threads if isinstance(shared, Rebuilt) else 0), \
+            "threads running at the same time were handed the same set-up object"
+        return results
+
+
+@pytest.fixture(params=["serial", "threads"])
+def make_runner(request):
+    return CountingRunner if request.param == "serial" else ThreadRunner
+
+
+def test_a_rebuilt_value_belongs_to_one_thread():
+    made = []
+    built = Rebuilt(lambda: made.append(object()) or made[-1], (), value="the caller's")
+    assert built.value == "the caller's"
+    seen = []
+    threads = [threading.Thread(target=lambda: seen.extend([built.value, built.value])) for _ in range(2)]
+    for thread in threads:
+        thread.start()
+        thread.join()
+    assert len(made) == 2 and seen == [made[0], made[0], made[1], made[1]]
+    assert built.value == "the caller's"
+
+
+def test_a_thread_runner_places_results_by_index_whatever_order_tasks_finish_in():
+    import time
+
+    runner = ThreadRunner(threads=3, seed=1)
+    ticks = []
+    results = runner.map(lambda shared, job: (time.sleep(0.01 * (5 - job)), job * shared)[1], list(range(6)),
+                         shared=2, progress=lambda d, t: ticks.append(d))
+    assert results == [0, 2, 4, 6, 8, 10] and ticks == [1, 2, 3, 4, 5, 6]
+    results = runner.tree(lambda shared, job, parent: (parent or 0) + job, [1, 10, 100, 1000], [-1, 0, 0, 1])
+    assert results == [1, 11, 101, 1011]
+    with pytest.raises(AssertionError, match="same set-up object"):  # the check the tests rely on
+        runner.map(lambda shared, job: job, [1, 2, 3], shared=_Unsafe())
+
+
+class _Unsafe(Rebuilt):
+    """A Rebuilt that hands every thread one object (what Rebuilt did before it kept one per thread)."""
+
+    def __init__(self):
+        super().__init__(object, ())
+        self.one = object()
+
+    @property
+    def value(self):
+        return self.one
 
 
 def test_serial_runner_orders_tasks_after_their_parents():
@@ -44,17 +176,17 @@ def test_rebuilt_travels_as_its_inputs_and_is_built_once():
     built = Rebuilt(_make_pair, (3, 4))
     assert built.value == (3, 4, 7) and built.value is built.value
     copy = pickle.loads(pickle.dumps(Rebuilt(_make_pair, (1, 2), value=made)))
-    assert copy._value is None and copy.value == (1, 2, 3)  # rebuilt, not the value it held
+    assert copy.value == (1, 2, 3)  # rebuilt, not the value it held
 
 
 def _make_pair(a, b):
     return (a, b, a + b)
 
 
-def test_histograms_and_matrix_blocks_through_a_runner_equal_the_plain_run(walk_capture):
+def test_histograms_and_matrix_blocks_through_a_runner_equal_the_plain_run(walk_capture, make_runner):
     _, _, frames = walk_capture
     meshes = [(V, F) for V, F, _ in frames]
-    runner = CountingRunner()
+    runner = make_runner()
     H, radius = frame_histograms(meshes, chunk=1)
     H_tasks, radius_tasks = frame_histograms(meshes, chunk=1, runner=runner)
     assert radius_tasks == radius and np.array_equal(H_tasks, H)
@@ -65,11 +197,11 @@ def test_histograms_and_matrix_blocks_through_a_runner_equal_the_plain_run(walk_
     assert runner.calls[0][1] == len(frames) and runner.calls[1][1] > 1
 
 
-def test_tree_pieces_through_a_runner_equal_the_plain_run(walk_capture, walk_aligner):
+def test_tree_pieces_through_a_runner_equal_the_plain_run(walk_capture, walk_aligner, make_runner):
     _, _, frames = walk_capture
     tree = chain_tree([3], root=1)  # pieces 1 | 0 | 2, two of them waiting for the first
     plain = align_tree(walk_aligner, frames[:3], tree, chunk=1)
-    runner = CountingRunner()
+    runner = make_runner()
     ticks = []
     tasks = align_tree(walk_aligner, frames[:3], tree, chunk=1, runner=runner, progress=lambda d, t: ticks.append(d))
     assert runner.calls == [("piece_task", 3)] and ticks == [1, 2, 3]
@@ -78,7 +210,7 @@ def test_tree_pieces_through_a_runner_equal_the_plain_run(walk_capture, walk_ali
     assert all(np.array_equal(tasks.poses[k], plain.poses[k]) for k in plain.poses)
 
 
-def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner):
+def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner, make_runner):
     """Frames 2 and 3 slipped; with frame distance as the dissimilarity, frame 3's trusted sources
     change once frame 2 is repaired, so the runner needs a second wave: the result is the same."""
     import copy
@@ -96,9 +228,26 @@ def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner):
     D = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)
     serial, tasks = copy.deepcopy(aligned), copy.deepcopy(aligned)
     repair_alignment(walk_aligner, meshes, serial, dissimilarity=D, candidates=2)
-    runner = CountingRunner()
+    runner = make_runner()
     repair_alignment(walk_aligner, meshes, tasks, dissimilarity=D, candidates=2, runner=runner)
     assert serial.repaired[[2, 3]].all()
     assert runner.calls and all(name == "repair_task" for name, _ in runner.calls)
     for name in ("vertices", "residual", "distortion_tail", "parent", "confidence", "repaired"):
         assert np.array_equal(getattr(tasks, name), getattr(serial, name)), name
+
+
+def test_decomposition_through_a_runner_equals_the_plain_run(make_runner):
+    """The build's per-source decomposition: chunks of frames as tasks (each thread sets up its own
+    decomposer: a shared one's solver buffer made nl_quaternions differ now and then)."""
+    from engine.blend.decompose import FrameDecomposer, VolumetricEmbedding, decompose_frames
+    from engine.synthetic import animate, build_body, gait
+
+    body = build_body(1000)
+    frames = animate(body, gait(body.skeleton, 1.2, cycles=0.5, fps=15))
+    decomposer = FrameDecomposer(VolumetricEmbedding.from_surface(body.V, body.F))
+    plain = decompose_frames(decomposer, frames)
+    runner = make_runner()
+    tasks = decompose_frames(decomposer, frames, runner=runner, chunk=1)
+    assert runner.calls == [("decompose_task", len(frames))]
+    for a, b in zip(plain, tasks, strict=True):
+        assert a.tobytes() == b.tobytes()
