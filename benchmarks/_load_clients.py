@@ -77,15 +77,52 @@ class RawClient(asyncio.Protocol):
 
 
 async def one_client(host, port, space, fps, seconds, measure_from, measure_to, updates, update_every, params,
-                     rng, out, heatmap=False):
+                     rng, out, heatmap=False, graph=None, acting=False):
+    """One client streaming ``space`` (or, with ``graph`` = {"name", "every", "nodes"}, that motion
+    graph). ``updates``: it sends random params every ``update_every`` seconds; ``acting`` (graph
+    only): it sends an ``action`` to a random node of ``graph["nodes"]`` at random parameters every
+    0.5-1.5 x ``graph["every"]`` seconds, as a player pressing keys would, and reads every message
+    to count its notices and the transitions the frames show (a change of ``node``)."""
     loop = asyncio.get_running_loop()
-    state = {"frames": 0, "latencies": [], "pending": {}, "transit": []}
+    state = {"frames": 0, "latencies": [], "pending": {}, "transit": [], "actions": 0, "notices": {},
+             "errors": [], "entered": 0, "entered_asked": 0, "action_latencies": [], "node": None, "nodes": None,
+             "asked": None}
+
+    def on_graph_message(msg, received):
+        """An acting client's message other than a frame's count: topology, notice, error; a
+        frame's node (a transition carried out when it changes)."""
+        kind = msg.get("type")
+        if kind == "topology":
+            state["nodes"] = {n["name"]: n["parameters"] for n in msg["nodes"]}
+            state["node"] = None
+        elif kind == "notice":
+            state["notices"][msg["code"]] = state["notices"].get(msg["code"], 0) + 1
+        elif kind == "error":
+            state["errors"].append(f"{msg['code']}: {msg['message']}")
+        elif kind == "frame":
+            node = msg["node"]
+            if state["node"] is not None and node != state["node"]:
+                state["entered"] += 1
+            state["node"] = node
+            asked = state["asked"]
+            if asked is not None and node == asked[0] and msg["progress"] is None and msg["ack"] >= asked[2]:
+                state["entered_asked"] += 1  # the node the last action asked for, entered
+                state["action_latencies"].append(received - asked[1])
+                state["asked"] = None
 
     def on_message(opcode, buf, start, length):
         if opcode != 0x2:
             return
         received = time.monotonic()
-        if state["pending"]:
+        if acting:
+            msg = msgpack.unpackb(bytes(buf[start:start + length]))
+            on_graph_message(msg, received)
+            if msg.get("type") != "frame":
+                return
+            for s in [s for s in state["pending"] if s <= msg["ack"]]:
+                state["latencies"].append(received - state["pending"].pop(s))
+                state["transit"].append(time.time() - msg["sent_at"])
+        elif state["pending"]:
             msg = msgpack.unpackb(bytes(buf[start:start + length]))
             if msg.get("type") != "frame":
                 return
@@ -99,22 +136,39 @@ async def one_client(host, port, space, fps, seconds, measure_from, measure_to, 
 
     transport, client = await loop.create_connection(lambda: RawClient(host, port, on_message), host, port)
     await client.upgraded
-    client.send(msgpack.packb({"type": "hello", "space": space, "codec": "q16", "rate": fps, "seq": 0,
-                               "heatmap": heatmap}))
+    hello = {"type": "hello", "codec": "q16", "rate": fps, "seq": 0, "heatmap": heatmap}
+    hello.update({"graph": graph["name"]} if graph else {"space": space})
+    client.send(msgpack.packb(hello))
     seq = 0
-    stop = time.monotonic() + seconds
-    next_update = time.monotonic() + rng.uniform(0.5, 0.5 + update_every)
+    now = time.monotonic()
+    stop = now + seconds
+    next_update = now + rng.uniform(0.5, 0.5 + update_every) if updates else float("inf")
+    next_action = now + rng.uniform(0.5, 0.5 + graph["every"]) if acting else float("inf")
     while time.monotonic() < stop:
-        if updates and time.monotonic() >= next_update:
+        now = time.monotonic()
+        if now >= next_update:
             seq += 1
             name, (lo, hi) = rng.choice(params)
-            state["pending"][seq] = time.monotonic()
+            state["pending"][seq] = now
             client.send(msgpack.packb({"type": "params", "params": {name: rng.uniform(lo, hi)}, "seq": seq}))
             next_update += update_every
-        wake = min(stop, next_update) if updates else stop
-        await asyncio.sleep(max(0.0, wake - time.monotonic()))
+        if now >= next_action:
+            if state["nodes"]:  # once the topology has come
+                seq += 1
+                choices = [n for n in graph["nodes"] if n in state["nodes"] and n != state["node"]]
+                node = rng.choice(choices)  # not the node playing: a key that asks for a change
+                values = {p["name"]: rng.uniform(p["min"], p["max"]) for p in state["nodes"][node]}
+                state["pending"][seq] = now
+                state["asked"] = (node, now, seq)  # a later action replaces it (the server carries out the last)
+                state["actions"] += 1
+                client.send(msgpack.packb({"type": "action", "node": node, "params": values, "seq": seq}))
+            next_action += graph["every"] * rng.uniform(0.5, 1.5)
+        await asyncio.sleep(max(0.0, min(stop, next_update, next_action) - time.monotonic()))
     transport.close()
-    out.append((state["frames"], state["latencies"], state["transit"], heatmap))
+    out.append({"frames": state["frames"], "latencies": state["latencies"], "transit": state["transit"],
+                "heatmap": heatmap, "acting": acting, "actions": state["actions"], "notices": state["notices"],
+                "errors": state["errors"][:5], "entered": state["entered"], "entered_asked": state["entered_asked"],
+                "action_latencies": state["action_latencies"]})
 
 
 def _runqueue_wait():
@@ -127,8 +181,9 @@ def _runqueue_wait():
 
 
 def client_process(host, port, space, n, fps, seconds, warmup, update_share, update_every, params, seed, queue,
-                   heatmaps=0):
-    """``n`` clients, the first ``heatmaps`` of them with the heatmap on."""
+                   heatmaps=0, graph=None, acting=0):
+    """``n`` clients, the first ``heatmaps`` of them with the heatmap on; with ``graph`` (see
+    ``one_client``) they stream that motion graph and the first ``acting`` of them send actions."""
     rng = random.Random(seed)
     usage = resource.getrusage(resource.RUSAGE_SELF)
     cpu_start, wait_start = usage.ru_utime + usage.ru_stime, _runqueue_wait()
@@ -141,7 +196,7 @@ def client_process(host, port, space, n, fps, seconds, warmup, update_share, upd
         for i in range(n):
             tasks.append(asyncio.create_task(one_client(
                 host, port, space, fps, seconds, measure_from, measure_to, rng.random() < update_share, update_every,
-                params, random.Random(rng.random()), out, i < heatmaps)))
+                params, random.Random(rng.random()), out, i < heatmaps, graph, i < acting)))
             await asyncio.sleep(0.005)  # do not open every connection in the same instant
         results = await asyncio.gather(*tasks, return_exceptions=True)
         failures = [repr(r) for r in results if isinstance(r, BaseException)]
@@ -150,9 +205,9 @@ def client_process(host, port, space, n, fps, seconds, warmup, update_share, upd
     out, failures, window = asyncio.run(main())
     usage = resource.getrusage(resource.RUSAGE_SELF)
     queue.put({"cpu_seconds": usage.ru_utime + usage.ru_stime - cpu_start,
-               "wait_seconds": _runqueue_wait() - wait_start,
-               "frames": [f for f, _, _, _ in out], "latencies": [x for _, l, _, _ in out for x in l],
-               "transit": [x for _, _, t, _ in out for x in t], "heatmap": [h for _, _, _, h in out],
+               "wait_seconds": _runqueue_wait() - wait_start, "clients": out,
+               "frames": [c["frames"] for c in out], "latencies": [x for c in out for x in c["latencies"]],
+               "transit": [x for c in out for x in c["transit"]], "heatmap": [c["heatmap"] for c in out],
                "failures": failures, "window": window})
 
 

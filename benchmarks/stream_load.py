@@ -7,6 +7,8 @@
     .venv/bin/python benchmarks/stream_load.py --heatmap-clients 50  # 50 of the 200 with the heatmap on
     .venv/bin/python benchmarks/stream_load.py --baseline /tmp/before --repeat 3   # against another checkout
     .venv/bin/python benchmarks/stream_load.py --tiny --out /tmp/stream_load.json   # smoke run, ~30 s
+    .venv/bin/python benchmarks/stream_load.py --graph data/spaces/demo.mgraph --actions 0.25   # a motion graph
+    .venv/bin/python benchmarks/stream_load.py --tiny --graph tiny --out /tmp/stream_load_graph.json
 
 Starts ``morphspace serve`` (``--workers``, default one process) on 127.0.0.1 over a data directory holding the space
 (default data/spaces/locomotion.mspace, 3,000 vertices), then runs the clients in separate
@@ -33,6 +35,19 @@ Results go to benchmarks/results/stream_load.json. ``--tiny`` (the test suite's 
 1,000-vertex speed space in a temporary directory unless ``--space`` is given, and runs 4 clients
 x 30 fps for 4 s (1.5 s of warm-up) in one client process, every client sending parameters, then
 the same 4 clients against a 1-worker and a 2-worker server side by side; it needs ``--out``.
+
+``--graph GRAPH`` (a ``.mgraph`` file, or a name under data/spaces; with ``--tiny``, ``tiny``: the
+tiny graph with a reach, engine.graph.tiny, built in a temporary directory) makes every client
+stream that motion graph instead of a space, from its first cyclic node: the first ``--actions``
+share of them (default 0.25) act as a player would, sending an ``action`` to a random other node of
+``--action-nodes`` (default walk, stand, jump, reach: those the graph has) at random parameters
+every 0.5-1.5 x ``--action-every`` seconds (default 2); the others watch. No client sends params
+or asks for the heatmap. It reports frames delivered for the acting and the passive clients
+apart, the actions sent, the notices and errors they got, the transitions carried out (changes of
+the frames' ``node``, a one-shot's own return and a route's hops included), how many actions saw
+their node entered and the time from sending to that (the transition's planned wait included),
+and the time from an action to the first frame acknowledging it (``latency_ms``). ``--tiny
+--graph tiny``: 4 clients x 30 fps for 6 s, 2 of them acting every second; no workers comparison.
 
 ``--baseline DIR`` replaces the rounds above by this tree's server against the server of the
 source tree ``DIR`` (another checkout), one worker each, ``--repeat`` rounds each, alternating
@@ -72,6 +87,8 @@ from _workers import (
 ROOT = Path(__file__).resolve().parents[1]
 TINY = {"clients": 4, "fps": 30.0, "seconds": 4.0, "warmup": 1.5, "client_procs": 1, "update_share": 1.0,
         "compare_workers": [1, 2], "levels": [4], "heatmap_clients": 1}
+TINY_GRAPH = dict(TINY, seconds=6.0, actions=0.5, action_every=1.0, compare_workers=None, heatmap_clients=0)
+ACTION_NODES = ("walk", "stand", "jump", "reach")
 
 
 def served_space(data, space, tiny):
@@ -87,6 +104,34 @@ def served_space(data, space, tiny):
     path = data / "spaces" / source.name
     path.symlink_to(source)
     return path
+
+
+def served_graph(data, graph, tiny):
+    """Put the motion graph to serve into ``data/spaces`` with its nodes' spaces: with ``tiny`` and
+    ``graph`` "tiny", the tiny graph (walk, stand, jump, reach) built there; otherwise links to the
+    ``.mgraph`` file ``graph`` (or data/spaces/GRAPH.mgraph) and to its spaces."""
+    from engine.graph import MotionGraph  # here, not at the top: the client processes never need it
+
+    spaces = data / "spaces"
+    if tiny and str(graph) == "tiny":
+        from engine.graph.tiny import build_tiny_graph, build_tiny_spaces
+
+        build_tiny_spaces(spaces, reach=True)
+        build_tiny_graph(spaces, spaces / "tiny.mgraph", reach=True)
+        return spaces / "tiny.mgraph"
+    source = Path(graph)
+    if source.suffix != ".mgraph" and not source.exists():
+        source = ROOT / "data" / "spaces" / f"{graph}.mgraph"
+    source = source.resolve()
+    with MotionGraph.open(source, verify=False) as opened:
+        records = opened.metadata["nodes"]
+    for record in records:
+        space = (source.parent / record["space"]).resolve()
+        link = spaces / Path(record["space"]).name
+        if not link.exists():
+            link.symlink_to(space)
+    (spaces / source.name).symlink_to(source)
+    return spaces / source.name
 
 
 def free_port():
@@ -154,13 +199,16 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     wait_start = run_and_wait_seconds(server_processes)[1]
     machine_start = machine_times()
     queue = ctx.Queue()
-    per = [args.clients // args.client_procs + (i < args.clients % args.client_procs)
-           for i in range(args.client_procs)]
-    heat = [args.heatmap_clients // args.client_procs + (i < args.heatmap_clients % args.client_procs)
-            for i in range(args.client_procs)]
+    def spread(count):  # ``count`` clients over the client processes
+        return [count // args.client_procs + (i < count % args.client_procs) for i in range(args.client_procs)]
+
+    per, heat = spread(args.clients), spread(args.heatmap_clients)
+    graph = getattr(args, "graph_settings", None)
+    acting = spread(acting_clients(args) if graph else 0)
     procs = [ctx.Process(target=client_process, args=("127.0.0.1", port, name, n, args.fps, args.seconds, args.warmup,
                                                        args.update_share, args.update_every, params, seed + i,
-                                                       queue, heat[i])) for i, n in enumerate(per)]
+                                                       queue, heat[i], graph, acting[i]))
+             for i, n in enumerate(per)]
     for p in procs:
         p.start()
     outputs = [queue.get(timeout=args.seconds + 120) for _ in procs]
@@ -231,7 +279,7 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
               f"min {100 * result['delivered_heatmap_min']:.1f}%; the others: min "
               f"{100 * (result['delivered_others_min'] or 0):.1f}%")
     lat = result["latency_ms"]
-    print(f"  params -> first frame reflecting them: median {lat['median']:.1f} ms, p95 {lat['p95']:.1f} ms, "
+    print(f"  {'actions' if graph else 'params'} -> first frame reflecting them: median {lat['median']:.1f} ms, p95 {lat['p95']:.1f} ms, "
           f"p99 {lat['p99']:.1f} ms, max {lat['max']:.1f} ms ({lat['count']} updates)")
     tr = result["transit_ms"]
     print(f"    of which frame encoded -> read by the client: median {tr['median']:.1f} ms, p95 {tr['p95']:.1f} ms, "
@@ -248,9 +296,59 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     print(f"  machine: {busy / elapsed:.2f} cores busy, {idle / elapsed:.2f} idle, {steal / elapsed:.2f} stolen "
           f"by the host (of {os.cpu_count()}); reference Python loop {reference_before:.0f} ms before, "
           f"{reference_after:.0f} ms after (lower is a faster host)")
+    if graph:
+        result["graph_round"] = graph_figures(outputs, expected)
+        print_graph_figures(result["graph_round"])
     if result["failures"]:
         print(f"  client failures: {result['failures']}")
     return result
+
+
+def acting_clients(args):
+    """How many clients send actions (the first ones): ``--actions`` of ``--clients``, rounded."""
+    return int(round(args.actions * args.clients))
+
+
+def graph_figures(outputs, expected):
+    """A graph round's figures for the acting and the passive clients apart."""
+    clients = [c for o in outputs for c in o["clients"]]
+    out = {}
+    for group, members in (("acting", [c for c in clients if c["acting"]]),
+                           ("passive", [c for c in clients if not c["acting"]])):
+        delivered = [c["frames"] / expected for c in members]
+        out[group] = {"clients": len(members),
+                      "delivered_mean": statistics.mean(delivered) if delivered else None,
+                      "delivered_min": min(delivered) if delivered else None,
+                      "delivered_p5": percentile(delivered, 5) if delivered else None}
+    acting = [c for c in clients if c["acting"]]
+    notices = {}
+    for c in acting:
+        for code, n in c["notices"].items():
+            notices[code] = notices.get(code, 0) + n
+    waits = [x for c in acting for x in c["action_latencies"]]
+    out.update({"actions": sum(c["actions"] for c in acting), "notices": notices,
+                "errors": [e for c in acting for e in c["errors"]][:10],
+                "error_count": sum(len(c["errors"]) for c in acting),
+                "transitions": sum(c["entered"] for c in acting),
+                "actions_entered": sum(c["entered_asked"] for c in acting),
+                "action_to_entered_s": {"count": len(waits), "median": percentile(waits, 50),
+                                        "p95": percentile(waits, 95)}})
+    return out
+
+
+def print_graph_figures(g):
+    a, p = g["acting"], g["passive"]
+
+    def pct(x):
+        return "-" if x is None else f"{100 * x:.1f}%"
+    print(f"  acting clients ({a['clients']}): delivered mean {pct(a['delivered_mean'])}, min {pct(a['delivered_min'])}; "
+          f"passive ({p['clients']}): mean {pct(p['delivered_mean'])}, min {pct(p['delivered_min'])}")
+    wait = g["action_to_entered_s"]
+    print(f"  {g['actions']} actions sent, notices {g['notices']}, {g['error_count']} errors; {g['transitions']} "
+          f"transitions carried out; {g['actions_entered']} actions saw their node entered, action -> entered "
+          f"median {wait['median']:.2f} s, p95 {wait['p95']:.2f} s")
+    if g["errors"]:
+        print(f"  errors: {g['errors']}")
 
 
 def percentile(values, q):
@@ -285,6 +383,15 @@ def main(argv=None):
     parser.add_argument("--heatmap-clients", type=int, default=0,
                         help="clients asking for the heatmap (distances from the non-linear blend) too")
     parser.add_argument("--update-every", type=float, default=0.5, help="seconds between their updates")
+    parser.add_argument("--graph", help="stream this motion graph (a .mgraph file, or a name under data/spaces; "
+                                        "with --tiny, 'tiny' builds one) instead of a space; no params, no heatmap")
+    parser.add_argument("--actions", type=float, default=0.25,
+                        help="with --graph: share of the clients sending actions (default 0.25)")
+    parser.add_argument("--action-every", type=float, default=2.0,
+                        help="with --graph: mean seconds between an acting client's actions (0.5-1.5 x this)")
+    parser.add_argument("--action-nodes", default=",".join(ACTION_NODES),
+                        help="with --graph: the nodes actions ask for (those the graph has; default "
+                             "walk,stand,jump,reach)")
     parser.add_argument("--repeat", type=int, default=1, help="measuring rounds against the same server "
                                                                "(each reported; the median of their means)")
     parser.add_argument("--workers", type=int, default=1, help="server worker processes (morphspace serve --workers)")
@@ -302,14 +409,26 @@ def main(argv=None):
                         help="smoke run: 4 clients x 30 fps for 4 s in one process, on a 1,000-vertex space "
                              "built for the run unless --space is given; needs --out")
     parser.add_argument("--out", type=Path, help="JSON results (default benchmarks/results/stream_load.json)")
-    args = parse_arguments(parser, argv, TINY)
-    out = args.out or ROOT / "benchmarks" / "results" / "stream_load.json"
+    given = sys.argv[1:] if argv is None else argv
+    graph = any(a == "--graph" or a.startswith("--graph=") for a in given)
+    args = parse_arguments(parser, argv, TINY_GRAPH if graph else TINY)
+    if args.graph is not None:
+        if args.baseline is not None or args.compare_workers and not args.tiny:
+            parser.error("--graph measures one server: no --baseline or --compare-workers")
+        if args.heatmap_clients:
+            parser.error("--graph: heatmaps are for spaces (no --heatmap-clients)")
+        if not 0.0 <= args.actions <= 1.0 or not args.action_every > 0:
+            parser.error("--actions must be a share in [0, 1] and --action-every a positive number of seconds")
+        args.update_share = 0.0
+    out = args.out or ROOT / "benchmarks" / "results" / ("stream_load_graph.json" if args.graph else "stream_load.json")
 
     data = Path(tempfile.mkdtemp(prefix="morphspace-bench-"))
     try:
         (data / "spaces").mkdir()
-        space_path = served_space(data, args.space, args.tiny)
-        if args.baseline is not None:
+        space_path = None if args.graph is not None else served_space(data, args.space, args.tiny)
+        if args.graph is not None:
+            result = serve_and_measure(args, data, served_graph(data, args.graph, args.tiny))
+        elif args.baseline is not None:
             name, n_vertices, params = space_figures(space_path)
             result = {"baseline_comparison": compare_code(args, data, name, n_vertices, params, load_round,
                                                           stop_process_group)}
@@ -326,9 +445,38 @@ def main(argv=None):
     return 0
 
 
+def warm_up_graph(port, name, workers):
+    """Stream the graph once per worker (a hello, its topology) so that the graph is open and its
+    nodes' blenders set up before the clients come; needs a node the actions may ask for."""
+    import asyncio
+
+    import msgpack
+    import websockets
+
+    async def once():
+        async with websockets.connect(f"ws://127.0.0.1:{port}/v1/stream", max_size=2**26, compression=None) as ws:
+            await ws.send(msgpack.packb({"type": "hello", "graph": name, "codec": "q16", "rate": 1.0}))
+            while True:
+                msg = msgpack.unpackb(await asyncio.wait_for(ws.recv(), timeout=120))
+                if msg["type"] == "error":
+                    raise RuntimeError(f"graph {name}: {msg['code']}: {msg['message']}")
+                if msg["type"] == "topology":
+                    return
+
+    for _ in range(4 * workers):  # connections land on workers as the kernel spreads them
+        asyncio.run(once())
+
+
 def space_figures(space_path):
-    """(name, vertices, [(parameter, (min, max))]) of the space served."""
+    """(name, vertices, [(parameter, (min, max))]) of the space served (of a ``.mgraph``: its name,
+    vertices, and no parameters: graph clients send actions, not params)."""
     from engine.motion_space import MotionSpace  # here, not at the top: the client processes never need it
+
+    if space_path.suffix == ".mgraph":
+        from engine.graph import MotionGraph
+
+        with MotionGraph.open(space_path, verify=False) as graph:
+            return space_path.stem, int(graph.metadata["n_vertices"]), []
 
     with MotionSpace.open(space_path, verify=False) as space:
         pmap = space.parameter_map
@@ -351,8 +499,16 @@ def serve_and_measure(args, data, space_path):
     url = f"ws://127.0.0.1:{port}/v1/stream"
     result = {"space": name, "n_vertices": n_vertices, "clients": args.clients, "fps": args.fps,
               "codec": "q16", "seconds": args.seconds, "cpus": os.cpu_count(), "workers": args.workers}
+    if args.graph is not None:
+        nodes = [n for n in args.action_nodes.split(",") if n]
+        args.graph_settings = {"name": name, "every": args.action_every, "nodes": nodes}
+        result.update(space=None, graph=name, acting_clients=acting_clients(args), action_every=args.action_every,
+                      action_nodes=nodes)
     try:
-        warm_up(port, name)  # open (and verify) it once in every worker
+        if args.graph is not None:
+            warm_up_graph(port, name, args.workers)  # open it, and its nodes' blenders, in every worker
+        else:
+            warm_up(port, name)  # open (and verify) it once in every worker
         rss_start = rss_mb(server.pid)
         ctx = mp.get_context("spawn")
         rounds = []

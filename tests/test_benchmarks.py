@@ -225,6 +225,33 @@ def test_tiny_mode_needs_out(script, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_stream_load_streams_a_motion_graph_with_acting_clients(tmp_path):
+    """``stream_load.py --tiny --graph tiny``: the tiny graph (walk, stand, jump, reach) built for the
+    run; 2 of 4 clients send actions every 0.5-1.5 s; frames delivered for the acting and the passive
+    clients apart, the actions' notices and the transitions the frames show."""
+    out, cwd = tmp_path / "result.json", tmp_path / "cwd"
+    cwd.mkdir()
+    before = recorded_results()
+    run = subprocess.run([sys.executable, str(BENCHMARKS / "stream_load.py"), "--tiny", "--graph", "tiny", "--out",
+                          str(out)], cwd=cwd, capture_output=True, text=True, timeout=240)
+    assert run.returncode == 0, f"stream_load.py --graph failed:\n{run.stdout[-2000:]}\n{run.stderr[-4000:]}"
+    result = json.loads(out.read_text())
+    assert result["graph"] == "tiny" and result["clients"] == 4 and result["acting_clients"] == 2
+    assert result["connected"] == 4 and result["failures"] == [] and "workers_comparison" not in result
+    figures = result["graph_round"]
+    assert figures["acting"]["clients"] == 2 and figures["passive"]["clients"] == 2
+    for group in ("acting", "passive"):
+        assert 0.25 < figures[group]["delivered_min"] <= figures[group]["delivered_mean"] < 1.5
+    assert figures["actions"] >= 4 and figures["error_count"] == 0 and figures["errors"] == []
+    assert 0 < sum(figures["notices"].values()) <= figures["actions"]  # answered planned or queued (the last may not be yet)
+    assert set(figures["notices"]) <= {"planned", "queued", "clamped"}
+    assert figures["transitions"] >= 1 and 1 <= figures["actions_entered"] <= figures["actions"]
+    assert positive(figures["action_to_entered_s"]["median"])
+    assert 0 < result["latency_ms"]["count"] <= figures["actions"] and positive(result["latency_ms"]["median"])
+    assert "acting clients (2)" in run.stdout and "transitions carried out" in run.stdout
+    assert recorded_results() == before and not list(cwd.iterdir())
+
+
 def test_stream_load_compares_a_baseline_tree_side_by_side(tmp_path):
     """``stream_load.py --baseline DIR``: a server from DIR (here this same tree) and this tree's take
     alternating rounds under the same load; the record has both, their medians and the ratio."""
