@@ -86,28 +86,36 @@ class ExportBlenders:
 
 
 def run_export(payload, reporter):
-    """The ``export`` job: play and write in the staging directory; the server publishes the file."""
+    """The ``export`` job (a clip of a space, or a graph's recorded performance: server/graph_exports.py):
+    play and write in the staging directory; the server publishes the file."""
     from engine.export import ClipError
     from engine.motion_space import MotionSpace
     from server.jobs.tasks import JobError
 
     params, staging = payload["params"], Path(payload["staging"])
-    path = Path(payload["data_dir"]) / "spaces" / f"{params['space']}.mspace"
-    if not path.is_file():
-        raise JobError(f"no motion space {params['space']!r}")
     name = f"{payload['id']}{SUFFIX[params['format']]}"
     started = time.perf_counter()
-    with MotionSpace.open(path) as space:
-        try:
-            stats, notes = export_file(space, params, staging / name, progress=reporter.progress)
-        except ClipError as exc:
-            raise JobError(str(exc)) from None
+    if params.get("graph") is not None:  # a recorded graph performance
+        from server.graph_exports import run_graph_export
+
+        stats, notes = run_graph_export(payload, reporter, name)
+        what = {"graph": params["graph"]}
+    else:
+        path = Path(payload["data_dir"]) / "spaces" / f"{params['space']}.mspace"
+        if not path.is_file():
+            raise JobError(f"no motion space {params['space']!r}")
+        with MotionSpace.open(path) as space:
+            try:
+                stats, notes = export_file(space, params, staging / name, progress=reporter.progress)
+            except ClipError as exc:
+                raise JobError(str(exc)) from None
+        what = {"space": params["space"]}
     for note in notes:
         reporter.log(f"note: {note}")
     seconds = time.perf_counter() - started
-    reporter.log(f"exported {stats['frames']} frames of {params['space']} as {params['format']}: "
+    reporter.log(f"exported {stats['frames']} frames of {next(iter(what.values()))} as {params['format']}: "
                  f"{stats['bytes'] / 1e6:.2f} MB in {seconds:.1f} s")
-    summary = {"space": params["space"], "format": params["format"], "frames": stats["frames"],
+    summary = {**what, "format": params["format"], "frames": stats["frames"],
                "bytes": stats["bytes"], "file": name, "notes": notes, "seconds": round(seconds, 2)}
     if "max_error_m" in stats:
         summary["max_error_mm"] = 1000 * stats["max_error_m"]

@@ -109,4 +109,4 @@ class GraphRegistry:
         return {"name": name, "graph": graph.name, "start": start, "nodes": nodes,
                 "edges": [{"from": a, "to": b} for a, b in graph.edges],
                 "n_vertices": int(graph.nodes[0].space.n_vertices), "model_size": graph.model_size,
-                "file_bytes": self.path(name).stat().st_size}
+                "file_bytes": self.path(name).stat().st_size, "checksum": graph.checksum}

@@ -1,4 +1,5 @@
-"""Exports: a clip as glTF, USD or an OBJ / PLY sequence, at once (short clips) or as a job's file."""
+"""Exports: a clip of a space, or a graph's recorded performance, as glTF, USD, an OBJ / PLY sequence
+or a vertex-animation texture, at once (short ones) or as a job's file."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ from engine.export import ClipError, check_clip
 from server.api.deps import Authorised, RegistryDep, SettingsDep
 from server.api.spaces import _space_or_404
 from server.exports import MEDIA_TYPE, SUFFIX, ExportBlenders, clip_of
-from server.jobs.models import ExportSpec
+from server.graph_exports import GraphExports, check_graph_export
+from server.jobs.models import ExportSpec, GraphExportSpec
 
 router = APIRouter(tags=["exports"])
 FILE = re.compile(r"^[0-9a-f]{16}\.(glb|usd|zip)$")
@@ -56,6 +58,41 @@ async def export_now(name: str, registry: RegistryDep, settings: SettingsDep, re
                                                           settings.work_dir / "exports")
     headers = {"Content-Disposition": f'attachment; filename="{name}{SUFFIX[spec.format]}"',
                "X-Morphspace-Frames": str(stats["frames"]), "X-Morphspace-Seconds": f"{seconds:.3f}"}
+    if notes:
+        headers["X-Morphspace-Notes"] = "; ".join(notes)[:1000]
+    return Response(data, media_type=MEDIA_TYPE[spec.format], headers=headers)
+
+
+def _graph_exports(request):
+    exports = getattr(request.app.state, "graph_exports", None)
+    if exports is None:
+        exports = request.app.state.graph_exports = GraphExports()
+    return exports
+
+
+@router.post("/graphs/{name}/export", summary="Export a recorded graph performance now (glTF, USD, zips)",
+             response_class=Response,
+             responses={200: {"content": {"model/gltf-binary": {}, "application/octet-stream": {}, "application/zip": {}},
+                              "description": "the file (Content-Disposition: attachment)"},
+                        404: {"description": "no such graph"},
+                        409: {"description": "the graph cannot be used (a space missing or rebuilt)"},
+                        422: {"description": "not a recording of this graph (the message names the problem), or "
+                                             "too long for a synchronous export (queue an export job)"}})
+async def export_graph_now(name: str, settings: SettingsDep, request: Request, spec: GraphExportSpec):
+    graphs = request.app.state.graphs
+    graph, n_frames = await asyncio.to_thread(check_graph_export, graphs, name, spec.recording, HTTPException)
+    n_vertices = graph.nodes[0].space.n_vertices
+    limit = settings.export_sync_max_vertex_frames
+    if n_frames * n_vertices > limit:
+        raise HTTPException(422, f"{n_frames} frames x {n_vertices} vertices is too long to export synchronously "
+                                 f"(at most {limit:,} vertex-frames, {limit // n_vertices} frames of {name}); queue "
+                                 f"it as a job: POST /v1/jobs with {{\"kind\": \"export\", \"graph\": \"{name}\", "
+                                 f"\"recording\": ..., \"format\": ...}}")
+    data, stats, notes, digest, seconds = await asyncio.to_thread(
+        _graph_exports(request).export_bytes, graph, spec.model_dump(), settings.work_dir / "exports")
+    headers = {"Content-Disposition": f'attachment; filename="{name}{SUFFIX[spec.format]}"',
+               "X-Morphspace-Frames": str(stats["frames"]), "X-Morphspace-Seconds": f"{seconds:.3f}",
+               "X-Morphspace-Frames-Sha256": digest}
     if notes:
         headers["X-Morphspace-Notes"] = "; ".join(notes)[:1000]
     return Response(data, media_type=MEDIA_TYPE[spec.format], headers=headers)

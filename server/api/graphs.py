@@ -37,6 +37,7 @@ class GraphInfo(BaseModel):
     n_vertices: int
     model_size: float = Field(description="largest extent of the rest mesh (m)")
     file_bytes: int
+    checksum: str = Field(description="the file's header checksum (a graph recording names it: graph_checksum)")
 
 
 class GraphProblem(BaseModel):

@@ -147,10 +147,30 @@ class ExportSpec(_Body):
     interpolation: Literal["LINEAR", "STEP"] = Field("LINEAR", description="glTF weights sampling")
 
 
+class GraphExportSpec(_Body):
+    """A recorded motion-graph performance to export (docs/exports.md, "A motion-graph performance")."""
+    format: Literal["glb", "usd", "obj", "ply", "vat"] = Field("glb", description="as for a clip")
+    recording: dict[str, Any] = Field(description="a graph recording (docs/file-formats.md, \"Graph recordings\"): "
+                                                  "morphspace play --record or the browser's Record button")
+    precision: Literal["int16", "float32"] = Field("int16", description="glTF: int16 or float32")
+    interpolation: Literal["LINEAR", "STEP"] = Field("LINEAR", description="glTF weights sampling")
+
+
 class ExportJob(ExportSpec):
-    """Export a clip of a motion space (a long one; short ones: POST /v1/spaces/{name}/export)."""
+    """Export a clip of a motion space, or a recorded performance of a motion graph (a long one;
+    short ones: POST /v1/spaces/{name}/export, POST /v1/graphs/{name}/export)."""
     kind: Literal["export"]
-    space: Name = Field(description="a motion space")
+    space: Name | None = Field(None, description="a motion space (a clip: params, track, duration, ...)")
+    graph: Name | None = Field(None, description="or a motion graph (with recording)")
+    recording: dict[str, Any] | None = Field(None, description="with graph: the graph recording to export")
+
+    @model_validator(mode="after")
+    def _space_or_graph(self):
+        if (self.space is None) == (self.graph is None):
+            raise ValueError("give either space (a clip) or graph (with recording)")
+        if (self.graph is None) != (self.recording is None):
+            raise ValueError("recording goes with graph (a motion graph's recorded performance), and graph needs one")
+        return self
 
 
 class GraphNode(_Body):

@@ -194,6 +194,15 @@ class JobService:
         from server.exports import clip_of
         from server.registry import BrokenSpace, UnknownSpace
 
+        if params.get("graph") is not None:
+            from server.graph_exports import check_graph_export
+
+            if getattr(self, "_graphs", None) is None:  # the graphs beside the registry's spaces
+                from server.graphs import GraphRegistry
+
+                self._graphs = GraphRegistry(self.registry)
+            check_graph_export(self._graphs, params["graph"], params["recording"], JobRequestError)
+            return
         try:
             space = self.registry.get(params["space"])
         except UnknownSpace as exc:
