@@ -4,10 +4,12 @@ A hello naming ``graph`` (docs/protocol.md) makes the connection play a GraphPla
 (engine/graph/player.py) instead of a space's Player. ``GraphStream`` wraps it with the state a
 frame reports (the shown node's phase, parameters, weights; the root transform; the node, the
 transition's target and its progress) and the messages a graph answers: ``action`` (go to a
-node), ``params`` (the shown node's parameters, at once), ``mode``, ``reset``. Frames are
-blended one connection at a time (no phase tables: a graph's state moves between spaces), on the
-event loop like every other frame; the blending set-up of every node's space (the non-linear
-solvers) is done in a thread by ``prepare`` before a hello or a mode switch is answered.
+node), ``params`` (the shown node's parameters, at once), ``mode``, ``reset``. Each connection's
+player makes its own frames as it advances (not the session's phase-table path: a graph's state
+moves between spaces), on the event loop like every other frame; it reads the nodes' spaces'
+phase tables at weights that recur (``GraphPlayer(tables=True)``), so a node played at steady
+parameters costs one interpolation a frame. The blending set-up of every node's space (the
+non-linear solvers) is done in a thread by ``prepare`` before a hello or a mode switch is answered.
 
 Errors are ProtocolErrors with the codes of docs/protocol.md: ``unknown_graph``,
 ``unknown_node``, ``invalid_params``, ``unsupported`` (messages a graph does not take).
@@ -105,7 +107,8 @@ class GraphStream:
         """Back to the start node at its start parameters, at the origin facing +Z, time 0."""
         try:
             self.player = GraphPlayer(self.graph, node=self.start, params=self.start_params, mode=self.mode,
-                                      record=False)  # a stream is not recorded: its requests are not kept
+                                      record=False,  # a stream is not recorded: its requests are not kept
+                                      tables=True)   # one interpolation a frame at weights that recur
         except GraphError as exc:  # a start parameter that is not a number the node can take
             raise P.ProtocolError("invalid_params", f"hello: {exc}", "hello") from None
         self._frame = self.player.frame(placed=False)
@@ -202,8 +205,7 @@ class GraphStream:
 
     def advance(self, dt):
         """Step the performance by ``dt`` seconds."""
-        self.player.step(dt)
-        self._frame = self.player.frame(placed=False)
+        self._frame = self.player.step(dt, placed=False)
 
     def vertices(self):
         """(n, 3) float32 root-local vertices of the current frame (the player's buffer)."""

@@ -20,6 +20,11 @@ class NodeClock:
     space : MotionSpace
     weights : (N,) float array   blend weights (not all zero)
     phase : float                start phase in [0, 1]
+    tables : bool                blend linear and hybrid frames through the space's phase tables
+                                 (``MotionSpace.frame_blender``: exact up to float32 rounding, one
+                                 interpolation a frame at weights that recur) instead of blending
+                                 every frame; a stream says True, a recording False (its bytes then
+                                 depend only on the weights and the phase)
 
     Attributes
     ----------
@@ -27,8 +32,8 @@ class NodeClock:
     finished : bool   a one-shot space has reached its last frame (it then holds it)
     """
 
-    def __init__(self, space, weights, phase=0.0):
-        self.space = space
+    def __init__(self, space, weights, phase=0.0, *, tables=False):
+        self.space, self.tables = space, bool(tables)
         self.cyclic = bool(space.cyclic)
         self.set_weights(weights)
         self.phase = float(phase) % 1.0 if self.cyclic else min(max(float(phase), 0.0), 1.0)
@@ -72,8 +77,10 @@ class NodeClock:
 
     def mesh(self, mode="hybrid"):
         """(n, 3) the root-local blended mesh at the current phase (the blender's buffer: copy it
-        to keep it). The space's own blender, not its phase-table cache: the bytes depend only on
-        the weights and the phase, so a replay gives the same frames."""
+        to keep it). Without ``tables`` the space's own blender, not its phase-table cache: the
+        bytes depend only on the weights and the phase, so a replay gives the same frames."""
+        if self.tables and mode != "nonlinear":
+            return self.space.frame_blender(mode).blend(self.weights, self.phase)
         return self.space.blender(mode).blend(self.weights, self.phase)
 
 

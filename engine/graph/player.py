@@ -75,10 +75,12 @@ class GraphPlayer:
     contact : float          metres above the rest mesh's lowest point that count as on the ground
     record : bool            keep every request in ``requests`` (for a recording); a stream that
                              is never recorded says False, so a long session does not grow it
+    tables : bool            blend through the spaces' phase tables (``NodeClock``): a stream
+                             says True (a frame costs one interpolation at weights that recur)
     """
 
     def __init__(self, graph, *, node=None, params=None, mode="hybrid", search=None, foot_lock=True,
-                 contact=0.01, record=True):
+                 contact=0.01, record=True, tables=False):
         if mode not in MODES:
             raise ValueError(f"unknown blend mode {mode!r}; choose one of {', '.join(MODES)}")
         self.graph, self.mode = graph, mode
@@ -88,7 +90,8 @@ class GraphPlayer:
         self._params[start.name] = dict(params or {})
         weights, self._realised, _, _ = start.solve(self._params[start.name])
         self.node = start
-        self.clock = NodeClock(start.space, weights, 0.0)
+        self.tables = bool(tables)
+        self.clock = NodeClock(start.space, weights, 0.0, tables=self.tables)
         self.time, self.frames = 0.0, 0
         self.position, self.heading = np.zeros(3), 0.0
         self.pending = None      # a planned transition not started: (plan, seconds left)
@@ -104,7 +107,7 @@ class GraphPlayer:
         self._feet = foot_vertices(rest)
         self._ground = float(rest[:, 1].min()) + float(contact)  # below this: on the ground
         self._cached = None      # (frames, root-local mesh, progress) of the current state
-        self._feet_before = self._feet_at()
+        self._feet_before, self._feet_frame = None, None  # the feet in the world, at frame number
         if not start.cyclic:
             self._plan_return()
 
@@ -202,17 +205,20 @@ class GraphPlayer:
 
     # playing ----------------------------------------------------------------------------------
 
-    def step(self, dt):
-        """Advance ``dt`` seconds; the frame there."""
+    def step(self, dt, *, placed=True):
+        """Advance ``dt`` seconds; the frame there (``placed=False``: root-local, as ``frame``)."""
         dt = float(dt)
         if not (dt >= 0 and np.isfinite(dt)):
             raise ValueError(f"dt must be a non-negative number of seconds, got {dt}")
         events = []
+        if self._locking() and self._feet_frame != self.frames:  # the feet before this step, for the lock
+            self._feet_before, self._feet_frame = self._feet_at(), self.frames
         self._cached = None
         if self.pending is not None and self.blend is None and self.pending[1] <= 0.5 * dt:
             plan = self.pending[0]
             target = self.graph.node(plan.target)
-            self.blend = _Blend(plan, NodeClock(target.space, plan.target_weights, plan.enter_phase))
+            self.blend = _Blend(plan, NodeClock(target.space, plan.target_weights, plan.enter_phase,
+                                                tables=self.tables))
             self.left = (plan, self.clock.weights.copy())
             self.pending = None
             events.append(f"leave {plan.source} -> {plan.target}")
@@ -229,12 +235,17 @@ class GraphPlayer:
         self.frames += 1
         if self.blend is not None and self.foot_lock:
             self._lock_feet()
-        self._feet_before = self._feet_at()
+        if self._locking():  # only a blend locks the feet: elsewhere they are not placed
+            self._feet_before, self._feet_frame = self._feet_at(), self.frames
         if self.blend is not None and self.blend.elapsed >= self.blend.plan.length - 1e-9:
             events.append(self._enter())
         elif self.blend is None and self.pending is None and not self.node.cyclic and self.clock.finished:
             self._plan_return()  # the planned return could not be kept: leave now
-        return self.frame(events)
+        return self.frame(events, placed=placed)
+
+    def _locking(self):
+        """The next step may blend, so the feet's places are needed."""
+        return self.foot_lock and (self.blend is not None or self.pending is not None)
 
     def _enter(self):
         plan = self.blend.plan

@@ -164,6 +164,26 @@ def test_an_unrecorded_player_keeps_no_requests(graph):
     assert player.requests == [] and player.pending is not None
 
 
+def test_a_player_on_phase_tables_plays_the_same_frames(graph):
+    """A stream's player (tables=True) reads the spaces' phase tables at weights that recur
+    instead of blending every frame: the same frames up to float32 rounding, across transitions
+    and at new parameters; the events identical, the root (moved by the foot lock) to a micrometre."""
+    players = [GraphPlayer(graph, node="walk", params={"speed": 1.2}, mode="hybrid", tables=tables)
+               for tables in (False, True)]
+    script = {10: ("jump", {"jump_height": 0.35}), 100: ("walk", {"speed": 0.9}), 160: ("stand", {})}
+    largest = 0.0
+    for k in range(240):
+        if k in script:
+            for player in players:
+                player.request(*script[k])
+        exact, tabled = (player.step(1 / 30, placed=False) for player in players)
+        assert tabled.events == exact.events and tabled.node == exact.node
+        np.testing.assert_allclose(tabled.root_position, exact.root_position, atol=1e-6)  # the foot lock's rounding
+        largest = max(largest, float(np.abs(tabled.vertices - exact.vertices).max()))
+    assert largest < 2e-5  # metres: float32 rounding of one interpolation
+    assert players[1].clock.tables and graph.node("stand").space.frame_blender("hybrid").hits > 0
+
+
 class _Recording:
     """A search that records how it was called."""
 
