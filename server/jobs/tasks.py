@@ -10,7 +10,7 @@ A task writes only inside ``staging`` and returns a result whose ``output`` name
 server then renames into ``spaces/`` or ``datasets/`` (``publish``): a cancelled or failed job
 never leaves a partial space or dataset. Progress goes through a ``Reporter``
 (``progress(stage, done, total)``, ``log(line)``), which also notices a cancellation (the file
-``staging/CANCEL``) at the next progress call.
+``staging/../CANCEL``, or that directory removed by the server) at the next progress call.
 """
 
 from __future__ import annotations
@@ -61,11 +61,18 @@ class Reporter:
         self.seen = set()
 
     def check(self):
+        """Raise JobCancelled when the job was cancelled: its cancel file exists, or its job
+        directory (the cancel file's) is gone. The server removes that directory as soon as the
+        job ends on its side, a cancel included, so on Dask, where the server cannot stop the
+        task itself, the cancel file may be gone before the task looks (it then went on to the
+        end of the build, its sub-tasks keeping the cluster busy)."""
         now = time.monotonic()
         if self.cancel_file is not None and now - self.checked_at > 0.25:
             self.checked_at = now
             if os.path.exists(self.cancel_file):
                 raise JobCancelled("cancelled by request")
+            if not os.path.isdir(os.path.dirname(self.cancel_file)):
+                raise JobCancelled("cancelled: the server ended the job (its job directory is gone)")
 
     def progress(self, stage, done=0, total=None):
         self.check()

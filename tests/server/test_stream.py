@@ -333,8 +333,9 @@ def test_a_message_flood_is_rate_limited_not_fatal(server):
     assert alive
 
 
-async def fresh_backlog(ws, acks):
-    """Read until a frame sent within 0.1 s arrives: (stale frames read first, that frame)."""
+async def fresh_backlog(ws, acks, resumed):
+    """Read until a frame made after ``resumed`` (wall time reading resumed) arrives: (frames made
+    before it, read first; that frame). At most 20 s."""
     stale = 0
     deadline = time.monotonic() + 20
     while time.monotonic() < deadline:
@@ -343,32 +344,73 @@ async def fresh_backlog(ws, acks):
             continue
         if acks:
             await ws.send(msgpack.packb({"type": "ack", "frame": raw["seq"]}))
-        if time.time() - raw["sent_at"] < 0.1:
+        if raw["sent_at"] >= resumed:
             return stale, raw
         stale += 1
     raise TimeoutError("no fresh frame")
 
 
+def delivery(frames, start, stop):
+    """(frames per second received, ticks skipped per second) of a stream over [start, stop) in
+    monotonic time, from its (received at, cumulative dropped) pairs."""
+    inside = [(t, d) for t, d in frames if start <= t < stop]
+    before = [d for t, d in frames if t < start]
+    skipped = inside[-1][1] - (before[-1] if before else inside[0][1]) if inside else 0
+    return len(inside) / (stop - start), skipped / (stop - start)
+
+
 @pytest.mark.parametrize("window", [0, 2])
 def test_a_slow_client_does_not_slow_a_fast_one(server, window):
-    async def go():
-        slow = await websockets.connect(server.ws_url, max_size=2**26, max_queue=1)
-        await slow.send(msgpack.packb({"type": "hello", "space": "speed", "rate": 60, "window": window}))
-        # the slow client reads nothing for 3 s while the fast one streams
+    """A fast client streams for 6 s; a slow one connects after 1.5 s and reads nothing for 3 s.
+
+    The fast client's delivery while the slow one stalls is compared with its own delivery in the
+    1.5 s before and after, measured in the same run: on a loaded host the server and this process
+    both lose ticks to other processes, which has nothing to do with the slow client, so the
+    margin follows what the host allowed when no client stalled (and is the fixed one, >= 90% of
+    30 frames/s and <= 1 skipped tick a second, on a quiet host). The slow client's backlog is
+    what was made before it resumed reading (made after is fresh by definition: the server makes
+    a frame only when it can be written), not what arrives within 0.1 s: how fast a fresh frame
+    arrives is the stall benchmark's target (benchmarks/stream_stall.py), and on a loaded host
+    it can take longer without anything being queued.
+    """
+    received = []  # (monotonic time, cumulative dropped) of the fast client's frames
+
+    async def fast_stream(start):
         async with StreamClient.connect(server.ws_url, "speed", rate=30) as fast:
-            start = time.monotonic()
             await fast.next_frame()
-            count = 0
-            while time.monotonic() - start < 3.0:
+            start.set_result(time.monotonic())
+            while time.monotonic() - start.result() < 6.0:
                 frame = await fast.next_frame()
-                count += 1
-            fast_rate = count / (time.monotonic() - start)
-        stale, fresh = await fresh_backlog(slow, acks=window > 0)
-        await slow.close()
-        return fast_rate, frame.dropped, stale, fresh
-    fast_rate, fast_dropped, stale, fresh = run(go())
-    assert fast_rate >= 27.0            # >= 90% of 30 frames/s
-    assert fast_dropped <= 3
+                received.append((time.monotonic(), frame.dropped))
+
+    async def slow_stream(start):
+        t0 = await start
+        await asyncio.sleep(max(0.0, t0 + 1.5 - time.monotonic()))
+        slow = await websockets.connect(server.ws_url, max_size=2**26, max_queue=1)
+        try:
+            await slow.send(msgpack.packb({"type": "hello", "space": "speed", "rate": 60, "window": window}))
+            stall_start = time.monotonic()
+            await asyncio.sleep(3.0)  # reads nothing
+            stall_end, resumed = time.monotonic(), time.time()
+            stale, fresh = await fresh_backlog(slow, acks=window > 0, resumed=resumed)
+        finally:
+            await slow.close()
+        return t0, stall_start, stall_end, stale, fresh
+
+    async def go():
+        start = asyncio.get_running_loop().create_future()
+        fast = asyncio.create_task(fast_stream(start))
+        slow = await slow_stream(start)
+        await fast
+        return slow
+
+    t0, stall_start, stall_end, stale, fresh = run(go())
+    alone = [delivery(received, t0 + 0.2, stall_start), delivery(received, stall_end + 0.5, t0 + 6.0)]
+    rate, skipped = delivery(received, stall_start, stall_end)
+    alone_rate = min(30.0, sum(r for r, _ in alone) / 2)
+    alone_skipped = max(0.5, sum(s for _, s in alone) / 2)
+    assert rate >= 0.9 * alone_rate, (rate, alone)
+    assert skipped <= 2 * alone_skipped, (skipped, alone)
     if window:
         # with acks the server holds at most `window` frames for a stalled client, then skips
         assert stale <= window + 1
