@@ -77,6 +77,7 @@ const connection = new StreamConnection(wsUrl, () => state.space && graph.helloF
     pendingDraw = frame;
     if (state.topology.graph) {
       graph.frame(frame);
+      recorder.frame(frame);
     } else if (frame.finished && $("loop").checked && !state.resetPending && !state.paused) {
       state.resetPending = true;
       setTimeout(() => {
@@ -104,6 +105,7 @@ const connection = new StreamConnection(wsUrl, () => state.space && graph.helloF
     state.errors.push(error);
     if (state.errors.length > 20) state.errors.shift();
     console.warn(`morphspace stream: ${error.code}: ${error.message}`);
+    recorder.error(error);
     say(`${error.code}: ${error.message}`, "error", 6000, `error:${error.code}`);
   },
 });
@@ -400,7 +402,12 @@ setUpStick(steering, null);
 const recorder = new Recorder(() => {
   const info = state.spaces.find((s) => s.name === state.space);
   return info && keyOf(state.topology) === state.space ? { space: state.space, info, targets: targets(), mode: state.mode } : null;
-}, say);
+}, say, () => {  // on a graph stream: the graph recorded (recording_graph.js)
+  const info = state.topology?.graph && keyOf(state.topology) === state.space
+    ? state.graphs.find((g) => g.name === state.topology.graph) : null;
+  return info ? { info, mode: state.mode, rate: state.rate } : null;
+});
+recorder.watch(connection);
 setUpDownloads(() => state.frame && state.topology && keyOf(state.topology) === state.space
   ? { space: state.topology.graph ? `${state.topology.graph}-${state.frame.node}` : state.space,
     defs: state.topology.parameters, frame: state.frame } : null);

@@ -1,0 +1,145 @@
+"""Recording a motion-graph session in the browser (issue 14 item 6, issue 16): Record restarts the
+stream at its start node and keeps the requests (Space's jump action, an action to walk at a new
+speed, a speed change on the walk) with the stream's frame clock; Stop downloads the recording
+(JSON) and its glTF. The glTF passes the Khronos validator and is the engine's replay of the
+recording, and that replay is the frames the page was shown (roots, nodes and vertices)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from live_server import LiveServer, data_dir_with_graph
+
+from engine.export import play_performance
+from engine.graph import MotionGraph
+
+ROOT = Path(__file__).resolve().parents[2]
+SAMPLE = 120  # root-local vertices kept per streamed frame
+
+COLLECT = """(sample) => {
+  const c = window.morphspace.connection;
+  const frame = c.handlers.frame;
+  window.__frames = [];
+  c.handlers.frame = (m) => {
+    const v = m.vertices;
+    const local = new Float32Array(v.buffer.slice(v.byteOffset, v.byteOffset + 12 * sample));
+    window.__frames.push({seq: m.seq, ack: m.ack, time: m.time, node: m.node, root: m.root, heading: m.heading,
+                          local: Array.from(local)});
+    frame(m);
+  };
+}"""
+
+
+def _load(name, path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+gltf_reader = _load("morphspace_gltf_reader", ROOT / "tests" / "engine" / "gltf_reader.py")
+
+
+@pytest.fixture(scope="module")
+def recording_server(built_graph, tmp_path_factory):
+    data = data_dir_with_graph(tmp_path_factory.mktemp("browser-graph-recording"), built_graph)
+    with LiveServer(data) as live:
+        yield live
+
+
+def set_slider(page, name, value):
+    page.page.evaluate("""([name, value]) => {
+      const input = document.getElementById(`param-${name}`);
+      input.value = String(value);
+      input.dispatchEvent(new Event("input"));
+    }""", [name, value])
+
+
+def test_a_recorded_graph_session_downloads_and_replays_to_the_frames_shown(recording_server, built_graph, open_page,
+                                                                            tmp_path):
+    page = open_page(recording_server.url + "/app/?graph=tiny&p.speed=1.2&codec=f32")
+    page.wait_status(lambda s: s["topologySpace"] == "graph:tiny" and s["framesDrawn"] > 2
+                     and s["frame"]["node"] == "walk", what="the graph streaming")
+    page.wait_status(lambda s: s["frame"]["time"] > 1.0, what="a second of walking")
+    set_slider(page, "jump_height", 0.45)
+    page.page.evaluate(COLLECT, SAMPLE)
+    downloads = []
+    page.page.on("download", lambda download: downloads.append(download))
+    page.page.click("#record")
+    assert page.page.locator("#record").get_attribute("aria-pressed") == "true"
+    page.wait_status(lambda s: s["frame"]["time"] < 0.5 and s["frame"]["node"] == "walk", what="the stream restarted")
+    page.page.locator("#view").focus()
+    page.page.keyboard.press("Space")
+    page.wait_status(lambda s: s["frame"]["node"] == "jump", what="Space to jump")
+    page.wait_status(lambda s: s["frame"]["node"] == "stand" and s["frame"]["progress"] is None, timeout=20,
+                     what="landing back on the stand")
+    set_slider(page, "speed", 1.5)  # the stand has no speed: kept for the walk's action
+    page.page.keyboard.press("1")
+    page.wait_status(lambda s: s["frame"]["node"] == "walk" and s["frame"]["progress"] is None, timeout=20,
+                     what="1 to walk again")
+    set_slider(page, "speed", 1.0)  # a params message on the walk
+    page.wait_status(lambda s: s["requested"] == {"speed": pytest.approx(1.0, abs=0.01)}, what="the new speed")
+    time.sleep(0.3)
+    page.page.click("#record")  # Stop
+    deadline = time.monotonic() + 60
+    while len(downloads) < 2:
+        assert time.monotonic() < deadline, [d.suggested_filename for d in downloads]
+        page.page.wait_for_timeout(100)
+    saved = {}
+    for download in downloads:
+        saved[download.suggested_filename] = tmp_path / download.suggested_filename
+        download.save_as(saved[download.suggested_filename])
+    assert sorted(saved) == ["tiny-performance.glb", "tiny-recording.json"]
+    assert page.page.locator("#record").get_attribute("aria-pressed") == "false"
+
+    recording = json.loads(saved["tiny-recording.json"].read_text())
+    with MotionGraph.open(built_graph / "tiny.mgraph") as graph:
+        assert recording["graph"] == "tiny" and recording["graph_checksum"] == graph.checksum
+        frames, _ = play_performance(graph, recording)
+    assert recording["start"] == "walk" and recording["params"] == {"speed": pytest.approx(1.2)}
+    assert recording["missed_frames"] == 0 and recording["times"][:2] == [0, 0]
+    assert len(recording["times"]) == recording["steps"] + 1
+    requests = recording["requests"]
+    actions = [(r["node"], r["params"]) for r in requests if not r.get("set")]
+    assert actions[0] == ("jump", {"jump_height": pytest.approx(0.45, abs=0.002)})
+    assert ("walk", {"speed": pytest.approx(1.5, abs=0.01)}) in actions
+    assert any(r.get("set") and r["node"] == "walk" and r["params"] == {"speed": pytest.approx(1.0, abs=0.01)}
+               for r in requests)
+
+    # the glTF: validator-clean, and the engine's replay of the recording
+    run = subprocess.run(["node", str(ROOT / "tests" / "validators" / "validate_gltf.js"),
+                          str(saved["tiny-performance.glb"])], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    issues = json.loads(run.stdout)["issues"]
+    assert issues["numErrors"] == 0, issues["messages"][:5]
+    times, vertices, _, _ = gltf_reader.animated_frames(saved["tiny-performance.glb"].read_bytes())
+    world = np.stack([frames.world(k) for k in range(len(frames))]).astype(np.float64)
+    np.testing.assert_allclose(times, frames.times, rtol=0, atol=1e-6)
+    assert np.abs(vertices - world).max() < 2e-5
+    assert {"walk", "jump", "stand"} <= set(frames.nodes)
+
+    # the replay is what the page was shown: frame k of the recording is the k-th streamed frame after Record
+    shown = page.page.evaluate("window.__frames")
+    first = next(i for i, f in enumerate(shown) if f["time"] == 0)
+    shown = shown[first:first + recording["steps"]]
+    assert len(shown) == recording["steps"] and [f["seq"] for f in shown] == list(range(shown[0]["seq"],
+                                                                                          shown[-1]["seq"] + 1))
+    at_time = {t: k for k, t in enumerate(frames.times.tolist())}
+    compared = 0
+    for i, f in enumerate(shown):
+        if i + 1 < len(shown) and shown[i + 1]["time"] == f["time"]:
+            continue  # a frame at a repeated time: the export keeps the last
+        k = at_time[f["time"]]
+        assert frames.nodes[k] == f["node"], (i, k)
+        np.testing.assert_allclose(frames.root_position[k], f["root"], rtol=0, atol=1e-9)
+        assert abs(frames.heading[k] - f["heading"]) < 1e-9
+        np.testing.assert_allclose(frames.local[k][:SAMPLE].reshape(-1), f["local"], rtol=0, atol=1e-6)
+        compared += 1
+    assert compared >= len(frames) - 1
+    assert page.errors() == []
