@@ -2,7 +2,8 @@
 stream at its start node and keeps the requests (Space's jump action, an action to walk at a new
 speed, a speed change on the walk) with the stream's frame clock; Stop downloads the recording
 (JSON) and its glTF. The glTF passes the Khronos validator and is the engine's replay of the
-recording, and that replay is the frames the page was shown (roots, nodes and vertices)."""
+recording, and that replay is the frames the page was shown (the same nodes; roots and vertices to
+the float32 rounding of the stream's phase tables)."""
 
 from __future__ import annotations
 
@@ -131,15 +132,14 @@ def test_a_recorded_graph_session_downloads_and_replays_to_the_frames_shown(reco
     assert len(shown) == recording["steps"] and [f["seq"] for f in shown] == list(range(shown[0]["seq"],
                                                                                           shown[-1]["seq"] + 1))
     at_time = {t: k for k, t in enumerate(frames.times.tolist())}
-    compared = 0
-    for i, f in enumerate(shown):
-        if i + 1 < len(shown) and shown[i + 1]["time"] == f["time"]:
-            continue  # a frame at a repeated time: the export keeps the last
-        k = at_time[f["time"]]
-        assert frames.nodes[k] == f["node"], (i, k)
-        np.testing.assert_allclose(frames.root_position[k], f["root"], rtol=0, atol=1e-9)
-        assert abs(frames.heading[k] - f["heading"]) < 1e-9
-        np.testing.assert_allclose(frames.local[k][:SAMPLE].reshape(-1), f["local"], rtol=0, atol=1e-6)
-        compared += 1
-    assert compared >= len(frames) - 1
+    kept = [(i, at_time[f["time"]]) for i, f in enumerate(shown)  # at a repeated time the export keeps the last
+            if i + 1 == len(shown) or shown[i + 1]["time"] != f["time"]]
+    assert len(kept) >= len(frames) - 1
+    assert [frames.nodes[k] for _, k in kept] == [shown[i]["node"] for i, _ in kept]
+    root = max(np.abs(frames.root_position[k] - shown[i]["root"]).max() for i, k in kept)
+    heading = max(abs(frames.heading[k] - shown[i]["heading"]) for i, k in kept)
+    local = max(np.abs(frames.local[k][:SAMPLE].reshape(-1) - shown[i]["local"]).max() for i, k in kept)
+    # the stream blends through phase tables (exact up to float32 rounding), the replay blends each frame
+    assert root < 1e-5 and heading < 1e-6 and local < 2e-5, (root, heading, local)
+    print(f"replay vs shown: root {root:.3g} m, heading {heading:.3g} rad, root-local vertices {local:.3g} m")
     assert page.errors() == []
