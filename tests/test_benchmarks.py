@@ -268,3 +268,23 @@ def test_stream_load_compares_a_baseline_tree_side_by_side(tmp_path):
         assert positive(summary["server_cpu_us_per_frame_median"]) and positive(summary["delivered_mean_median"])
     assert positive(comparison["ratio_cpu_per_frame"]) and "this tree / baseline" in run.stdout
     assert not list(cwd.iterdir())
+
+
+def test_export_measures_a_graph_performance(tmp_path):
+    """``export.py --tiny --graph tiny``: the tiny graph built for the run, a scripted performance
+    (walk, then a jump) replayed and written as glTF and USD, timed and sized."""
+    out, cwd = tmp_path / "result.json", tmp_path / "cwd"
+    cwd.mkdir()
+    before = recorded_results()
+    run = subprocess.run([sys.executable, str(BENCHMARKS / "export.py"), "--tiny", "--graph", "tiny", "--out", str(out)],
+                         cwd=cwd, capture_output=True, text=True, timeout=240)
+    assert run.returncode == 0, f"export.py --graph failed:\n{run.stdout[-2000:]}\n{run.stderr[-4000:]}"
+    record = json.loads(out.read_text())
+    assert record["graph"] == "tiny" and record["vertices"] == 1000 and record["frames"] == 61
+    assert record["visited"][:2] == ["walk", "jump"] and record["requests"][0]["node"] == "jump"
+    assert set(record["formats"]) == {"glb int16", "glb float32", "usd"} and positive(record["play_s"])
+    for row in record["formats"].values():
+        assert positive(row["write_s"]) and row["total_s"] >= row["write_s"] and row["bytes"] > 0
+    assert set(record["met"]) == {"glb_seconds", "glb_megabytes", "usd_seconds"}
+    assert "graph tiny: 61 frames" in run.stdout
+    assert recorded_results() == before and not list(cwd.iterdir())
