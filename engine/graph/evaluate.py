@@ -101,21 +101,31 @@ def play_requests(graph, search, requests, *, fps=30.0, start="walk", params=Non
              "node": np.array(nodes)}, transitions, timed.seconds)
 
 
-def own_motion_step(graph, node, weights, fps):
+def own_motion_step(graph, node, weights, fps, *, offsets=4):
     """The largest per-vertex step and the largest root step between consecutive frames of
-    ``node`` played alone at ``weights`` for one cycle (or its whole clip), metres."""
+    ``node`` played alone at ``weights`` for one cycle (or its whole clip), metres. The root's is
+    the largest over ``offsets`` start phases a fraction of a frame apart (a transition enters a
+    node at any phase, so its frames may fall anywhere in the cycle)."""
     n = graph.node(node)
     clock = NodeClock(n.space, weights, 0.0)
     position, heading = np.zeros(3), 0.0
-    previous, largest, root = None, 0.0, 0.0
-    for _ in range(int(np.ceil(clock.duration * fps)) + 1):
+    previous, largest = None, 0.0
+    count = int(np.ceil(clock.duration * fps)) + 1
+    for _ in range(count):
         V = place(clock.mesh("linear"), position, heading)
         if previous is not None:
             largest = max(largest, float(np.linalg.norm(V - previous, axis=1).max()))
         previous = V
-        moved, heading = move(position, heading, *clock.advance(1.0 / fps))
-        root = max(root, float(np.linalg.norm(moved - position)))
-        position = moved
+        position, heading = move(position, heading, *clock.advance(1.0 / fps))
+    root = 0.0
+    for k in range(offsets):
+        clock = NodeClock(n.space, weights, 0.0)
+        clock.advance(k / offsets / fps)
+        position, heading = np.zeros(3), 0.0
+        for _ in range(count):
+            moved, heading = move(position, heading, *clock.advance(1.0 / fps))
+            root = max(root, float(np.linalg.norm(moved - position)))
+            position = moved
     return largest, root
 
 
@@ -130,8 +140,8 @@ def transition_measures(graph, frames, transitions, *, fps, contact=0.01):
         a, b = t["leave"] - 1, t["enter"]
         if a < 1 or b + 1 >= len(V):
             continue
-        keys = [(t["source"], graph.node(t["source"]).sample_of(t["source_weights"])),
-                (t["target"], graph.node(t["target"]).sample_of(t["target_weights"]))]
+        keys = [(t["source"], np.asarray(t["source_weights"], dtype=float).tobytes()),  # the exact weights
+                (t["target"], np.asarray(t["target_weights"], dtype=float).tobytes())]
         for key, w in zip(keys, (t["source_weights"], t["target_weights"])):
             if key not in cache:
                 cache[key] = own_motion_step(graph, key[0], w, fps)
