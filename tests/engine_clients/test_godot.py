@@ -172,6 +172,7 @@ def test_godot_client_plays_a_motion_graph_action(built_graph, tmp_path):
     error = out / "error.txt"
     assert run.returncode == 0 and not error.exists(), (error.read_text() if error.exists() else "") + output[-3000:]
     assert "SCRIPT ERROR" not in output and "Parse Error" not in output, output[-3000:]
+    assert "mesh_get_surface_count" not in output and "rid.h" not in output, output[-3000:]  # a clean quit after stop()
     summary = msgpack.unpackb((out / "summary.msgpack").read_bytes(), raw=False)
     with open(out / "records.msgpack", "rb") as f:
         records = list(msgpack.Unpacker(f, raw=False))

@@ -71,6 +71,14 @@ func _exit_tree():
 	client.stop()
 
 
+func _notification(what):
+	# Let go of the mesh before the node is freed: otherwise, at the engine's quit, the visual
+	# server can look at this instance's freed mesh ("mesh_get_surface_count: Condition !m",
+	# seen headless with a node made by .new() and stopped before get_tree().quit()).
+	if what == NOTIFICATION_PREDELETE:
+		mesh = null
+
+
 func start():
 	# Connect with the exported settings (again, if connected).
 	client.url = url
