@@ -113,6 +113,8 @@ def check_stream_load(result, stdout):
         assert record["connected"] == 4 and record["failures"] == [] and record["server_counters"]["frames"] > 0
         assert 0 < record["server_memory_mb"]["pss_sum"] <= record["server_memory_mb"]["rss_sum"]
     assert "workers side by side" in stdout
+    assert "TARGET server CPU per delivered frame <= 40 us at 200 clients" in stdout  # issue 13's targets, explicit
+    assert "TARGET 50 of 200 clients with the heatmap on" in stdout and "not the target load" in stdout
 
 
 def check_stream_stall(result, stdout):
@@ -165,6 +167,7 @@ def check_dask_align(records, stdout):
         assert {"similarity", "align", "repair", "pieces", "critical_path_frames"} <= set(row["stages_s"])
     assert positive(record["speedup"]) and non_negative(record["load_average"])
     assert "speedup 2 vs 1 workers" in stdout and "full figure: " in stdout and "results equal" in stdout
+    assert "TARGET the demo's 973 frames >= 1.7x faster on 2 workers" in stdout and "not the target run" in stdout
 
 
 def check_godot_client(result, stdout):
