@@ -14,7 +14,7 @@ import numpy as np
 
 from engine.align.pairwise import AlignmentOptions, PairwiseAligner
 from engine.align.propagation import AlignedFrames, align_tree
-from engine.align.repair import alignment_confidence, repair_alignment
+from engine.align.repair import alignment_confidence, repair_alignment, tail_reference
 from engine.align.root_choice import choose_root
 from engine.align.similarity import shape_dissimilarity
 from engine.align.similarity_tree import DEFAULT_TREE, chain_tree, similarity_tree
@@ -198,8 +198,9 @@ def _confidence_only(aligned):
     """Fill ``confidence`` (and an all-false ``repaired``) without aligning anything again."""
     from engine.surface import model_size
 
+    reference = tail_reference(aligned.distortion_tail, aligned.parent, aligned.root)
     aligned.confidence = alignment_confidence(aligned.residual, aligned.distortion_tail,
-                                              model_size(aligned.root_vertices))
+                                              model_size(aligned.root_vertices), reference)
     aligned.confidence[aligned.root] = 1.0
     aligned.repaired = np.zeros(len(aligned.confidence), dtype=bool)
     return aligned

@@ -107,6 +107,37 @@ def score_alignment(aligned, root, root_vertices, truth, template_faces, model_s
     return errors, error_summary(errors[others] if others.any() else errors, model_size)
 
 
+def part_errors(errors, root, root_vertices, truth, template_faces, part_counts, model_size):
+    """Error summaries per part of the body (the body, a skirt, each sleeve ...).
+
+    Parameters
+    ----------
+    errors : (N, n) float array    from :func:`score_alignment`
+    root, root_vertices, truth, template_faces : as for :func:`score_alignment`
+    part_counts : dict name -> int   the template's vertices part by part, in order (a studio
+                                     manifest's ``body.parts``)
+    model_size : float
+
+    Returns
+    -------
+    dict name -> dict   ``error_summary`` of the root vertices that lie on that part (over all
+                        frames but the root) and ``vertices``, how many there are
+    """
+    faces, bary, _ = surface_coordinates(root_vertices, truth[root], template_faces)
+    nearest = template_faces[faces, np.argmax(bary, axis=1)]
+    bounds = np.cumsum([0] + [int(c) for c in part_counts.values()])
+    label = np.searchsorted(bounds, nearest, side="right") - 1
+    others = np.ones(len(errors), dtype=bool)
+    others[root] = False
+    out = {}
+    for k, name in enumerate(part_counts):
+        mine = label == k
+        if mine.any():
+            summary = error_summary(errors[others][:, mine] if others.any() else errors[:, mine], model_size)
+            out[name] = {"vertices": int(mine.sum()), **{key: round(v, 4) for key, v in summary.items()}}
+    return out
+
+
 def pattern_colors(V, *, period=0.1, facing=None):
     """A checker fixed on a mesh's rest positions (paper fig. 2 style).
 
@@ -246,6 +277,6 @@ def pattern_sheet(vertices, faces, root, lengths, names=None, *, count=6, title=
     return pattern_render(frames, faces, colors, columns=columns, size=size, title=title, facing=facing)
 
 
-__all__ = ["correspondence_errors", "score_alignment", "error_summary", "pattern_colors", "pattern_frames",
+__all__ = ["correspondence_errors", "score_alignment", "error_summary", "part_errors", "pattern_colors", "pattern_frames",
            "pattern_render", "pattern_sheet",
            "surface_coordinates", "true_positions"]

@@ -4,7 +4,9 @@ Along a long tree path small errors add up until a whole limb sits on its neighb
 while the surface fit stays small: the fit alone cannot see it. The aligned solid can: the tets
 of the root that carried the limb are torn where it slid (a hip, a shoulder). So every frame
 gets a confidence from its fit *and* the tail of its distortion (the worst 5% of the solid,
-``PairAlignment.distortion_tail``). Frames below a confidence of one half are aligned again,
+``PairAlignment.distortion_tail``) beyond the capture's own floor: loose garments (a skirt, wide
+sleeves) deform that much in every frame, so the tail the frames aligned straight from the root
+show (:func:`tail_reference`) is subtracted first. Frames below a confidence of one half are aligned again,
 parents first, from other sources: the root itself (a frame aligned straight from the root
 cannot inherit a slip) and the most similar trusted frames; the best result by the same score
 is kept. A frame that no source aligns well stays flagged, with its confidence, never silent.
@@ -21,15 +23,30 @@ RESIDUAL_SCALE = 0.01  # mean two-sided fit residual, as a fraction of the model
 TRUSTED = 0.5          # frames at or above this confidence are trusted sources and left alone
 
 
-def alignment_badness(residual, distortion_tail, model_size):
-    """Badness of aligned frames: fit residual and distortion tail in units of their scales."""
-    return (np.asarray(distortion_tail) / TAIL_SCALE
-            + np.asarray(residual) / (RESIDUAL_SCALE * float(model_size)))
+def alignment_badness(residual, distortion_tail, model_size, reference=0.0):
+    """Badness of aligned frames: fit residual and the distortion tail beyond ``reference``
+    (:func:`tail_reference`), each in units of its scale."""
+    excess = np.maximum(np.asarray(distortion_tail, dtype=np.float64) - float(reference), 0.0)
+    return excess / TAIL_SCALE + np.asarray(residual) / (RESIDUAL_SCALE * float(model_size))
 
 
-def alignment_confidence(residual, distortion_tail, model_size):
+def alignment_confidence(residual, distortion_tail, model_size, reference=0.0):
     """Per-frame confidence in 0..1: ``exp(-badness)`` (1 for the root; 1/e at either scale)."""
-    return np.exp(-alignment_badness(residual, distortion_tail, model_size))
+    return np.exp(-alignment_badness(residual, distortion_tail, model_size, reference))
+
+
+def tail_reference(distortion_tail, parent, root):
+    """The capture's own distortion floor: the median tail of the frames aligned from the root.
+
+    A frame aligned in one step from the root has had no chance to inherit a slip, so what its
+    solid shows is what this body and its clothes do anyway (about 0.3 on a tight-fitting body,
+    about 10 with a bell-sleeved dress). 0 when the root has no children.
+    """
+    parent = np.asarray(parent)
+    children = np.flatnonzero((parent == int(root)) & (np.arange(len(parent)) != int(root)))
+    if len(children) == 0:
+        return 0.0
+    return float(np.median(np.asarray(distortion_tail, dtype=np.float64)[children]))
 
 
 def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, candidates=2, budget=None,
@@ -64,7 +81,8 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
 
     size = model_size(aligner.V)
     root = int(aligned.root)
-    confidence = alignment_confidence(aligned.residual, aligned.distortion_tail, size)
+    reference = tail_reference(aligned.distortion_tail, aligned.parent, root)
+    confidence = alignment_confidence(aligned.residual, aligned.distortion_tail, size, reference)
     confidence[root] = 1.0
     repaired = np.zeros(len(confidence), dtype=bool)
     depth_order = _tree_order(aligned.parent, root)
@@ -100,9 +118,9 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
 
     def apply(frame, sources, results):
         best, best_source = None, None
-        best_badness = alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size)
+        best_badness = alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size, reference)
         for source, result in zip(sources, results, strict=True):
-            badness = alignment_badness(result.residual, result.distortion_tail, size)
+            badness = alignment_badness(result.residual, result.distortion_tail, size, reference)
             if badness < best_badness:
                 best, best_source, best_badness = result, source, badness
         if best is not None:
@@ -185,4 +203,4 @@ def _tree_order(parent, root):
     return order
 
 
-__all__ = ["alignment_badness", "alignment_confidence", "repair_alignment", "repair_task"]
+__all__ = ["alignment_badness", "alignment_confidence", "repair_alignment", "repair_task", "tail_reference"]

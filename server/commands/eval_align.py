@@ -26,6 +26,7 @@ import numpy as np
 from tqdm import tqdm
 
 from engine.align import AlignmentOptions, align_captures, error_summary, pattern_sheet, score_alignment
+from engine.align.evaluation import part_errors
 from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
 from engine.align.captures import ROOT_CHOICES
 from engine.align.repair import TRUSTED
@@ -88,7 +89,8 @@ def _truth_in_metres(parts, conventions):
 
 
 def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, lengths, names, *, residual=None,
-           residual_max=None, seconds=None, retried=None, cpu_seconds=None, confidence=None, repaired=None):
+           residual_max=None, seconds=None, retried=None, cpu_seconds=None, confidence=None, repaired=None,
+           part_counts=None):
     errors, summary = score_alignment(aligned_vertices, root, root_vertices, truth, faces, size)
     frames = len(aligned_vertices)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -97,6 +99,8 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
         per_sequence[name] = {k: round(v, 3) for k, v in error_summary(errors[start:start + n], size).items()}
     record = {"method": method, "frames": int(frames), **{k: round(v, 4) for k, v in summary.items()},
               "per_sequence": per_sequence}
+    if part_counts:  # a studio body: the body and each garment apart
+        record["per_part"] = part_errors(errors, root, root_vertices, truth, faces, part_counts, size)
     if residual is not None:
         record["residual_mean_mm"] = round(1000 * float(np.mean(residual)), 3)
         record["residual_max_mm"] = round(1000 * float(np.max(residual_max)), 2)
@@ -119,6 +123,12 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
     record["worst_frame_mean_mm"] = round(1000 * float(frame_mean.max()), 2)
     record["worst_frame_mean_pct"] = round(100 * float(frame_mean.max()) / size, 3)
     return record, errors
+
+
+def _part_counts(manifest):
+    """The template's parts and their vertex counts (``body.parts``), or None."""
+    parts = manifest.get("body", {}).get("parts")
+    return parts if isinstance(parts, dict) and parts else None
 
 
 def _model_size(manifest, conventions, truth):
@@ -208,7 +218,7 @@ def run(args):
             record, _ = _score("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths, names,
                                residual=extra.get("residual"), residual_max=extra.get("residual_max"),
                                seconds=extra.get("seconds"), retried=extra.get("retried"),
-                               cpu_seconds=extra.get("cpu_seconds"))
+                               cpu_seconds=extra.get("cpu_seconds"), part_counts=_part_counts(manifest))
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, aligned=record,
                           **_units_report(names, conventions))
             results = {"aligned": (vertices, faces, root_vertices)}
@@ -255,7 +265,8 @@ def run(args):
                 record, _ = _score(method, a.vertices, root, a.root_vertices, truth, template_faces, size,
                                    lengths, names, residual=a.residual, residual_max=a.residual_max,
                                    seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds,
-                                   confidence=a.confidence, repaired=a.repaired)
+                                   confidence=a.confidence, repaired=a.repaired,
+                                   part_counts=_part_counts(manifest))
                 report[method] = {**report.get(method, {}), **record}
                 results[method] = (a.vertices, a.faces, a.root_vertices)
             if "sequential" in report:
@@ -319,6 +330,11 @@ def _print_report(report, out):
               f"{scale * r['mean_mm']:>9.1f}{scale * r['p95_mm']:>8.1f}{scale * r['max_mm']:>8.0f}"
               f"{scale * r.get('residual_mean_mm', float('nan')):>10.2f}"
               f"{r.get('seconds_per_frame', float('nan')):>9.2f}{r.get('cpu_seconds_per_frame', float('nan')):>9.2f}")
+    for method in ("tree", "sequential", "aligned"):
+        parts = report.get(method, {}).get("per_part")
+        if parts:
+            print(f"{method} per part: " + ", ".join(f"{name} {p['mean_pct']:.2f}% (p95 {p['p95_pct']:.2f}%)"
+                                                     for name, p in parts.items()))
     if "sequential_over_tree_mean" in report:
         print(f"sequential / tree mean error: {report['sequential_over_tree_mean']:.2f}x")
     print(f"wrote {out / 'results.json'} and {out / 'aligned_pattern.png'}")

@@ -52,3 +52,24 @@ def test_the_pattern_follows_the_body_turned_about_the_vertical(degrees):
     still = pattern_sheet(np.stack([body.V, body.V]), body.F, 0, [2], size=200, title="")
     again = pattern_sheet(np.stack([turned, turned]), body.F, 0, [2], size=200, title="")
     assert np.abs(still.astype(float) - again.astype(float)).mean() < 1.0
+
+
+def test_part_errors_score_each_part_of_the_body_apart():
+    """Two parts (a body of 4 vertices and a 'sleeve' of 4): only the sleeve is off by 3 cm in
+    frame 1, so the sleeve's mean is 3 cm there and the body's is 0."""
+    from engine.align import score_alignment
+    from engine.align.evaluation import part_errors
+
+    tetra = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    V = np.concatenate([tetra, tetra + [3.0, 0, 0]])
+    faces = np.concatenate([F, F + 4])
+    truth = np.stack([V, V + [0.0, 0.5, 0]])
+    aligned = truth.copy()
+    aligned[1, 4:] += [0.03, 0, 0]
+    errors, summary = score_alignment(aligned, 0, V, truth, faces, 4.0)
+    parts = part_errors(errors, 0, V, truth, faces, {"body": 4, "sleeve": 4}, 4.0)
+    assert parts["body"]["vertices"] == parts["sleeve"]["vertices"] == 4
+    assert parts["body"]["mean_mm"] == pytest.approx(0.0, abs=1e-9)
+    assert parts["sleeve"]["mean_mm"] == pytest.approx(30.0) and parts["sleeve"]["mean_pct"] == pytest.approx(0.75)
+    assert summary["mean_mm"] == pytest.approx(15.0)

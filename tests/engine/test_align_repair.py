@@ -100,3 +100,15 @@ def test_a_zero_budget_repairs_nothing(walk_aligner, walk_capture):
     counting = _Counting(walk_aligner)
     repair_alignment(counting, meshes, aligned, budget=0.0)
     assert counting.calls == 0 and not aligned.repaired.any() and aligned.confidence[2] < 0.5
+
+
+def test_the_tail_floor_is_the_median_tail_of_the_roots_children():
+    from engine.align.repair import tail_reference
+
+    parent = np.array([-1, 0, 0, 1, 2, 0])  # root 0 with children 1, 2 and 5
+    tail = np.array([0.0, 9.0, 11.0, 30.0, 12.0, 10.0])
+    assert tail_reference(tail, parent, 0) == 10.0
+    assert tail_reference(tail, np.array([-1, 0, 1]), 2) == 0.0  # a root without children
+    # a garment that deforms this much in every frame is not flagged for it; a tear beyond it is
+    c = alignment_confidence([0.0, 0.0, 0.0], [10.0, 10.0, 18.0], 1.7, reference=10.0)
+    assert c[0] == c[1] == 1.0 and c[2] == pytest.approx(np.exp(-2.0))
