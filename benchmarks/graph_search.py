@@ -144,7 +144,7 @@ def main(argv=None):
             for name, strategy in strategies:
                 frames, transitions, searched = play_requests(graph, strategy, requests, fps=args.fps, start=start)
                 measures = transition_measures(graph, frames, transitions, fps=args.fps)
-                result["strategies"][name] = summarise(measures, searched)
+                result["strategies"][name] = summarise(measures, searched, frames["held"])
             truth = true_performance(args.captures, args.tiny, args.fps)
             result["performance"] = None if truth is None else compare_performance(graph, strategies, truth, args.fps)
     print(f"{result['graph']} ({result['vertices']} vertices): search median {result['search_ms']['median']:.3f} ms, "
@@ -152,13 +152,14 @@ def main(argv=None):
           f"{result['load_average']:.1f}); CPU time median {result['search_cpu_ms']['median']:.3f} ms, "
           f"p99 {result['search_cpu_ms']['p99']:.3f} ms")
     print(f"{'strategy':<10} {'n':>3} {'smooth p50':>10} {'p95':>6} {'latency p50':>11} {'p95':>6} "
-          f"{'slide p50 cm':>12} {'p95':>6} {'root max':>8} {'seam p50 mm':>11}")
+          f"{'slide p50 cm':>12} {'p95':>6} {'root max':>8} {'seam p50 mm':>11} {'leg p95/max cm':>14}")
     for name, s in result["strategies"].items():
         def f(x, spec=".2f"):
             return "-" if x is None else format(x, spec)
         print(f"{name:<10} {s['transitions']:>3} {f(s['smoothness_p50']):>10} {f(s['smoothness_p95']):>6} "
               f"{f(s['latency_p50_s']):>11} {f(s['latency_p95_s']):>6} {f(s['foot_slide_p50_cm']):>12} "
-              f"{f(s['foot_slide_p95_cm']):>6} {f(s['root_ratio_max']):>8} {f(s['seam_p50_mm'], '.1f'):>11}")
+              f"{f(s['foot_slide_p95_cm']):>6} {f(s['root_ratio_max']):>8} {f(s['seam_p50_mm'], '.1f'):>11} "
+              f"{f(s['leg_offset_p95_cm'], '.1f') + ' / ' + f(s['leg_offset_max_cm'], '.1f'):>14}")
     if result["performance"] is not None:
         print(f"against the true performance ({result['performance']['true_frames']} frames): mean per-vertex "
               "distance per frame, mm (p50 / p95), at the same time and with 0.5 s of slack, in the world and "

@@ -11,7 +11,7 @@ import sys
 
 from server.commands import bench, blend, build, eval_params, play, synth
 from server.commands import eval as eval_command
-from server.commands import align, build_graph, eval_align, export, serve
+from server.commands import align, build_graph, eval_align, eval_graph, export, serve
 
 COMMANDS = {
     "synth": synth,
@@ -24,6 +24,7 @@ COMMANDS = {
     "eval-params": eval_params,
     "align": align,
     "eval-align": eval_align,
+    "eval-graph": eval_graph,
     "serve": serve,
     "export": export,
 }

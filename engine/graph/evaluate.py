@@ -12,7 +12,9 @@ Definitions (docs/evaluation.md, "Motion graph"):
 - foot sliding: per step, of a foot's vertices on the ground (less than ``contact`` above the
   rest mesh's lowest point) in both frames, the horizontal travel of the one that moved least
   (the point the foot pivots on; ``clock.foot_slide``), summed over the transition, the worse foot;
-- latency: seconds from the request to the frame the target is fully entered.
+- latency: seconds from the request to the frame the target is fully entered;
+- leg offset (what holding the feet costs, ``engine.graph.feet``): per frame, the largest
+  horizontal distance of a foot from where the motion puts it, over every frame played.
 """
 
 from __future__ import annotations
@@ -65,7 +67,8 @@ def play_requests(graph, search, requests, *, fps=30.0, start="walk", params=Non
 
     Returns
     -------
-    frames : dict of arrays   vertices (F, n, 3) float32, root (F, 3), heading (F,), node (F,) str
+    frames : dict of arrays   vertices (F, n, 3) float32, root (F, 3), heading (F,), node (F,) str,
+                              held (F,) the largest leg offset holding a foot (m)
     transitions : list of dict  request frame, leave frame, enter frame, source, target, weights, plan
     search_seconds : list of float
     """
@@ -74,7 +77,7 @@ def play_requests(graph, search, requests, *, fps=30.0, start="walk", params=Non
     dt = 1.0 / fps
     end = (requests[-1].time if requests else 0.0) + tail
     pending = list(requests)
-    vertices, root, heading, nodes, transitions, open_ = [], [], [], [], [], {}
+    vertices, root, heading, nodes, held, transitions, open_ = [], [], [], [], [], [], {}
     asked = None
     for k in range(int(round(end * fps)) + 1):
         while pending and pending[0].time <= k * dt + 1e-9:
@@ -97,8 +100,9 @@ def play_requests(graph, search, requests, *, fps=30.0, start="walk", params=Non
         root.append(frame.root_position)
         heading.append(frame.heading)
         nodes.append(frame.node)
+        held.append(float(np.hypot(*player.pins.offsets.T).max()))
     return ({"vertices": np.stack(vertices), "root": np.stack(root), "heading": np.array(heading),
-             "node": np.array(nodes)}, transitions, timed.seconds)
+             "node": np.array(nodes), "held": np.array(held)}, transitions, timed.seconds)
 
 
 def own_motion_step(graph, node, weights, fps, *, offsets=4):
@@ -163,8 +167,9 @@ def transition_measures(graph, frames, transitions, *, fps, contact=0.01):
     return out
 
 
-def summarise(measures, search_seconds):
-    """Medians and tails of ``transition_measures`` and search times (ms)."""
+def summarise(measures, search_seconds, held=None):
+    """Medians and tails of ``transition_measures`` and search times (ms); with ``held`` (the
+    frames' leg offsets, m), their 95th percentile and largest (cm) and the share of frames held."""
     def pick(key):
         return np.array([m[key] for m in measures if m[key] is not None], dtype=float)
 
@@ -181,4 +186,23 @@ def summarise(measures, search_seconds):
             "foot_slide_p95_cm": None if not len(slide) else pct(slide, 95) * 100,
             "root_ratio_max": None if not len(rootr) else float(rootr.max()),
             "seam_p50_mm": None if not len(seam) else pct(seam, 50) * 1000,
-            "search_p50_ms": pct(ms, 50), "search_p99_ms": pct(ms, 99), "searches": int(len(ms))}
+            "search_p50_ms": pct(ms, 50), "search_p99_ms": pct(ms, 99), "searches": int(len(ms)),
+            **({} if held is None or not len(held) else {
+                "leg_offset_p95_cm": pct(held, 95) * 100, "leg_offset_max_cm": float(np.max(held)) * 100,
+                "frames_held": float(np.mean(np.asarray(held) > 0))})}
+
+
+def evaluate_strategies(graph, requests, *, fps=30.0, options=None, start=None):
+    """The same ``requests`` played with the search (``options``: SearchOptions), an immediate
+    cut and a 0.3 s crossfade (``baselines``), all with the same player; per strategy
+    (measures, search seconds, frames' leg offsets)."""
+    from engine.graph.baselines import Crossfade, ImmediateCut
+    from engine.graph.search import TransitionSearch
+
+    start = start or next(n.name for n in graph.nodes if n.cyclic)
+    out = {}
+    for name, strategy in (("search", TransitionSearch(graph, options)), ("cut", ImmediateCut(graph)),
+                           ("crossfade", Crossfade(graph))):
+        frames, transitions, seconds = play_requests(graph, strategy, requests, fps=fps, start=start)
+        out[name] = (transition_measures(graph, frames, transitions, fps=fps), seconds, frames["held"])
+    return out

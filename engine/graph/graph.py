@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +26,13 @@ class Node:
     space: object
     samples: NodeSamples
     meta: dict
+    _cache: dict = field(default_factory=dict, repr=False)
+
+    def cached(self, key, compute):
+        """``compute()`` once per node (derived data players share, e.g. the feet's contacts)."""
+        if key not in self._cache:
+            self._cache[key] = compute()
+        return self._cache[key]
 
     @property
     def cyclic(self):

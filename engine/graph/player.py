@@ -6,7 +6,8 @@ cyclic node on their own, the root carried continuously through all of it.
 per display frame. Across a transition both nodes play on (the source from where it is left, the
 target from where it is entered, at the requested parameters), their root-local meshes and
 their root steps are blended with a smooth-step weight, so the root's position and heading stay
-continuous. A request to a node without an edge from the current one follows the shortest route
+continuous; a foot on the ground stays where it is (``FootPins``: its lower leg carries it back
+by its drift, and catches up while the foot is in the air). A request to a node without an edge from the current one follows the shortest route
 (each hop at the parameters that node last had). Requests made while a transition is blending
 wait for it to end; one made in a one-shot redirects its return when an edge allows, or waits.
 """
@@ -18,7 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from engine.graph.build import GraphError
-from engine.graph.clock import NodeClock, foot_slide, foot_vertices, move, place
+from engine.graph.clock import NodeClock, foot_vertices, move, place
+from engine.graph.feet import FootPins
 from engine.graph.search import TransitionSearch
 
 MODES = ("linear", "hybrid", "nonlinear")
@@ -70,8 +72,8 @@ class GraphPlayer:
     params : dict or None    its parameters (default: the middle of each range)
     mode : str               blend mode of the nodes' spaces
     search : TransitionSearch or None
-    foot_lock : bool         during a blend, move the root against the drift of a foot that stays on
-                             the ground (the one that drifts least), so it does not slide
+    foot_lock : bool         hold the feet during a blend (``engine.graph.feet.FootPins``): a foot
+                             on the ground stays put, its lower leg bending, until it lifts
     contact : float          metres above the rest mesh's lowest point that count as on the ground
     record : bool            keep every request in ``requests`` (for a recording); a stream that
                              is never recorded says False, so a long session does not grow it
@@ -106,6 +108,7 @@ class GraphPlayer:
         rest = np.asarray(start.space.container["rest"])
         self._feet = foot_vertices(rest)
         self._ground = float(rest[:, 1].min()) + float(contact)  # below this: on the ground
+        self.pins = FootPins(rest, self._feet, self._ground)
         self._cached = None      # (frames, root-local mesh, progress) of the current state
         self._feet_before, self._feet_frame = None, None  # the feet in the world, at frame number
         if not start.cyclic:
@@ -233,9 +236,9 @@ class GraphPlayer:
         self.position, self.heading = move(self.position, self.heading, *step)
         self.time += dt
         self.frames += 1
-        if self.blend is not None and self.foot_lock:
-            self._lock_feet()
-        if self._locking():  # only a blend locks the feet: elsewhere they are not placed
+        if self.foot_lock and (self.blend is not None or self.pins.holding()):
+            self._hold_feet(dt)
+        if self._locking():  # only near a blend are the feet held: elsewhere they are not placed
             self._feet_before, self._feet_frame = self._feet_at(), self.frames
         if self.blend is not None and self.blend.elapsed >= self.blend.plan.length - 1e-9:
             events.append(self._enter())
@@ -245,7 +248,7 @@ class GraphPlayer:
 
     def _locking(self):
         """The next step may blend, so the feet's places are needed."""
-        return self.foot_lock and (self.blend is not None or self.pending is not None)
+        return self.foot_lock and (self.blend is not None or self.pending is not None or self.pins.holding())
 
     def _enter(self):
         plan = self.blend.plan
@@ -281,6 +284,8 @@ class GraphPlayer:
         else:
             self._buffer[:] = mesh  # a copy: the space's blender reuses its buffer
         mesh = self._buffer
+        if self.pins.holding():
+            self.pins.shift(mesh, self.pins.offsets, self.heading)
         self._cached = (self.frames, mesh, progress)
         return mesh, progress
 
@@ -289,12 +294,15 @@ class GraphPlayer:
         mesh, _ = self._local()
         return [place(mesh[foot], self.position, self.heading) for foot in self._feet]
 
-    def _lock_feet(self):
-        moves = [foot_slide(before, now, self._ground) for before, now in zip(self._feet_before, self._feet_at())]
-        moves = [move for length, move in moves if move is not None]
-        if moves:
-            dx, dz = min(moves, key=lambda d: float(d @ d))
-            self.position = self.position - np.array([dx, 0.0, dz])
+    def _hold_feet(self, dt):
+        """Hold the feet on the ground where they were, on the mesh just shown (``FootPins``)."""
+        if self.blend is not None:  # any foot on the ground is held: the blend is what moves it
+            planted = np.ones(len(self._feet), dtype=bool)
+        else:  # after it, a held foot is let go when the motion lifts or swings it
+            planted = self.pins.planted(self.node, self.clock.weights, self.clock.phase) >= 0.5
+        change = self.pins.update(self._feet_before, self._feet_at(), planted, dt, blending=self.blend is not None)
+        if change.any():
+            self.pins.shift(self._local()[0], change, self.heading)
 
     def frame(self, events=None, *, placed=True):
         """The frame at the current state (nothing advances); ``placed=False``: its vertices are

@@ -142,3 +142,33 @@ def test_graph_options_are_refused_for_a_space(built_spaces, tmp_path, capsys):
     assert main(["play", str(built_spaces / "speed.mspace"), "--record", str(tmp_path / "r.json")]) == 2
     assert "for motion graphs" in capsys.readouterr().err
     assert not (tmp_path / "r.json").exists()
+
+
+def test_eval_graph_measures_the_search_and_the_baselines_on_the_same_requests(graph_file, capsys):
+    assert main(["eval-graph", str(graph_file), "--requests", "4", "--seeds", "0,1", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["graph"] == "gaits" and report["seeds"] == [0, 1] and report["requests_per_seed"] == 4
+    assert set(report["strategies"]) == {"search", "cut", "crossfade"}
+    for name, figures in report["strategies"].items():
+        assert figures["transitions"] >= 2, name
+        assert figures["root_ratio_max"] <= 1.0 + 1e-6, name  # the root moves as the blend says
+        assert figures["foot_slide_p95_cm"] < 0.05, name       # feet on the ground are held
+        assert 0.0 <= figures["frames_held"] <= 1.0 and figures["leg_offset_max_cm"] >= figures["leg_offset_p95_cm"]
+    assert report["strategies"]["search"]["searches"] >= 2 and report["strategies"]["cut"]["smoothness_p95"] > 0
+    assert main(["eval-graph", str(graph_file), "--requests", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "crossfade" in out and "leg p95/max cm" in out and "search time median" in out
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["--seeds", "a,b"], "--seeds: expected integers"),
+    (["--requests", "0"], "--requests must be at least 1"),
+])
+def test_eval_graph_errors_name_the_problem(graph_file, capsys, argv, message):
+    assert main(["eval-graph", str(graph_file), *argv]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_eval_graph_refuses_a_file_that_is_not_a_graph(built_spaces, capsys):
+    assert main(["eval-graph", str(built_spaces / "speed.mspace")]) == 2
+    assert "not a" in capsys.readouterr().err

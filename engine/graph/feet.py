@@ -1,0 +1,155 @@
+"""Feet that stay put across transitions: ``FootPins`` holds a foot that is on the ground where it
+is by moving its lower leg, and lets it catch up while it is in the air.
+
+Blending two motions (a walk into a jump's take-off, a landing into a stride) moves a foot that
+both of them keep on the ground: the two poses place it differently and the blend weight slides
+it from one place to the other. Moving the root against the drift (the earlier foot lock) can
+hold only one foot, and makes the root step where the blend does not. Here the root moves as the
+blend says and each foot is held on its own: while a transition blends (and after it, for as
+long as a held foot stays planted), a foot that is planted is moved back by its drift between
+two consecutive frames (the horizontal travel of its pivot, the on-ground vertex that moved
+least: ``clock.foot_slide``). Planted: on the ground in both frames shown, and planted in the
+motions blended (``contact_table``: in a source clip a foot is planted where one of its vertices
+on the ground moves slower than ``speed`` in the clip's own world; a blend of clips plants it
+where their weights, and across a transition the blend weight, give planted clips the larger
+share), so a swinging foot that skims the ground is not held back. The offset is carried by the
+leg's vertices below the knee, fully at the foot and fading out by the knee (a smooth step over
+the rest mesh's height), so the leg bends a little instead of the foot sliding. While the foot
+is not planted its offset shrinks at ``release`` m/s, so it lands where the motion puts it; a
+foot that never lifts (a stand) keeps its offset.
+
+Notes: the same idea as footskate clean-up for skeletons (Kovar, Schreiner, Gleicher, SCA 2002),
+done on the mesh: no skeleton, the legs found on the rest mesh by height and side.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from engine.blend.phase import phase_of_sample, phase_samples
+from engine.graph.clock import foot_slide
+
+
+def contact_table(space, feet, ground, *, speed=0.25):
+    """(N, P, feet) bool: source clip i of ``space`` plants foot k at phase sample p: one of the
+    foot's vertices is below ``ground`` (root-local y) and moves slower than ``speed`` m/s in the
+    clip's own world (its change over the phase samples, plus the clip's root step and turn)."""
+    blender, track = space.blender("linear"), space.root_track
+    n_sources, n_phases, cyclic = space.n_sources, space.n_phases, bool(space.cyclic)
+    index = np.concatenate(feet)
+    bounds = np.cumsum([0] + [len(f) for f in feet])
+    out = np.zeros((n_sources, n_phases, len(feet)), dtype=bool)
+    phases = [phase_of_sample(p, n_phases, cyclic) for p in range(n_phases)]
+    for i in range(n_sources):
+        w = np.zeros(n_sources)
+        w[i] = 1.0
+        L = np.stack([np.array(blender.blend(w, phase), dtype=np.float64)[index] for phase in phases])  # (P, F, 3)
+        if cyclic:
+            dL = (np.roll(L, -1, axis=0) - np.roll(L, 1, axis=0)) * (n_phases / 2.0)
+        else:
+            dL = np.gradient(L, 1.0 / (n_phases - 1), axis=0)
+        rate, turn = track.root_rate[:, i, :], track.turn_rate[:, i]
+        for p, phase in enumerate(phases):
+            r0, r1, a = phase_samples(phase, len(turn), cyclic)
+            step = (1 - a) * rate[r0] + a * rate[r1]
+            omega = (1 - a) * turn[r0] + a * turn[r1]
+            vx = dL[p, :, 0] + step[0] + omega * L[p, :, 2]   # per unit phase, in the root's frame
+            vz = dL[p, :, 2] + step[2] - omega * L[p, :, 0]
+            moving = np.hypot(vx, vz) / float(track.durations[i])
+            still = (L[p, :, 1] < ground) & (moving < speed)
+            for k in range(len(feet)):
+                out[i, p, k] = bool(still[bounds[k]:bounds[k + 1]].any())
+    return out
+
+
+def leg_weights(rest, feet, *, ankle=0.06, knee=0.27):
+    """Per foot, (vertex indices (k,) int, weights (k,) float32): the rest mesh's vertices on that
+    foot's side (the sign of x of its vertices) below ``knee`` x its height above the lowest point,
+    weight 1 below ``ankle`` x height and a smooth step to 0 at the knee."""
+    rest = np.asarray(rest, dtype=np.float64)
+    low = rest[:, 1].min()
+    height = rest[:, 1].max() - low
+    y = (rest[:, 1] - low) / height
+    out = []
+    for foot in feet:
+        side = np.sign(rest[foot, 0].mean())
+        index = np.flatnonzero((y < knee) & (np.sign(rest[:, 0]) == side))
+        u = np.clip((knee - y[index]) / (knee - ankle), 0.0, 1.0)
+        out.append((index, (u * u * (3.0 - 2.0 * u)).astype(np.float32)))
+    return out
+
+
+class FootPins:
+    """The horizontal world offsets (one (2,) xz vector per foot) that hold the feet.
+
+    Parameters
+    ----------
+    rest : (n, 3) float array     the rest mesh (the nodes' shared topology)
+    feet : list of (f,) int arrays   each foot's vertices (``clock.foot_vertices``)
+    ground : float                height under which a vertex is on the ground (root-local y)
+    release : float               m/s an offset shrinks by while its foot is not planted
+    creep : float                 m/s it shrinks by while the foot stays planted after the blend
+                                  (a stand never lifts a foot; 2 cm/s is the captured walk's own
+                                  drift of the sole)
+    """
+
+    def __init__(self, rest, feet, ground, *, release=1.0, creep=0.02):
+        self.feet, self.ground = list(feet), float(ground)
+        self.release, self.creep = float(release), float(creep)
+        self.legs = leg_weights(rest, self.feet)
+        self.offsets = np.zeros((len(self.feet), 2))
+
+    def planted(self, node, weights, phase):
+        """(feet,) float: the share of ``node``'s clips at ``weights`` that plant each foot at
+        ``phase`` (the contact table cached on the node)."""
+        table = node.cached("contacts", lambda: contact_table(node.space, self.feet, self.ground))
+        n_phases = table.shape[1]
+        p = int(round(phase * (n_phases if node.cyclic else n_phases - 1))) % n_phases
+        w = np.asarray(weights, dtype=float)
+        return (w / w.sum()) @ table[:, p, :]
+
+    def holding(self):
+        """Some foot is held away from where the motion puts it."""
+        return bool(self.offsets.any())
+
+    def shift(self, mesh, offsets, heading):
+        """Add world xz ``offsets`` (one per foot) to the legs of root-local ``mesh`` (n, 3)
+        float32, in place, for a root turned by ``heading``."""
+        c, s = math.cos(heading), math.sin(heading)
+        for (index, weights), (ox, oz) in zip(self.legs, np.asarray(offsets, dtype=float).tolist()):
+            if ox == 0.0 and oz == 0.0:
+                continue
+            local = np.array([c * ox - s * oz, 0.0, s * ox + c * oz], dtype=np.float32)  # world -> root-local
+            mesh[index] += weights[:, None] * local
+
+    def update(self, before, now, planted, dt, *, blending):
+        """Hold or release each foot between two shown frames; returns the (feet, 2) change of
+        the offsets (to shift the mesh already shown by).
+
+        before, now : list of (f, 3) float arrays   each foot's world vertices in the two frames
+        planted : (feet,) bool   the motions blended plant the foot now (``planted`` >= 0.5)
+        blending : bool   a transition is blending (a foot not held yet is held only then)
+        """
+        change = np.zeros_like(self.offsets)
+        for k, (a, b) in enumerate(zip(before, now)):
+            _, move = foot_slide(a, b, self.ground)
+            held = bool(self.offsets[k].any())
+            if planted[k] and move is not None and (blending or held):
+                change[k] = -move                            # planted: stay where it was
+                if not blending:                             # after the blend: creep back, slowly
+                    change[k] += self._towards_zero(self.offsets[k] + change[k], self.creep * dt)
+            elif held and not planted[k]:                    # moving: catch up with the motion
+                change[k] = self._towards_zero(self.offsets[k], self.release * dt)
+        self.offsets += change
+        self.offsets[np.hypot(self.offsets[:, 0], self.offsets[:, 1]) < 1e-6] = 0.0
+        return change
+
+    @staticmethod
+    def _towards_zero(offset, distance):
+        """The change that shortens ``offset`` (2,) by at most ``distance``."""
+        length = float(np.hypot(*offset))
+        if length == 0.0:
+            return np.zeros(2)
+        return -offset * (min(length, distance) / length)

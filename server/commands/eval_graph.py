@@ -1,0 +1,87 @@
+"""Transitions of a motion graph against two baselines, on the same random requests.
+
+Plays ``--requests`` random requests (a random node at random parameters every 2-4 s, from the
+first cyclic node, at ``--fps``) per seed of ``--seeds`` with the transition search, an
+immediate cut and a 0.3 s crossfade started at the request, all with the same player, and
+reports per strategy over every seed's transitions: smoothness (1.0 = as smooth as captured),
+latency from request to entering the target, foot sliding on the ground, root continuity
+(1 or less: no root step larger than the motion around it), the seam's dissimilarity, the
+search's time, and what holding the feet costs (the legs' offsets). Definitions:
+docs/evaluation.md, "Motion graph". Example:
+
+    morphspace eval-graph data/spaces/demo.mgraph --seeds 0,1,2,3 --json
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from engine.graph import GraphError, MotionGraph, SearchOptions
+from engine.graph.evaluate import evaluate_strategies, random_requests, summarise
+
+
+def _seeds(text):
+    try:
+        seeds = [int(x) for x in text.split(",")]
+    except ValueError:
+        raise ValueError(f"--seeds: expected integers separated by commas, got {text!r}") from None
+    if not seeds:
+        raise ValueError("--seeds: give at least one seed")
+    return seeds
+
+
+def add_arguments(parser):
+    parser.add_argument("graph", type=Path, help="a .mgraph file (morphspace build-graph)")
+    parser.add_argument("--requests", type=int, default=60, help="random requests per seed (default 60)")
+    parser.add_argument("--seeds", default="0", help="seeds of the requests, comma-separated (default 0)")
+    parser.add_argument("--fps", type=float, default=30.0, help="frames per second played (default 30)")
+    parser.add_argument("--latency-weight", type=float, help="the search's (default: SearchOptions')")
+    parser.add_argument("--json", action="store_true", help="print the figures as JSON")
+
+
+def run(args):
+    if args.requests < 1 or not args.fps > 0:
+        raise ValueError("--requests must be at least 1 and --fps positive")
+    seeds = _seeds(args.seeds)
+    try:
+        graph = MotionGraph.open(args.graph)
+    except GraphError as exc:
+        raise ValueError(str(exc)) from None
+    options = SearchOptions() if args.latency_weight is None else SearchOptions(latency_weight=args.latency_weight)
+    pooled = {}
+    with graph:
+        for seed in seeds:
+            requests = random_requests(graph, args.requests, seed=seed)
+            for name, (measures, seconds, held) in evaluate_strategies(graph, requests, fps=args.fps,
+                                                                        options=options).items():
+                entry = pooled.setdefault(name, ([], [], []))
+                entry[0].extend(measures)
+                entry[1].extend(seconds)
+                entry[2].extend(held.tolist())
+        report = {"graph": graph.name, "path": str(args.graph), "vertices": int(graph.metadata["n_vertices"]),
+                  "requests_per_seed": args.requests, "seeds": seeds, "fps": args.fps,
+                  "latency_weight": options.latency_weight, "load_average": os.getloadavg()[0],
+                  "strategies": {name: summarise(m, s, np.asarray(h)) for name, (m, s, h) in pooled.items()}}
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    print(f"{report['graph']} ({report['vertices']} vertices): {args.requests} random requests x seeds "
+          f"{','.join(map(str, seeds))} at {args.fps:g} frames/s")
+
+    def f(x, spec=".2f"):
+        return "-" if x is None else format(x, spec)
+    print(f"{'strategy':<10} {'n':>4} {'smooth p50':>10} {'p95':>5} {'latency p50':>11} {'p95':>5} "
+          f"{'slide p95 cm':>12} {'root max':>8} {'seam p50 mm':>11} {'leg p95/max cm':>14}")
+    for name, s in report["strategies"].items():
+        print(f"{name:<10} {s['transitions']:>4} {f(s['smoothness_p50']):>10} {f(s['smoothness_p95']):>5} "
+              f"{f(s['latency_p50_s']):>11} {f(s['latency_p95_s']):>5} {f(s['foot_slide_p95_cm']):>12} "
+              f"{f(s['root_ratio_max']):>8} {f(s['seam_p50_mm'], '.1f'):>11} "
+              f"{f(s.get('leg_offset_p95_cm'), '.1f') + ' / ' + f(s.get('leg_offset_max_cm'), '.1f'):>14}")
+    search = report["strategies"]["search"]
+    print(f"search time median {search['search_p50_ms']:.3f} ms, p99 {search['search_p99_ms']:.3f} ms "
+          f"({search['searches']} searches, wall clock, load average {report['load_average']:.1f})")
+    return 0
