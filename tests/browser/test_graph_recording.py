@@ -1,5 +1,5 @@
 """Recording a motion-graph session in the browser (issue 14 item 6, issue 16): Record restarts the
-stream at its start node and keeps the requests (Space's jump action, an action to walk at a new
+stream at its start node (at the start node's sliders) and keeps the requests (Space's jump action, an action to walk at a new
 speed, a speed change on the walk) with the stream's frame clock; Stop downloads the recording
 (JSON) and its glTF. The glTF passes the Khronos validator and is the engine's replay of the
 recording, and that replay is the frames the page was shown (the same nodes; roots and vertices to
@@ -69,6 +69,8 @@ def test_a_recorded_graph_session_downloads_and_replays_to_the_frames_shown(reco
                      and s["frame"]["node"] == "walk", what="the graph streaming")
     page.wait_status(lambda s: s["frame"]["time"] > 1.0, what="a second of walking")
     set_slider(page, "jump_height", 0.45)
+    set_slider(page, "speed", 1.4)  # after the hello: Record sends it again after its reset
+    page.wait_status(lambda s: s["requested"] == {"speed": pytest.approx(1.4, abs=0.01)}, what="the walk at 1.4")
     page.page.evaluate(COLLECT, SAMPLE)
     downloads = []
     page.page.on("download", lambda download: downloads.append(download))
@@ -107,6 +109,8 @@ def test_a_recorded_graph_session_downloads_and_replays_to_the_frames_shown(reco
     assert recording["missed_frames"] == 0 and recording["times"][:2] == [0, 0]
     assert len(recording["times"]) == recording["steps"] + 1
     requests = recording["requests"]
+    assert requests[0]["set"] and requests[0]["node"] == "walk" and requests[0]["frame"] <= 3
+    assert requests[0]["params"] == {"speed": pytest.approx(1.4, abs=0.01)}  # the slider, not the hello's 1.2
     actions = [(r["node"], r["params"]) for r in requests if not r.get("set")]
     assert actions[0] == ("jump", {"jump_height": pytest.approx(0.45, abs=0.002)})
     assert ("walk", {"speed": pytest.approx(1.5, abs=0.01)}) in actions

@@ -405,7 +405,8 @@ const recorder = new Recorder(() => {
 }, say, () => {  // on a graph stream: the graph recorded (recording_graph.js)
   const info = state.topology?.graph && keyOf(state.topology) === state.space
     ? state.graphs.find((g) => g.name === state.topology.graph) : null;
-  return info ? { info, mode: state.mode, rate: state.rate } : null;
+  const start = info && graph.nodeInfo(info.start);
+  return info ? { info, mode: state.mode, rate: state.rate, params: start ? graph.paramsOf(start) : undefined } : null;
 });
 recorder.watch(connection);
 setUpDownloads(() => state.frame && state.topology && keyOf(state.topology) === state.space

@@ -19,7 +19,8 @@ export class Recorder {
   constructor(current, say, graphNow = () => null) {
     this.current = current;
     this.say = say;
-    this.graphNow = graphNow;  // () => {info (GET /v1/graphs entry), mode, rate} on a graph stream, else null
+    this.graphNow = graphNow;  // () => {info (GET /v1/graphs entry), mode, rate, params (the start node's
+                               // sliders)} on a graph stream, else null
     this.recording = null;  // {space, start, params, track, limit}, or a GraphRecording
     this.downloads = 0;
     this.hello = null;      // the fields of the last hello sent (a graph recording starts from them)
@@ -31,6 +32,7 @@ export class Recorder {
   watch(connection) {
     const send = connection.send.bind(connection);
     this.rawSend = send;
+    this.connection = connection;
     connection.send = (type, fields = {}) => {
       const seq = send(type, fields);
       if (type === "hello") this.hello = { ...fields };
@@ -111,6 +113,8 @@ export class Recorder {
     const limit = Math.floor(SYNC_VERTEX_FRAMES / now.info.n_vertices) - 1;
     this.recording = new GraphRecording(now.info, this.hello?.params, now.mode, now.rate, limit);
     this.recording.resetSeq = this.rawSend("reset");
+    // the reset goes back to the hello's start parameters: the start node's sliders now, recorded
+    if (now.params) this.connection.send("params", { params: now.params });
     this.timer = setInterval(() => this.tick(), 250);
     $("record").textContent = "Stop (0 s)";
     $("record").setAttribute("aria-pressed", "true");

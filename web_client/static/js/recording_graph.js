@@ -2,7 +2,8 @@
 // "Graph recordings") that `morphspace export` and POST /v1/graphs/{name}/export replay.
 //
 // Record sends a `reset`: the stream's graph player starts again at its start node, at the
-// hello's parameters, at the origin, time 0 (what a recording replays from). From then on:
+// hello's parameters, at the origin, time 0 (what a recording replays from), then a `params`
+// message with the start node's sliders (recorded as the first request). From then on:
 // - every frame the stream sends is one step of that player (its `seq` counts the steps; the
 //   first after the reset steps 0 s): its `time` goes into `times`, so a replay steps the player
 //   by exactly the stream's steps, not by 1 / fps;
