@@ -158,6 +158,18 @@ def check_export(record, stdout):
     assert "glb int16" in stdout and "targets: glTF <= 5 s" in stdout
 
 
+def check_align_momentum(record, stdout):
+    assert record["dataset"] == "tiny" and record["root"] == 2 and record["frames"] == 4
+    assert [run["momentum"] for run in record["runs"]] == [0.0, 0.5, 1.0]
+    for run in record["runs"]:
+        assert len(run["errors_pct"]) == 4 and all(0 < e < 100 for e in run["errors_pct"])
+        assert run["mean_pct"] == pytest.approx(sum(run["errors_pct"]) / 4, abs=2e-3)
+        assert positive(run["cpu_seconds_per_frame"])
+    # the first frame has no last step to follow: every momentum starts it the same way
+    assert len({run["errors_pct"][0] for run in record["runs"]}) == 1
+    assert "momentum 0.5: mean" in stdout and non_negative(record["load_average"])
+
+
 def check_dask_align(records, stdout):
     (record,) = records
     assert record["frames"] == 4 and record["equal"] is True and record["local_equal"] is True
@@ -182,6 +194,7 @@ def check_godot_client(result, stdout):
 
 
 CHECKS = {
+    "align_momentum.py": check_align_momentum,
     "blend_scaling.py": check_blend_scaling,
     "dask_align.py": check_dask_align,
     "export.py": check_export,

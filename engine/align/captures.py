@@ -170,7 +170,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     aligned = align_tree(aligner, meshes, tree, yaw=similarity.yaw,
                          dissimilarity=similarity.dissimilarity if method == "tree" else None,
                          retries=retries if method == "tree" else 0, workers=workers, runner=runner,
-                         progress=(lambda d, t: progress("align", d, t)) if progress else None)
+                         progress=(lambda d, t: progress("align", d, t)) if progress else None, lengths=lengths)
     aligned.root_kept = kept
     timings["align"] = time.perf_counter() - started
     started = time.perf_counter()

@@ -70,7 +70,9 @@ def align_piece(aligner, job, tick=None):
     entry_pose (its tet pose or None), candidates (frame indices allowed as retry sources:
     the piece's frames and the entry), similarity (rows of the dissimilarity for the nodes over
     the candidates, or None), yaw_rows (same shape, yaw of node w.r.t. each candidate),
-    retries, retry_factor, history (qualities from earlier pieces).
+    retries, retry_factor, history (qualities from earlier pieces), and optionally momentum (per
+    node, its grandparent when the three are consecutive in time, else -1) and momentum_weight:
+    such a node starts from its parent's pose moved on by that share of the last step.
     """
     nodes, parents = job["nodes"], job["parents"]
     poses = {}
@@ -95,7 +97,11 @@ def align_piece(aligner, job, tick=None):
             V, F, C = job["meshes"][i]
             target = TargetSurface(V, F, C)
             p = int(parents[i])
-            result = aligner.align(poses[p], target, yaw=job["hints"][i])
+            start = poses[p]
+            behind = job.get("momentum", [-1] * len(nodes))[i]
+            if behind >= 0 and behind in poses:  # the grandparent is in this piece or is its entry
+                start = poses[p] + job["momentum_weight"] * (poses[p] - poses[behind])
+            result = aligner.align(start, target, yaw=job["hints"][i])
             spent = result.seconds
             limit = job["retry_factor"] * np.median(qualities) if len(qualities) >= 10 else np.inf
             retried = False

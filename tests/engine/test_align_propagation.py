@@ -1,6 +1,7 @@
 """Alignment propagated over a tree: pieces, workers, and the end-to-end align_captures."""
 
 import numpy as np
+import pytest
 
 from engine.align import AlignmentOptions, align_captures, align_tree, chain_tree, partition_tree, score_alignment
 from engine.mesh_io import Mesh
@@ -32,3 +33,15 @@ def test_align_tree_and_captures_give_every_frame_the_root_topology(walk_capture
     errors, summary = score_alignment(run.aligned.vertices, 0, frames[0][0], V[:3], body.F, np.ptp(V[0], axis=0).max())
     assert errors.shape == (3, len(frames[0][0]))
     assert summary["mean_pct"] < 1.0
+
+
+def test_a_frame_follows_its_parents_momentum_only_in_line_in_one_sequence():
+    from engine.align.propagation import in_line_grandparents
+
+    # sequences of 4 and 3 frames; root 1; the second sequence hangs off frame 3; frame 7 turns back
+    parent = np.array([1, -1, 1, 2, 3, 4, 5, 8, 2])
+    got = in_line_grandparents(parent, [4, 5])
+    #                        0   1   2  3   4   5  6   7   8
+    assert got.tolist() == [-1, -1, -1, 1, -1, -1, 4, -1, -1]
+    with pytest.raises(ValueError, match="lengths add up to 7"):
+        in_line_grandparents(parent, [4, 3])
