@@ -84,6 +84,7 @@ class GraphStream:
         self.start_params = dict(params or {})
         self.mode = mode
         self._solved = {}  # (node, params) -> (requested, realised, clamped)
+        self.notify = None  # callable(Notice): sends a notice the stream makes as it advances
         self.reset()
 
     # ------------------------------------------------------------ set-up
@@ -112,6 +113,7 @@ class GraphStream:
         except GraphError as exc:  # a start parameter that is not a number the node can take
             raise P.ProtocolError("invalid_params", f"hello: {exc}", "hello") from None
         self._frame = self.player.frame(placed=False)
+        self._queued_seq = self._planned_seq = None  # the actions waiting, and being carried out
 
     def _node(self, name, ref, seq):
         try:
@@ -156,7 +158,9 @@ class GraphStream:
     # ------------------------------------------------------------ messages
 
     def action(self, m):
-        """Apply an Action message; returns the Notice to send (what was planned, queued, clamped)."""
+        """Apply an Action message; returns the Notices to send: ``superseded`` for an earlier
+        action it replaces (queued, or planned and not yet carried out), then its own
+        (``planned``, ``queued``; clamping in the message)."""
         node = self._node(m.node, "action", m.seq)
         bad = _bad_params(node, m.params, "action", m.seq)
         if bad is not None:
@@ -166,19 +170,22 @@ class GraphStream:
             answer = self.player.request(node.name, params, budget=m.budget)
         except GraphError as exc:  # no route there
             raise P.ProtocolError("unknown_node", f"action: {exc}", "action", m.seq) from None
-        if answer["status"] == "planned":
-            route = " -> ".join(answer["route"])
-            text = (f"{route}: leaves in {answer['leave_in']:.2f} s, blends {answer['length']:.2f} s, enters "
-                    f"{answer['route'][1]} at phase {answer['enter_phase']:.2f}")
-            code = "planned"
-        elif answer["status"] == "queued":
+        notices = []
+        dropped = self._queued_seq if answer["dropped"] == "queued" else (
+            self._planned_seq if answer["dropped"] == "planned" else None)
+        if dropped is not None:
+            notices.append(P.Notice(code="superseded", seq=dropped,
+                                    message=f"dropped before it was carried out: action {m.seq} ({node.name}) replaces it"))
+        if answer["status"] == "queued":
             code, text = "queued", (f"{node.name}: waits for the {'blend' if self.player.blend else self.player.node.name}"
-                                    " to end")
+                                    " to end, then is planned (a second notice)")
+            self._queued_seq = m.seq
         else:
-            code, text = "planned", f"{node.name}: already there, parameters set"
+            code, text = "planned", _plan_text(answer, node.name)
+            self._queued_seq, self._planned_seq = None, (m.seq if answer["status"] == "planned" else None)
         if answer.get("clamped"):
             text += f"; {answer['message']}"
-        return P.Notice(code=code, message=text, seq=m.seq)
+        return notices + [P.Notice(code=code, message=text, seq=m.seq)]
 
     def set_params(self, m):
         """Apply a Params message to the shown node; returns a Notice when the request was clamped."""
@@ -204,8 +211,17 @@ class GraphStream:
     # ------------------------------------------------------------ frames
 
     def advance(self, dt):
-        """Step the performance by ``dt`` seconds."""
+        """Step the performance by ``dt`` seconds; a queued action planned meanwhile gets its
+        ``planned`` notice (through ``notify``)."""
         self._frame = self.player.step(dt, placed=False)
+        if self._queued_seq is not None and any(e.startswith("plan queued") for e in self._frame.events):
+            answer, seq = self.player.planned, self._queued_seq
+            self._queued_seq = None
+            self._planned_seq = seq if answer["status"] == "planned" else None
+            if self.notify is not None:
+                text = (_plan_text(answer, answer["route"][-1]) if answer["status"] == "planned" else
+                        f"{answer['route'][-1]}: entered by the transition it waited for, parameters set")
+                self.notify(P.Notice(code="planned", message=text, seq=seq))
 
     def vertices(self):
         """(n, 3) float32 root-local vertices of the current frame (the player's buffer)."""
@@ -284,6 +300,14 @@ class GraphStream:
         return None if self._frame.progress is None else float(min(max(self._frame.progress, 0.0), 1.0))
 
 
+def _plan_text(answer, node):
+    """A planned (or set) action's notice text."""
+    if answer["status"] != "planned":
+        return f"{node}: already there, parameters set"
+    return (f"{' -> '.join(answer['route'])}: leaves in {answer['leave_in']:.2f} s, blends {answer['length']:.2f} s, "
+            f"enters {answer['route'][1]} at phase {answer['enter_phase']:.2f}")
+
+
 # ---------------------------------------------------------------- the stream's handlers
 # ``async def on_x(session, message)`` as server/stream/messages.py's: the session's HANDLERS
 # send a hello naming a graph, and every message on a graph stream, here.
@@ -291,6 +315,8 @@ class GraphStream:
 async def on_hello(session, m):
     """A hello naming ``graph``: the connection plays it from now on."""
     stream = await GraphStream.open(session.graphs, m)
+    loop = asyncio.get_running_loop()
+    stream.notify = lambda notice: loop.create_task(session.send(notice))
     session.ready = False  # no frames until the new topology has gone out
     session.player = session.graph = stream
     session.space_name, session.rate = f"graph {m.graph}", m.rate
@@ -311,8 +337,12 @@ async def on_action(session, m):
     if session.graph is None:
         raise P.ProtocolError("unsupported", f"action on a space stream ({session.space_name}): hello with a graph "
                                              "to send actions", "action", m.seq)
-    notice = session.graph.action(m)
-    asyncio.get_running_loop().create_task(session.send(notice))
+    notices = session.graph.action(m)
+
+    async def send_in_order():
+        for notice in notices:
+            await session.send(notice)
+    asyncio.get_running_loop().create_task(send_in_order())
     session.poke(m.seq)
 
 

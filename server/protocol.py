@@ -288,8 +288,10 @@ class Notice:
     """Something the client should know that is not an error (e.g. a request was clamped)."""
     type = "notice"
     code: str = wire("str", "'clamped' (a request was outside the reachable domain), 'planned' (an action's "
-                     "transition: when it leaves, how long it blends), 'queued' (an action waits for a blend or a "
-                     "one-shot to end)")
+                     "transition: when it leaves, how long it blends; sent again, with the action's seq, when a "
+                     "queued action is planned), 'queued' (an action waits for a blend or a one-shot to end), "
+                     "'superseded' (an earlier action, seq, is dropped before it was carried out: a later one "
+                     "replaced it)")
     message: str = wire("str", "human-readable explanation")
     seq: int = wire("int", "the client message it answers", default=0)
 

@@ -103,6 +103,8 @@ class GraphPlayer:
         self.requests = []       # every request: {"frame", "node", "params", "budget"} (for replay)
         self.record = bool(record)
         self.left = None         # (plan, source weights) of the last transition started
+        self.planned = None      # the plan (as request returns it) of the last queued request planned
+        self._asked = False      # the pending plan and route serve a request (not a one-shot's return)
         self._buffer = None
         self.foot_lock = bool(foot_lock)
         rest = np.asarray(start.space.container["rest"])
@@ -122,25 +124,39 @@ class GraphPlayer:
         Returns a dict: ``status`` ("planned", "queued" or "set"), and when planned the
         transition (``leave_in``, ``enter_phase``, ``length``, ``latency``, ``dissimilarity``)
         and the ``route``; ``clamped`` / ``message`` when the parameters were out of reach.
+        The latest request wins: it replaces a request still queued and a transition planned
+        but not started (``dropped`` says which: "queued", "planned" or None). A queued request
+        is planned when the blend or the one-shot it waits for ends; ``step``'s frame then has
+        the event "plan queued NODE" and ``planned`` holds its plan (as this method returns it).
         """
         target = self.graph.node(node)
         if budget is not None and not (np.isfinite(budget) and budget > 0):
             raise GraphError(f"budget must be a positive number of seconds, got {budget}")
         weights, realised, clamped, message = target.solve(params)  # validates before anything changes
+        waits = self.blend is not None or (not self.node.cyclic and not self._can_redirect(node))
+        if waits:  # it will be planned from the node the blend (or the one-shot's return) enters
+            self.graph.route(self.blend.plan.target if self.blend is not None else self.node.name, node)
+        # what this request takes the place of: a queued request; or the rest of a requested plan
+        # (a waiting request goes before a route's later hops; a new plan replaces the pending one)
+        dropped = "queued" if self.queued is not None else (
+            "planned" if self._asked and (self.route or (not waits and self.pending is not None)) else None)
         if self.record:
             self.requests.append({"frame": self.frames, "node": node, "params": dict(params or {}), "budget": budget})
         self._params[node] = dict(params or {})
-        note = {"clamped": clamped, "message": message}
-        if self.blend is not None or (not self.node.cyclic and not self._can_redirect(node)):
+        note = {"clamped": clamped, "message": message, "dropped": dropped}
+        if waits:
             self.queued = (node, budget)
             return {"status": "queued", **note}
+        self.queued = None
         if node == self.node.name:
-            self.pending, self.route = None, []
+            self.pending, self.route, self._asked = None, [], False
             self.clock.set_weights(weights)
             self._cached = None
             self._realised = realised
             return {"status": "set", **note}
-        return {**self._plan(node, budget, asked=True), **note}
+        answer = self._plan(node, budget, asked=True)
+        self._asked = True
+        return {**answer, **note}
 
     def set_params(self, params):
         """Change the parameters of the node the frames show (during a blend: its target) at
@@ -241,7 +257,7 @@ class GraphPlayer:
         if self._locking():  # only near a blend are the feet held: elsewhere they are not placed
             self._feet_before, self._feet_frame = self._feet_at(), self.frames
         if self.blend is not None and self.blend.elapsed >= self.blend.plan.length - 1e-9:
-            events.append(self._enter())
+            events += self._enter()
         elif self.blend is None and self.pending is None and not self.node.cyclic and self.clock.finished:
             self._plan_return()  # the planned return could not be kept: leave now
         return self.frame(events, placed=placed)
@@ -257,17 +273,25 @@ class GraphPlayer:
         self.blend = None
         self._cached = None
         _, self._realised, _, _ = self.node.solve(self._params[self.node.name])
-        if self.route:
+        events = [f"enter {plan.target}"]
+        if self.queued is not None:  # the latest request: before the rest of an earlier one's route
+            node, budget = self.queued
+            self.queued, self.route = None, []
+            if node != self.node.name:
+                self.planned = self._plan(node, budget, asked=True)
+                self._asked = True
+            else:  # the blend it waited for went there
+                self.planned, self._asked = {"status": "set", "route": [node]}, False
+            events.append(f"plan queued {node}")
+        elif self.route:
             goal, self.route = self.route[-1], []
             self._plan(goal)
-        elif self.queued is not None:
-            node, budget = self.queued
-            self.queued = None
-            if node != self.node.name:
-                self._plan(node, budget, asked=True)
+        else:
+            self._asked = False
         if self.pending is None and not self.node.cyclic:
             self._plan_return()
-        return f"enter {plan.target}"
+            self._asked = False
+        return events
 
     def _local(self):
         """(root-local mesh, progress or None) at the current state, blended once per frame."""

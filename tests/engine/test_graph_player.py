@@ -222,3 +222,21 @@ def test_a_one_shot_left_for_another_node_may_leave_early(graph_spaces, tmp_path
                                           plan.target_weights, latency_weight=0.0)
         assert plan.leave_phase >= g.node("jump").samples.phases[0] and (
             plan.leave_phase >= search.options.min_exit or plan.dissimilarity <= late.dissimilarity + 1e-12)
+
+
+def test_the_latest_request_wins_and_says_what_it_dropped(graph):
+    player = GraphPlayer(graph, node="walk", params={"speed": 1.2}, mode="linear")
+    assert player.request("stand")["dropped"] is None
+    answer = player.request("jump", {"jump_height": 0.3})  # before the stand's transition started
+    assert answer["status"] == "planned" and answer["dropped"] == "planned"
+    while player.blend is None:
+        player.step(1 / 30)
+    waiting = player.request("walk", {"speed": 1.0})      # during the blend into the jump: waits
+    assert waiting["status"] == "queued" and waiting["dropped"] is None  # the jump is carried out
+    latest = player.request("stand")
+    assert latest["status"] == "queued" and latest["dropped"] == "queued"
+    events = []
+    while not any(e.startswith("plan queued") for e in events):
+        events = player.step(1 / 30).events
+    assert events == ["enter jump", "plan queued stand"] and player.queued is None
+    assert player.planned["status"] == "planned" and player.planned["route"] == ["jump", "stand"]

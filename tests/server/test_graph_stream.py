@@ -211,3 +211,40 @@ def test_a_graph_stream_does_not_disturb_a_space_stream(graph_server):
     frames, jumped = run(go())
     assert all(f.node is None and f.target is None and f.progress is None for f in frames)
     assert jumped[-1].node == "jump"
+
+
+def test_a_replaced_action_is_told_and_a_queued_one_planned_later(graph_server):
+    """During a jump (no edge jump -> reach), a reach is queued; a second reach replaces it (the
+    first gets ``superseded``); when the jump's return enters the stand, the second is planned
+    (a second notice with its seq) and carried out. A planned transition replaced before it
+    starts is ``superseded`` too; an action for the node shown drops the plan it replaces."""
+    async def go():
+        async with StreamClient.connect(graph_server.ws_url, graph="tiny", params={"speed": 1.2}, rate=30,
+                                        mode="linear", codec="f32") as c:
+            jump = await c.action("jump", {"jump_height": 0.4})
+            await collect(c, lambda fs: fs[-1].ack >= jump and fs[-1].node == "jump" and fs[-1].progress is None)
+            first = await c.action("reach", {"reach_height": 1.2})
+            second = await c.action("reach", {"reach_height": 1.6})
+            frames = await collect(c, lambda fs: fs[-1].node == "reach" and fs[-1].progress is None)
+            stand = await c.action("stand")   # the reach's own return: planned
+            walk = await c.action("walk", {"speed": 1.0})  # queued: the reach cannot be left for a walk
+            frames += await collect(c, lambda fs: fs[-1].node == "walk" and fs[-1].progress is None, seconds=20)
+            shown = await c.action("walk", {"speed": 1.4})  # the node shown: set
+            await collect(c, lambda fs: fs[-1].ack >= shown)
+            for _ in range(20):  # the last notices may trail the frames
+                if len(c.notices) >= 9:
+                    break
+                await asyncio.sleep(0.05)
+            return (jump, first, second, stand, walk, shown), frames, list(c.notices), list(c.errors)
+    seqs, frames, notices, errors = run(go())
+    jump, first, second, stand, walk, shown = seqs
+    assert errors == []
+    told = [(n.code, n.seq) for n in notices]
+    assert told[:5] == [("planned", jump), ("queued", first), ("superseded", first), ("queued", second),
+                        ("planned", second)]
+    assert notices[2].message.startswith("dropped before it was carried out: action") and "(reach)" in notices[2].message
+    assert notices[4].message.startswith("stand -> reach:")  # the second notice: how the queued one goes
+    assert ("planned", stand) in told and ("queued", walk) in told and ("planned", walk) in told[told.index(("queued", walk)):]
+    assert told.count(("superseded", first)) == 1 and all(code != "superseded" or seq == first for code, seq in told)
+    assert max(f.requested.get("reach_height", 0.0) for f in frames if f.node == "reach") == pytest.approx(1.6)
+    assert told[-1] == ("planned", shown) and "already there" in notices[-1].message
