@@ -366,8 +366,9 @@ def test_a_slow_client_does_not_slow_a_fast_one(server, window):
     The fast client's delivery while the slow one stalls is compared with its own delivery in the
     1.5 s before and after, measured in the same run: on a loaded host the server and this process
     both lose ticks to other processes, which has nothing to do with the slow client, so the
-    margin follows what the host allowed when no client stalled (and is the fixed one, >= 90% of
-    30 frames/s and <= 1 skipped tick a second, on a quiet host). The slow client's backlog is
+    margin follows what the host allowed when no client stalled (the worse of the two windows;
+    on a quiet host the fixed one, >= 90% of 30 frames/s and <= 1 skipped tick a second). A server
+    held up by the stalled client would lose most of the 90 frames, not a few. The slow client's backlog is
     what was made before it resumed reading (made after is fresh by definition: the server makes
     a frame only when it can be written), not what arrives within 0.1 s: how fast a fresh frame
     arrives is the stall benchmark's target (benchmarks/stream_stall.py), and on a loaded host
@@ -407,8 +408,8 @@ def test_a_slow_client_does_not_slow_a_fast_one(server, window):
     t0, stall_start, stall_end, stale, fresh = run(go())
     alone = [delivery(received, t0 + 0.2, stall_start), delivery(received, stall_end + 0.5, t0 + 6.0)]
     rate, skipped = delivery(received, stall_start, stall_end)
-    alone_rate = min(30.0, sum(r for r, _ in alone) / 2)
-    alone_skipped = max(0.5, sum(s for _, s in alone) / 2)
+    alone_rate = min(30.0, min(r for r, _ in alone))        # the worse of the two windows: the host's
+    alone_skipped = max(0.5, max(s for _, s in alone))      # load moves, a blocked loop drops far more
     assert rate >= 0.9 * alone_rate, (rate, alone)
     assert skipped <= 2 * alone_skipped, (skipped, alone)
     if window:
