@@ -100,15 +100,20 @@ class FootPins:
         self.release, self.creep = float(release), float(creep)
         self.legs = leg_weights(rest, self.feet)
         self.offsets = np.zeros((len(self.feet), 2))
+        self._index = np.concatenate([index for index, _ in self.legs])  # every leg vertex, one gather
+        self._weights = np.zeros((len(self._index), len(self.legs)), dtype=np.float32)  # (k, feet)
+        start = 0
+        for k, (index, weights) in enumerate(self.legs):
+            self._weights[start:start + len(index), k] = weights
+            start += len(index)
 
     def planted(self, node, weights, phase):
         """(feet,) float: the share of ``node``'s clips at ``weights`` that plant each foot at
         ``phase`` (the contact table cached on the node)."""
-        table = node.cached("contacts", lambda: contact_table(node.space, self.feet, self.ground))
+        table = node.cached("contacts", lambda: contact_table(node.space, self.feet, self.ground).astype(float))
         n_phases = table.shape[1]
         p = int(round(phase * (n_phases if node.cyclic else n_phases - 1))) % n_phases
-        w = np.asarray(weights, dtype=float)
-        return (w / w.sum()) @ table[:, p, :]
+        return weights @ table[:, p, :] / weights.sum()
 
     def holding(self):
         """Some foot is held away from where the motion puts it."""
@@ -118,11 +123,10 @@ class FootPins:
         """Add world xz ``offsets`` (one per foot) to the legs of root-local ``mesh`` (n, 3)
         float32, in place, for a root turned by ``heading``."""
         c, s = math.cos(heading), math.sin(heading)
-        for (index, weights), (ox, oz) in zip(self.legs, np.asarray(offsets, dtype=float).tolist()):
-            if ox == 0.0 and oz == 0.0:
-                continue
-            local = np.array([c * ox - s * oz, 0.0, s * ox + c * oz], dtype=np.float32)  # world -> root-local
-            mesh[index] += weights[:, None] * local
+        local = np.zeros((len(self.legs), 3), dtype=np.float32)  # world -> root-local, per foot
+        for k, (ox, oz) in enumerate(np.asarray(offsets, dtype=float).tolist()):
+            local[k, 0], local[k, 2] = c * ox - s * oz, s * ox + c * oz
+        mesh[self._index] += self._weights @ local
 
     def update(self, before, now, planted, dt, *, blending):
         """Hold or release each foot between two shown frames; returns the (feet, 2) change of

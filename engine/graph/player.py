@@ -109,10 +109,13 @@ class GraphPlayer:
         self.foot_lock = bool(foot_lock)
         rest = np.asarray(start.space.container["rest"])
         self._feet = foot_vertices(rest)
+        self._feet_index = np.concatenate(self._feet)  # both feet in one gather
+        self._feet_split = np.cumsum([len(f) for f in self._feet])[:-1]
         self._ground = float(rest[:, 1].min()) + float(contact)  # below this: on the ground
         self.pins = FootPins(rest, self._feet, self._ground)
         self._cached = None      # (frames, root-local mesh, progress) of the current state
         self._feet_before, self._feet_frame = None, None  # the feet in the world, at frame number
+        self._dt = 0.0           # the last step's length (a blend planned to start within it is near)
         if not start.cyclic:
             self._plan_return()
 
@@ -230,6 +233,7 @@ class GraphPlayer:
         if not (dt >= 0 and np.isfinite(dt)):
             raise ValueError(f"dt must be a non-negative number of seconds, got {dt}")
         events = []
+        self._dt = dt
         if self._locking() and self._feet_frame != self.frames:  # the feet before this step, for the lock
             self._feet_before, self._feet_frame = self._feet_at(), self.frames
         self._cached = None
@@ -264,7 +268,8 @@ class GraphPlayer:
 
     def _locking(self):
         """The next step may blend, so the feet's places are needed."""
-        return self.foot_lock and (self.blend is not None or self.pending is not None or self.pins.holding())
+        soon = self.pending is not None and self.pending[1] <= 0.5 * self._dt  # a blend may start next step
+        return self.foot_lock and (self.blend is not None or soon or self.pins.holding())
 
     def _enter(self):
         plan = self.blend.plan
@@ -316,7 +321,7 @@ class GraphPlayer:
     def _feet_at(self):
         """Per foot: its vertices in the world now, (f, 3)."""
         mesh, _ = self._local()
-        return [place(mesh[foot], self.position, self.heading) for foot in self._feet]
+        return np.split(place(mesh[self._feet_index], self.position, self.heading), self._feet_split)
 
     def _hold_feet(self, dt):
         """Hold the feet on the ground where they were, on the mesh just shown (``FootPins``)."""
