@@ -156,6 +156,9 @@ class GraphExportSpec(_Body):
     interpolation: Literal["LINEAR", "STEP"] = Field("LINEAR", description="glTF weights sampling")
 
 
+CLIP_ONLY = ("params", "track", "duration", "rate", "mode", "smoothing")  # a space's clip; a recording has its own
+
+
 class ExportJob(ExportSpec):
     """Export a clip of a motion space, or a recorded performance of a motion graph (a long one;
     short ones: POST /v1/spaces/{name}/export, POST /v1/graphs/{name}/export)."""
@@ -170,6 +173,10 @@ class ExportJob(ExportSpec):
             raise ValueError("give either space (a clip) or graph (with recording)")
         if (self.graph is None) != (self.recording is None):
             raise ValueError("recording goes with graph (a motion graph's recorded performance), and graph needs one")
+        clip_only = sorted(self.model_fields_set & set(CLIP_ONLY))
+        if self.graph is not None and clip_only:
+            raise ValueError(f"a graph export replays its recording (its own clock, blend mode and requests): "
+                             f"leave out {', '.join(clip_only)}")
         return self
 
 

@@ -31,6 +31,7 @@ import time
 import uuid
 
 from server import uploads
+from server.jobs import models
 from server.jobs.executors import DaskExecutor, LocalExecutor, WorkerLost
 from server.jobs.store import FINAL, JobStore
 from server.jobs.tasks import JobCancelled, JobError, _relative, check_build_sources, publish
@@ -144,6 +145,9 @@ class JobService:
         params = request.model_dump()
         kind = params["kind"]
         if kind == "export":
+            # the job record shows what the export uses: a graph's recording carries its own clip
+            drop = models.CLIP_ONLY if params.get("graph") is not None else ("graph", "recording")
+            params = {k: v for k, v in params.items() if k not in drop}
             self._check_export(params)
             params["output_name"], params["output_type"] = None, "export"
             job = self.store.create(kind, params)

@@ -1,26 +1,43 @@
 """USD exports: usd-core's validators (what usdchecker runs) find no error; the stage read back
 with pxr places the time-sampled points where the player put them."""
 
+import importlib.util
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 pxr = pytest.importorskip("pxr", reason="usd-core is in the test extras: scripts/setup-env test")
-from pxr import Usd, UsdGeom, UsdValidation  # noqa: E402
+from pxr import Usd, UsdGeom  # noqa: E402
 
 from engine.export import Clip, play_clip, write_export  # noqa: E402
 
+_spec = importlib.util.spec_from_file_location(
+    "validate_usd", Path(__file__).resolve().parents[1] / "validators" / "validate_usd.py")
+_validate_usd = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_validate_usd)
+
 
 def validation_errors(stage):
-    """Errors of every registered UsdValidation validator except the usdz packaging ones (usd-core
-    26 has no Python ComplianceChecker and its wheel no usdchecker program)."""
-    registry = UsdValidation.ValidationRegistry()
-    validators = [registry.GetOrLoadValidatorByName(m.name) for m in registry.GetAllValidatorMetadata()
-                  if "UsdzValidators" not in m.GetKeywords()]
-    assert len(validators) > 10
-    errors = UsdValidation.ValidationContext(validators).Validate(stage)
-    return [e.GetErrorAsString() for e in errors if e.GetType() != UsdValidation.ValidationErrorType.Info]
+    """Errors of every registered UsdValidation validator except the usdz packaging ones (the
+    checker documented in docs/exports.md: tests/validators/validate_usd.py)."""
+    return _validate_usd.validation_errors(stage)
+
+
+def test_the_documented_checker_fails_a_bad_file_and_passes_an_export(turning, tmp_path):
+    """``validate_usd.py FILE`` as docs/exports.md runs it: exit 1 on an empty stage, 0 on an export."""
+    empty = tmp_path / "empty.usda"
+    Usd.Stage.CreateNew(str(empty)).Save()
+    good = tmp_path / "clip.usda"
+    write_export(good, turning, "usd")
+    script = Path(__file__).resolve().parents[1] / "validators" / "validate_usd.py"
+    bad = subprocess.run([sys.executable, str(script), str(empty)], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 1 and "errors" in bad.stdout and "metersPerUnit" in bad.stdout
+    ok = subprocess.run([sys.executable, str(script), str(good)], capture_output=True, text=True, timeout=120)
+    assert ok.returncode == 0 and ok.stdout.strip() == f"{good}: no errors"
 
 
 @pytest.fixture(scope="module")

@@ -83,9 +83,13 @@ def test_a_long_performance_is_an_export_job(client, built_graph, tmp_path):
     refused = client.post("/v1/graphs/tiny/export", json={"recording": document})
     assert refused.status_code == 422 and "145 frames x 1000 vertices is too long" in refused.json()["detail"]
     assert '"graph": "tiny"' in refused.json()["detail"]
+    clocked = client.post("/v1/jobs", json={"kind": "export", "graph": "tiny", "recording": document, "rate": 30})
+    assert clocked.status_code == 422 and "replays its recording" in clocked.text and "leave out rate" in clocked.text
     response = client.post("/v1/jobs", json={"kind": "export", "graph": "tiny", "recording": document})
     assert response.status_code == 202, response.text
     job_id = response.json()["id"]
+    # the record shows what the export uses, not a clip's defaults the recording overrides
+    assert not {"duration", "rate", "params", "track", "mode", "smoothing"} & set(response.json()["params"])
     deadline = time.monotonic() + 180
     while (job := client.get(f"/v1/jobs/{job_id}").json())["status"] in ("queued", "running"):
         assert time.monotonic() < deadline, job
