@@ -39,7 +39,7 @@ def check_performance(graph, document):
         read_recording(document, graph)
     except GraphError as exc:
         raise ClipError(str(exc)) from None
-    steps, fps = document["steps"], float(document["fps"])
+    steps = document["steps"]
     if steps + 1 > MAX_FRAMES:
         raise ClipError(f"recording: {steps + 1} frames; at most {MAX_FRAMES} per export")
     known = {node.name: node for node in graph.nodes}
@@ -56,6 +56,13 @@ def check_performance(graph, document):
                                    or not (math.isfinite(budget) and budget > 0)):
             raise ClipError(f"{where}: budget must be a positive number of seconds or null, got {budget!r}")
         _check_params(known[request["node"]], request.get("params") or {}, where)
+    return step_times(document)
+
+
+def step_times(document):
+    """The clock of a recording: (seconds of every step, number of frames). 1 / ``fps`` each, or
+    the differences of its ``times`` (a browser recording). Raises ClipError naming a bad ``times``."""
+    steps, fps = document["steps"], float(document["fps"])
     times = document.get("times")
     if times is None:
         return [1.0 / fps] * steps, steps + 1

@@ -20,11 +20,12 @@ RECORDING_FORMAT = "morphspace-graph-recording"
 RECORDING_VERSION = 1
 
 
-def perform(graph, *, start, params, fps, steps, mode="hybrid", requests=(), on_frame=None, player=None):
+def perform(graph, *, start, params, fps, steps, mode="hybrid", requests=(), on_frame=None, player=None, dts=None):
     """Play ``steps`` frames after the first at ``fps``; ``requests`` (dicts with ``frame``,
     ``node``, ``params``, ``budget``) are made once the player has taken ``frame`` steps (frame
     n is n / fps seconds in), as ``GraphPlayer.requests`` records them (one with ``set`` true is
-    a ``GraphPlayer.set_params``).
+    a ``GraphPlayer.set_params``). ``dts``: the seconds of every step instead of 1 / ``fps`` (a
+    browser recording's ``times``, differenced).
 
     Returns
     -------
@@ -36,7 +37,9 @@ def perform(graph, *, start, params, fps, steps, mode="hybrid", requests=(), on_
         raise GraphError(f"fps must be positive and steps non-negative, got {fps}, {steps}")
     player = player or GraphPlayer(graph, node=start, params=params, mode=mode)
     pending = sorted(requests, key=lambda r: r["frame"])
-    digest, answers, dt = hashlib.sha256(), [], 1.0 / fps
+    if dts is not None and len(dts) != steps:
+        raise GraphError(f"{len(dts)} step times for {steps} steps")
+    digest, answers = hashlib.sha256(), []
     for k in range(steps + 1):
         while pending and pending[0]["frame"] <= player.frames:  # frame n: after n steps
             r = pending.pop(0)
@@ -45,7 +48,7 @@ def perform(graph, *, start, params, fps, steps, mode="hybrid", requests=(), on_
             else:
                 answers.append({"frame": player.frames, "node": r["node"],
                                 **player.request(r["node"], r.get("params") or {}, budget=r.get("budget"))})
-        frame = player.step(dt) if k else player.frame()
+        frame = (player.step(1.0 / fps if dts is None else dts[k - 1]) if k else player.frame())
         digest.update(np.ascontiguousarray(frame.vertices, dtype="<f4").tobytes())
         if on_frame is not None:
             on_frame(k, frame)

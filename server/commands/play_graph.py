@@ -56,6 +56,7 @@ def run_graph(args):
                 raise ValueError(f"{args.replay}: {exc}") from None
             start, params, fps, steps = document["start"], document["params"], document["fps"], document["steps"]
             mode, requests = document["mode"], document["requests"]
+            dts = _step_times(document, args.replay)
         else:
             start = args.start or next(n.name for n in graph.nodes if n.cyclic)
             params, _ = _assignments(args.set, graph.node(start))
@@ -71,6 +72,7 @@ def run_graph(args):
                                  "budget": budget})
             last = max((r["frame"] / fps for r in requests), default=0.0)
             steps = int(round((args.seconds or last + 4.0) * fps))
+            dts = None
         if args.frames:
             args.frames.mkdir(parents=True, exist_ok=True)
         faces = graph.nodes[0].space.faces
@@ -86,7 +88,7 @@ def run_graph(args):
 
         try:
             player, digest, answers = perform(graph, start=start, params=params, fps=fps, steps=steps, mode=mode,
-                                              requests=requests, on_frame=on_frame)
+                                              requests=requests, on_frame=on_frame, dts=dts)
         except GraphError as exc:
             raise ValueError(str(exc)) from None
         root = np.array([entry["root"] for entry in log])
@@ -97,7 +99,8 @@ def run_graph(args):
                   "frames_sha256": digest, "timeline": log[:: max(1, len(log) // 50)]}
         if args.replay:
             report["replayed"] = args.replay.name
-            report["identical"] = digest == document.get("frames_sha256")
+            # a browser recording has no digest (the page saw the stream's frames, not these bytes)
+            report["identical"] = None if document.get("frames_sha256") is None else digest == document["frames_sha256"]
         if args.record:
             doc = recording(graph, player, start=start, params=params, fps=fps, steps=steps, mode=mode, digest=digest)
             args.record.parent.mkdir(parents=True, exist_ok=True)
@@ -124,9 +127,22 @@ def run_graph(args):
               f"heading {end['heading_deg']:+.1f} deg")
         print(f"  frames sha256 {digest[:16]}...")
         if args.replay:
-            print(f"  replay of {args.replay}: {'identical frames' if report['identical'] else 'DIFFERENT frames'}")
+            said = {True: "identical frames", False: "DIFFERENT frames",
+                    None: "no frames digest recorded (a browser recording), nothing to compare"}
+            print(f"  replay of {args.replay}: {said[report['identical']]}")
         if args.record:
             print(f"  recorded: {args.record}")
-    if args.replay and not report["identical"]:
+    if args.replay and report["identical"] is False:
         return 1
     return 0
+
+
+def _step_times(document, path):
+    """The seconds of every step of a recording with ``times`` (a browser recording), else None."""
+    from engine.export.performance import ClipError, step_times
+
+    try:
+        dts, _ = step_times(document)
+    except ClipError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    return None if document.get("times") is None else dts

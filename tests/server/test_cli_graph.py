@@ -127,6 +127,36 @@ def test_play_a_graph_record_and_replay_byte_for_byte(graph_file, tmp_path, caps
     assert "DIFFERENT frames" in capsys.readouterr().out
 
 
+def test_play_replays_a_browser_recording_on_its_own_clock(graph_file, tmp_path, capsys):
+    """A browser recording (the stream's frame times, a parameter change, no digest): --replay steps
+    by its times, as the exports do, and says there is no digest to compare instead of failing."""
+    from engine.export.performance import play_performance
+
+    record = tmp_path / "session.json"
+    assert main(["play", str(graph_file), "--set", "speed=1.2", "--at", "1", "leap", "jump_distance=0.8",
+                 "--seconds", "3", "--fps", "20", "--record", str(record)]) == 0
+    capsys.readouterr()
+    document = json.loads(record.read_text())
+    steps = document["steps"]
+    document["times"] = [round(k * 0.05 + (0.004 if k % 3 == 1 else 0.0), 4) for k in range(steps + 1)]
+    document["requests"].insert(0, {"frame": 5, "node": "run", "params": {"speed": 1.5}, "set": True})
+    document.update(frames_sha256=None, source="browser")
+    record.write_text(json.dumps(document))
+    assert main(["play", str(graph_file), "--replay", str(record), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["identical"] is None and report["frames"] == steps + 1
+    with MotionGraph.open(graph_file) as graph:
+        _, exported = play_performance(graph, document)  # what morphspace export makes of it
+        _, evenly = play_performance(graph, dict(document, times=None))
+    assert report["frames_sha256"] == exported != evenly
+    assert main(["play", str(graph_file), "--replay", str(record)]) == 0
+    assert "no frames digest recorded (a browser recording), nothing to compare" in capsys.readouterr().out
+    document["times"][5] = document["times"][4] - 0.01
+    record.write_text(json.dumps(document))
+    assert main(["play", str(graph_file), "--replay", str(record)]) == 2
+    assert "times must not decrease (frame 5" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("argv,message", [
     (["--at", "1", "fly"], "no node 'fly'"),
     (["--at", "1", "leap", "height=2"], "has no parameter 'height'"),
