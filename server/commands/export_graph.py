@@ -15,27 +15,7 @@ import time
 from engine.export import ClipError, check_performance, play_performance, scripted_recording, write_export
 from engine.graph import GraphError, MotionGraph
 from server.commands.play import at_time
-
-
-def _assignments(items, node):
-    """({name: value}, budget or None) of NAME=VALUE items for ``node``."""
-    out, budget = {}, None
-    for item in items:
-        if "=" not in item:
-            raise ValueError(f"expected NAME=VALUE, got {item!r}")
-        name, value = item.split("=", 1)
-        try:
-            number = float(value)
-        except ValueError:
-            raise ValueError(f"{name}: {value!r} is not a number") from None
-        if name == "budget":
-            budget = number
-        elif name not in node.parameters:
-            has = f"it has {', '.join(node.parameters)}" if node.parameters else "it has no parameters"
-            raise ValueError(f"node {node.name!r} has no parameter {name!r}; {has}")
-        else:
-            out[name] = number
-    return out, budget
+from server.commands.play_graph import node_assignments
 
 
 def recording_from_arguments(args, graph):
@@ -54,7 +34,7 @@ def recording_from_arguments(args, graph):
         start = graph.node(args.start) if args.start else next(n for n in graph.nodes if n.cyclic)
     except GraphError as exc:
         raise ValueError(str(exc)) from None
-    params, _ = _assignments(args.set, start)
+    params, _ = node_assignments(args.set, start)
     requests = []
     for entry in args.at:
         if len(entry) < 2:
@@ -63,7 +43,7 @@ def recording_from_arguments(args, graph):
             node = graph.node(entry[1])
         except GraphError as exc:
             raise ValueError(f"--at {' '.join(entry)}: {exc}") from None
-        values, budget = _assignments(entry[2:], node)
+        values, budget = node_assignments(entry[2:], node)
         requests.append({"time": at_time(entry), "node": node.name, "params": values, "budget": budget})
     return scripted_recording(graph, start=start.name, params=params, requests=requests, fps=args.fps,
                               seconds=args.seconds, mode=args.mode)

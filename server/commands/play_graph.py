@@ -19,7 +19,8 @@ from engine.mesh_io import write_obj
 from server.commands.play import at_time
 
 
-def _assignments(items, node):
+def node_assignments(items, node):
+    """({name: value}, budget or None) of NAME=VALUE items for ``node`` (``budget=S`` is the latency budget)."""
     out, budget = {}, None
     for item in items:
         if "=" not in item:
@@ -31,10 +32,10 @@ def _assignments(items, node):
             raise ValueError(f"{name}: {value!r} is not a number") from None
         if name == "budget":
             budget = number
+        elif name not in node.parameters:
+            has = f"it has {', '.join(node.parameters)}" if node.parameters else "it has no parameters"
+            raise ValueError(f"node {node.name!r} has no parameter {name!r}; {has}")
         else:
-            if name not in node.parameters:
-                raise ValueError(f"node {node.name!r} has no parameter {name!r}"
-                                 f"{'; it has ' + ', '.join(node.parameters) if node.parameters else ''}")
             out[name] = number
     return out, budget
 
@@ -59,7 +60,7 @@ def run_graph(args):
             dts = _step_times(document, args.replay)
         else:
             start = args.start or next(n.name for n in graph.nodes if n.cyclic)
-            params, _ = _assignments(args.set, graph.node(start))
+            params, _ = node_assignments(args.set, graph.node(start))
             fps, mode = args.fps, args.mode
             requests = []
             for entry in args.at:
@@ -67,7 +68,7 @@ def run_graph(args):
                     raise ValueError(f"--at needs a time and a node, got {' '.join(entry)!r}")
                 when = at_time(entry)
                 node = graph.node(entry[1])
-                values, budget = _assignments(entry[2:], node)
+                values, budget = node_assignments(entry[2:], node)
                 requests.append({"frame": int(round(when * fps)), "node": node.name, "params": values,
                                  "budget": budget})
             last = max((r["frame"] / fps for r in requests), default=0.0)
