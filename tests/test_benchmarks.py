@@ -158,6 +158,17 @@ def check_export(record, stdout):
     assert "glb int16" in stdout and "targets: glTF <= 5 s" in stdout
 
 
+def check_align_speed(record, stdout):
+    assert record["dataset"] == "tiny" and record["frames"] == 6 and 900 < record["vertices_mean"] < 1100
+    assert positive(record["cpu_seconds_per_frame"]) and positive(record["aligner_cpu_seconds_per_frame"])
+    assert record["aligner_cpu_seconds_per_frame"] <= record["cpu_seconds_per_frame"]
+    assert {"similarity", "tree", "align", "repair"} <= set(record["stages_wall_s"])
+    assert 0 < record["mean_pct"] <= record["p95_pct"] < 100 and 0 < record["worst_frame_pct"] < 100
+    assert record["target_met"] is None and non_negative(record["load_average_before"][0])
+    assert "CPU s per frame all in" in stdout
+    assert "TARGET alignment <= 3 CPU s/frame at 10k: not judged (1,0" in stdout
+
+
 def check_align_momentum(record, stdout):
     assert record["dataset"] == "tiny" and record["root"] == 2 and record["frames"] == 4
     assert [run["momentum"] for run in record["runs"]] == [0.0, 0.5, 1.0]
@@ -195,6 +206,7 @@ def check_godot_client(result, stdout):
 
 CHECKS = {
     "align_momentum.py": check_align_momentum,
+    "align_speed.py": check_align_speed,
     "blend_scaling.py": check_blend_scaling,
     "dask_align.py": check_dask_align,
     "export.py": check_export,

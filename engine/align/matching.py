@@ -12,7 +12,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from engine.align.shape_histogram import shape_centre
-from engine.surface import _closest_on_triangles, main_components, vertex_normals
+from engine.surface import main_components, vertex_normals
 
 
 class TargetSurface:
@@ -53,17 +53,9 @@ class TargetSurface:
         distance : (q,) float array
         faces : (q,) int array
         """
-        P = np.asarray(P, dtype=np.float64)
-        k = min(k, len(self.F))
-        _, faces = self.face_tree.query(P, k=k)
-        faces = faces.reshape(len(P), k)
-        tri = self.V[self.F[faces.ravel()]]
-        Pq = np.repeat(P, k, axis=0)
-        points, _ = _closest_on_triangles(Pq, tri[:, 0], tri[:, 1], tri[:, 2])
-        dist = np.linalg.norm(points - Pq, axis=1).reshape(len(P), k)
-        best = np.argmin(dist, axis=1)
-        pick = np.arange(len(P)) * k + best
-        return points[pick], dist[np.arange(len(P)), best], faces[np.arange(len(P)), best]
+        points, distance, faces, _ = closest_points(np.asarray(P, dtype=np.float64), self.V, self.F,
+                                                    self.face_tree, k=k)
+        return points, distance, faces
 
 
 def normal_cosine(options):
@@ -109,21 +101,42 @@ def correspondences(x, n, target, options, colors=None, labels=None, count=1):
     d : (p,) distances
     """
     o = options
-    y, d, face, bary = closest_points(x, target.V, target.F, target.face_tree)
-    m = np.einsum("pk,pkc->pc", bary, target.normals[target.F[face]])
-    m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-12)
-    ok = np.einsum("pc,pc->p", m, n) > normal_cosine(o)
-    if not ok.all():
-        bad = np.flatnonzero(~ok)
-        q, mq, dq, okq = nearest_compatible(x[bad], n[bad], target, o)
-        y[bad], m[bad], d[bad], ok[bad] = q, mq, dq, okq
+    y, m, d, ok, face, bary = compatible_closest(x, n, target, o)
     w = robust_weights(d, ok, labels, count, o.outlier_factor, 1.5 * target.edge_length)
     tangential = np.full(len(x), o.tangential_damping)
     if colors is not None:
-        flow, strength = colour_flow(y, m, face, bary, target, colors, o)
-        y = y + flow
-        tangential = tangential + o.colour_weight * strength
+        # Pairs of weight 0 drive nothing (the rigid steps and the solves weigh them by w), so
+        # only the others look for colours: the same result for less work.
+        used = np.flatnonzero(w > 0)
+        flow, strength = colour_flow(y[used], m[used], face[used], bary[used], target, colors[used], o)
+        y[used] += flow
+        tangential[used] += o.colour_weight * strength
     return y, m, w, tangential, d
+
+
+def correspondence_weights(x, n, target, options, labels=None, count=1):
+    """The robust weights :func:`correspondences` gives x (normals n), without the matches' colour cues."""
+    _, _, d, ok, _, _ = compatible_closest(x, n, target, options)
+    return robust_weights(d, ok, labels, count, options.outlier_factor, 1.5 * target.edge_length)
+
+
+def compatible_closest(x, n, target, options):
+    """Closest target points of x, or where the normals disagree, the nearest compatible vertex's plane.
+
+    Returns
+    -------
+    y : (p, 3) points    m : (p, 3) unit target normals there    d : (p,) distances
+    ok : (p,) bool, a compatible pair was found    face : (p,) int    bary : (p, 3) in that face
+    """
+    y, d, face, bary = closest_points(x, target.V, target.F, target.face_tree)
+    m = np.einsum("pk,pkc->pc", bary, target.normals[target.F[face]])
+    m /= np.maximum(np.linalg.norm(m, axis=1, keepdims=True), 1e-12)
+    ok = np.einsum("pc,pc->p", m, n) > normal_cosine(options)
+    if not ok.all():
+        bad = np.flatnonzero(~ok)
+        q, mq, dq, okq = nearest_compatible(x[bad], n[bad], target, options)
+        y[bad], m[bad], d[bad], ok[bad] = q, mq, dq, okq
+    return y, m, d, ok, face, bary
 
 
 def colour_flow(y, m, face, bary, target, colors, options):
@@ -237,26 +250,60 @@ def closest_points(P, V, F, face_tree, k=6):
     k = min(k, len(F))
     _, faces = face_tree.query(P, k=k)
     faces = faces.reshape(len(P), k)
-    tri = V[F[faces.ravel()]]
-    Pq = np.repeat(P, k, axis=0)
-    points, bary = _closest_on_triangles(Pq, tri[:, 0], tri[:, 1], tri[:, 2])
-    dist = np.linalg.norm(points - Pq, axis=1).reshape(len(P), k)
+    tri = V[F[faces]]  # (p, k, 3 corners, 3)
+    Pq = P[:, None, :]
+    points, bary = closest_on_triangles(Pq, tri[:, :, 0], tri[:, :, 1], tri[:, :, 2])
+    dist = np.linalg.norm(points - Pq, axis=-1)
     best = np.argmin(dist, axis=1)
-    pick = np.arange(len(P)) * k + best
-    return points[pick], dist[np.arange(len(P)), best], faces[np.arange(len(P)), best], bary[pick]
+    rows = np.arange(len(P))
+    return points[rows, best], dist[rows, best], faces[rows, best], bary[rows, best]
 
 
 def point_to_mesh_distance(P, V, F, k=6):
     """Distance from points P to the closest of the k faces (of V, F) with the nearest centres."""
-    centres = V[F].mean(axis=1)
-    k = min(k, len(F))
-    _, faces = cKDTree(centres).query(P, k=k)
-    faces = faces.reshape(len(P), k)
-    tri = V[F[faces.ravel()]]
-    Pq = np.repeat(P, k, axis=0)
-    points, _ = _closest_on_triangles(Pq, tri[:, 0], tri[:, 1], tri[:, 2])
-    return np.linalg.norm(points - Pq, axis=1).reshape(len(P), k).min(axis=1)
+    return closest_points(P, V, F, cKDTree(V[F].mean(axis=1)), k=k)[1]
 
 
-__all__ = ["TargetSurface", "closest_points", "colour_flow", "correspondences", "nearest_compatible",
+def closest_on_triangles(P, A, B, C):
+    """Closest points on triangles (A, B, C) to points P, all (..., 3); and their barycentrics (..., 3).
+
+    The region tests of :func:`engine.surface._closest_on_triangles` (Ericson, "Real-Time
+    Collision Detection", 5.1.5) with the same arithmetic, so the same numbers, over any leading
+    shape (here (points, candidate faces), so the points are broadcast, not repeated) and with
+    the regions chosen by ``np.where`` rather than masked writes: about a third less time.
+    """
+    ab, ac, ap = B - A, C - A, P - A
+    d1, d2 = np.einsum("...j,...j->...", ab, ap), np.einsum("...j,...j->...", ac, ap)
+    bp = P - B
+    d3, d4 = np.einsum("...j,...j->...", ab, bp), np.einsum("...j,...j->...", ac, bp)
+    cp = P - C
+    d5, d6 = np.einsum("...j,...j->...", ab, cp), np.einsum("...j,...j->...", ac, cp)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        v = vb / denom
+        w = vc / denom
+        u = 1.0 - v - w
+        # edge and vertex regions override the interior solution, most specific last
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
+        u, v, w = np.where(m, 0.0, u), np.where(m, 1 - t, v), np.where(m, t, w)
+        t = d2 / (d2 - d6)
+        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+        u, v, w = np.where(m, 1 - t, u), np.where(m, 0.0, v), np.where(m, t, w)
+        t = d1 / (d1 - d3)
+        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+        u, v, w = np.where(m, 1 - t, u), np.where(m, t, v), np.where(m, 0.0, w)
+    for m, corner in (((d6 >= 0) & (d5 <= d6), 2), ((d3 >= 0) & (d4 <= d3), 1), ((d1 <= 0) & (d2 <= 0), 0)):
+        u, v, w = (np.where(m, float(corner == 0), u), np.where(m, float(corner == 1), v),
+                   np.where(m, float(corner == 2), w))
+    bary = np.nan_to_num(np.stack([u, v, w], axis=-1), nan=1.0 / 3.0)
+    closest = bary[..., :1] * A + bary[..., 1:2] * B + bary[..., 2:] * C
+    return closest, bary
+
+
+__all__ = ["TargetSurface", "closest_on_triangles", "closest_points", "colour_flow", "compatible_closest",
+           "correspondence_weights", "correspondences", "nearest_compatible",
            "normal_cosine", "point_to_mesh_distance", "reverse_correspondences", "robust_weights", "sample_cost"]

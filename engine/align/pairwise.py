@@ -30,6 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from engine.align.matching import (
+    correspondence_weights,
     correspondences,
     nearest_compatible,
     point_to_mesh_distance,
@@ -325,7 +326,7 @@ class PairwiseAligner:
             x, n = search_patches(x, n, target, labels, count, self.patch_samples[level],
                                   self.patch_graph[level], self._search_rotations, o)
         xs, ns = (x, n) if pick is None else (x[pick], n[pick])
-        y, m, w, tangential, d = correspondences(xs, ns, target, o, picked_colours, picked_labels, count)
+        w = correspondence_weights(xs, ns, target, o, picked_labels, count)
         picked_size = size if pick is None else np.bincount(picked_labels, minlength=count).astype(float)
         support = np.bincount(picked_labels, weights=w, minlength=count) / np.maximum(picked_size, 1.0)
         confidence = np.clip(support[labels] * 1.25, 0.0, 1.0)

@@ -37,11 +37,49 @@ def rotation_fit(F, R0, iterations=4):
     batched SVD, and a warm start needs only a few steps.
     """
     R = np.array(R0, dtype=np.float64, copy=True)
+    F = np.asarray(F, dtype=np.float64)
+    Fc = np.ascontiguousarray(F.transpose(1, 2, 0))  # (3, 3, t): one contiguous row per entry
     for _ in range(iterations):
-        cross = np.cross(R, F, axisa=1, axisb=1, axisc=1).sum(axis=2)  # sum over columns
+        cross = _column_cross_sum(np.ascontiguousarray(R.transpose(1, 2, 0)), Fc)
         dot = np.einsum("tij,tij->t", R, F)
-        omega = cross / (np.abs(dot) + 1e-9)[:, None]
-        R = rodrigues(omega) @ R
+        scale = np.abs(dot) + 1e-9
+        R = _rodrigues_rows(cross[0] / scale, cross[1] / scale, cross[2] / scale) @ R
+    return R
+
+
+def _column_cross_sum(R, F):
+    """``sum_j R[:, j] x F[:, j]`` for (3, 3, t) entry-major matrices: its three (t,) components.
+
+    The arithmetic of ``np.cross(R, F, axisa=1, axisb=1, axisc=1).sum(axis=2)`` on (t, 3, 3)
+    stacks (the same numbers) on contiguous rows, about ten times faster.
+    """
+    a = R[1] * F[2] - R[2] * F[1]
+    b = R[2] * F[0] - R[0] * F[2]
+    c = R[0] * F[1] - R[1] * F[0]
+    return a[0] + a[1] + a[2], b[0] + b[1] + b[2], c[0] + c[1] + c[2]
+
+
+def _rodrigues_rows(wx, wy, wz):
+    """:func:`rodrigues` of the rotation vectors (wx, wy, wz) given as three (t,) arrays: (t, 3, 3).
+
+    The arithmetic of ``engine.rotations.axis_angle_matrix(omega, |omega|)`` (the same numbers)
+    on contiguous rows.
+    """
+    angle = np.sqrt(wx * wx + wy * wy + wz * wz)
+    norm = np.where(angle > 0, angle, 1.0)
+    x, y, z = wx / norm, wy / norm, wz / norm
+    c, s = np.cos(angle), np.sin(angle)
+    t = 1.0 - c
+    R = np.empty((len(angle), 3, 3))
+    R[:, 0, 0] = c + x * x * t
+    R[:, 0, 1] = x * y * t - z * s
+    R[:, 0, 2] = x * z * t + y * s
+    R[:, 1, 0] = y * x * t + z * s
+    R[:, 1, 1] = c + y * y * t
+    R[:, 1, 2] = y * z * t - x * s
+    R[:, 2, 0] = z * x * t - y * s
+    R[:, 2, 1] = z * y * t + x * s
+    R[:, 2, 2] = c + z * z * t
     return R
 
 
@@ -98,20 +136,25 @@ def patch_rigid_steps(P, Y, M, W, tangential, labels, count):
     centres = np.where(weight_sum[:, None] > 1e-9, centres / np.maximum(weight_sum, 1e-300)[:, None],
                        fallback / np.maximum(plain, 1.0)[:, None])
     p = P - centres[labels]
+    # Written out on contiguous rows, entry by entry, with the arithmetic (and the order of the
+    # sums) of the per-point einsums they replace: the same numbers, several times faster.
     # metric M_i = w (m m^T + tau (I - m m^T))
-    mm = np.einsum("pi,pj->pij", M, M)
-    metric = W[:, None, None] * (mm + tangential[:, None, None] * (np.eye(3) - mm))
-    # x - y = (p + c - y) + [-[p]x  I] [omega; shift]
-    cross = np.zeros((len(p), 3, 3))
-    cross[:, 0, 1], cross[:, 0, 2] = p[:, 2], -p[:, 1]
-    cross[:, 1, 0], cross[:, 1, 2] = -p[:, 2], p[:, 0]
-    cross[:, 2, 0], cross[:, 2, 1] = p[:, 1], -p[:, 0]  # -[p]x
-    J = np.concatenate([cross, np.broadcast_to(np.eye(3), (len(p), 3, 3))], axis=2)  # (p, 3, 6)
-    JtM = np.einsum("pki,pkl->pil", J, metric)  # (p, 6, 3)
-    H = np.einsum("pil,plj->pij", JtM, J).reshape(len(p), 36)
-    r = P - Y
-    g = np.einsum("pil,pl->pi", JtM, r)
-    Hs = np.stack([np.bincount(labels, weights=H[:, a], minlength=count) for a in range(36)], axis=1)
+    Mt = np.ascontiguousarray(M.T)
+    eye = np.eye(3)
+    metric = [[W * (Mt[i] * Mt[j] + tangential * (eye[i, j] - Mt[i] * Mt[j])) for j in range(3)]
+              for i in range(3)]
+    # x - y = (p + c - y) + [-[p]x  I] [omega; shift]: J (3, 6) per point
+    pt = np.ascontiguousarray(p.T)
+    zero, one = np.zeros(len(p)), np.ones(len(p))
+    J = [[zero, pt[2], -pt[1], one, zero, zero],
+         [-pt[2], zero, pt[0], zero, one, zero],
+         [pt[1], -pt[0], zero, zero, zero, one]]
+    JtM = [[J[0][i] * metric[0][l] + J[1][i] * metric[1][l] + J[2][i] * metric[2][l] for l in range(3)]
+           for i in range(6)]
+    H = [JtM[i][0] * J[0][j] + JtM[i][1] * J[1][j] + JtM[i][2] * J[2][j] for i in range(6) for j in range(6)]
+    # (this one stays an einsum over a (p, 6, 3) copy: its sum is not taken in written order)
+    g = np.einsum("pil,pl->pi", np.stack([np.stack(row, axis=1) for row in JtM], axis=1), P - Y)
+    Hs = np.stack([np.bincount(labels, weights=h, minlength=count) for h in H], axis=1)
     gs = np.stack([np.bincount(labels, weights=g[:, a], minlength=count) for a in range(6)], axis=1)
     Hs = Hs.reshape(count, 6, 6)
     scale = np.trace(Hs, axis1=1, axis2=2) / 6.0
