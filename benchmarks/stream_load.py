@@ -289,6 +289,7 @@ def load_round(args, port, name, n_vertices, params, server_pid, ctx, rss_start,
     print_targets(args, result, with_heatmap)
     print(f"  server: {cpu:.2f} cores, RSS {rss_start:.0f} -> {result['server_rss_mb']['after_load']:.0f} MB; "
           f"{counters.get('table_frames', 0)} of {counters.get('frames', 0)} frames from phase tables, "
+          f"{counters.get('batched_frames', 0)} blended together with the tick's other moving clients, "
           f"{counters.get('transport_full', 0)} due frames skipped for a full transport (at most "
           f"{counters.get('transport_bytes_max', 0) / 1024:.0f} KB held for one connection), {counters['frames_dropped']} ticks "
           f"dropped (a frame more than a period late)")

@@ -9,7 +9,12 @@ client message makes a frame urgent). Per tick:
   ones) are grouped by table; each group's rows are interpolated in one gather, q16 clients'
   straight from the table in codec units (``Quantiser.table``), so their integers need one
   truncating cast;
-- moving weights, the non-linear mode and heatmaps blend one client at a time;
+- clients at moving weights (steering, linear or hybrid) are grouped by blender: each group is
+  one ``ManyBlender.blend`` (engine/blend/many.py: a hybrid frame interpolates its simplex leaf's
+  reference blends) and its q16 clients one encode (``Quantiser.encode_rows``); a row's bytes do
+  not depend on the rest of its group, so a client blended alone (``send_frame(None)``) gets the
+  same frame;
+- the non-linear mode and motion graphs blend one client at a time;
 - frames are written without a task switch, straight to the transport (server/transport.py: the
   message assembled with one copy), and only into a transport that has taken everything before
   it (the session checks before it blends; a connection whose transport still holds bytes skips
@@ -28,6 +33,9 @@ import heapq
 import itertools
 import logging
 import math
+import weakref
+
+from engine.blend.many import ManyBlender
 
 log = logging.getLogger("morphspace.stream")
 TICK = 0.002      # seconds: ticks come at most this often (urgent frames excepted)
@@ -68,9 +76,11 @@ class FrameScheduler:
     A session (server.stream.StreamSession) provides ``version`` (int, bumped here), ``closed``,
     ``player`` (its ``phase`` is read), ``payload`` (set here), ``advance(now)`` -> bool (step
     its player; False: no frame now, and the session reschedules itself if it wants one),
-    ``frame_source()`` -> (table or None, codec), ``send_frame(payload)`` where payload is the
-    encoded vertices or None (blend this one alone), ``after_frame()`` (schedule the next one)
-    and ``fail(exc)``. Sessions count ``transport_full`` and raise ``transport_bytes_max`` here.
+    ``frame_source()`` -> (table or None, codec), ``moving_source()`` -> (blender, weights,
+    phase) or None (without a table: a linear or hybrid blend this scheduler may do with
+    others'), ``codec`` and ``quantiser``, ``send_frame(payload)`` where payload is the encoded
+    vertices or None (blend this one alone), ``after_frame()`` (schedule the next one) and
+    ``fail(exc)``. Sessions count ``transport_full`` and raise ``transport_bytes_max`` here.
     """
 
     def __init__(self):
@@ -83,6 +93,8 @@ class FrameScheduler:
         self.ticks = 0           # ticks that produced frames
         self.frames = 0          # frames written
         self.table_frames = 0    # of which interpolated from a phase table
+        self.batched_frames = 0  # of which blended together with the tick's other moving clients
+        self._many = weakref.WeakKeyDictionary()  # blender -> its ManyBlender
         self._heatmaps = None
         self.transport_full = 0  # due frames skipped because the transport still held bytes
         self.transport_bytes_max = 0  # the most one connection's transport held after a frame
@@ -104,7 +116,15 @@ class FrameScheduler:
         """Ticks, frames, frames from phase tables, frames skipped for a full transport, the
         most bytes one connection's transport held."""
         return {"ticks": self.ticks, "frames": self.frames, "table_frames": self.table_frames,
-                "transport_full": self.transport_full, "transport_bytes_max": self.transport_bytes_max}
+                "batched_frames": self.batched_frames, "transport_full": self.transport_full, "transport_bytes_max": self.transport_bytes_max}
+
+    def many_blender(self, blender):
+        """The ManyBlender of a linear or hybrid ``blender`` (its reference rows kept while the
+        blender is)."""
+        many = self._many.get(blender)
+        if many is None:
+            many = self._many[blender] = ManyBlender(blender)
+        return many
 
     def add(self, session):
         self._sessions.add(session)
@@ -162,6 +182,23 @@ class FrameScheduler:
         finally:
             self._heap.clear()
 
+    def _blend_together(self, blender, members):
+        """The frames of ``members`` [(session, weights, phase)] at moving weights of one blender:
+        one blend, then one q16 encode per quantiser; sets each session's payload."""
+        rows = self.many_blender(blender).blend([m[1] for m in members], [m[2] for m in members])
+        f32 = rows.astype("<f4", copy=False)  # (no copy on little-endian machines)
+        by_quantiser = {}
+        for k, (session, _, _) in enumerate(members):
+            if session.codec == "q16":
+                by_quantiser.setdefault(session.quantiser.key, (session.quantiser, []))[1].append(k)
+            else:
+                session.payload = f32[k]  # its bytes are the frame's vertices
+        for quantiser, ks in by_quantiser.values():
+            codes = quantiser.encode_rows(rows if len(ks) == len(members) else rows[ks])
+            for k, row in zip(ks, codes):
+                members[k][0].payload = row
+        self.batched_frames += len(members)
+
     def _produce(self, batch, now):
         ready = []
         for session in batch:
@@ -170,17 +207,21 @@ class FrameScheduler:
                     ready.append(session)
             except Exception as exc:  # noqa: BLE001 - one connection's failure stays its own
                 session.fail(exc)
-        # clients at weights with a phase table: one gather per table
-        groups = {}
+        # clients at weights with a phase table: one gather per table; the others at linear or
+        # hybrid weights: one blend per blender
+        groups, moving = {}, {}
         for session in ready:
             session.payload = None
             try:
                 table, codec = session.frame_source()
+                source = None if table is not None else session.moving_source()
             except Exception as exc:  # noqa: BLE001
                 session.fail(exc)
                 continue
             if table is not None:
                 groups.setdefault(id(table), (table, codec, []))[2].append(session)
+            elif source is not None:
+                moving.setdefault(id(source[0]), (source[0], []))[1].append((session, source[1], source[2]))
         for table, codec, members in groups.values():
             try:
                 rows = table.rows_at([m.player.phase for m in members])
@@ -194,6 +235,11 @@ class FrameScheduler:
             for member, row in zip(members, rows):
                 member.payload = row  # its bytes are the frame's vertices (written without a copy here)
             self.table_frames += len(members)
+        for blender, members in moving.values():
+            try:
+                self._blend_together(blender, members)
+            except Exception:  # noqa: BLE001 - its members blend one by one below
+                log.exception("stream: blending %d moving frames together failed", len(members))
         for session in ready:
             if session.closed:
                 continue

@@ -107,6 +107,15 @@ class FrameOutput:
             table = self.quantiser.table(table)
         return table, self.codec
 
+    def moving_source(self):
+        """(blender, weights, phase) when this frame, without a phase table, is a linear or
+        hybrid blend the scheduler may make together with others' (``FrameScheduler.many_blender``),
+        else None (the non-linear mode, motion graphs). Call after ``frame_source``."""
+        player = self.player
+        if not self.table_missed or self.graph is not None or player.mode == "nonlinear":
+            return None
+        return player.space.blender(player.mode), player.weights, player.phase
+
     def send_frame(self, payload):
         """Write the frame at the player's state; ``payload``: its encoded vertices, or None to
         blend them here."""
@@ -118,9 +127,10 @@ class FrameOutput:
             else:
                 space, mode, weights, phase = player.space, player.mode, player.weights, player.phase
                 blender = space.frame_blender(mode)
-                if self.table_missed:  # no phase table at these weights: blend (what blend() would do)
-                    vertices = np.asarray(blender.blender.blend(np.asarray(weights, dtype=np.float64), phase),
-                                          dtype=np.float32)
+                if self.table_missed and mode != "nonlinear":  # no phase table at these weights: the
+                    # scheduler's batched blend for this one alone (the same bytes as in a batch)
+                    many = self.scheduler.many_blender(blender.blender)
+                    vertices = many.blend([weights], [phase])[0].reshape(-1, 3)
                 else:
                     vertices = blender.blend(weights, phase)
             payload = self._vertex_bytes(vertices)

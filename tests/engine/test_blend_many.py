@@ -1,0 +1,92 @@
+"""ManyBlender: K blends in one pass give the blender's frames (to float32 rounding), and each row
+the same bytes whatever else is in the batch."""
+
+import numpy as np
+import pytest
+
+from engine.blend import HybridBlender, LinearBlender, build_hybrid
+from engine.blend.many import ManyBlender
+from engine.blend.phase import phase_of_sample
+
+
+def _hybrid(cyclic, n_sources=4, n_phases=6, n_vertices=40, depth=3):
+    """A hybrid blender of random sources whose 'non-linear' blend bends the linear one, every
+    cell split to ``depth`` (real references and corrections)."""
+    rng = np.random.default_rng(11)
+    sources = rng.normal(size=(n_phases, n_sources, n_vertices, 3)).astype(np.float32)
+    bend = rng.normal(size=(n_phases, n_vertices, 3))
+
+    def linear(w):
+        w = np.asarray(w, float) / np.sum(w)
+        return np.einsum("i,pinc->pnc", w, sources.astype(np.float64))
+
+    def nonlinear(w):
+        w = np.asarray(w, float) / np.sum(w)
+        return linear(w) + 0.3 * np.prod(np.sqrt(w[:2])) * bend + 0.1 * np.sin(3 * w[2]) * bend
+
+    tree, corrections, _ = build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, epsilon=1e-3,
+                                        uniform_depth=depth)
+    return HybridBlender(sources, tree, corrections, cyclic), linear, nonlinear
+
+
+def _weights(n_sources, count, seed):
+    rng = np.random.default_rng(seed)
+    W = rng.dirichlet(np.ones(n_sources), count)
+    W[::3, -1] = 0.0                       # on a face of the simplex (a layout's sheet)
+    W[1] = np.eye(n_sources)[2]            # a source itself
+    W[2] = 2.5 * W[2]                      # not normalised
+    phases = rng.random(count)
+    phases[:4] = [0.0, 1.0, phase_of_sample(2, 6, True), 0.999999]
+    return W, phases
+
+
+@pytest.mark.parametrize("cyclic", [True, False])
+@pytest.mark.parametrize("kind", ["linear", "hybrid"])
+def test_many_blends_equal_the_blender_and_do_not_depend_on_the_batch(kind, cyclic):
+    if kind == "hybrid":
+        blender = _hybrid(cyclic)[0]
+    else:
+        rng = np.random.default_rng(12)
+        blender = LinearBlender(rng.normal(size=(6, 4, 40, 3)).astype(np.float32), cyclic)
+    many = ManyBlender(blender)
+    W, phases = _weights(4, 24, seed=13)
+    rows = many.blend(W, phases)
+    assert rows.shape == (24, 120) and rows.dtype == np.float32
+    for w, phase, row in zip(W, phases, rows):
+        np.testing.assert_allclose(row.reshape(-1, 3), blender.blend(w, phase), atol=5e-6)
+    alone = np.stack([many.blend(W[k:k + 1], phases[k:k + 1])[0] for k in range(len(W))])
+    assert alone.tobytes() == rows.tobytes()
+    reversed_rows = many.blend(W[::-1], phases[::-1])
+    assert reversed_rows[::-1].tobytes() == rows.tobytes()
+    assert all(row.flags.c_contiguous and row.ctypes.data % 64 == 0 for row in rows)
+    if kind == "linear":  # the same BLAS product as LinearBlender.blend: the same bytes
+        assert all(row.tobytes() == blender.blend(w, phase).tobytes() for w, phase, row in zip(W, phases, rows))
+
+
+def test_hybrid_rows_interpolate_the_references_nodal_blends():
+    """In a leaf, the hybrid is the barycentric mix of its references' hybrid blends (eq. 3): a
+    weight half-way between two references of a leaf is their mean, at any phase; the rows of a
+    reference are the blender's blends at the phase samples."""
+    blender = _hybrid(True)[0]
+    many = ManyBlender(blender)
+    references = blender.tree.references
+    a, b = references[0], references[len(references) - 1]
+    leaf, _ = blender.tree.locate(0.5 * (a + b))
+    cell = blender.tree.cells[leaf]
+    r0, r1 = cell[0], cell[1]
+    w = 0.5 * (references[r0] + references[r1])
+    for phase in (0.1, 0.55):
+        expected = 0.5 * (blender.blend(references[r0], phase).astype(np.float64)
+                          + blender.blend(references[r1], phase))
+        np.testing.assert_allclose(many.blend([w], [phase])[0].reshape(-1, 3), expected, atol=5e-6)
+    rows = many.reference_rows(r1)
+    assert rows.shape == (6, 120)
+    assert rows[4].tobytes() == blender.blend(references[r1], phase_of_sample(4, 6, True)).tobytes()
+
+
+def test_only_linear_and_hybrid_blenders_and_matching_shapes():
+    with pytest.raises(TypeError, match="linear or hybrid"):
+        ManyBlender(object())
+    blender = LinearBlender(np.zeros((4, 2, 5, 3), np.float32), True)
+    with pytest.raises(ValueError, match="K phases"):
+        ManyBlender(blender).blend([[1.0, 0.0]], [0.1, 0.2])

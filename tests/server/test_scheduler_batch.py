@@ -1,0 +1,140 @@
+"""Steering clients blended together in one tick get exactly the frames they get blended one by one.
+
+Two identical sets of stream sessions over a real space (the connection's transport replaced by a
+recorder of the messages written): one set goes through the scheduler's tick as one batch (moving
+weights blended together, q16 encoded together), the other frame by frame through the session's
+own path (``send_frame(None)``: blend this one alone). Every frame must be the same message, byte
+for byte, apart from its send time.
+"""
+
+import asyncio
+import concurrent.futures
+
+import msgpack
+import numpy as np
+from engine.player import Player
+from server import protocol as P
+from server.frames import joined
+from server.registry import SpaceRegistry
+from server.scheduler import FrameScheduler
+from server.settings import Settings
+from server.stream.session import StreamSession, StreamStats
+from server.transport import GAUGE
+
+
+class Recorder:
+    """A transport that takes every message at once and keeps it."""
+
+    def __init__(self):
+        self.messages = []
+
+    def ready(self):
+        return True
+
+    def held(self):
+        return 0
+
+    def write_message(self, parts):
+        self.messages.append(msgpack.unpackb(joined(parts)))
+        return True
+
+
+class Socket:
+    def __init__(self, recorder):
+        self.scope = {"extensions": {GAUGE: recorder}}
+
+
+def run(main):
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, main()).result(timeout=60)
+
+
+# (mode, codec, first request, steered to): speeds of the speed space (0.9 .. 2.6 m/s)
+CLIENTS = [("hybrid", "q16", 1.0, 2.4), ("hybrid", "f32", 2.5, 1.1), ("hybrid", "q16", 1.7, 1.8),
+           ("linear", "q16", 1.2, 2.2), ("linear", "f32", 2.2, 1.0), ("hybrid", "f32", 1.3, 2.0),
+           ("nonlinear", "q16", 1.1, 2.3), ("nonlinear", "f32", 2.0, 1.4)]
+
+
+def _sessions(registry, scheduler, space):
+    bounds = np.asarray(registry.describe("speed")["bounds"], dtype=np.float32)
+    sessions = []
+    for k, (mode, codec, start, target) in enumerate(CLIENTS):
+        session = StreamSession(Socket(Recorder()), registry, Settings(), StreamStats(), scheduler)
+        session.player = Player(space, mode=mode, smoothing=0.3, params={"speed": start})
+        session.player.set_params({"speed": target})  # steering: the spring moves the weights every frame
+        session.player.seek(0.13 * k)
+        session.space_name, session.rate, session.codec, session.bounds = "speed", 60.0, codec, bounds
+        session.quantiser = P.Quantiser(bounds, space.n_vertices) if codec == "q16" else None
+        session.ready = True
+        sessions.append(session)
+    return sessions
+
+
+def _frames(sessions):
+    out = []
+    for session in sessions:
+        message = dict(session.gauge.messages[-1])
+        del message["sent_at"]
+        out.append(message)
+    return out
+
+
+def test_a_batch_of_steering_clients_gets_the_frames_they_get_one_by_one(built_spaces):
+    registry = SpaceRegistry(built_spaces)
+    space = registry.get("speed")
+
+    async def main():
+        batched_scheduler, alone_scheduler = FrameScheduler(), FrameScheduler()
+        batched = _sessions(registry, batched_scheduler, space)
+        alone = _sessions(registry, alone_scheduler, space)
+        for step in range(6):
+            now = 100.0 + step / 60.0
+            for session in batched + alone:
+                session.next_due = now
+            batched_scheduler._produce(list(batched), now)
+            for session in alone:  # the session's own path: blend and encode this one alone
+                assert session.advance(now)
+                table, _ = session.frame_source()
+                assert table is None  # moving weights: no phase table
+                session.send_frame(None)
+                session.after_frame()
+            one, other = _frames(batched), _frames(alone)
+            for a, b, (mode, codec, _, _) in zip(one, other, CLIENTS):
+                assert a["seq"] == b["seq"] == step + 1
+                assert a == b, f"{mode} {codec}: the batched frame differs"
+            assert not all(s.player.settled for s in batched)
+        moving = sum(mode != "nonlinear" for mode, _, _, _ in CLIENTS)
+        assert batched_scheduler.batched_frames == 6 * moving   # the non-linear ones blended alone
+        assert batched_scheduler.frames == 6 * len(CLIENTS) and batched_scheduler.table_frames == 0
+        # the frames are the blends: decoded, within the codec's step of the blender's frame
+        for session, message in zip(batched, _frames(batched)):
+            player = session.player
+            expected = space.blender(player.mode).blend(player.weights, player.phase)
+            vertices = P.decode_vertices(message["vertices"], session.codec, space.n_vertices,
+                                         session.bounds[0], session.bounds[1])
+            tolerance = 1e-5 if session.codec == "f32" else P.quantisation_error(session.bounds) + 1e-5
+            assert np.linalg.norm(vertices - expected, axis=1).max() <= tolerance
+
+    run(main)
+
+
+def test_a_batch_that_fails_to_blend_falls_back_to_one_by_one(built_spaces, monkeypatch):
+    """A failure in the batched blend is logged; its members are blended alone, and the stream goes on."""
+    registry = SpaceRegistry(built_spaces)
+    space = registry.get("speed")
+
+    async def main():
+        scheduler = FrameScheduler()
+        sessions = _sessions(registry, scheduler, space)
+
+        def broken(blender, members):
+            raise RuntimeError("broken batch")
+
+        monkeypatch.setattr(scheduler, "_blend_together", broken)
+        for session in sessions:
+            session.next_due = 100.0
+        scheduler._produce(list(sessions), 100.0)
+        assert scheduler.frames == len(sessions) and scheduler.batched_frames == 0
+        assert all(len(s.gauge.messages) == 1 and not s.closed for s in sessions)
+
+    run(main)
