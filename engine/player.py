@@ -110,6 +110,11 @@ class Player:
         return self._current.copy()
 
     @property
+    def asked(self):
+        """(k,) the last request as it was asked (before clamping to what can be reached)."""
+        return self._request.copy()
+
+    @property
     def target(self):
         """(k,) where the parameters are heading: the reachable part of the last request."""
         return self._target.copy()

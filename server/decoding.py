@@ -68,6 +68,9 @@ def _in_range(f, name, value, ref, seq, limits):
         high = (limits or {}).get(high)
     if (low is not None and value < low) or (high is not None and value > high):
         bound = f.metadata["high"] if isinstance(f.metadata["high"], str) else high
+        if bound is None:
+            raise ProtocolError("invalid_field", f"{ref}.{name} must be at least {_number(low)}, got {_number(value)}",
+                                ref=ref, seq=seq)
         raise ProtocolError("invalid_field", f"{ref}.{name} must be in [{_number(low)}, {_number(bound)}]"
                             f"{f' = {_number(high)}' if isinstance(f.metadata['high'], str) and high is not None else ''}"
                             f", got {_number(value)}", ref=ref, seq=seq)
@@ -91,7 +94,7 @@ def decode_client(data, max_bytes=None, limits=None):
         if isinstance(data, str):
             raw = json.loads(data)
         else:
-            raw = msgpack.unpackb(data, raw=False, strict_map_key=True)
+            raw = msgpack.unpackb(data, raw=False, strict_map_key=False)  # keys are checked per field
     except (ValueError, msgpack.UnpackException, msgpack.ExtraData, TypeError, RecursionError) as exc:
         raise ProtocolError("malformed", f"not a msgpack (or JSON text) message ({type(exc).__name__}: {exc})") from None
     if not isinstance(raw, dict) or not isinstance(raw.get("type"), str):
@@ -104,7 +107,7 @@ def decode_client(data, max_bytes=None, limits=None):
         raise ProtocolError("unknown_type", f"unknown message type {kind[:64]!r}; expected one of "
                             f"{', '.join(CLIENT_MESSAGES)}", ref=kind[:64], seq=seq)
     known = {f.name: f for f in dataclasses.fields(cls)}
-    extra = sorted(set(raw) - set(known) - {"type"})
+    extra = sorted(set(raw) - set(known) - {"type"}, key=str)
     if extra:
         raise ProtocolError("invalid_field", f"{kind}: unknown field(s) {', '.join(map(str, extra))[:200]}",
                             ref=kind, seq=seq)

@@ -325,6 +325,11 @@ async def on_hello(session, m):
     session.paused, session.last_step = False, None
     session.quantiser = P.Quantiser(session.bounds, stream.space.n_vertices) if m.codec == "q16" else None
     await session.send(stream.topology(codec=m.codec, rate=m.rate, limits=session.limits, bounds=session.bounds))
+    if stream.start_params:  # start parameters out of reach: said before the first frame, as for params
+        node = stream.player.node
+        _, _, clamped, message = node.solve(stream.player.params_of(node.name))
+        if clamped:
+            await session.send(P.Notice(code="clamped", message=message, seq=m.seq))
     session.seq = session.acked_frame = 0
     session.waiting_ack = False
     session.stalled_since = None
@@ -337,19 +342,15 @@ async def on_action(session, m):
     if session.graph is None:
         raise P.ProtocolError("unsupported", f"action on a space stream ({session.space_name}): hello with a graph "
                                              "to send actions", "action", m.seq)
-    notices = session.graph.action(m)
-
-    async def send_in_order():
-        for notice in notices:
-            await session.send(notice)
-    asyncio.get_running_loop().create_task(send_in_order())
+    for notice in session.graph.action(m):  # in order, before the frame that acknowledges the action
+        await session.send(notice)
     session.poke(m.seq)
 
 
 async def on_params(session, m):
     notice = session.graph.set_params(m)
-    if notice is not None:
-        asyncio.get_running_loop().create_task(session.send(notice))
+    if notice is not None:  # before the frame that acknowledges the message
+        await session.send(notice)
     session.poke(m.seq)
 
 

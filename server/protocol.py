@@ -232,7 +232,9 @@ class Topology:
     bounds_max: list = wire("floats", "q16 box maximum corner (m, root-local)")
     quantisation_error: float = wire("float", "largest position error the codec adds (m); 0 for f32")
     parameters: list = wire("objects", "per parameter {" + ", ".join(PARAMETER_KEYS) + "}: value is the current "
-                            "request, default the middle of the range")
+                            "request as it was asked (before any clamping), default the middle of the range; "
+                            "min and max bound the captured parameters, not every combination is reachable "
+                            "(see Limits)")
     sources: list = wire("strs", "source sequence names, in weight order")
     durations: list = wire("floats", "seconds per source (one cycle or the clip)")
     cyclic: bool = wire("bool", "the motion loops")
@@ -254,11 +256,13 @@ class Frame:
     (rotate by ``heading`` about +Y, then translate by ``root``)."""
     type = "frame"
     seq: int = wire("int", "frame number on this connection (pulls included)")
-    ack: int = wire("int", "seq of the newest client message applied to this frame")
+    ack: int = wire("int", "the highest seq of the client messages applied so far (not the most recent "
+                         "one's: keep seq increasing)")
     time: float = wire("float", "seconds on the stream's clock")
     phase: float = wire("float", "phase in [0, 1] of the cycle or clip")
     mode: str = wire("str", "blend mode of this frame")
-    requested: list = wire("floats", "parameters on their way (smoothed) to the nearest reachable ones of the last request")
+    requested: list = wire("floats", "a streamed frame: the parameters on their way (smoothed) to the nearest "
+                            "reachable ones of the last request; a pulled frame: the pull's request as asked")
     realised: list = wire("floats", "parameters the blend realises")
     clamped: bool = wire("bool", "the request is outside the reachable domain")
     weights: list = wire("floats", "blend weights, one per source")
@@ -273,7 +277,9 @@ class Frame:
     error_max: float = wire("float", "with heatmap on: the largest of those distances (m)", optional=True)
     error_seq: int = wire("int", "with heatmap on: the seq of the frame error_um describes (computed off the event "
                                  "loop: an earlier frame, a few frames or, with dozens of heatmap viewers, a few "
-                                 "tenths of a second back; this one in nonlinear mode); nil until the first is ready",
+                                 "tenths of a second back; this one in nonlinear mode); nil until the first is ready (about a second "
+                                 "after turning it on for a space no client has used it on yet: the helper "
+                                 "process first loads the space and factorises its non-linear solver)",
                           optional=True)
     node: str = wire("str", "graph streams: the node shown (during a blend, the one being left); nil for a space",
                      optional=True)

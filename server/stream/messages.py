@@ -27,6 +27,9 @@ from server.registry import BrokenSpace, UnknownSpace
 async def on_hello(session, m):
     if m.graph is not None:  # a motion graph: server/graph_stream.py
         return await graph_stream.on_hello(session, m)
+    if m.node is not None:
+        raise P.ProtocolError("invalid_field", f"hello.node names a graph's node; this hello streams the space "
+                                               f"{m.space}, not a graph", "hello", m.seq)
     try:
         space = await asyncio.to_thread(session.registry.get, m.space)
     except UnknownSpace as exc:
@@ -45,7 +48,9 @@ async def on_hello(session, m):
         if unknown:
             raise P.ProtocolError("invalid_params", f"hello: unknown parameter(s) {', '.join(unknown)}; "
                                                     f"{m.space} has {', '.join(player.names)}", "hello", m.seq)
-        player.set_params(m.params, immediate=True)
+        solution = player.set_params(m.params, immediate=True)
+    else:
+        solution = None
     session.ready = False  # no frames until the new topology has gone out
     session.player, session.space_name, session.rate = player, m.space, m.rate
     session.graph = None
@@ -54,7 +59,7 @@ async def on_hello(session, m):
     session.bounds = np.asarray(description["bounds"], dtype=np.float32)
     session.paused, session.last_step = False, None
     session.quantiser = P.Quantiser(session.bounds, space.n_vertices) if m.codec == "q16" else None
-    current = dict(zip(player.names, player.requested.tolist()))
+    current = dict(zip(player.names, player.asked.tolist()))  # the request as asked (docs/protocol.md)
     parameters = [{key: dict(p, value=current[p["name"]])[key] for key in P.PARAMETER_KEYS}
                   for p in description["parameters"]]
     await session.send(P.Topology(
@@ -66,6 +71,8 @@ async def on_hello(session, m):
         cyclic=bool(space.cyclic), mode=m.mode, modes=list(P.MODES), rate=session.rate,
         model_size=float(space.model_size),
         limits=dict(session.limits)))
+    if solution is not None and solution.clamped:  # before the first frame, as a params message's
+        await session.send(P.Notice(code="clamped", message=solution.message, seq=m.seq))
     session.seq = session.acked_frame = 0
     session.waiting_ack = False
     session.stalled_since = None
@@ -88,9 +95,8 @@ async def on_params(session, m):
         raise P.ProtocolError("invalid_params", f"{m.type}: unknown parameter(s) {', '.join(unknown)}; "
                                                 f"{session.space_name} has {', '.join(names)}", m.type, m.seq)
     solution = session.player.set_params(m.params, immediate=m.immediate)
-    if solution.clamped:
-        asyncio.get_running_loop().create_task(
-            session.send(P.Notice(code="clamped", message=solution.message, seq=m.seq)))
+    if solution.clamped:  # sent before the frame that acknowledges the message
+        await session.send(P.Notice(code="clamped", message=solution.message, seq=m.seq))
     session.poke(m.seq)
 
 

@@ -296,12 +296,44 @@ async def raw_session(url, messages, *, hello=True, settle=0.3, pack=msgpack.pac
     ({"type": "hello", "space": b"speed"}, "invalid_field"),      # a bin value where a string belongs
     ({"type": "pull", "id": 1, "time": 1.0, "phase": 0.5}, "invalid_field"),
     (b"x" * (70 * 1024), "too_large"),
+    ({"type": "params", "params": {1: 2.0}, "seq": 5}, "invalid_field"),   # valid msgpack, not a name
+    ({"type": "hello", "space": "speed", "node": "walk"}, "invalid_field"),  # node is a graph's
 ])
 def test_bad_messages_get_an_error_and_the_stream_goes_on(server, message, code):
     errors, alive = run(raw_session(server.ws_url, [message]))
     assert [e["code"] for e in errors if e["type"] == "error"] == [code], errors
     assert all(e["message"] for e in errors)
     assert alive
+
+
+@pytest.mark.parametrize("message, says", [
+    ({"type": "params", "params": {1: 2.0}, "seq": 5}, "params.params: parameter names must be strings"),
+    ({"type": "ack", "frame": -1}, "ack.frame must be at least 0, got -1"),
+    ({"type": "hello", "space": "speed", "node": "walk"}, "hello.node names a graph's node"),
+])
+def test_error_messages_name_the_field(server, message, says):
+    errors, _ = run(raw_session(server.ws_url, [message]))
+    assert [e["message"] for e in errors if e["type"] == "error"][0].startswith(says), errors
+
+
+def test_clamped_notices_come_before_the_frame_that_applies_them(server):
+    async def go():
+        async with websockets.connect(server.ws_url, max_size=2**26) as ws:
+            await ws.send(msgpack.packb({"type": "hello", "space": "speed", "rate": 30, "seq": 3,
+                                         "params": {"speed": 99.0}}))
+            first = [msgpack.unpackb(await asyncio.wait_for(ws.recv(), 10)) for _ in range(3)]
+            await ws.send(msgpack.packb({"type": "params", "params": {"speed": -50.0}, "seq": 4}))
+            later = []
+            while not later or not (later[-1]["type"] == "frame" and later[-1]["ack"] >= 4):
+                later.append(msgpack.unpackb(await asyncio.wait_for(ws.recv(), 10)))
+            return first, later
+    first, later = run(go())
+    assert [m["type"] for m in first] == ["topology", "notice", "frame"], first
+    assert first[1]["code"] == "clamped" and first[1]["seq"] == 3 and "speed" in first[1]["message"]
+    assert first[0]["parameters"][0]["value"] == 99.0   # the request as asked, not as clamped
+    assert first[2]["clamped"] and first[2]["ack"] == 3
+    notices = [i for i, m in enumerate(later) if m["type"] == "notice" and m["seq"] == 4]
+    assert notices and notices[0] < len(later) - 1 and later[notices[0]]["code"] == "clamped"
 
 
 def test_json_text_messages_work_too(server):
