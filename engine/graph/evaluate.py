@@ -14,7 +14,10 @@ Definitions (docs/evaluation.md, "Motion graph"):
   (the point the foot pivots on; ``clock.foot_slide``), summed over the transition, the worse foot;
 - latency: seconds from the request to the frame the target is fully entered;
 - leg offset (what holding the feet costs, ``engine.graph.feet``): per frame, the largest
-  horizontal distance of a foot from where the motion puts it, over every frame played.
+  horizontal distance of a foot from where the motion puts it, over every frame played;
+- leg distortion (how the legs carry it): per frame, against the same frame played without
+  holding the feet, the largest relative change of a thigh's or shin's length (hip-knee and
+  knee-ankle ring centroids, ``engine.graph.legs``) and of the length of an edge of the legs.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from engine.graph.clock import NodeClock, foot_slide, foot_vertices, move, place
+from engine.graph.legs import LegRig
 from engine.graph.player import GraphPlayer
 
 
@@ -62,18 +66,46 @@ class _Timed:
         return result
 
 
-def play_requests(graph, search, requests, *, fps=30.0, start="walk", params=None, mode="linear", tail=3.0):
+class _LegDistortion:
+    """Per frame, how much the held legs differ from the same frame without holding."""
+
+    def __init__(self, graph):
+        rest = np.asarray(graph.nodes[0].space.container["rest"])
+        self.rig = LegRig(rest, foot_vertices(rest))
+        faces = np.asarray(graph.nodes[0].space.faces)
+        edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+        legs = np.isin(edges, self.rig.index).all(axis=1)
+        self.edges = np.unique(np.sort(edges[legs], axis=1), axis=0)
+
+    def __call__(self, shown, plain):
+        """(segment change, edge change): the largest relative length changes, 0 = none."""
+        segments = float(np.abs(self.rig.segments(shown) / self.rig.segments(plain) - 1.0).max())
+        a, b = self.edges[:, 0], self.edges[:, 1]
+        edges = np.linalg.norm(shown[a] - shown[b], axis=1) / np.maximum(np.linalg.norm(plain[a] - plain[b], axis=1),
+                                                                          1e-9)
+        return segments, float(np.abs(edges - 1.0).max())
+
+
+def play_requests(graph, search, requests, *, fps=30.0, start="walk", params=None, mode="linear", tail=3.0,
+                  legs=False):
     """Play ``requests`` (sorted by time) and keep every frame.
+
+    With ``legs``, a second player plays the same requests without holding the feet, and every
+    frame in which a foot is held is compared with its twin (``_LegDistortion``).
 
     Returns
     -------
     frames : dict of arrays   vertices (F, n, 3) float32, root (F, 3), heading (F,), node (F,) str,
-                              held (F,) the largest leg offset holding a foot (m)
+                              held (F,) the largest leg offset holding a foot (m); with ``legs``,
+                              segments (F,) and edges (F,) the legs' largest relative length changes
     transitions : list of dict  request frame, leave frame, enter frame, source, target, weights, plan
     search_seconds : list of float
     """
     timed = _Timed(search)
     player = GraphPlayer(graph, node=start, params=params, mode=mode, search=timed)
+    twin = GraphPlayer(graph, node=start, params=params, mode=mode, search=search, foot_lock=False) if legs else None
+    measure = _LegDistortion(graph) if legs else None
+    distortion = []
     dt = 1.0 / fps
     end = (requests[-1].time if requests else 0.0) + tail
     pending = list(requests)
@@ -83,8 +115,13 @@ def play_requests(graph, search, requests, *, fps=30.0, start="walk", params=Non
         while pending and pending[0].time <= k * dt + 1e-9:
             r = pending.pop(0)
             player.request(r.node, r.params)
+            if twin is not None:
+                twin.request(r.node, r.params)
             asked = k
         frame = player.step(dt) if k else player.frame()
+        if twin is not None:
+            plain = twin.step(dt, placed=False) if k else twin.frame(placed=False)
+            distortion.append(measure(player.frame(placed=False).vertices, plain.vertices))
         for event in frame.events:
             if event.startswith("leave"):
                 plan, source_weights = player.left
@@ -101,8 +138,11 @@ def play_requests(graph, search, requests, *, fps=30.0, start="walk", params=Non
         heading.append(frame.heading)
         nodes.append(frame.node)
         held.append(float(np.hypot(*player.pins.offsets.T).max()))
-    return ({"vertices": np.stack(vertices), "root": np.stack(root), "heading": np.array(heading),
-             "node": np.array(nodes), "held": np.array(held)}, transitions, timed.seconds)
+    out = {"vertices": np.stack(vertices), "root": np.stack(root), "heading": np.array(heading),
+           "node": np.array(nodes), "held": np.array(held)}
+    if legs:
+        out["segments"], out["edges"] = (np.array(x) for x in zip(*distortion))
+    return out, transitions, timed.seconds
 
 
 def own_motion_step(graph, node, weights, fps, *, offsets=4):
@@ -167,9 +207,11 @@ def transition_measures(graph, frames, transitions, *, fps, contact=0.01):
     return out
 
 
-def summarise(measures, search_seconds, held=None):
+def summarise(measures, search_seconds, held=None, legs=None):
     """Medians and tails of ``transition_measures`` and search times (ms); with ``held`` (the
-    frames' leg offsets, m), their 95th percentile and largest (cm) and the share of frames held."""
+    frames' leg offsets, m), their 95th percentile and largest (cm) and the share of frames held;
+    with ``legs`` ((segments, edges) per frame, ``play_requests``), over the frames held, the 95th
+    percentile and the largest relative change of a leg segment's and of a leg edge's length (%)."""
     def pick(key):
         return np.array([m[key] for m in measures if m[key] is not None], dtype=float)
 
@@ -189,13 +231,17 @@ def summarise(measures, search_seconds, held=None):
             "search_p50_ms": pct(ms, 50), "search_p99_ms": pct(ms, 99), "searches": int(len(ms)),
             **({} if held is None or not len(held) else {
                 "leg_offset_p95_cm": pct(held, 95) * 100, "leg_offset_max_cm": float(np.max(held)) * 100,
-                "frames_held": float(np.mean(np.asarray(held) > 0))})}
+                "frames_held": float(np.mean(np.asarray(held) > 0))}),
+            **({} if legs is None or held is None or not np.any(np.asarray(held) > 0) else {
+                f"leg_{name}_change_{tag}_pct": float(f(np.asarray(values)[np.asarray(held) > 0])) * 100
+                for name, values in zip(("segment", "edge"), legs)
+                for tag, f in (("p95", lambda x: np.percentile(x, 95)), ("max", np.max))})}
 
 
 def evaluate_strategies(graph, requests, *, fps=30.0, options=None, start=None):
     """The same ``requests`` played with the search (``options``: SearchOptions), an immediate
     cut and a 0.3 s crossfade (``baselines``), all with the same player; per strategy
-    (measures, search seconds, frames' leg offsets)."""
+    (measures, search seconds, frames' leg offsets, (segments, edges) the frames' leg distortion)."""
     from engine.graph.baselines import Crossfade, ImmediateCut
     from engine.graph.search import TransitionSearch
 
@@ -203,6 +249,7 @@ def evaluate_strategies(graph, requests, *, fps=30.0, options=None, start=None):
     out = {}
     for name, strategy in (("search", TransitionSearch(graph, options)), ("cut", ImmediateCut(graph)),
                            ("crossfade", Crossfade(graph))):
-        frames, transitions, seconds = play_requests(graph, strategy, requests, fps=fps, start=start)
-        out[name] = (transition_measures(graph, frames, transitions, fps=fps), seconds, frames["held"])
+        frames, transitions, seconds = play_requests(graph, strategy, requests, fps=fps, start=start, legs=True)
+        out[name] = (transition_measures(graph, frames, transitions, fps=fps), seconds, frames["held"],
+                     (frames["segments"], frames["edges"]))
     return out

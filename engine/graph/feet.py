@@ -13,10 +13,11 @@ motions blended (``contact_table``: in a source clip a foot is planted where one
 on the ground moves slower than ``speed`` in the clip's own world; a blend of clips plants it
 where their weights, and across a transition the blend weight, give planted clips the larger
 share), so a swinging foot that skims the ground is not held back. The offset is carried by the
-leg's vertices below the knee, fully at the foot and fading out by the knee (a smooth step over
-the rest mesh's height), so the leg bends a little instead of the foot sliding. While the foot
-is not planted its offset shrinks at ``release`` m/s, so it lands where the motion puts it; a
-foot that never lifts (a stand) keeps its offset.
+whole leg (``engine.graph.legs.LegRig``): the foot moves as a whole, the thigh turns about the
+hip and the knee flexes so that thigh and shin keep their lengths (lengthening by 3% at most when
+a straight leg must reach); an offset the leg cannot reach or longer than ``cap`` x the leg's
+length is shortened to what it can (the foot then slides by the rest). While the foot is not planted its offset shrinks at ``release`` m/s, so
+it lands where the motion puts it; a foot that never lifts (a stand) keeps its offset.
 
 Notes: the same idea as footskate clean-up for skeletons (Kovar, Schreiner, Gleicher, SCA 2002),
 done on the mesh: no skeleton, the legs found on the rest mesh by height and side.
@@ -30,6 +31,7 @@ import numpy as np
 
 from engine.blend.phase import phase_of_sample, phase_samples
 from engine.graph.clock import foot_slide
+from engine.graph.legs import LegRig
 
 
 def contact_table(space, feet, ground, *, speed=0.25):
@@ -64,23 +66,6 @@ def contact_table(space, feet, ground, *, speed=0.25):
     return out
 
 
-def leg_weights(rest, feet, *, ankle=0.06, knee=0.27):
-    """Per foot, (vertex indices (k,) int, weights (k,) float32): the rest mesh's vertices on that
-    foot's side (the sign of x of its vertices) below ``knee`` x its height above the lowest point,
-    weight 1 below ``ankle`` x height and a smooth step to 0 at the knee."""
-    rest = np.asarray(rest, dtype=np.float64)
-    low = rest[:, 1].min()
-    height = rest[:, 1].max() - low
-    y = (rest[:, 1] - low) / height
-    out = []
-    for foot in feet:
-        side = np.sign(rest[foot, 0].mean())
-        index = np.flatnonzero((y < knee) & (np.sign(rest[:, 0]) == side))
-        u = np.clip((knee - y[index]) / (knee - ankle), 0.0, 1.0)
-        out.append((index, (u * u * (3.0 - 2.0 * u)).astype(np.float32)))
-    return out
-
-
 class FootPins:
     """The horizontal world offsets (one (2,) xz vector per foot) that hold the feet.
 
@@ -93,19 +78,17 @@ class FootPins:
     creep : float                 m/s it shrinks by while the foot stays planted after the blend
                                   (a stand never lifts a foot; 2 cm/s is the captured walk's own
                                   drift of the sole)
+    cap : float                   the longest offset, as a fraction of the leg's length
+                                  (``LegRig``; 0.2: 16 cm on the demo body)
+    stretch : float               how much longer thigh and shin may become to reach (``LegRig``)
     """
 
-    def __init__(self, rest, feet, ground, *, release=1.0, creep=0.02):
+    def __init__(self, rest, feet, ground, *, release=1.0, creep=0.02, cap=0.2, stretch=0.03):
         self.feet, self.ground = list(feet), float(ground)
         self.release, self.creep = float(release), float(creep)
-        self.legs = leg_weights(rest, self.feet)
+        self.rig = LegRig(rest, self.feet, cap=cap, stretch=stretch)
         self.offsets = np.zeros((len(self.feet), 2))
-        self._index = np.concatenate([index for index, _ in self.legs])  # every leg vertex, one gather
-        self._weights = np.zeros((len(self._index), len(self.legs)), dtype=np.float32)  # (k, feet)
-        start = 0
-        for k, (index, weights) in enumerate(self.legs):
-            self._weights[start:start + len(index), k] = weights
-            start += len(index)
+        self.shortened = 0.0   # metres of offset the legs could not carry so far (the feet slid by it)
 
     def planted(self, node, weights, phase):
         """(feet,) float: the share of ``node``'s clips at ``weights`` that plant each foot at
@@ -119,14 +102,19 @@ class FootPins:
         """Some foot is held away from where the motion puts it."""
         return bool(self.offsets.any())
 
-    def shift(self, mesh, offsets, heading):
-        """Add world xz ``offsets`` (one per foot) to the legs of root-local ``mesh`` (n, 3)
-        float32, in place, for a root turned by ``heading``."""
+    def apply(self, mesh, heading):
+        """Hold the feet of root-local ``mesh`` (n, 3) float32 (the motion's, not held yet) at the
+        offsets, in place, for a root turned by ``heading``: the legs carry what they can reach
+        and the offsets are shortened to it (``LegRig.deform``)."""
         c, s = math.cos(heading), math.sin(heading)
-        local = np.zeros((len(self.legs), 3), dtype=np.float32)  # world -> root-local, per foot
-        for k, (ox, oz) in enumerate(np.asarray(offsets, dtype=float).tolist()):
+        local = np.zeros((len(self.feet), 3))  # world -> root-local, per foot
+        for k, (ox, oz) in enumerate(self.offsets.tolist()):
             local[k, 0], local[k, 2] = c * ox - s * oz, s * ox + c * oz
-        mesh[self._index] += self._weights @ local
+        shares = self.rig.deform(mesh, local)
+        if (shares < 1.0).any():
+            before = np.hypot(self.offsets[:, 0], self.offsets[:, 1])
+            self.offsets *= shares[:, None]
+            self.shortened += float((before * (1.0 - shares)).sum())
 
     def update(self, before, now, planted, dt, *, blending):
         """Hold or release each foot between two shown frames; returns the (feet, 2) change of

@@ -6,8 +6,8 @@ cyclic node on their own, the root carried continuously through all of it.
 per display frame. Across a transition both nodes play on (the source from where it is left, the
 target from where it is entered, at the requested parameters), their root-local meshes and
 their root steps are blended with a smooth-step weight, so the root's position and heading stay
-continuous; a foot on the ground stays where it is (``FootPins``: its lower leg carries it back
-by its drift, and catches up while the foot is in the air). A request to a node without an edge from the current one follows the shortest route
+continuous; a foot on the ground stays where it is (``FootPins``: its leg carries it back by its
+drift, within the leg's reach, and catches up while the foot is in the air). A request to a node without an edge from the current one follows the shortest route
 (each hop at the parameters that node last had). Requests made while a transition is blending
 wait for it to end; one made in a one-shot redirects its return when an edge allows, or waits.
 """
@@ -73,7 +73,7 @@ class GraphPlayer:
     mode : str               blend mode of the nodes' spaces
     search : TransitionSearch or None
     foot_lock : bool         hold the feet during a blend (``engine.graph.feet.FootPins``): a foot
-                             on the ground stays put, its lower leg bending, until it lifts
+                             on the ground stays put, its leg reaching for it, until it lifts
     contact : float          metres above the rest mesh's lowest point that count as on the ground
     record : bool            keep every request in ``requests`` (for a recording); a stream that
                              is never recorded says False, so a long session does not grow it
@@ -114,6 +114,7 @@ class GraphPlayer:
         self._ground = float(rest[:, 1].min()) + float(contact)  # below this: on the ground
         self.pins = FootPins(rest, self._feet, self._ground)
         self._cached = None      # (frames, root-local mesh, progress) of the current state
+        self._legs = None        # the legs' vertices of the cached mesh before the feet were held
         self._feet_before, self._feet_frame = None, None  # the feet in the world, at frame number
         self._dt = 0.0           # the last step's length (a blend planned to start within it is near)
         if not start.cyclic:
@@ -313,8 +314,10 @@ class GraphPlayer:
         else:
             self._buffer[:] = mesh  # a copy: the space's blender reuses its buffer
         mesh = self._buffer
+        self._legs = None
         if self.pins.holding():
-            self.pins.shift(mesh, self.pins.offsets, self.heading)
+            self._legs = mesh[self.pins.rig.index]  # the motion's legs, to hold them again after a change
+            self.pins.apply(mesh, self.heading)
         self._cached = (self.frames, mesh, progress)
         return mesh, progress
 
@@ -330,8 +333,12 @@ class GraphPlayer:
         else:  # after it, a held foot is let go when the motion lifts or swings it
             planted = self.pins.planted(self.node, self.clock.weights, self.clock.phase) >= 0.5
         change = self.pins.update(self._feet_before, self._feet_at(), planted, dt, blending=self.blend is not None)
-        if change.any():
-            self.pins.shift(self._local()[0], change, self.heading)
+        if change.any():  # the frame shown: the motion's legs held at the new offsets
+            mesh = self._local()[0]
+            if self._legs is not None:
+                mesh[self.pins.rig.index] = self._legs
+            self._legs = mesh[self.pins.rig.index] if self.pins.holding() else None
+            self.pins.apply(mesh, self.heading)
 
     def frame(self, events=None, *, placed=True):
         """The frame at the current state (nothing advances); ``placed=False``: its vertices are

@@ -6,7 +6,8 @@ immediate cut and a 0.3 s crossfade started at the request, all with the same pl
 reports per strategy over every seed's transitions: smoothness (1.0 = as smooth as captured),
 latency from request to entering the target, foot sliding on the ground, root continuity
 (1 or less: no root step larger than the motion around it), the seam's dissimilarity, the
-search's time, and what holding the feet costs (the legs' offsets). Definitions:
+search's time, and what holding the feet costs (the legs' offsets, and how much the legs'
+thighs, shins and edges change length against the same frames played without holding). Definitions:
 docs/evaluation.md, "Motion graph". Example:
 
     morphspace eval-graph data/spaces/demo.mgraph --seeds 0,1,2,3 --json
@@ -56,16 +57,19 @@ def run(args):
     with graph:
         for seed in seeds:
             requests = random_requests(graph, args.requests, seed=seed)
-            for name, (measures, seconds, held) in evaluate_strategies(graph, requests, fps=args.fps,
-                                                                        options=options).items():
-                entry = pooled.setdefault(name, ([], [], []))
+            for name, (measures, seconds, held, legs) in evaluate_strategies(graph, requests, fps=args.fps,
+                                                                              options=options).items():
+                entry = pooled.setdefault(name, ([], [], [], [], []))
                 entry[0].extend(measures)
                 entry[1].extend(seconds)
                 entry[2].extend(held.tolist())
+                entry[3].extend(legs[0].tolist())
+                entry[4].extend(legs[1].tolist())
         report = {"graph": graph.name, "path": str(args.graph), "vertices": int(graph.metadata["n_vertices"]),
                   "requests_per_seed": args.requests, "seeds": seeds, "fps": args.fps,
                   "latency_weight": options.latency_weight, "load_average": os.getloadavg()[0],
-                  "strategies": {name: summarise(m, s, np.asarray(h)) for name, (m, s, h) in pooled.items()}}
+                  "strategies": {name: summarise(m, s, np.asarray(h), (np.asarray(g), np.asarray(e)))
+                                 for name, (m, s, h, g, e) in pooled.items()}}
     if args.json:
         print(json.dumps(report, indent=2))
         return 0
@@ -75,12 +79,13 @@ def run(args):
     def f(x, spec=".2f"):
         return "-" if x is None else format(x, spec)
     print(f"{'strategy':<10} {'n':>4} {'smooth p50':>10} {'p95':>5} {'latency p50':>11} {'p95':>5} "
-          f"{'slide p95 cm':>12} {'root max':>8} {'seam p50 mm':>11} {'leg p95/max cm':>14}")
+          f"{'slide p95 cm':>12} {'root max':>8} {'seam p50 mm':>11} {'leg p95/max cm':>14} {'leg length p95/max %':>20}")
     for name, s in report["strategies"].items():
         print(f"{name:<10} {s['transitions']:>4} {f(s['smoothness_p50']):>10} {f(s['smoothness_p95']):>5} "
               f"{f(s['latency_p50_s']):>11} {f(s['latency_p95_s']):>5} {f(s['foot_slide_p95_cm']):>12} "
               f"{f(s['root_ratio_max']):>8} {f(s['seam_p50_mm'], '.1f'):>11} "
-              f"{f(s.get('leg_offset_p95_cm'), '.1f') + ' / ' + f(s.get('leg_offset_max_cm'), '.1f'):>14}")
+              f"{f(s.get('leg_offset_p95_cm'), '.1f') + ' / ' + f(s.get('leg_offset_max_cm'), '.1f'):>14} "
+              f"{f(s.get('leg_segment_change_p95_pct'), '.1f') + ' / ' + f(s.get('leg_segment_change_max_pct'), '.1f'):>20}")
     search = report["strategies"]["search"]
     print(f"search time median {search['search_p50_ms']:.3f} ms, p99 {search['search_p99_ms']:.3f} ms "
           f"({search['searches']} searches, wall clock, load average {report['load_average']:.1f})")

@@ -1,5 +1,6 @@
-"""Feet held across transitions (engine/graph/feet.py): the legs found on the rest mesh, the
-clips' contacts, a planted foot held and let go, and the player's transitions without sliding."""
+"""Feet held across transitions (engine/graph/feet.py, legs.py): the legs found on the rest mesh
+and moved by a two-bone solution, the clips' contacts, a planted foot held and let go, and the
+player's transitions without sliding."""
 
 import numpy as np
 import pytest
@@ -7,7 +8,8 @@ import pytest
 from engine.graph import GraphPlayer, MotionGraph, TransitionSearch
 from engine.graph.clock import foot_vertices
 from engine.graph.evaluate import Request, own_motion_step, play_requests, transition_measures
-from engine.graph.feet import FootPins, contact_table, leg_weights
+from engine.graph.feet import FootPins, contact_table
+from engine.graph.legs import LegRig
 
 
 @pytest.fixture(scope="module")
@@ -21,16 +23,56 @@ def rest(graph):
     return np.asarray(graph.nodes[0].space.container["rest"])
 
 
-def test_legs_carry_the_whole_offset_at_the_feet_and_none_above_the_knee(rest):
+def test_the_legs_are_found_on_their_own_side_below_the_crotch(rest):
     feet = foot_vertices(rest)
-    legs = leg_weights(rest, feet)
+    rig = LegRig(rest, feet)
     height = rest[:, 1].max() - rest[:, 1].min()
-    for foot, (index, weights), side in zip(feet, legs, (1, -1)):
-        assert set(foot) <= set(index.tolist())
-        assert np.all(weights[np.isin(index, foot)] == 1.0)        # the foot moves as a whole
-        assert np.all(np.sign(rest[index, 0]) == side)             # one leg, its own side
-        assert rest[index, 1].max() - rest[:, 1].min() < 0.27 * height
-        assert weights.min() >= 0.0 and weights.max() == 1.0
+    for k, (foot, leg, side) in enumerate(zip(feet, rig.legs, (1, -1))):
+        assert set(foot) <= set(leg["index"].tolist())
+        assert np.all(np.sign(rest[leg["index"], 0]) == side)               # one leg, its own side
+        assert rest[leg["index"], 1].max() - rest[:, 1].min() < 0.5 * height
+        w = leg["weights"]                                                    # thigh, shin, foot
+        assert np.all(w >= 0) and np.all(w.sum(1) <= 1 + 1e-9)
+        assert np.all(w[np.isin(leg["index"], foot), 2] == 1.0)              # the foot moves as a whole
+        hip, knee, ankle = rig.joints(rest, k)
+        assert hip[1] > knee[1] > ankle[1] and 0.4 * height < leg["length"] < 0.6 * height
+
+
+def test_a_leg_carries_its_foot_keeping_thigh_and_shin_lengths(graph, rest):
+    """A walk's frame, one foot moved 8 cm forward and the other 5 cm sideways: each foot moves by
+    exactly its offset and stays at its height, the thigh and the shin keep their lengths (the
+    shear below the knee it replaces stretched the shin by several percent), the body above the
+    crotch does not move."""
+    feet = foot_vertices(rest)
+    rig = LegRig(rest, feet)
+    walk = graph.node("walk")
+    mesh = np.array(walk.space.blender("linear").blend(walk.samples.weights[0], 0.3), dtype=np.float32)
+    held = mesh.copy()
+    offsets = np.array([[0.0, 0.0, 0.08], [0.05, 0.0, 0.0]])
+    shares = rig.deform(held, offsets)
+    np.testing.assert_allclose(shares, [1.0, 1.0])
+    for foot, offset in zip(feet, offsets):
+        np.testing.assert_allclose(held[foot] - mesh[foot], np.broadcast_to(offset, (len(foot), 3)), atol=1e-5)
+    np.testing.assert_allclose(rig.segments(held), rig.segments(mesh), rtol=0.02)
+    untouched = np.setdiff1d(np.arange(len(mesh)), rig.index)
+    np.testing.assert_array_equal(held[untouched], mesh[untouched])
+
+
+def test_an_offset_out_of_reach_is_shortened_to_what_the_leg_reaches(rest):
+    """The standing rest pose (legs straight): the leg cannot carry its foot far sideways without
+    lengthening more than ``stretch``, so only part of the offset is carried; never more than the
+    cap."""
+    feet = foot_vertices(rest)
+    rig = LegRig(rest, feet, cap=0.2, stretch=0.0)
+    mesh = rest.astype(np.float32)
+    far = np.array([[0.3, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    held = mesh.copy()
+    t = rig.deform(held, far)[0]
+    assert 0.0 <= t < 1.0
+    assert t * 0.3 <= 0.2 * rig.legs[0]["length"] + 1e-9
+    hip, knee, ankle = rig.joints(held, 0)
+    l1, l2 = rig.segments(mesh)[0]
+    assert np.linalg.norm(ankle - hip) <= (l1 + l2) * 1.01                 # not stretched beyond the leg
 
 
 def test_a_standing_idle_plants_both_feet_and_a_jump_lifts_them(graph, rest):
@@ -54,8 +96,17 @@ def test_a_planted_foot_is_held_and_let_go_in_the_air(rest):
     np.testing.assert_allclose(change, [[-0.03, 0.0], [-0.03, 0.0]], atol=1e-9)
     assert pins.holding()
     mesh = rest.astype(np.float32).copy()
-    pins.shift(mesh, pins.offsets, heading=np.pi / 2)         # world -x is root-local +z at a quarter turn
-    np.testing.assert_allclose(mesh[feet[0]] - rest[feet[0]], [[0.0, 0.0, -0.03]] * len(feet[0]), atol=1e-6)
+    probe = FootPins(rest, feet, pins.ground)
+    probe.offsets[:] = pins.offsets
+    probe.apply(mesh, heading=np.pi / 2)                      # world -x is root-local +z at a quarter turn
+    np.testing.assert_allclose(mesh[feet[0]] - rest[feet[0]], [[0.0, 0.0, -0.03]] * len(feet[0]), atol=1e-5)
+    straight = FootPins(rest, feet, pins.ground, stretch=0.0)  # the straight legs of the rest pose: not 15 cm
+    straight.offsets[:] = [[-0.15, 0.0], [0.0, 0.0]]
+    mesh = rest.astype(np.float32).copy()
+    straight.apply(mesh, heading=np.pi / 2)
+    carried = straight.offsets[0, 0]
+    assert -0.15 < carried < 0.0 and straight.shortened == pytest.approx(0.15 + carried)  # what it reaches
+    np.testing.assert_allclose(mesh[feet[0]] - rest[feet[0]], [[0.0, 0.0, carried]] * len(feet[0]), atol=1e-5)
     up = [d + [0.0, 0.2, 0.0] for d in down]                  # in the air: shrinks at 1 m/s
     change = pins.update(up, up, np.array([False, False]), 1 / 100, blending=False)
     np.testing.assert_allclose(np.hypot(*pins.offsets.T), [0.02, 0.02], atol=1e-9)
@@ -67,20 +118,30 @@ def test_a_planted_foot_is_held_and_let_go_in_the_air(rest):
 
 def test_walking_into_a_stand_and_out_again_keeps_the_feet_and_the_root(graph):
     """The tiny graph blends its walk straight into its stand (no captured stop): the hardest
-    case for the feet. None slides on the ground across the transitions, and no root step is
-    larger than the two nodes' own (the root moves as the blend says)."""
+    case for the feet. A foot is never held farther than the cap (a fifth of the leg), the legs
+    keep their lengths within the stretch allowed, no foot slides on the ground except in the walk
+    -> stand (a stride blended into feet side by side: the stride's front foot would be held more
+    than the cap away, so it slides by the rest), and no root step is larger than the two nodes'
+    own (the root moves as the blend says)."""
     requests = [Request(1.0, "stand", {}), Request(3.0, "walk", {"speed": 1.5}), Request(5.0, "jump", {}),
                 Request(8.5, "walk", {"speed": 1.0})]
     frames, transitions, _ = play_requests(graph, TransitionSearch(graph), requests, start="walk",
-                                           params={"speed": 1.2})
+                                           params={"speed": 1.2}, legs=True)
     measures = transition_measures(graph, frames, transitions, fps=30.0)
     assert {("walk", "stand"), ("stand", "walk"), ("walk", "jump")} <= {(m["source"], m["target"]) for m in measures}
-    assert max(m["foot_slide_m"] for m in measures) < 1e-4
+    assert max(m["foot_slide_m"] for m in measures if (m["source"], m["target"]) != ("walk", "stand")) < 1e-4
+    assert max(m["foot_slide_m"] for m in measures) < 0.1
+    rest = np.asarray(graph.nodes[0].space.container["rest"])
+    rig = LegRig(rest, foot_vertices(rest))
+    assert frames["held"].max() <= 0.2 * max(leg["length"] for leg in rig.legs) + 1e-6
+    assert frames["segments"].max() < 0.1 and np.median(frames["segments"][frames["held"] > 0]) < 0.02
     assert max(m["root_ratio"] for m in measures) <= 1.0 + 1e-6
 
 
 def test_without_the_hold_the_blend_slides_the_feet(graph):
-    """What the hold is for: the same walk -> stand with foot_lock off slides a foot."""
+    """What the hold is for: the same walk -> stand with foot_lock off slides the feet about twice
+    as far (held, they slide only by what is beyond the legs' reach and the cap: this direct blend
+    of a stride into feet side by side needs a step it does not take)."""
     player = GraphPlayer(graph, node="walk", params={"speed": 1.2}, mode="linear", foot_lock=False)
     held = GraphPlayer(graph, node="walk", params={"speed": 1.2}, mode="linear")
     from engine.graph.clock import foot_slide
@@ -97,7 +158,7 @@ def test_without_the_hold_the_blend_slides_the_feet(graph):
             now = p.step(1 / 30).vertices
             slides[key] += sum(foot_slide(before[f], now[f], ground)[0] for f in feet)
             before = now
-    assert slides[True] < 1e-4 < slides[False]
+    assert slides[True] < 0.6 * slides[False]
 
 
 def test_the_root_reference_is_the_largest_step_at_any_phase(graph):

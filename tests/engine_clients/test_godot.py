@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 from engine.graph.clock import foot_vertices
-from engine.graph.feet import leg_weights
+from engine.graph.legs import LegRig
 from engine.motion_space import MotionSpace
 from engine.rotations import rot_y
 from live_server import LiveServer, data_dir_with_graph, data_dir_with_spaces
@@ -220,16 +220,16 @@ def test_godot_client_plays_a_motion_graph_action(built_graph, tmp_path):
         assert 0 < bound < 1e-4
         checked = 0
         rest = np.asarray(spaces["walk"].container["rest"])
-        legs = np.zeros(len(rest), dtype=bool)  # below the knees: where a held foot moves the mesh (engine/graph/feet.py)
-        for index, weights in leg_weights(rest, foot_vertices(rest)):
-            legs[index[weights > 0]] = True
+        legs = np.zeros(len(rest), dtype=bool)  # below the crotch: where a held foot moves the mesh (engine/graph/legs.py)
+        legs[LegRig(rest, foot_vertices(rest)).index] = True
+        feet = np.concatenate(foot_vertices(rest))
         for r in records:
             if r["progress"] is None:  # not blending: the node's own blend, decoded within q16's bound, but
                 V = np.frombuffer(r["vertices"], dtype="<f4").reshape(-1, 3).astype(np.float64)  # a held foot's leg
                 expected = spaces[r["node"]].blend(np.asarray(r["weights"]), r["phase"], "linear")
                 error = float(np.abs(V[~legs] - expected[~legs]).max())
                 assert error <= bound + 1e-5, (r["seq"], r["node"], error)  # 1e-5: as tests/server's graph test
-                assert np.abs(V[legs, 1] - expected[legs, 1]).max() <= bound + 1e-5  # moved along the ground only
+                assert np.abs(V[feet, 1] - expected[feet, 1]).max() <= bound + 1e-5  # feet moved along the ground only
                 assert np.abs(V[legs] - expected[legs]).max() < 0.4
                 checked += 1
         assert checked >= 15

@@ -16,7 +16,7 @@ import websockets
 from live_server import LiveServer, data_dir_with_graph
 
 from engine.graph.clock import foot_vertices
-from engine.graph.feet import leg_weights
+from engine.graph.legs import LegRig
 from engine.motion_space import MotionSpace
 from server.client import StreamClient, StreamError
 
@@ -110,14 +110,14 @@ def test_walk_jump_walk_reach_keeps_the_character_in_its_place(graph_server, spa
     assert np.abs(np.diff([f.heading for f in frames])).max() < 1e-3
     assert root[-1, 2] > root[0, 2] + 0.5  # it went somewhere, and never back to the origin
     rest = np.asarray(spaces["walk"].container["rest"])
-    legs = np.zeros(len(rest), dtype=bool)
-    for index, weights in leg_weights(rest, foot_vertices(rest)):
-        legs[index[weights > 0]] = True
+    legs = np.zeros(len(rest), dtype=bool)  # below the crotch: where a held foot moves the mesh (engine/graph/legs.py)
+    legs[LegRig(rest, foot_vertices(rest)).index] = True
+    feet = np.concatenate(foot_vertices(rest))
     for f in frames:
-        if f.progress is None:  # between transitions: the node's own blend, but for a held foot's lower leg
+        if f.progress is None:  # between transitions: the node's own blend, but for a held foot's leg
             own = spaces[f.node].blend(f.weights, f.phase, "linear")
             np.testing.assert_allclose(f.vertices[~legs], own[~legs], atol=1e-5)
-            np.testing.assert_allclose(f.vertices[legs, 1], own[legs, 1], atol=1e-5)  # moved along the ground only
+            np.testing.assert_allclose(f.vertices[feet, 1], own[feet, 1], atol=1e-5)  # feet moved along the ground only
             assert np.abs(f.vertices[legs] - own[legs]).max() < 0.4
         world = f.world_vertices()
         assert world[:, 1].min() > -0.05  # never through the floor
