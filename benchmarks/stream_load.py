@@ -6,6 +6,8 @@
     .venv/bin/python benchmarks/stream_load.py --compare-workers 1,2     # 1 and 2 worker processes side by side
     .venv/bin/python benchmarks/stream_load.py --heatmap-clients 50  # 50 of the 200 with the heatmap on
     .venv/bin/python benchmarks/stream_load.py --baseline /tmp/before --repeat 3   # against another checkout
+    .venv/bin/python benchmarks/stream_load.py --offline --repeat 3        # the scheduler's CPU per frame, no sockets
+    .venv/bin/python benchmarks/stream_load.py --offline --baseline /tmp/before --repeat 3
     .venv/bin/python benchmarks/stream_load.py --tiny --out /tmp/stream_load.json   # smoke run, ~30 s
     .venv/bin/python benchmarks/stream_load.py --graph data/spaces/demo.mgraph --actions 0.25   # a motion graph
     .venv/bin/python benchmarks/stream_load.py --tiny --graph tiny --out /tmp/stream_load_graph.json
@@ -51,7 +53,12 @@ and the time from an action to the first frame acknowledging it (``latency_ms``)
 
 ``--baseline DIR`` replaces the rounds above by this tree's server against the server of the
 source tree ``DIR`` (another checkout), one worker each, ``--repeat`` rounds each, alternating
-(benchmarks/_baseline.py): the medians of their CPU per delivered frame and frames delivered. The server always binds 127.0.0.1 and is stopped (its whole process group) at
+(benchmarks/_baseline.py): the medians of their CPU per delivered frame and frames delivered.
+``--offline`` replaces the server and its clients by the scheduler's work alone
+(benchmarks/_offline.py): ``--clients`` sessions, ``--update-share`` of them steering, ``--seconds``
+of frames at 60 fps produced by the scheduler's ticks with the sockets replaced by a counter, the
+process CPU per frame (``--repeat`` rounds; with ``--baseline``, DIR's scheduler too, alternating);
+``--tiny`` runs it too, on its 4 clients. The server always binds 127.0.0.1 and is stopped (its whole process group) at
 the end, whatever happens.
 """
 
@@ -72,6 +79,7 @@ import time
 from pathlib import Path
 
 from _baseline import compare_code
+from _offline import offline_rounds
 from _tiny import parse_arguments
 from _load_clients import client_process, soak_process
 from _workers import (
@@ -424,6 +432,8 @@ def main(argv=None):
     parser.add_argument("--baseline", type=Path, metavar="DIR",
                         help="instead of the rounds above: this tree's server against DIR's (another checkout of "
                              "the project), --repeat rounds each, alternating")
+    parser.add_argument("--offline", action="store_true",
+                        help="the scheduler's CPU per frame without sockets or a server (benchmarks/_offline.py)")
     parser.add_argument("--soak", type=float, default=0.0, help="seconds of connect/leave soak (0: none)")
     parser.add_argument("--soak-clients", type=int, default=50)
     parser.add_argument("--tiny", action="store_true",
@@ -449,6 +459,8 @@ def main(argv=None):
         space_path = None if args.graph is not None else served_space(data, args.space, args.tiny)
         if args.graph is not None:
             result = serve_and_measure(args, data, served_graph(data, args.graph, args.tiny))
+        elif args.offline and not args.tiny:
+            result = {"offline": offline_rounds(args, space_path, ROOT)}
         elif args.baseline is not None:
             name, n_vertices, params = space_figures(space_path)
             result = {"baseline_comparison": compare_code(args, data, name, n_vertices, params, load_round,
@@ -459,6 +471,8 @@ def main(argv=None):
             result = serve_and_measure(args, data, space_path)
             if args.compare_workers:  # --tiny: the smoke run tries both
                 result["workers_comparison"] = measure_workers(args, data, space_path)
+            if args.tiny:  # and the offline measure
+                result["offline"] = offline_rounds(args, space_path, ROOT)
     finally:
         shutil.rmtree(data, ignore_errors=True)
     out.parent.mkdir(parents=True, exist_ok=True)

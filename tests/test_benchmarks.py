@@ -115,6 +115,11 @@ def check_stream_load(result, stdout):
     assert "workers side by side" in stdout
     assert "TARGET server CPU per delivered frame <= 40 us at 200 clients" in stdout  # issue 13's targets, explicit
     assert "TARGET 50 of 200 clients with the heatmap on" in stdout and "not the target load" in stdout
+    offline = result["offline"]  # the scheduler's work alone, sockets replaced by a counter
+    (record,) = offline["rounds"]["this tree"]
+    assert record["clients"] == 4 and record["steering"] == 4 and record["frames"] == 4 * 240
+    assert record["batched_frames"] > 0 and positive(offline["us_per_frame_median"]["this tree"])
+    assert "offline CPU per frame" in stdout
 
 
 def check_stream_stall(result, stdout):
