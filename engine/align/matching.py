@@ -156,22 +156,29 @@ def colour_flow(y, m, face, bary, target, colors, options):
     o = options
     h = target.edge_length
     k = min(o.neighbours, len(target.V))
-    dist, idx = target.tree.query(y, k=k)
-    dist, idx = dist.reshape(len(y), k), idx.reshape(len(y), k)
+    _, idx = target.tree.query(y, k=k)
+    idx = idx.reshape(len(y), k)
     here = np.einsum("pk,pkc->pc", bary, target.colors[target.F[face]])
     there = target.colors[idx]
-    points = np.concatenate([y[:, None, :], target.V[idx], 0.5 * (y[:, None, :] + target.V[idx])], axis=1)
-    colours = np.concatenate([here[:, None, :], there, 0.5 * (here[:, None, :] + there)], axis=1)
+    # candidates: y, the k vertices, the k midpoints; scored block by block (no (p, 2k + 1, 3) copies)
+    vertices = target.V[idx]
+    middles = 0.5 * (y[:, None, :] + vertices)
+    sigma2, reach = o.colour_sigma ** 2, 2.0 * h * h
+    wanted = colors[:, None, :]
+    score = np.concatenate([
+        np.sum((here[:, None, :] - wanted) ** 2, axis=2) / sigma2,  # y itself: no distance
+        np.sum((there - wanted) ** 2, axis=2) / sigma2 + np.sum((vertices - y[:, None, :]) ** 2, axis=2) / reach,
+        np.sum((0.5 * (here[:, None, :] + there) - wanted) ** 2, axis=2) / sigma2
+        + np.sum((middles - y[:, None, :]) ** 2, axis=2) / reach], axis=1)
     facing = np.einsum("pkc,pc->pk", target.normals[idx], m) > 0.5
     allowed = np.concatenate([np.ones((len(y), 1), dtype=bool), facing, facing], axis=1)
-    sigma2 = o.colour_sigma ** 2
-    score = (np.sum((colours - colors[:, None, :]) ** 2, axis=2) / sigma2
-             + np.sum((points - y[:, None, :]) ** 2, axis=2) / (2.0 * h * h))
     score = np.where(allowed, score, np.inf)
     best = np.argmin(score, axis=1)
     rows = np.arange(len(y))
     gain = score[:, 0] - score[rows, best]
-    shift = points[rows, best] - y
+    pick = np.clip((best - 1) % k, 0, k - 1)
+    chosen = np.where((best <= k)[:, None], vertices[rows, pick], middles[rows, pick])
+    shift = np.where((best == 0)[:, None], 0.0, chosen - y)
     shift -= np.einsum("pc,pc->p", shift, m)[:, None] * m
     strength = gain / (gain + 1.0)
     return shift, strength
