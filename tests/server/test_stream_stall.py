@@ -94,8 +94,9 @@ def test_a_stalled_client_reads_fresh_frames_as_soon_as_it_reads_again(server, s
         # what came before it is what the server (and the client's 4 KiB buffer) held
         assert first <= HELD_LIMIT // FRAME_BYTES[codec] + 1, variant
         assert frames[first][0] < 1.0, variant
-        # the ticks skipped meanwhile are counted, not queued
-        assert frames[first][2]["dropped"] >= 0.8 * 60 * stall, (variant, frames[first][2]["dropped"])
+        # the ticks skipped meanwhile are counted, not queued (a queue would count none; the
+        # stall is timed from the connect, and a loaded host takes part of it to answer the hello)
+        assert frames[first][2]["dropped"] >= 0.6 * 60 * stall, (variant, frames[first][2]["dropped"])
         # and the stream goes on, fresh
         later = frames[first + 1:]
         assert len(later) >= 15 and later[-1][1] < 0.5, (variant, len(later), later[-1][1] if later else None)
