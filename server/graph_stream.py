@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.graph import GraphError, GraphPlayer
+from engine.graph import GraphError, GraphPlayer, TransitionSearch
 from server import protocol as P
 from server.graphs import BrokenGraph, UnknownGraph
 from server.registry import quantisation_box
@@ -46,11 +46,14 @@ def _bad_params(node, params, ref, seq):
 
 
 async def prepare(graph, mode):
-    """Build every node's blender for ``mode`` (the non-linear solver factorises once) in a thread;
-    the blending itself stays on the event loop (the blenders' scratch buffers are shared)."""
+    """Build every node's blender for ``mode`` (the non-linear solver factorises once) and the
+    transition search's tables of the nodes (``engine.graph.terms``, once per graph, with blenders
+    of their own) in a thread; the blending itself stays on the event loop (the blenders' scratch
+    buffers are shared)."""
     def build():
         for node in graph.nodes:
             node.space.blender(mode)
+        TransitionSearch(graph)
     await asyncio.to_thread(build)
 
 

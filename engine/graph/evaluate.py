@@ -6,6 +6,10 @@ Definitions (docs/evaluation.md, "Motion graph"):
 - smoothness: the largest per-vertex step between consecutive frames during a transition (from
   the frame before the blend starts to the frame it ends), divided by the largest step within
   the two nodes' own motion at the same weights and frame rate (1.0 = as smooth as captured);
+- pop (a second measure, since 2026-11-25): the same for the per-vertex acceleration, the change
+  of a vertex's step between consecutive steps (|x[f+1] - 2 x[f] + x[f-1]|), from the step into
+  the blend to the step out of it: a blend that is short or starts abruptly kinks the motion
+  without a larger step;
 - root: the largest root step during the transition divided by the largest in the half second
   before and after it or in either node's own motion at the same weights (1 or less: no step
   larger than the motion around it); the heading's largest step in degrees;
@@ -145,20 +149,24 @@ def play_requests(graph, search, requests, *, fps=30.0, start="walk", params=Non
     return out, transitions, timed.seconds
 
 
-def own_motion_step(graph, node, weights, fps, *, offsets=4):
+def own_motion_step(graph, node, weights, fps, *, offsets=4, pop=False):
     """The largest per-vertex step and the largest root step between consecutive frames of
     ``node`` played alone at ``weights`` for one cycle (or its whole clip), metres. The root's is
     the largest over ``offsets`` start phases a fraction of a frame apart (a transition enters a
-    node at any phase, so its frames may fall anywhere in the cycle)."""
+    node at any phase, so its frames may fall anywhere in the cycle). With ``pop``, also the
+    largest per-vertex acceleration (change of step between consecutive steps, m per frame)."""
     n = graph.node(node)
     clock = NodeClock(n.space, weights, 0.0)
     position, heading = np.zeros(3), 0.0
-    previous, largest = None, 0.0
+    previous, largest, step, accel = None, 0.0, None, 0.0
     count = int(np.ceil(clock.duration * fps)) + 1
     for _ in range(count):
         V = place(clock.mesh("linear"), position, heading)
         if previous is not None:
             largest = max(largest, float(np.linalg.norm(V - previous, axis=1).max()))
+            if step is not None:
+                accel = max(accel, float(np.linalg.norm(V - previous - step, axis=1).max()))
+            step = V - previous
         previous = V
         position, heading = move(position, heading, *clock.advance(1.0 / fps))
     root = 0.0
@@ -170,7 +178,7 @@ def own_motion_step(graph, node, weights, fps, *, offsets=4):
             moved, heading = move(position, heading, *clock.advance(1.0 / fps))
             root = max(root, float(np.linalg.norm(moved - position)))
             position = moved
-    return largest, root
+    return (largest, root, accel) if pop else (largest, root)
 
 
 def transition_measures(graph, frames, transitions, *, fps, contact=0.01):
@@ -188,10 +196,12 @@ def transition_measures(graph, frames, transitions, *, fps, contact=0.01):
                 (t["target"], np.asarray(t["target_weights"], dtype=float).tobytes())]
         for key, w in zip(keys, (t["source_weights"], t["target_weights"])):
             if key not in cache:
-                cache[key] = own_motion_step(graph, key[0], w, fps)
+                cache[key] = own_motion_step(graph, key[0], w, fps, pop=True)
         reference = max(cache[keys[0]][0], cache[keys[1]][0])
         root_reference = max(cache[keys[0]][1], cache[keys[1]][1])
         steps = np.linalg.norm(np.diff(V[a:b + 1], axis=0), axis=2).max(axis=1)
+        pop_reference = max(cache[keys[0]][2], cache[keys[1]][2], 1e-9)
+        pops = np.linalg.norm(np.diff(V[a - 1:b + 2], n=2, axis=0), axis=2).max(axis=1)
         root_steps = np.linalg.norm(np.diff(root, axis=0), axis=1)
         turn_steps = np.abs(np.diff(heading))
         around = np.r_[max(0, a - int(fps / 2)):a, b + 1:min(len(root_steps), b + 1 + int(fps / 2))]
@@ -199,6 +209,7 @@ def transition_measures(graph, frames, transitions, *, fps, contact=0.01):
                     for foot in feet)
         out.append({
             "source": t["source"], "target": t["target"], "smoothness": float(steps.max() / reference),
+            "pop": float(pops.max() / pop_reference),
             "root_ratio": float(root_steps[a:b].max() / max(root_steps[around].max() if len(around) else 0.0,
                                                             root_reference, 1e-3 / fps)),
             "turn_step_deg": float(np.degrees(turn_steps[a:b].max())),
@@ -218,11 +229,12 @@ def summarise(measures, search_seconds, held=None, legs=None):
     def pct(values, q):
         return float(np.percentile(values, q)) if len(values) else None
 
-    s, lat, slide, rootr, seam = (pick("smoothness"), pick("latency_s"), pick("foot_slide_m"), pick("root_ratio"),
-                                  pick("seam_m"))
+    s, lat, slide, rootr, seam, pop = (pick("smoothness"), pick("latency_s"), pick("foot_slide_m"),
+                                       pick("root_ratio"), pick("seam_m"), pick("pop"))
     ms = np.asarray(search_seconds) * 1e3
     return {"transitions": len(measures),
             "smoothness_p50": pct(s, 50), "smoothness_p95": pct(s, 95),
+            "pop_p50": pct(pop, 50), "pop_p95": pct(pop, 95),
             "latency_p50_s": pct(lat, 50), "latency_p95_s": pct(lat, 95),
             "foot_slide_p50_cm": None if not len(slide) else pct(slide, 50) * 100,
             "foot_slide_p95_cm": None if not len(slide) else pct(slide, 95) * 100,

@@ -3,7 +3,8 @@
 Plays ``--requests`` random requests (a random node at random parameters every 2-4 s, from the
 first cyclic node, at ``--fps``) per seed of ``--seeds`` with the transition search, an
 immediate cut and a 0.3 s crossfade started at the request, all with the same player, and
-reports per strategy over every seed's transitions: smoothness (1.0 = as smooth as captured),
+reports per strategy over every seed's transitions: smoothness (1.0 = as smooth as captured) and
+pop (the same for per-vertex acceleration),
 latency from request to entering the target, foot sliding on the ground, root continuity
 (1 or less: no root step larger than the motion around it), the seam's dissimilarity, the
 search's time, and what holding the feet costs (the legs' offsets, and how much the legs'
@@ -41,6 +42,8 @@ def add_arguments(parser):
     parser.add_argument("--seeds", default="0", help="seeds of the requests, comma-separated (default 0)")
     parser.add_argument("--fps", type=float, default=30.0, help="frames per second played (default 30)")
     parser.add_argument("--latency-weight", type=float, help="the search's (default: SearchOptions')")
+    parser.add_argument("--candidates", type=int, help="transitions the search plays to predict their "
+                        "smoothness and foot drift (default: SearchOptions'; 0: by seam and latency alone)")
     parser.add_argument("--json", action="store_true", help="print the figures as JSON")
 
 
@@ -52,7 +55,12 @@ def run(args):
         graph = MotionGraph.open(args.graph)
     except GraphError as exc:
         raise ValueError(str(exc)) from None
-    options = SearchOptions() if args.latency_weight is None else SearchOptions(latency_weight=args.latency_weight)
+    chosen = {key: value for key, value in (("latency_weight", args.latency_weight),
+                                                ("candidates", args.candidates)) if value is not None}
+    try:
+        options = SearchOptions(**chosen)
+    except ValueError as exc:
+        raise ValueError(f"--latency-weight / --candidates: {exc}") from None
     pooled = {}
     with graph:
         for seed in seeds:
@@ -67,7 +75,8 @@ def run(args):
                 entry[4].extend(legs[1].tolist())
         report = {"graph": graph.name, "path": str(args.graph), "vertices": int(graph.metadata["n_vertices"]),
                   "requests_per_seed": args.requests, "seeds": seeds, "fps": args.fps,
-                  "latency_weight": options.latency_weight, "load_average": os.getloadavg()[0],
+                  "latency_weight": options.latency_weight, "candidates": options.candidates,
+                  "load_average": os.getloadavg()[0],
                   "strategies": {name: summarise(m, s, np.asarray(h), (np.asarray(g), np.asarray(e)))
                                  for name, (m, s, h, g, e) in pooled.items()}}
     if args.json:
@@ -78,10 +87,11 @@ def run(args):
 
     def f(x, spec=".2f"):
         return "-" if x is None else format(x, spec)
-    print(f"{'strategy':<10} {'n':>4} {'smooth p50':>10} {'p95':>5} {'latency p50':>11} {'p95':>5} "
+    print(f"{'strategy':<10} {'n':>4} {'smooth p50':>10} {'p95':>5} {'pop p95':>7} {'latency p50':>11} {'p95':>5} "
           f"{'slide p95 cm':>12} {'root max':>8} {'seam p50 mm':>11} {'leg p95/max cm':>14} {'leg length p95/max %':>20}")
     for name, s in report["strategies"].items():
         print(f"{name:<10} {s['transitions']:>4} {f(s['smoothness_p50']):>10} {f(s['smoothness_p95']):>5} "
+              f"{f(s['pop_p95']):>7} "
               f"{f(s['latency_p50_s']):>11} {f(s['latency_p95_s']):>5} {f(s['foot_slide_p95_cm']):>12} "
               f"{f(s['root_ratio_max']):>8} {f(s['seam_p50_mm'], '.1f'):>11} "
               f"{f(s.get('leg_offset_p95_cm'), '.1f') + ' / ' + f(s.get('leg_offset_max_cm'), '.1f'):>14} "

@@ -32,7 +32,8 @@ def _brute_force(graph, search, source, weights, phase, target, target_weights):
 
 @pytest.mark.parametrize("weight", [0.0, 0.3, 3.0])
 def test_search_finds_the_cheapest_candidate(graph, weight):
-    search = TransitionSearch(graph, SearchOptions(latency_weight=weight))
+    """Without playing candidates (``candidates=0``) the plan is the cheapest by seam and latency."""
+    search = TransitionSearch(graph, SearchOptions(latency_weight=weight, candidates=0))
     walk, jump = graph.node("walk"), graph.node("jump")
     w, target = walk.samples.weights[2], jump.samples.weights[4]
     phase = walk.samples.phases[5]  # on a sample: leaving now is the sample itself

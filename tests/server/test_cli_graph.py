@@ -183,6 +183,7 @@ def test_eval_graph_measures_the_search_and_the_baselines_on_the_same_requests(g
         assert figures["transitions"] >= 2, name
         assert figures["root_ratio_max"] <= 1.0 + 1e-6, name  # the root moves as the blend says
         assert 0.0 <= figures["frames_held"] <= 1.0 and figures["leg_offset_max_cm"] >= figures["leg_offset_p95_cm"]
+        assert 0.0 < figures["pop_p50"] <= figures["pop_p95"], name
         if figures["frames_held"] > 0:  # the legs carry a held foot keeping their lengths (3% stretch at most)
             assert figures["leg_segment_change_max_pct"] < 5.0, name
             assert figures["leg_edge_change_p95_pct"] <= figures["leg_edge_change_max_pct"], name
@@ -192,7 +193,10 @@ def test_eval_graph_measures_the_search_and_the_baselines_on_the_same_requests(g
     assert report["strategies"]["search"]["searches"] >= 2 and report["strategies"]["cut"]["smoothness_p95"] > 0
     assert main(["eval-graph", str(graph_file), "--requests", "3"]) == 0
     out = capsys.readouterr().out
-    assert "crossfade" in out and "leg p95/max cm" in out and "leg length p95/max %" in out and "search time median" in out
+    assert "crossfade" in out and "leg p95/max cm" in out and "leg length p95/max %" in out and "pop p95" in out
+    assert "search time median" in out
+    assert main(["eval-graph", str(graph_file), "--requests", "3", "--candidates", "-1"]) == 2
+    assert "--candidates" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("argv,message", [
