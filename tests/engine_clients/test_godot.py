@@ -16,6 +16,7 @@ R: reach) runs there too.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import os
 import shutil
 import subprocess
@@ -98,7 +99,9 @@ def test_godot_client_decodes_places_and_pulls_frames(built_spaces, tmp_path):
         records, summary = _run_godot(tmp_path / "godot run", live.ws_url)
         times = sorted({r["time"] for r in records if r["kind"] == "pull"})
         assert times == pytest.approx(PULLS)
-        expected_pulls, topology = asyncio.run(_python_pulls(live.ws_url, times))
+        # on a loop of its own in a thread: this worker's main thread may hold Playwright's loop
+        with concurrent.futures.ThreadPoolExecutor(1) as pool:
+            expected_pulls, topology = pool.submit(asyncio.run, _python_pulls(live.ws_url, times)).result(120)
     assert _tracked_state() == before  # nothing written into the repository
     bound = {"f32": 0.0, "q16": quantisation_error((topology.bounds_min, topology.bounds_max))}
     assert 0 < bound["q16"] < 1e-4
