@@ -106,15 +106,22 @@ class FootPins:
         """Hold the feet of root-local ``mesh`` (n, 3) float32 (the motion's, not held yet) at the
         offsets, in place, for a root turned by ``heading``: the legs carry what they can reach
         and the offsets are shortened to it (``LegRig.deform``)."""
+        self.rig.move(mesh, *self.prepare(mesh, heading))
+
+    def prepare(self, mesh, heading):
+        """``apply`` up to the vertex work: the root-local offsets, the share of each the legs
+        carry on ``mesh`` and the joints (``LegRig.move``'s arguments); the offsets are shortened
+        to what the legs carry."""
         c, s = math.cos(heading), math.sin(heading)
         local = np.zeros((len(self.feet), 3))  # world -> root-local, per foot
         for k, (ox, oz) in enumerate(self.offsets.tolist()):
             local[k, 0], local[k, 2] = c * ox - s * oz, s * ox + c * oz
-        shares = self.rig.deform(mesh, local)
+        shares, joints = self.rig.reach(mesh, local)
         if (shares < 1.0).any():
             before = np.hypot(self.offsets[:, 0], self.offsets[:, 1])
             self.offsets *= shares[:, None]
             self.shortened += float((before * (1.0 - shares)).sum())
+        return local, shares, joints
 
     def update(self, before, now, planted, dt, *, blending):
         """Hold or release each foot between two shown frames; returns the (feet, 2) change of

@@ -22,6 +22,8 @@ the rest.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 # heights as fractions of the rest mesh's height above its lowest point (a standing human body)
@@ -37,17 +39,31 @@ def _ramp(y, lo, hi):
     return u * u * (3.0 - 2.0 * u)
 
 
+def _unit(v):
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return (v[0] / n, v[1] / n, v[2] / n)
+
+
+def _norm(v):
+    return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
 def rotation_between(p, q):
-    """(3, 3) the smallest rotation turning the direction of ``p`` into that of ``q``."""
-    p = p / np.linalg.norm(p)
-    q = q / np.linalg.norm(q)
-    axis = np.cross(p, q)
-    s, c = float(np.linalg.norm(axis)), float(p @ q)
+    """(3, 3) the smallest rotation turning the direction of ``p`` into that of ``q``.
+
+    (On Python floats: these are 3-vectors, and numpy's per-call cost was most of a held
+    frame's.)"""
+    px, py, pz = _unit(p)
+    qx, qy, qz = _unit(q)
+    ax, ay, az = py * qz - pz * qy, pz * qx - px * qz, px * qy - py * qx
+    s, c = math.sqrt(ax * ax + ay * ay + az * az), px * qx + py * qy + pz * qz
     if s < 1e-12:
         return np.eye(3)  # the same direction (a leg never folds back on itself here)
-    k = axis / s
-    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
+    kx, ky, kz = ax / s, ay / s, az / s
+    d = 1.0 - c  # Rodrigues: I + s K + (1 - c) K^2, K the cross-product matrix of the unit axis
+    return np.array([[1.0 - d * (ky * ky + kz * kz), -s * kz + d * kx * ky, s * ky + d * kx * kz],
+                     [s * kz + d * kx * ky, 1.0 - d * (kx * kx + kz * kz), -s * kx + d * ky * kz],
+                     [-s * ky + d * kx * kz, s * kx + d * ky * kz, 1.0 - d * (kx * kx + ky * ky)]])
 
 
 def two_bone(hip, knee, ankle, target, scale=1.0, forward=(0.0, 0.0, 1.0)):
@@ -55,16 +71,23 @@ def two_bone(hip, knee, ankle, target, scale=1.0, forward=(0.0, 0.0, 1.0)):
     lengths times ``scale``, the knee bending in the plane it bends in now (``forward`` if the
     leg is straight). ``target`` must be within reach (no farther from the hip than the two
     lengths added)."""
-    l1, l2 = scale * np.linalg.norm(knee - hip), scale * np.linalg.norm(ankle - knee)
-    reach = target - hip
-    d = float(np.linalg.norm(reach))
-    u = reach / d
-    bend = (knee - hip) - ((knee - hip) @ u) * u
-    if np.linalg.norm(bend) < 1e-6 * l1:
-        bend = np.asarray(forward, dtype=float) - (np.asarray(forward, dtype=float) @ u) * u
-    v = bend / np.linalg.norm(bend)
-    cos = np.clip((l1 * l1 + d * d - l2 * l2) / (2.0 * l1 * d), -1.0, 1.0)
-    return hip + l1 * (cos * u + np.sqrt(1.0 - cos * cos) * v)
+    hip, knee, ankle, target = (tuple(map(float, a)) for a in (hip, knee, ankle, target))
+    thigh = tuple(k - h for k, h in zip(knee, hip))
+    l1 = scale * _norm(thigh)
+    l2 = scale * _norm(tuple(a - k for a, k in zip(ankle, knee)))
+    reach = tuple(t - h for t, h in zip(target, hip))
+    d = _norm(reach)
+    u = tuple(r / d for r in reach)
+    along = sum(a * b for a, b in zip(thigh, u))
+    bend = tuple(t - along * c for t, c in zip(thigh, u))
+    if _norm(bend) < 1e-6 * l1:
+        forward = tuple(map(float, forward))
+        along = sum(a * b for a, b in zip(forward, u))
+        bend = tuple(f - along * c for f, c in zip(forward, u))
+    v = _unit(bend)
+    cos = min(max((l1 * l1 + d * d - l2 * l2) / (2.0 * l1 * d), -1.0), 1.0)
+    sin = math.sqrt(1.0 - cos * cos)
+    return np.array([h + l1 * (cos * a + sin * b) for h, a, b in zip(hip, u, v)])
 
 
 class LegRig:
@@ -103,23 +126,31 @@ class LegRig:
             rings = {name: np.flatnonzero(on_side & (y >= lo) & (y < hi)) for name, (lo, hi) in BANDS.items()}
             if any(len(r) == 0 for r in rings.values()):
                 raise ValueError("the rest mesh has no vertices at a leg joint's height (is it a standing body?)")
+            ring_index = np.concatenate([rings[name] for name in ("hip", "knee", "ankle")])
+            means = np.zeros((3, len(ring_index)))  # (hip, knee, ankle) = means @ mesh[ring_index]
+            start = 0
+            for row, name in enumerate(("hip", "knee", "ankle")):
+                means[row, start:start + len(rings[name])] = 1.0 / len(rings[name])
+                start += len(rings[name])
             self.legs.append({"index": index, "weights": np.stack([thigh_w, shin_w, foot_w], axis=1),
-                              "rings": rings})
+                              "rings": rings, "ring_index": ring_index, "means": means,
+                              "unmoved": (1.0 - (thigh_w + shin_w + foot_w))[:, None]})
             hip, _, ankle = self.joints(rest, len(self.legs) - 1)
             self.legs[-1]["length"] = float(np.linalg.norm(hip - ankle))
         self.index = np.concatenate([leg["index"] for leg in self.legs])
 
     def joints(self, mesh, k):
         """(hip, knee, ankle) (3,) float64 of leg ``k`` on root-local ``mesh``."""
-        rings = self.legs[k]["rings"]
-        return tuple(np.asarray(mesh[rings[name]], dtype=np.float64).mean(0) for name in ("hip", "knee", "ankle"))
+        leg = self.legs[k]
+        hip, knee, ankle = leg["means"] @ np.asarray(mesh[leg["ring_index"]], dtype=np.float64)
+        return hip, knee, ankle
 
-    def reachable(self, mesh, k, offset):
+    def reachable(self, mesh, k, offset, joints=None):
         """The share t in [0, 1] of the root-local horizontal ``offset`` (3,) leg ``k`` can carry
         on ``mesh``: the ankle no farther from the hip than the thigh and the shin end to end (each
         longer by ``stretch`` at most), and no farther than ``cap`` x the leg's length from where
-        the motion puts it."""
-        hip, knee, ankle = self.joints(mesh, k)
+        the motion puts it. ``joints``: ``joints(mesh, k)`` if already known."""
+        hip, knee, ankle = self.joints(mesh, k) if joints is None else joints
         size = float(np.linalg.norm(offset))
         if size == 0.0:
             return 1.0
@@ -136,16 +167,31 @@ class LegRig:
         """Move each foot of root-local ``mesh`` (n, 3) float32, in place, by the reachable part of
         its root-local horizontal offset (``offsets`` (legs, 3)), the leg following by the two-bone
         solution. Returns (legs,) the share of each offset carried (``reachable``)."""
-        shares = np.ones(len(self.legs))
-        for k, (leg, offset) in enumerate(zip(self.legs, np.asarray(offsets, dtype=np.float64))):
-            if not offset.any():
+        offsets = np.asarray(offsets, dtype=np.float64)
+        shares, joints = self.reach(mesh, offsets)
+        self.move(mesh, offsets, shares, joints)
+        return shares
+
+    def reach(self, mesh, offsets):
+        """(shares (legs,), joints): ``reachable`` for each leg's offset on ``mesh``, and the
+        joints it found (None for a leg without an offset), for ``move``."""
+        shares, joints = np.ones(len(self.legs)), [None] * len(self.legs)
+        for k, offset in enumerate(np.asarray(offsets, dtype=np.float64)):
+            if offset.any():
+                joints[k] = self.joints(mesh, k)
+                shares[k] = self.reachable(mesh, k, offset, joints[k])
+        return shares, joints
+
+    def move(self, mesh, offsets, shares, joints):
+        """``deform``'s vertex work, with ``reach``'s answer for the same ``mesh`` and ``offsets``.
+        A foot's vertices move by exactly ``share x offset`` (the foot's weight is 1 there), which
+        ``foot_shift`` gives without moving the leg."""
+        for leg, offset, t, found in zip(self.legs, np.asarray(offsets, dtype=np.float64), shares, joints):
+            if found is None or t == 0.0:
                 continue
-            t = shares[k] = self.reachable(mesh, k, offset)
-            if t == 0.0:
-                continue
-            hip, knee, ankle = self.joints(mesh, k)
+            hip, knee, ankle = found
             target = ankle + t * offset
-            scale = max(1.0, float(np.linalg.norm(target - hip)) / (np.linalg.norm(knee - hip) + np.linalg.norm(ankle - knee)))
+            scale = max(1.0, _norm(target - hip) / (_norm(knee - hip) + _norm(ankle - knee)))
             new_knee = two_bone(hip, knee, ankle, target, scale)
             R1 = rotation_between(knee - hip, new_knee - hip)
             R2 = rotation_between(ankle - knee, target - new_knee)
@@ -153,16 +199,15 @@ class LegRig:
             thigh = (x - hip) @ R1.T
             shin = (x - knee) @ R2.T
             if scale > 1.0:  # lengthened along the bones only
-                e1, e2 = (new_knee - hip) / np.linalg.norm(new_knee - hip), (target - new_knee) / np.linalg.norm(target - new_knee)
+                e1, e2 = (new_knee - hip) / _norm(new_knee - hip), (target - new_knee) / _norm(target - new_knee)
                 thigh += (scale - 1.0) * (thigh @ e1)[:, None] * e1
                 shin += (scale - 1.0) * (shin @ e2)[:, None] * e2
             thigh += hip
             shin += new_knee
             foot = x + t * offset
             w = leg["weights"]
-            moved = x * (1.0 - w.sum(1))[:, None] + w[:, :1] * thigh + w[:, 1:2] * shin + w[:, 2:] * foot
+            moved = x * leg["unmoved"] + w[:, :1] * thigh + w[:, 1:2] * shin + w[:, 2:] * foot
             mesh[leg["index"]] = moved
-        return shares
 
     def segments(self, mesh):
         """(legs, 2) thigh and shin lengths (hip-knee, knee-ankle ring centroids) on ``mesh``."""

@@ -115,6 +115,7 @@ class GraphPlayer:
         self.pins = FootPins(rest, self._feet, self._ground)
         self._cached = None      # (frames, root-local mesh, progress) of the current state
         self._legs = None        # the legs' vertices of the cached mesh before the feet were held
+        self._hold = None        # FootPins.prepare's answer for the cached mesh (None: no foot held)
         self._feet_before, self._feet_frame = None, None  # the feet in the world, at frame number
         self._dt = 0.0           # the last step's length (a blend planned to start within it is near)
         if not start.cyclic:
@@ -314,17 +315,30 @@ class GraphPlayer:
         else:
             self._buffer[:] = mesh  # a copy: the space's blender reuses its buffer
         mesh = self._buffer
+        # the feet held: planned here, the legs moved once, when the frame is shown (_shown)
+        self._hold = self.pins.prepare(mesh, self.heading) if self.pins.holding() else None
         self._legs = None
-        if self.pins.holding():
-            self._legs = mesh[self.pins.rig.index]  # the motion's legs, to hold them again after a change
-            self.pins.apply(mesh, self.heading)
         self._cached = (self.frames, mesh, progress)
         return mesh, progress
 
+    def _shown(self):
+        """(root-local mesh, progress): ``_local``'s with the held feet's legs moved."""
+        mesh, progress = self._local()
+        if self._hold is not None and self._legs is None:
+            self._legs = mesh[self.pins.rig.index]  # the motion's legs, to hold them again after a change
+            self.pins.rig.move(mesh, *self._hold)
+        return mesh, progress
+
     def _feet_at(self):
-        """Per foot: its vertices in the world now, (f, 3)."""
+        """Per foot: its vertices in the world now, (f, 3) (held: moved by their offsets, as
+        ``_shown`` moves them, without moving the legs)."""
         mesh, _ = self._local()
-        return np.split(place(mesh[self._feet_index], self.position, self.heading), self._feet_split)
+        feet = mesh[self._feet_index]
+        if self._hold is not None and self._legs is None:
+            local, shares, _ = self._hold
+            shift = np.repeat(shares[:, None] * local, [len(f) for f in self._feet], axis=0)
+            feet = (feet + shift).astype(np.float32)  # what LegRig.move writes into the mesh
+        return np.split(place(feet, self.position, self.heading), self._feet_split)
 
     def _hold_feet(self, dt):
         """Hold the feet on the ground where they were, on the mesh just shown (``FootPins``)."""
@@ -335,15 +349,15 @@ class GraphPlayer:
         change = self.pins.update(self._feet_before, self._feet_at(), planted, dt, blending=self.blend is not None)
         if change.any():  # the frame shown: the motion's legs held at the new offsets
             mesh = self._local()[0]
-            if self._legs is not None:
+            if self._legs is not None:  # already moved (shown): the motion's legs back
                 mesh[self.pins.rig.index] = self._legs
-            self._legs = mesh[self.pins.rig.index] if self.pins.holding() else None
-            self.pins.apply(mesh, self.heading)
+                self._legs = None
+            self._hold = self.pins.prepare(mesh, self.heading) if self.pins.holding() else None
 
     def frame(self, events=None, *, placed=True):
         """The frame at the current state (nothing advances); ``placed=False``: its vertices are
         root-local (the player's buffer, overwritten by the next step: encode or copy them)."""
-        mesh, progress = self._local()
+        mesh, progress = self._shown()
         target = None
         if progress is not None:
             target = self.blend.plan.target
