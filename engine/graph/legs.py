@@ -134,7 +134,7 @@ class LegRig:
                 start += len(rings[name])
             self.legs.append({"index": index, "weights": np.stack([thigh_w, shin_w, foot_w], axis=1),
                               "rings": rings, "ring_index": ring_index, "means": means,
-                              "unmoved": (1.0 - (thigh_w + shin_w + foot_w))[:, None]})
+                              "kept": (1.0 - (thigh_w + shin_w + foot_w) + foot_w)[:, None]})
             hip, _, ankle = self.joints(rest, len(self.legs) - 1)
             self.legs[-1]["length"] = float(np.linalg.norm(hip - ankle))
         self.index = np.concatenate([leg["index"] for leg in self.legs])
@@ -195,18 +195,20 @@ class LegRig:
             new_knee = two_bone(hip, knee, ankle, target, scale)
             R1 = rotation_between(knee - hip, new_knee - hip)
             R2 = rotation_between(ankle - knee, target - new_knee)
-            x = np.asarray(mesh[leg["index"]], dtype=np.float64)
-            thigh = (x - hip) @ R1.T
-            shin = (x - knee) @ R2.T
+            # each segment's map is affine, x -> x A + b: thigh (x - hip) R1^T S1 + hip, shin
+            # (x - knee) R2^T S2 + new_knee (S: the stretch along the new bone), foot x + t offset;
+            # a vertex takes their blend by its weights w: x (unmoved + w_foot) + w_thigh x A1
+            # + w_shin x A2 + w @ [b1, b2, b3]
+            A1, A2 = R1.T, R2.T
             if scale > 1.0:  # lengthened along the bones only
                 e1, e2 = (new_knee - hip) / _norm(new_knee - hip), (target - new_knee) / _norm(target - new_knee)
-                thigh += (scale - 1.0) * (thigh @ e1)[:, None] * e1
-                shin += (scale - 1.0) * (shin @ e2)[:, None] * e2
-            thigh += hip
-            shin += new_knee
-            foot = x + t * offset
+                A1 = A1 @ (np.eye(3) + (scale - 1.0) * np.outer(e1, e1))
+                A2 = A2 @ (np.eye(3) + (scale - 1.0) * np.outer(e2, e2))
+            b = np.stack([hip - hip @ A1, new_knee - knee @ A2, t * offset])
+            x = np.asarray(mesh[leg["index"]], dtype=np.float64)
             w = leg["weights"]
-            moved = x * leg["unmoved"] + w[:, :1] * thigh + w[:, 1:2] * shin + w[:, 2:] * foot
+            turned = x @ np.concatenate([A1, A2], axis=1)  # (n, 6): x A1 | x A2
+            moved = x * leg["kept"] + w[:, :1] * turned[:, :3] + w[:, 1:2] * turned[:, 3:] + w @ b
             mesh[leg["index"]] = moved
 
     def segments(self, mesh):
