@@ -120,17 +120,19 @@ def lumped_mass(V, F):
     return sp.diags(m).tocsr()
 
 
-def _closest_on_triangles(P, A, B, C):
-    """Closest points on triangles (A, B, C) to points P, all (q, 3); barycentrics (q, 3).
+def closest_on_triangles(P, A, B, C):
+    """Closest points on triangles (A, B, C) to points P, all (..., 3); and their barycentrics (..., 3).
 
-    Region tests after Ericson, "Real-Time Collision Detection", section 5.1.5, vectorised.
+    Region tests after Ericson, "Real-Time Collision Detection", section 5.1.5, over any leading
+    shape (for (points, candidate faces) the points are broadcast, not repeated), the regions
+    chosen by ``np.where`` rather than masked writes.
     """
     ab, ac, ap = B - A, C - A, P - A
-    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    d1, d2 = np.einsum("...j,...j->...", ab, ap), np.einsum("...j,...j->...", ac, ap)
     bp = P - B
-    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    d3, d4 = np.einsum("...j,...j->...", ab, bp), np.einsum("...j,...j->...", ac, bp)
     cp = P - C
-    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    d5, d6 = np.einsum("...j,...j->...", ab, cp), np.einsum("...j,...j->...", ac, cp)
     va = d3 * d6 - d5 * d4
     vb = d5 * d2 - d1 * d6
     vc = d1 * d4 - d3 * d2
@@ -138,23 +140,22 @@ def _closest_on_triangles(P, A, B, C):
         denom = va + vb + vc
         v = vb / denom
         w = vc / denom
-    bary = np.stack([1.0 - v - w, v, w], axis=1)
-    # Edge and vertex regions override the interior solution, most specific last.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        u = 1.0 - v - w
+        # edge and vertex regions override the interior solution, most specific last
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
         m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-        bary[m] = np.stack([np.zeros(m.sum()), 1 - t_bc[m], t_bc[m]], axis=1)
-        t_ac = d2 / (d2 - d6)
+        u, v, w = np.where(m, 0.0, u), np.where(m, 1 - t, v), np.where(m, t, w)
+        t = d2 / (d2 - d6)
         m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-        bary[m] = np.stack([1 - t_ac[m], np.zeros(m.sum()), t_ac[m]], axis=1)
-        t_ab = d1 / (d1 - d3)
+        u, v, w = np.where(m, 1 - t, u), np.where(m, 0.0, v), np.where(m, t, w)
+        t = d1 / (d1 - d3)
         m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-        bary[m] = np.stack([1 - t_ab[m], t_ab[m], np.zeros(m.sum())], axis=1)
-    bary[(d6 >= 0) & (d5 <= d6)] = (0.0, 0.0, 1.0)
-    bary[(d3 >= 0) & (d4 <= d3)] = (0.0, 1.0, 0.0)
-    bary[(d1 <= 0) & (d2 <= 0)] = (1.0, 0.0, 0.0)
-    bary = np.nan_to_num(bary, nan=1.0 / 3.0)
-    closest = bary[:, :1] * A + bary[:, 1:2] * B + bary[:, 2:] * C
+        u, v, w = np.where(m, 1 - t, u), np.where(m, t, v), np.where(m, 0.0, w)
+    for m, corner in (((d6 >= 0) & (d5 <= d6), 2), ((d3 >= 0) & (d4 <= d3), 1), ((d1 <= 0) & (d2 <= 0), 0)):
+        u, v, w = (np.where(m, float(corner == 0), u), np.where(m, float(corner == 1), v),
+                   np.where(m, float(corner == 2), w))
+    bary = np.nan_to_num(np.stack([u, v, w], axis=-1), nan=1.0 / 3.0)
+    closest = bary[..., :1] * A + bary[..., 1:2] * B + bary[..., 2:] * C
     return closest, bary
 
 
@@ -210,7 +211,7 @@ class SurfaceQuery:
         flat_faces = np.where(valid, candidates, 0).ravel()
         tri = self.V[self.F[flat_faces]]
         Pq = np.repeat(P, c, axis=0)
-        points, bary = _closest_on_triangles(Pq, tri[:, 0], tri[:, 1], tri[:, 2])
+        points, bary = closest_on_triangles(Pq, tri[:, 0], tri[:, 1], tri[:, 2])
         dist = np.linalg.norm(points - Pq, axis=1).reshape(q, c)
         dist[~valid] = np.inf
         best = np.argmin(dist, axis=1)

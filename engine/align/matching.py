@@ -12,7 +12,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from engine.align.shape_histogram import shape_centre
-from engine.surface import main_components, vertex_normals
+from engine.surface import closest_on_triangles, main_components, vertex_normals
 
 
 class TargetSurface:
@@ -269,46 +269,6 @@ def closest_points(P, V, F, face_tree, k=6):
 def point_to_mesh_distance(P, V, F, k=6):
     """Distance from points P to the closest of the k faces (of V, F) with the nearest centres."""
     return closest_points(P, V, F, cKDTree(V[F].mean(axis=1)), k=k)[1]
-
-
-def closest_on_triangles(P, A, B, C):
-    """Closest points on triangles (A, B, C) to points P, all (..., 3); and their barycentrics (..., 3).
-
-    The region tests of :func:`engine.surface._closest_on_triangles` (Ericson, "Real-Time
-    Collision Detection", 5.1.5) with the same arithmetic, so the same numbers, over any leading
-    shape (here (points, candidate faces), so the points are broadcast, not repeated) and with
-    the regions chosen by ``np.where`` rather than masked writes: about a third less time.
-    """
-    ab, ac, ap = B - A, C - A, P - A
-    d1, d2 = np.einsum("...j,...j->...", ab, ap), np.einsum("...j,...j->...", ac, ap)
-    bp = P - B
-    d3, d4 = np.einsum("...j,...j->...", ab, bp), np.einsum("...j,...j->...", ac, bp)
-    cp = P - C
-    d5, d6 = np.einsum("...j,...j->...", ab, cp), np.einsum("...j,...j->...", ac, cp)
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        v = vb / denom
-        w = vc / denom
-        u = 1.0 - v - w
-        # edge and vertex regions override the interior solution, most specific last
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-        u, v, w = np.where(m, 0.0, u), np.where(m, 1 - t, v), np.where(m, t, w)
-        t = d2 / (d2 - d6)
-        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-        u, v, w = np.where(m, 1 - t, u), np.where(m, 0.0, v), np.where(m, t, w)
-        t = d1 / (d1 - d3)
-        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-        u, v, w = np.where(m, 1 - t, u), np.where(m, t, v), np.where(m, 0.0, w)
-    for m, corner in (((d6 >= 0) & (d5 <= d6), 2), ((d3 >= 0) & (d4 <= d3), 1), ((d1 <= 0) & (d2 <= 0), 0)):
-        u, v, w = (np.where(m, float(corner == 0), u), np.where(m, float(corner == 1), v),
-                   np.where(m, float(corner == 2), w))
-    bary = np.nan_to_num(np.stack([u, v, w], axis=-1), nan=1.0 / 3.0)
-    closest = bary[..., :1] * A + bary[..., 1:2] * B + bary[..., 2:] * C
-    return closest, bary
 
 
 __all__ = ["TargetSurface", "closest_on_triangles", "closest_points", "colour_flow", "compatible_closest",
