@@ -34,7 +34,8 @@ def capture_zip(fps=10.0):
 def test_upload_build_and_the_new_space_streams(empty_server, open_page):
     page = open_page(empty_server.url + "/app/")
     page.wait_status(lambda s: s["spaces"] == [] and s["space"] is None, what="an empty space list")
-    assert page.page.locator("#messages").inner_text().startswith("No playable motion space")
+    # the status shows the empty list before the page's first REST answer lands; the message follows it
+    page.page.locator("#messages .message", has_text="No playable motion space").wait_for(timeout=15000)
 
     page.page.set_input_files("#upload-file", files=[
         {"name": "my gaits.zip", "mimeType": "application/zip", "buffer": capture_zip()}])
