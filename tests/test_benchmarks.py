@@ -198,6 +198,15 @@ def check_dask_align(records, stdout):
     assert "TARGET the demo's 973 frames >= 1.7x faster on 2 workers" in stdout and "not the target run" in stdout
 
 
+def check_graph_load(result, stdout):
+    assert result["graph"] == "tiny" and result["clients"] == 8 and result["seconds"] == 3.0
+    (record,) = result["rounds"]["this tree"]
+    assert record["frames"] == 8 * 180 and record["acting"] == 2 and record["errors"] == 0
+    assert record["actions"] >= 2 and positive(record["us_per_frame"]) and non_negative(record["action_us_per_frame"])
+    assert positive(result["us_per_frame_median"]["this tree"]) and result["same_frames"]
+    assert len(result["digests"]["this tree"]) == 32 and "us per frame" in stdout
+
+
 def check_godot_client(result, stdout):
     assert result["vertices"] == 1000 and result["seconds"] == 2.0 and result["engine_fps_target"] == 60
     assert set(result["runs"]) == {"stream-f32", "stream-q16", "engine-f32"}
@@ -216,6 +225,7 @@ CHECKS = {
     "dask_align.py": check_dask_align,
     "export.py": check_export,
     "godot_client.py": check_godot_client,
+    "graph_load.py": check_graph_load,
     "graph_search.py": check_graph_search,
     "open_blends.py": check_open_blends,
     "similarity_scaling.py": check_similarity_scaling,

@@ -75,13 +75,15 @@ class NodeClock:
             self.phase, self.finished = 1.0, True
         return (c * sx + s * sz) * d_phase, (c * sz - s * sx) * d_phase, t * d_phase
 
-    def mesh(self, mode="hybrid"):
+    def mesh(self, mode="hybrid", out=None):
         """(n, 3) the root-local blended mesh at the current phase (the blender's buffer: copy it
-        to keep it). Without ``tables`` the space's own blender, not its phase-table cache: the
-        bytes depend only on the weights and the phase, so a replay gives the same frames."""
+        to keep it; ``out``: a C-contiguous (n, 3) float32 array written and returned instead, for
+        the linear and hybrid modes, whose blends are float32). Without ``tables`` the space's own
+        blender, not its phase-table cache: the bytes depend only on the weights and the phase, so
+        a replay gives the same frames."""
         if self.tables and mode != "nonlinear":
-            return self.space.frame_blender(mode).blend(self.weights, self.phase)
-        return self.space.blender(mode).blend(self.weights, self.phase)
+            return self.space.frame_blender(mode).blend(self.weights, self.phase, out=out)
+        return self.space.blender(mode).blend(self.weights, self.phase, out=out)
 
 
 def place(mesh, position, heading, out=None):

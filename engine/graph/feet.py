@@ -88,6 +88,7 @@ class FootPins:
         self.release, self.creep = float(release), float(creep)
         self.rig = LegRig(rest, self.feet, cap=cap, stretch=stretch)
         self.offsets = np.zeros((len(self.feet), 2))
+        self._unheld = self.offsets.tolist()
         self.shortened = 0.0   # metres of offset the legs could not carry so far (the feet slid by it)
 
     def planted(self, node, weights, phase):
@@ -100,7 +101,7 @@ class FootPins:
 
     def holding(self):
         """Some foot is held away from where the motion puts it."""
-        return bool(self.offsets.any())
+        return self.offsets.tolist() != self._unheld  # a list compare: numpy's any() costs more on 4 numbers
 
     def apply(self, mesh, heading):
         """Hold the feet of root-local ``mesh`` (n, 3) float32 (the motion's, not held yet) at the
@@ -108,15 +109,15 @@ class FootPins:
         and the offsets are shortened to it (``LegRig.deform``)."""
         self.rig.move(mesh, *self.prepare(mesh, heading))
 
-    def prepare(self, mesh, heading):
+    def prepare(self, mesh, heading, known=None):
         """``apply`` up to the vertex work: the root-local offsets, the share of each the legs
         carry on ``mesh`` and the joints (``LegRig.move``'s arguments); the offsets are shortened
-        to what the legs carry."""
+        to what the legs carry. ``known``: the joints already found on ``mesh`` (``LegRig.reach``)."""
         c, s = math.cos(heading), math.sin(heading)
         local = np.zeros((len(self.feet), 3))  # world -> root-local, per foot
         for k, (ox, oz) in enumerate(self.offsets.tolist()):
             local[k, 0], local[k, 2] = c * ox - s * oz, s * ox + c * oz
-        shares, joints = self.rig.reach(mesh, local)
+        shares, joints = self.rig.reach(mesh, local, known)
         if (shares < 1.0).any():
             before = np.hypot(self.offsets[:, 0], self.offsets[:, 1])
             self.offsets *= shares[:, None]

@@ -53,17 +53,22 @@ def rotation_between(p, q):
 
     (On Python floats: these are 3-vectors, and numpy's per-call cost was most of a held
     frame's.)"""
+    return np.array(_rotation(p, q))
+
+
+def _rotation(p, q):
+    """``rotation_between`` as a tuple of its three rows (tuples of Python floats)."""
     px, py, pz = _unit(p)
     qx, qy, qz = _unit(q)
     ax, ay, az = py * qz - pz * qy, pz * qx - px * qz, px * qy - py * qx
     s, c = math.sqrt(ax * ax + ay * ay + az * az), px * qx + py * qy + pz * qz
     if s < 1e-12:
-        return np.eye(3)  # the same direction (a leg never folds back on itself here)
+        return ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))  # the same direction (a leg never folds back here)
     kx, ky, kz = ax / s, ay / s, az / s
     d = 1.0 - c  # Rodrigues: I + s K + (1 - c) K^2, K the cross-product matrix of the unit axis
-    return np.array([[1.0 - d * (ky * ky + kz * kz), -s * kz + d * kx * ky, s * ky + d * kx * kz],
-                     [s * kz + d * kx * ky, 1.0 - d * (kx * kx + kz * kz), -s * kx + d * ky * kz],
-                     [-s * ky + d * kx * kz, s * kx + d * ky * kz, 1.0 - d * (kx * kx + ky * ky)]])
+    return ((1.0 - d * (ky * ky + kz * kz), -s * kz + d * kx * ky, s * ky + d * kx * kz),
+            (s * kz + d * kx * ky, 1.0 - d * (kx * kx + kz * kz), -s * kx + d * ky * kz),
+            (-s * ky + d * kx * kz, s * kx + d * ky * kz, 1.0 - d * (kx * kx + ky * ky)))
 
 
 def two_bone(hip, knee, ankle, target, scale=1.0, forward=(0.0, 0.0, 1.0)):
@@ -72,22 +77,30 @@ def two_bone(hip, knee, ankle, target, scale=1.0, forward=(0.0, 0.0, 1.0)):
     leg is straight). ``target`` must be within reach (no farther from the hip than the two
     lengths added)."""
     hip, knee, ankle, target = (tuple(map(float, a)) for a in (hip, knee, ankle, target))
-    thigh = tuple(k - h for k, h in zip(knee, hip))
+    return np.array(_two_bone(hip, knee, ankle, target, scale, tuple(map(float, forward))))
+
+
+def _two_bone(hip, knee, ankle, target, scale, forward):
+    """``two_bone`` on tuples of Python floats; the knee as a tuple."""
+    thigh = (knee[0] - hip[0], knee[1] - hip[1], knee[2] - hip[2])
     l1 = scale * _norm(thigh)
-    l2 = scale * _norm(tuple(a - k for a, k in zip(ankle, knee)))
-    reach = tuple(t - h for t, h in zip(target, hip))
+    l2 = scale * _norm((ankle[0] - knee[0], ankle[1] - knee[1], ankle[2] - knee[2]))
+    reach = (target[0] - hip[0], target[1] - hip[1], target[2] - hip[2])
     d = _norm(reach)
-    u = tuple(r / d for r in reach)
-    along = sum(a * b for a, b in zip(thigh, u))
-    bend = tuple(t - along * c for t, c in zip(thigh, u))
+    u = (reach[0] / d, reach[1] / d, reach[2] / d)
+    along = thigh[0] * u[0] + thigh[1] * u[1] + thigh[2] * u[2]
+    bend = (thigh[0] - along * u[0], thigh[1] - along * u[1], thigh[2] - along * u[2])
     if _norm(bend) < 1e-6 * l1:
-        forward = tuple(map(float, forward))
-        along = sum(a * b for a, b in zip(forward, u))
-        bend = tuple(f - along * c for f, c in zip(forward, u))
+        along = forward[0] * u[0] + forward[1] * u[1] + forward[2] * u[2]
+        bend = (forward[0] - along * u[0], forward[1] - along * u[1], forward[2] - along * u[2])
     v = _unit(bend)
     cos = min(max((l1 * l1 + d * d - l2 * l2) / (2.0 * l1 * d), -1.0), 1.0)
     sin = math.sqrt(1.0 - cos * cos)
-    return np.array([h + l1 * (cos * a + sin * b) for h, a, b in zip(hip, u, v)])
+    return tuple(h + l1 * (cos * a + sin * b) for h, a, b in zip(hip, u, v))
+
+
+def _sub(a, b):
+    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
 class LegRig:
@@ -134,7 +147,8 @@ class LegRig:
                 start += len(rings[name])
             self.legs.append({"index": index, "weights": np.stack([thigh_w, shin_w, foot_w], axis=1),
                               "rings": rings, "ring_index": ring_index, "means": means,
-                              "kept": (1.0 - (thigh_w + shin_w + foot_w) + foot_w)[:, None]})
+                              "kept": (1.0 - (thigh_w + shin_w + foot_w) + foot_w)[:, None],
+                              "thigh": thigh_w[:, None].copy(), "shin": shin_w[:, None].copy()})
             hip, _, ankle = self.joints(rest, len(self.legs) - 1)
             self.legs[-1]["length"] = float(np.linalg.norm(hip - ankle))
         self.index = np.concatenate([leg["index"] for leg in self.legs])
@@ -149,17 +163,23 @@ class LegRig:
         """The share t in [0, 1] of the root-local horizontal ``offset`` (3,) leg ``k`` can carry
         on ``mesh``: the ankle no farther from the hip than the thigh and the shin end to end (each
         longer by ``stretch`` at most), and no farther than ``cap`` x the leg's length from where
-        the motion puts it. ``joints``: ``joints(mesh, k)`` if already known."""
-        hip, knee, ankle = self.joints(mesh, k) if joints is None else joints
-        size = float(np.linalg.norm(offset))
+        the motion puts it. ``joints``: ``joints(mesh, k)`` if already known.
+
+        (On Python floats, summing in numpy's order for 3-vectors: the same numbers as numpy's
+        norms and dot products of them, for a fraction of the calls' cost.)"""
+        hip, knee, ankle = (tuple(j.tolist()) for j in (self.joints(mesh, k) if joints is None else joints))
+        o = tuple(float(x) for x in offset)
+        size = _norm(o)
         if size == 0.0:
             return 1.0
         t = min(1.0, self.cap * self.legs[k]["length"] / size)
-        reach = (np.linalg.norm(knee - hip) + np.linalg.norm(ankle - knee)) * (1.0 + self.stretch) * (1.0 - 1e-9)
-        a = ankle - hip
-        if np.linalg.norm(a + t * offset) > reach:  # |a + s o| = reach: the larger root of a quadratic
-            b, c = float(a @ offset), float(a @ a) - reach * reach
-            s = (-b + np.sqrt(max(b * b - size * size * c, 0.0))) / (size * size)
+        reach = (_norm(_sub(knee, hip)) + _norm(_sub(ankle, knee))) * (1.0 + self.stretch) * (1.0 - 1e-9)
+        a = _sub(ankle, hip)
+        if _norm((a[0] + t * o[0], a[1] + t * o[1], a[2] + t * o[2])) > reach:
+            # |a + s o| = reach: the larger root of a quadratic
+            b = a[0] * o[0] + a[1] * o[1] + a[2] * o[2]
+            c = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]) - reach * reach
+            s = (-b + math.sqrt(max(b * b - size * size * c, 0.0))) / (size * size)
             t = min(t, max(s, 0.0))
         return float(t)
 
@@ -172,44 +192,60 @@ class LegRig:
         self.move(mesh, offsets, shares, joints)
         return shares
 
-    def reach(self, mesh, offsets):
+    def reach(self, mesh, offsets, known=None):
         """(shares (legs,), joints): ``reachable`` for each leg's offset on ``mesh``, and the
-        joints it found (None for a leg without an offset), for ``move``."""
+        joints it found (None for a leg without an offset), for ``move``. ``known``: a list (one
+        entry per leg) of joints already found on this ``mesh``, None where not yet; the joints
+        found here are written into it (a held frame plans its hold twice on the same mesh)."""
         shares, joints = np.ones(len(self.legs)), [None] * len(self.legs)
         for k, offset in enumerate(np.asarray(offsets, dtype=np.float64)):
             if offset.any():
-                joints[k] = self.joints(mesh, k)
-                shares[k] = self.reachable(mesh, k, offset, joints[k])
+                found = None if known is None else known[k]
+                if found is None:
+                    found = self.joints(mesh, k)
+                    if known is not None:
+                        known[k] = found
+                joints[k] = found
+                shares[k] = self.reachable(mesh, k, offset, found)
         return shares, joints
 
     def move(self, mesh, offsets, shares, joints):
         """``deform``'s vertex work, with ``reach``'s answer for the same ``mesh`` and ``offsets``.
         A foot's vertices move by exactly ``share x offset`` (the foot's weight is 1 there), which
-        ``foot_shift`` gives without moving the leg."""
-        for leg, offset, t, found in zip(self.legs, np.asarray(offsets, dtype=np.float64), shares, joints):
+        the graph player uses to read the held feet without moving the legs."""
+        for leg, offset, t, found in zip(self.legs, np.asarray(offsets, dtype=np.float64).tolist(),
+                                         np.asarray(shares, dtype=np.float64).tolist(), joints):
             if found is None or t == 0.0:
                 continue
-            hip, knee, ankle = found
-            target = ankle + t * offset
-            scale = max(1.0, _norm(target - hip) / (_norm(knee - hip) + _norm(ankle - knee)))
-            new_knee = two_bone(hip, knee, ankle, target, scale)
-            R1 = rotation_between(knee - hip, new_knee - hip)
-            R2 = rotation_between(ankle - knee, target - new_knee)
+            hip, knee, ankle = (tuple(j.tolist()) for j in found)
+            step = (t * offset[0], t * offset[1], t * offset[2])
+            target = (ankle[0] + step[0], ankle[1] + step[1], ankle[2] + step[2])
+            scale = max(1.0, _norm(_sub(target, hip)) / (_norm(_sub(knee, hip)) + _norm(_sub(ankle, knee))))
+            new_knee = _two_bone(hip, knee, ankle, target, scale, (0.0, 0.0, 1.0))
+            R1 = _rotation(_sub(knee, hip), _sub(new_knee, hip))
+            R2 = _rotation(_sub(ankle, knee), _sub(target, new_knee))
             # each segment's map is affine, x -> x A + b: thigh (x - hip) R1^T S1 + hip, shin
             # (x - knee) R2^T S2 + new_knee (S: the stretch along the new bone), foot x + t offset;
             # a vertex takes their blend by its weights w: x (unmoved + w_foot) + w_thigh x A1
             # + w_shin x A2 + w @ [b1, b2, b3]
-            A1, A2 = R1.T, R2.T
+            A1, A2 = np.array(R1).T, np.array(R2).T
             if scale > 1.0:  # lengthened along the bones only
-                e1, e2 = (new_knee - hip) / _norm(new_knee - hip), (target - new_knee) / _norm(target - new_knee)
+                e1 = np.array(_sub(new_knee, hip)) / _norm(_sub(new_knee, hip))
+                e2 = np.array(_sub(target, new_knee)) / _norm(_sub(target, new_knee))
                 A1 = A1 @ (np.eye(3) + (scale - 1.0) * np.outer(e1, e1))
                 A2 = A2 @ (np.eye(3) + (scale - 1.0) * np.outer(e2, e2))
-            b = np.stack([hip - hip @ A1, new_knee - knee @ A2, t * offset])
-            x = np.asarray(mesh[leg["index"]], dtype=np.float64)
-            w = leg["weights"]
-            turned = x @ np.concatenate([A1, A2], axis=1)  # (n, 6): x A1 | x A2
-            moved = x * leg["kept"] + w[:, :1] * turned[:, :3] + w[:, 1:2] * turned[:, 3:] + w @ b
-            mesh[leg["index"]] = moved
+            b = np.stack([found[0] - found[0] @ A1, np.array(new_knee) - found[1] @ A2, np.array(step)])
+            A = np.concatenate([A1, A2], axis=1)  # (3, 6): A1 | A2
+            index = leg["index"]
+            x = mesh[index].astype(np.float64)
+            turned = x @ A  # (n, 6): x A1 | x A2
+            moved = x * leg["kept"]
+            part = leg["thigh"] * turned[:, :3]
+            moved += part
+            np.multiply(leg["shin"], turned[:, 3:], out=part)
+            moved += part
+            moved += leg["weights"] @ b
+            mesh[index] = moved
 
     def segments(self, mesh):
         """(legs, 2) thigh and shin lengths (hip-knee, knee-ankle ring centroids) on ``mesh``."""

@@ -90,6 +90,7 @@ class GraphPlayer:
         start = graph.node(node) if node else next((n for n in graph.nodes if n.cyclic), graph.nodes[0])
         self._params = {n.name: {} for n in graph.nodes}  # what each node was last asked for
         self._params[start.name] = dict(params or {})
+        self.asked = 0           # bumped whenever a node's asked-for parameters change (params_of)
         weights, self._realised, _, _ = start.solve(self._params[start.name])
         self.node = start
         self.tables = bool(tables)
@@ -110,12 +111,15 @@ class GraphPlayer:
         rest = np.asarray(start.space.container["rest"])
         self._feet = foot_vertices(rest)
         self._feet_index = np.concatenate(self._feet)  # both feet in one gather
-        self._feet_split = np.cumsum([len(f) for f in self._feet])[:-1]
+        self._feet_sizes = [len(f) for f in self._feet]
+        self._feet_split = np.cumsum(self._feet_sizes)[:-1]
         self._ground = float(rest[:, 1].min()) + float(contact)  # below this: on the ground
         self.pins = FootPins(rest, self._feet, self._ground)
         self._cached = None      # (frames, root-local mesh, progress) of the current state
         self._legs = None        # the legs' vertices of the cached mesh before the feet were held
         self._hold = None        # FootPins.prepare's answer for the cached mesh (None: no foot held)
+        self._joints = None      # the legs' joints found on the cached mesh (LegRig.reach's ``known``)
+        self._feet_mesh = None   # the cached mesh's feet, root-local, before the feet were held
         self._feet_before, self._feet_frame = None, None  # the feet in the world, at frame number
         self._dt = 0.0           # the last step's length (a blend planned to start within it is near)
         if not start.cyclic:
@@ -148,6 +152,7 @@ class GraphPlayer:
         if self.record:
             self.requests.append({"frame": self.frames, "node": node, "params": dict(params or {}), "budget": budget})
         self._params[node] = dict(params or {})
+        self.asked += 1
         note = {"clamped": clamped, "message": message, "dropped": dropped}
         if waits:
             self.queued = (node, budget)
@@ -176,6 +181,7 @@ class GraphPlayer:
             self.requests.append({"frame": self.frames, "node": node.name, "params": dict(params or {}),
                                   "budget": None, "set": True})
         self._params[node.name] = merged
+        self.asked += 1
         if self.blend is not None:
             self.blend.clock.set_weights(weights)
         else:
@@ -304,19 +310,26 @@ class GraphPlayer:
         """(root-local mesh, progress or None) at the current state, blended once per frame."""
         if self._cached is not None and self._cached[0] == self.frames:
             return self._cached[1], self._cached[2]
-        mesh, progress = self.clock.mesh(self.mode), None
+        progress = None
         if self._buffer is None:
-            self._buffer = np.empty((len(mesh), 3), dtype=np.float32)
+            self._buffer = np.empty((self.node.space.n_vertices, 3), dtype=np.float32)
+        if self.mode == "nonlinear":  # float64 blends: weighted (or cast) into the float32 buffer
+            mesh = self.clock.mesh(self.mode)
+        else:  # float32 blends: written straight into the buffer (the same numbers as a copy)
+            self.clock.mesh(self.mode, out=self._buffer)
+            mesh = self._buffer
         if self.blend is not None:
             s = smooth_weight(self.blend.elapsed / self.blend.plan.length)
             np.multiply(mesh, 1.0 - s, out=self._buffer)
             self._buffer += np.float32(s) * np.asarray(self.blend.clock.mesh(self.mode), dtype=np.float32)
             progress = self.blend.elapsed / self.blend.plan.length
-        else:
-            self._buffer[:] = mesh  # a copy: the space's blender reuses its buffer
+        elif self.mode == "nonlinear":
+            self._buffer[:] = mesh
         mesh = self._buffer
         # the feet held: planned here, the legs moved once, when the frame is shown (_shown)
-        self._hold = self.pins.prepare(mesh, self.heading) if self.pins.holding() else None
+        self._joints = [None] * len(self.pins.rig.legs)  # found once a frame, for both plans of a hold
+        self._feet_mesh = None
+        self._hold = self.pins.prepare(mesh, self.heading, self._joints) if self.pins.holding() else None
         self._legs = None
         self._cached = (self.frames, mesh, progress)
         return mesh, progress
@@ -333,11 +346,14 @@ class GraphPlayer:
         """Per foot: its vertices in the world now, (f, 3) (held: moved by their offsets, as
         ``_shown`` moves them, without moving the legs)."""
         mesh, _ = self._local()
-        feet = mesh[self._feet_index]
         if self._hold is not None and self._legs is None:
+            if self._feet_mesh is None:  # gathered once a frame (a held frame reads them twice)
+                self._feet_mesh = mesh[self._feet_index]
             local, shares, _ = self._hold
-            shift = np.repeat(shares[:, None] * local, [len(f) for f in self._feet], axis=0)
-            feet = (feet + shift).astype(np.float32)  # what LegRig.move writes into the mesh
+            shift = np.repeat(shares[:, None] * local, self._feet_sizes, axis=0)
+            feet = (self._feet_mesh + shift).astype(np.float32)  # what LegRig.move writes into the mesh
+        else:
+            feet = mesh[self._feet_index]
         return np.split(place(feet, self.position, self.heading), self._feet_split)
 
     def _hold_feet(self, dt):
@@ -352,7 +368,7 @@ class GraphPlayer:
             if self._legs is not None:  # already moved (shown): the motion's legs back
                 mesh[self.pins.rig.index] = self._legs
                 self._legs = None
-            self._hold = self.pins.prepare(mesh, self.heading) if self.pins.holding() else None
+            self._hold = self.pins.prepare(mesh, self.heading, self._joints) if self.pins.holding() else None
 
     def frame(self, events=None, *, placed=True):
         """The frame at the current state (nothing advances); ``placed=False``: its vertices are
