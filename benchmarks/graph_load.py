@@ -11,8 +11,9 @@ ticks of the scheduler's batch size and produced by ``FrameScheduler._produce``;
 each frame's message. It reports the process CPU (``time.process_time``) per frame of the ticks,
 and of the actions (their transition searches) apart, with the frames' node changes.
 
-``--baseline DIR`` runs DIR's server code (another checkout) the same way, in alternating rounds,
-and reports the ratio of the medians. ``--check`` adds a digest of every frame's q16 vertices
+``--baseline DIR`` runs DIR's server code (another checkout) the same way, in alternating rounds
+(given more than once: each tree in turn, the order reversed every other round), and reports the
+ratios of the medians. ``--check`` adds a digest of every frame's q16 vertices
 (outside the timed part's figures: a round with it is not timed) to say whether the two trees
 stream the same bytes.
 
@@ -180,8 +181,10 @@ def tiny_graph(directory):
 def rounds(args, graph_path):
     """``--repeat`` rounds of this tree (and of ``--baseline``'s, alternating); with ``--check``,
     one untimed round of each comparing the frames' digests."""
-    trees = {"this tree": ROOT} if args.baseline is None else {"baseline": Path(args.baseline).resolve(),
-                                                                "this tree": ROOT}
+    trees = {}
+    for k, tree in enumerate(args.baseline or []):
+        trees["baseline" if len(args.baseline) == 1 else f"baseline {k + 1} ({Path(tree).name})"] = Path(tree).resolve()
+    trees["this tree"] = ROOT
     nodes = args.action_nodes.split(",")
     common = (graph_path, args.clients, args.seconds, args.actions, args.action_every, nodes)
     print(f"graph load offline: {args.clients} graph streams of {graph_path.name}, {100 * args.actions:.0f}% acting "
@@ -201,9 +204,9 @@ def rounds(args, graph_path):
               "rounds": records, "us_per_frame_median": summary, "action_us_per_frame_median": actions,
               "load_average": os.getloadavg()}
     line = ", ".join(f"{label} median {summary[label]:.1f} us (+ actions {actions[label]:.1f})" for label in trees)
-    if args.baseline is not None:
-        result["ratio"] = summary["this tree"] / summary["baseline"]
-        line += f": {result['ratio']:.2f}x"
+    if args.baseline:
+        result["ratios"] = {label: summary["this tree"] / summary[label] for label in trees if label != "this tree"}
+        line += ": " + ", ".join(f"{ratio:.2f}x {label}" for label, ratio in result["ratios"].items())
     print(f"  CPU per frame: {line} (load average {os.getloadavg()[0]:.1f})")
     if args.check:
         digests = {label: measure_in(trees[label], *common, check=True)["digest"] for label in trees}
@@ -225,7 +228,8 @@ def main(argv=None):
                                                                          "actions (0.5-1.5 x this)")
     parser.add_argument("--action-nodes", default="walk,stand,jump,reach", help="the nodes actions ask for")
     parser.add_argument("--repeat", type=int, default=3)
-    parser.add_argument("--baseline", type=Path, help="another checkout whose server code is measured too")
+    parser.add_argument("--baseline", type=Path, action="append",
+                        help="another checkout whose server code is measured too (may be given more than once)")
     parser.add_argument("--check", action="store_true", help="also compare the frames' bytes (an untimed round each)")
     parser.add_argument("--tiny", action="store_true", help="smoke run: the tiny graph, 8 clients, 3 s; needs --out")
     parser.add_argument("--out", type=Path, help="JSON results (default benchmarks/results/graph_load.json)")

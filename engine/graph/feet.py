@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from engine.blend.phase import phase_of_sample, phase_samples
-from engine.graph.clock import foot_slide
+from engine.graph.clock import contact_moves
 from engine.graph.legs import LegRig
 
 
@@ -85,6 +85,7 @@ class FootPins:
 
     def __init__(self, rest, feet, ground, *, release=1.0, creep=0.02, cap=0.2, stretch=0.03):
         self.feet, self.ground = list(feet), float(ground)
+        self._bounds = np.cumsum([0] + [len(f) for f in self.feet]).tolist()  # stacked feet: foot k's rows
         self.release, self.creep = float(release), float(creep)
         self.rig = LegRig(rest, self.feet, cap=cap, stretch=stretch)
         self.offsets = np.zeros((len(self.feet), 2))
@@ -129,13 +130,19 @@ class FootPins:
         the offsets (to shift the mesh already shown by).
 
         before, now : list of (f, 3) float arrays   each foot's world vertices in the two frames
+                      (or each one (F, 3) array: the feet's vertices stacked, in ``feet``'s order)
         planted : (feet,) bool   the motions blended plant the foot now (``planted`` >= 0.5)
         blending : bool   a transition is blending (a foot not held yet is held only then)
         """
+        if not isinstance(before, np.ndarray):
+            before = np.concatenate(before)
+        if not isinstance(now, np.ndarray):
+            now = np.concatenate(now)
+        moves = contact_moves(before, now, self.ground, self._bounds)  # the pivots' moves (clock.foot_slide)
         change = np.zeros_like(self.offsets)
-        for k, (a, b) in enumerate(zip(before, now)):
-            _, move = foot_slide(a, b, self.ground)
-            held = bool(self.offsets[k].any())
+        offsets = self.offsets.tolist()
+        for k, move in enumerate(moves):
+            held = offsets[k] != [0.0, 0.0]
             if planted[k] and move is not None and (blending or held):
                 change[k] = -move                            # planted: stay where it was
                 if not blending:                             # after the blend: creep back, slowly

@@ -14,6 +14,7 @@ wait for it to end; one made in a one-shot redirects its return when an edge all
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -107,16 +108,16 @@ class GraphPlayer:
         self.planned = None      # the plan (as request returns it) of the last queued request planned
         self._asked = False      # the pending plan and route serve a request (not a one-shot's return)
         self._buffer = None
+        self._shown_params = None  # (realised parameters, node, {name: value}) of the frames
         self.foot_lock = bool(foot_lock)
         rest = np.asarray(start.space.container["rest"])
         self._feet = foot_vertices(rest)
         self._feet_index = np.concatenate(self._feet)  # both feet in one gather
         self._feet_sizes = [len(f) for f in self._feet]
-        self._feet_split = np.cumsum(self._feet_sizes)[:-1]
         self._ground = float(rest[:, 1].min()) + float(contact)  # below this: on the ground
         self.pins = FootPins(rest, self._feet, self._ground)
         self._cached = None      # (frames, root-local mesh, progress) of the current state
-        self._legs = None        # the legs' vertices of the cached mesh before the feet were held
+        self._moved = False      # the cached mesh's legs have been moved to hold the feet (shown)
         self._hold = None        # FootPins.prepare's answer for the cached mesh (None: no foot held)
         self._joints = None      # the legs' joints found on the cached mesh (LegRig.reach's ``known``)
         self._feet_mesh = None   # the cached mesh's feet, root-local, before the feet were held
@@ -238,12 +239,14 @@ class GraphPlayer:
     def step(self, dt, *, placed=True):
         """Advance ``dt`` seconds; the frame there (``placed=False``: root-local, as ``frame``)."""
         dt = float(dt)
-        if not (dt >= 0 and np.isfinite(dt)):
+        if not (dt >= 0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a non-negative number of seconds, got {dt}")
         events = []
         self._dt = dt
-        if self._locking() and self._feet_frame != self.frames:  # the feet before this step, for the lock
+        held = self.foot_lock and self.pins.holding()  # (the offsets change only where the feet are held)
+        if self._locking(held) and self._feet_frame != self.frames:  # the feet before this step, for the lock
             self._feet_before, self._feet_frame = self._feet_at(), self.frames
+            held = self.pins.holding()  # (a frame blended here plans its hold: it may shorten an offset)
         self._cached = None
         if self.pending is not None and self.blend is None and self.pending[1] <= 0.5 * dt:
             plan = self.pending[0]
@@ -264,9 +267,10 @@ class GraphPlayer:
         self.position, self.heading = move(self.position, self.heading, *step)
         self.time += dt
         self.frames += 1
-        if self.foot_lock and (self.blend is not None or self.pins.holding()):
+        if self.foot_lock and (self.blend is not None or held):
             self._hold_feet(dt)
-        if self._locking():  # only near a blend are the feet held: elsewhere they are not placed
+            held = self.pins.holding()
+        if self._locking(held):  # only near a blend are the feet held: elsewhere they are not placed
             self._feet_before, self._feet_frame = self._feet_at(), self.frames
         if self.blend is not None and self.blend.elapsed >= self.blend.plan.length - 1e-9:
             events += self._enter()
@@ -274,10 +278,10 @@ class GraphPlayer:
             self._plan_return()  # the planned return could not be kept: leave now
         return self.frame(events, placed=placed)
 
-    def _locking(self):
-        """The next step may blend, so the feet's places are needed."""
+    def _locking(self, held):
+        """The next step may blend, so the feet's places are needed (``held``: ``pins.holding()``)."""
         soon = self.pending is not None and self.pending[1] <= 0.5 * self._dt  # a blend may start next step
-        return self.foot_lock and (self.blend is not None or soon or self.pins.holding())
+        return self.foot_lock and (self.blend is not None or soon or held)
 
     def _enter(self):
         plan = self.blend.plan
@@ -330,31 +334,31 @@ class GraphPlayer:
         self._joints = [None] * len(self.pins.rig.legs)  # found once a frame, for both plans of a hold
         self._feet_mesh = None
         self._hold = self.pins.prepare(mesh, self.heading, self._joints) if self.pins.holding() else None
-        self._legs = None
+        self._moved = False
         self._cached = (self.frames, mesh, progress)
         return mesh, progress
 
     def _shown(self):
         """(root-local mesh, progress): ``_local``'s with the held feet's legs moved."""
         mesh, progress = self._local()
-        if self._hold is not None and self._legs is None:
-            self._legs = mesh[self.pins.rig.index]  # the motion's legs, to hold them again after a change
+        if self._hold is not None and not self._moved:
+            self._moved = True
             self.pins.rig.move(mesh, *self._hold)
         return mesh, progress
 
     def _feet_at(self):
-        """Per foot: its vertices in the world now, (f, 3) (held: moved by their offsets, as
-        ``_shown`` moves them, without moving the legs)."""
+        """The feet's vertices in the world now, (F, 3) float32, stacked in ``FootPins.feet``'s
+        order (held: moved by their offsets, as ``_shown`` moves them, without moving the legs)."""
         mesh, _ = self._local()
-        if self._hold is not None and self._legs is None:
+        if self._hold is not None and not self._moved:
             if self._feet_mesh is None:  # gathered once a frame (a held frame reads them twice)
-                self._feet_mesh = mesh[self._feet_index]
+                self._feet_mesh = np.take(mesh, self._feet_index, axis=0)
             local, shares, _ = self._hold
             shift = np.repeat(shares[:, None] * local, self._feet_sizes, axis=0)
             feet = (self._feet_mesh + shift).astype(np.float32)  # what LegRig.move writes into the mesh
         else:
-            feet = mesh[self._feet_index]
-        return np.split(place(feet, self.position, self.heading), self._feet_split)
+            feet = np.take(mesh, self._feet_index, axis=0)
+        return place(feet, self.position, self.heading)
 
     def _hold_feet(self, dt):
         """Hold the feet on the ground where they were, on the mesh just shown (``FootPins``)."""
@@ -363,12 +367,13 @@ class GraphPlayer:
         else:  # after it, a held foot is let go when the motion lifts or swings it
             planted = self.pins.planted(self.node, self.clock.weights, self.clock.phase) >= 0.5
         change = self.pins.update(self._feet_before, self._feet_at(), planted, dt, blending=self.blend is not None)
-        if change.any():  # the frame shown: the motion's legs held at the new offsets
-            mesh = self._local()[0]
-            if self._legs is not None:  # already moved (shown): the motion's legs back
-                mesh[self.pins.rig.index] = self._legs
-                self._legs = None
-            self._hold = self.pins.prepare(mesh, self.heading, self._joints) if self.pins.holding() else None
+        if any(change.ravel().tolist()):  # the frame shown: the motion's legs held at the new offsets
+            if self._moved:  # already shown with its legs moved (not in step: it blends the frame first)
+                self._cached = None
+                self._local()  # blended again: the motion's legs, the hold planned at the new offsets
+            else:
+                mesh = self._local()[0]
+                self._hold = self.pins.prepare(mesh, self.heading, self._joints) if self.pins.holding() else None
 
     def frame(self, events=None, *, placed=True):
         """The frame at the current state (nothing advances); ``placed=False``: its vertices are
@@ -379,7 +384,11 @@ class GraphPlayer:
             target = self.blend.plan.target
         elif self.pending is not None:
             target = self.pending[0].target
-        params = dict(zip(self.node.parameters, np.asarray(self._realised, dtype=float).tolist()))
+        shown = self._shown_params
+        if shown is None or shown[0] is not self._realised or shown[1] is not self.node:  # once per change
+            names = dict(zip(self.node.parameters, np.asarray(self._realised, dtype=float).tolist()))
+            shown = self._shown_params = (self._realised, self.node, names)
+        params = dict(shown[2])
         return GraphFrame(time=self.time, node=self.node.name, phase=self.clock.phase, target=target,
                           progress=progress, params=params, root_position=self.position.copy(),
                           heading=float(self.heading),

@@ -165,3 +165,30 @@ def test_the_root_reference_is_the_largest_step_at_any_phase(graph):
     _, root = own_motion_step(graph, "walk", graph.node("walk").solve({"speed": 1.6})[0], 30.0)
     _, coarse = own_motion_step(graph, "walk", graph.node("walk").solve({"speed": 1.6})[0], 30.0, offsets=1)
     assert root >= coarse > 1.5 / 30 * 0.8
+
+
+def test_both_feet_contacts_at_once_are_foot_slides_pivots(rest):
+    """clock.contact_moves over the stacked feet gives each foot's foot_slide move, bit for bit
+    (None where the foot is off the ground), over random frames with feet up, down and half down."""
+    from engine.graph.clock import contact_moves, foot_slide
+
+    feet = foot_vertices(rest)
+    ground = float(rest[:, 1].min()) + 0.01
+    bounds = np.cumsum([0] + [len(f) for f in feet]).tolist()
+    rng = np.random.default_rng(3)
+    seen = set()
+    for _ in range(300):
+        before = (rest[np.concatenate(feet)] + rng.normal(0, 0.01, (bounds[-1], 3))).astype(np.float32)
+        after = (before + rng.normal(0, 0.01, before.shape)).astype(np.float32)
+        for k in range(len(feet)):
+            lift = rng.choice([0.0, 0.2])  # a foot in the air
+            before[bounds[k]:bounds[k + 1], 1] += lift
+            after[bounds[k]:bounds[k + 1], 1] += lift
+        moves = contact_moves(before, after, ground, bounds)
+        for k, move in enumerate(moves):
+            _, expected = foot_slide(before[bounds[k]:bounds[k + 1]], after[bounds[k]:bounds[k + 1]], ground)
+            assert (move is None) == (expected is None)
+            if move is not None:
+                assert move.dtype == expected.dtype and move.tobytes() == expected.tobytes()
+            seen.add(move is None)
+    assert seen == {True, False}
