@@ -43,15 +43,18 @@ def compare_code(args, data, name, n_vertices, params, load_round, stop):
     for label in trees:
         per_frame = [r["server_cpu_us_per_frame"] for r in rounds[label]]
         delivered = [r["delivered_mean"] for r in rounds[label]]
+        system = [r["server_system_us_per_frame"] for r in rounds[label]]
         summary[label] = {"tree": str(trees[label]), "server_cpu_us_per_frame": per_frame,
                           "server_cpu_us_per_frame_median": statistics.median(per_frame),
+                          "server_system_us_per_frame_median": statistics.median(system),
                           "delivered_mean": delivered, "delivered_mean_median": statistics.median(delivered)}
     before, after = (summary[label]["server_cpu_us_per_frame_median"] for label in trees)
     print(f"\n{args.clients} clients, {args.repeat} rounds each, alternating:")
     for label in trees:
         s = summary[label]
         print(f"  {label}: server CPU per delivered frame {', '.join(f'{x:.1f}' for x in s['server_cpu_us_per_frame'])} us "
-              f"(median {s['server_cpu_us_per_frame_median']:.1f}); delivered "
+              f"(median {s['server_cpu_us_per_frame_median']:.1f}, of which kernel "
+              f"{s['server_system_us_per_frame_median']:.1f}); delivered "
               f"{', '.join(f'{100 * x:.1f}%' for x in s['delivered_mean'])} (median {100 * s['delivered_mean_median']:.1f}%)")
     print(f"  this tree / baseline: {after / before:.2f}x the CPU per delivered frame")
     return {"clients": args.clients, "fps": args.fps, "space": name, "n_vertices": n_vertices,

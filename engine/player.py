@@ -57,15 +57,21 @@ def _critically_damped(x, v, target, dt, tau):
     player steps every frame)."""
     if tau <= 0:
         return target.copy(), np.zeros_like(v)
+    xs, vs = _critically_damped_lists(x.tolist(), v.tolist(), target.tolist(), dt, tau)
+    return np.array(xs), np.array(vs)
+
+
+def _critically_damped_lists(x, v, target, dt, tau):
+    """``_critically_damped`` on lists of floats (tau > 0), returning lists: the player's step."""
     w = 1.0 / tau
     decay = math.exp(-w * dt)
     xs, vs = [], []
-    for xi, vi, ti in zip(x.tolist(), v.tolist(), target.tolist()):
+    for xi, vi, ti in zip(x, v, target):
         y = xi - ti
         c = vi + w * y
         xs.append(ti + (y + c * dt) * decay)
         vs.append((vi - w * c * dt) * decay)
-    return np.array(xs), np.array(vs)
+    return xs, vs
 
 
 class Player:
@@ -214,6 +220,13 @@ class Player:
         return bool(self._last_request.clamped)
 
     @property
+    def state_key(self):
+        """A tuple of objects that stay the same (``is``) while ``requested``, ``realised``,
+        ``weights``, ``clamped`` and ``mode`` do (they are replaced, never changed in place): a
+        caller deriving something from those every frame can keep it while they do."""
+        return self._current, self._solution, self._last_request, self.mode
+
+    @property
     def settled(self):
         """The parameters have reached their target (the weights stay fixed until a new request)."""
         return self._settled
@@ -229,14 +242,20 @@ class Player:
         if not (dt >= 0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a non-negative number of seconds, got {dt}")
         if not self._settled:
-            self._current, self._velocity = _critically_damped(self._current, self._velocity, self._target, dt,
-                                                               self.smoothing)
+            target = self._target.tolist()
+            if self.smoothing <= 0:  # (as _critically_damped steps)
+                xs, vs = target, [0.0] * len(target)
+            else:
+                xs, vs = _critically_damped_lists(self._current.tolist(), self._velocity.tolist(), target, dt,
+                                                  self.smoothing)
             # settled to a millionth of each range: stop moving (the weights then stay fixed,
             # which lets the blender use its phase tables)
             if all(abs(x - t) <= 1e-6 * r and abs(v) * dt <= 1e-6 * r for x, t, v, r in
-                   zip(self._current.tolist(), self._target.tolist(), self._velocity.tolist(), self._ranges)):
+                   zip(xs, target, vs, self._ranges)):
                 self._current, self._velocity = self._target.copy(), np.zeros_like(self._velocity)
                 self._settled = True
+            else:
+                self._current, self._velocity = np.array(xs), np.array(vs)
             self._solution = self._solve(self._current)
         w = self._solution.weights
         if not self.finished and dt > 0:
@@ -262,8 +281,9 @@ class Player:
             heading_middle = self.heading + 0.5 * t * d_phase
             c, s = math.cos(heading_middle), math.sin(heading_middle)  # rot_y(heading_middle) @ step
             position = self.position
-            position[0] += (c * sx + s * sz) * d_phase
-            position[2] += (c * sz - s * sx) * d_phase
+            x, _, z = position.tolist()  # (float64 sums: the same numbers as adding in place)
+            position[0] = x + (c * sx + s * sz) * d_phase
+            position[2] = z + (c * sz - s * sx) * d_phase
             self.heading += t * d_phase
             self.phase += d_phase
             if self.space.cyclic or self.loop:

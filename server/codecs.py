@@ -46,11 +46,13 @@ class Quantiser:
         np.clip(q, np.float32(0.0), np.float32(65535.0), out=q)
         return q.astype("<u2")
 
-    def encode_rows(self, R):
+    def encode_rows(self, R, overwrite=False):
         """(K, 3 n) little-endian uint16 codes of K frames' flat vertices ``R`` (K, 3 n) float32:
         each row the same numbers as ``encode_array`` of it (the same float32 steps, in one pass
-        over all rows)."""
-        q = np.multiply(np.asarray(R, dtype=np.float32), self._scale)
+        over all rows). ``overwrite``: ``R`` (a float32 array) is the scratch of those steps (its
+        values are lost; no new float array)."""
+        R = np.asarray(R, dtype=np.float32)
+        q = np.multiply(R, self._scale, out=R if overwrite else None)
         np.add(q, self._offset, out=q)
         np.clip(q, np.float32(0.0), np.float32(65535.0), out=q)
         return q.astype("<u2")

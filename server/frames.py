@@ -8,11 +8,18 @@ headers are built by hand, and the arrays stay where they are: ``frame_parts`` r
 as a list of buffers, which ``TransportGauge.write_message`` (server/transport.py) hands to the
 transport behind the WebSocket frame header in one gathered write, without joining them. The bytes are exactly ``msgpack.packb`` of the whole map in
 the same key order (a test checks).
+
+A streamed frame of a space (no pull, heatmap or graph fields) has a fixed layout: ``StreamedFrame``
+packs it from a few ``struct`` calls around constant byte strings, with the fields that change
+only with the player's parameters (mode, requested, realised, clamped, weights) packed once per
+change (``StreamedFrame.middle``); its bytes are those of ``frame_parts`` for the same values (a
+test checks).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import struct
 
 import msgpack
 
@@ -56,3 +63,53 @@ def frame_parts(small, bulk):
 def joined(parts):
     """The body's bytes in one piece (for senders that take bytes)."""
     return b"".join(parts)
+
+
+def _pair(name, value):
+    return msgpack.packb(name) + msgpack.packb(value)
+
+
+_UINT = [bytes([n]) for n in range(128)]  # positive fixints: msgpack's form of 0..127
+# the map of a streamed frame: 22 small fields and the vertices, in Frame's order; every Python
+# float packs as b"\xcb" and its big-endian float64
+_HEAD = b"\xde\x00\x17" + _pair("type", "frame") + _KEYS["seq"]
+_ACK, _TIME, _ROOT, _DROPPED = _KEYS["ack"], _KEYS["time"] + b"\xcb", _KEYS["root"] + b"\x93\xcb", _KEYS["dropped"]
+_PHASE, _HEADING, _F = _KEYS["phase"] + b"\xcb", _KEYS["heading"] + b"\xcb", b"\xcb"
+_TIME_PHASE = struct.Struct(f">d{len(_PHASE)}sd").pack            # time, _PHASE, phase
+_ROOT_HEADING = struct.Struct(f">d1sd1sd{len(_HEADING)}sd").pack  # x, _F, y, _F, z, _HEADING, heading
+_SENT_AT = struct.Struct(">d").pack
+_FINISHED = {True: _pair("finished", True) + _KEYS["sent_at"] + b"\xcb",
+             False: _pair("finished", False) + _KEYS["sent_at"] + b"\xcb"}
+_NONES_VERTICES = b"".join(_pair(name, None) for name in ("pull_id", "error_max", "error_seq", "node", "target",
+                                                           "progress", "error_um")) + _KEYS["vertices"]
+
+
+def _uint(n):
+    return _UINT[n] if 0 <= n < 128 else _packb(n)
+
+
+class StreamedFrame:
+    """The wire bytes of a streamed frame of a space: what ``frame_parts`` gives for a ``small``
+    map in Frame's order with ``pull_id``, ``error_max``, ``error_seq``, ``node``, ``target``,
+    ``progress`` and ``error_um`` nil and one bulk field, ``vertices`` (the class's methods)."""
+
+    @staticmethod
+    def middle(mode, requested, realised, clamped, weights):
+        """The packed fields from ``mode`` to ``weights`` (a str, three lists of floats, a bool):
+        the caller keeps them while they stay the same."""
+        packed = _packb({"mode": mode, "requested": requested, "realised": realised, "clamped": clamped,
+                         "weights": weights})
+        return packed[1:]  # without the map's own header (one byte: five entries)
+
+    @staticmethod
+    def parts(seq, ack, time_, phase, middle, root, heading, dropped, finished, sent_at, vertices):
+        """The frame's body as buffers (``frame_parts``' form: the small fields in one piece, then
+        the vertices, not copied). ``seq``, ``ack``, ``dropped``: non-negative ints; ``time_``,
+        ``phase``, ``heading``, ``sent_at``: floats; ``root``: three floats; ``finished``: bool;
+        ``middle``: from ``middle``; ``vertices``: bytes or a C-contiguous array."""
+        x, y, z = root
+        view = memoryview(vertices).cast("B")
+        return [b"".join((_HEAD, _uint(seq), _ACK, _uint(ack), _TIME, _TIME_PHASE(time_, _PHASE, phase), middle,
+                          _ROOT, _ROOT_HEADING(x, _F, y, _F, z, _HEADING, heading), _DROPPED, _uint(dropped),
+                          _FINISHED[finished], _SENT_AT(sent_at), _NONES_VERTICES, _bin_header(view.nbytes))),
+                view]

@@ -194,7 +194,10 @@ class FrameScheduler:
             else:
                 session.payload = f32[k]  # its bytes are the frame's vertices
         for quantiser, ks in by_quantiser.values():
-            codes = quantiser.encode_rows(rows if len(ks) == len(members) else rows[ks])
+            if len(ks) == len(members):  # every row q16 with this quantiser: the rows are its scratch
+                codes = quantiser.encode_rows(rows, overwrite=True)
+            else:
+                codes = quantiser.encode_rows(rows[ks])
             for k, row in zip(ks, codes):
                 members[k][0].payload = row
         self.batched_frames += len(members)
@@ -219,9 +222,15 @@ class FrameScheduler:
                 session.fail(exc)
                 continue
             if table is not None:
-                groups.setdefault(id(table), (table, codec, []))[2].append(session)
+                group = groups.get(id(table))
+                if group is None:
+                    group = groups[id(table)] = (table, codec, [])
+                group[2].append(session)
             elif source is not None:
-                moving.setdefault(id(source[0]), (source[0], []))[1].append((session, source[1], source[2]))
+                group = moving.get(id(source[0]))
+                if group is None:
+                    group = moving[id(source[0])] = (source[0], [])
+                group[1].append((session, source[1], source[2]))
         for table, codec, members in groups.values():
             try:
                 rows = table.rows_at([m.player.phase for m in members])

@@ -98,6 +98,7 @@ def check_stream_load(result, stdout):
     assert result["latency_ms"]["count"] > 0 and positive(result["latency_ms"]["median"])
     assert non_negative(result["server_cpu_cores"]) and positive(result["server_rss_mb"]["start"])
     assert non_negative(result["server_cpu_us_per_frame"]) and "server CPU per delivered frame" in stdout
+    assert 0 <= result["server_system_us_per_frame"] <= result["server_cpu_us_per_frame"] and "in the kernel" in stdout
     assert result["heatmap_clients"] == 1 and result["delivered_heatmap_min"] > 0.25 and "heatmap on" in stdout
     assert result["server_counters"]["frames"] > 0
     assert "frames delivered: mean" in stdout and "params -> first frame" in stdout
@@ -311,6 +312,7 @@ def test_stream_load_compares_a_baseline_tree_side_by_side(tmp_path):
     for label, summary in comparison["summary"].items():
         assert len(comparison["rounds"][label]) == 2 and all(r["connected"] == 4 for r in comparison["rounds"][label])
         assert positive(summary["server_cpu_us_per_frame_median"]) and positive(summary["delivered_mean_median"])
+        assert 0 <= summary["server_system_us_per_frame_median"] <= summary["server_cpu_us_per_frame_median"]
     assert positive(comparison["ratio_cpu_per_frame"]) and "this tree / baseline" in run.stdout
     assert not list(cwd.iterdir())
 

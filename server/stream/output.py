@@ -19,7 +19,7 @@ import numpy as np
 from starlette.websockets import WebSocketDisconnect
 
 from server import protocol as P
-from server.frames import frame_parts, joined
+from server.frames import StreamedFrame, frame_parts, joined
 from server.scheduler import URGENT, send_now
 
 log = logging.getLogger("morphspace.stream")
@@ -140,11 +140,14 @@ class FrameOutput:
                                                             player.phase, self.seq + 1)
             if distances is not None:
                 error_um, error_max, error_seq = distances
-        parts = self._frame_parts(time_=player.time, phase=player.phase, mode=player.mode,
-                                  requested=player.requested, realised=player.realised, clamped=player.clamped,
-                                  weights=player.weights, root=player.position, heading=player.heading,
-                                  vertices=payload, finished=player.finished, error_um=error_um, error_max=error_max,
-                                  error_seq=error_seq)
+        if self.heatmap or self.graph is not None:
+            parts = self._frame_parts(time_=player.time, phase=player.phase, mode=player.mode,
+                                      requested=player.requested, realised=player.realised, clamped=player.clamped,
+                                      weights=player.weights, root=player.position, heading=player.heading,
+                                      vertices=payload, finished=player.finished, error_um=error_um,
+                                      error_max=error_max, error_seq=error_seq)
+        else:
+            parts = self._streamed_parts(player, payload)
         try:
             if self.gauge is not None:  # straight to the transport, one copy (server/transport.py)
                 sent = self.gauge.write_message(parts)
@@ -220,6 +223,23 @@ class FrameOutput:
         if self.codec == "q16":
             return self.quantiser.encode_array(vertices)
         return P.encode_vertices(vertices, "f32", None)  # a copy: ``vertices`` may be a blender's scratch
+
+    def _streamed_parts(self, player, vertices):
+        """``_frame_parts`` of a streamed frame of a space without the heatmap (the same bytes):
+        the fields that change only with the parameters are packed once per change."""
+        self.seq += 1
+        self.stats.frames += 1
+        key, middle = self.middle
+        state = player.state_key
+        if key is None or key[0] is not state[0] or key[1] is not state[1] or key[2] is not state[2] \
+                or key[3] is not state[3]:
+            middle = StreamedFrame.middle(player.mode, np.asarray(player.requested, dtype=float).tolist(),
+                                          np.asarray(player.realised, dtype=float).tolist(), bool(player.clamped),
+                                          np.asarray(player.weights, dtype=float).tolist())
+            self.middle = state, middle
+        return StreamedFrame.parts(self.seq, self.ack, float(player.time), float(player.phase), middle,
+                                   player.position.tolist(), float(player.heading), self.dropped,
+                                   bool(player.finished), time.time(), vertices)
 
     def _frame_parts(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
                      vertices, finished, pull_id=None, error_um=None, error_max=None, error_seq=None):

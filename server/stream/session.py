@@ -83,6 +83,7 @@ class StreamSession(FrameOutput):
         self.ready = False      # the topology has gone out: frames may follow
         self.version = 0        # the scheduler's bookkeeping
         self.payload = None     # encoded vertices the scheduler prepared for the next frame
+        self.middle = (None, b"")  # (player.state_key, its packed fields): FrameOutput._streamed_parts
         self.table_missed = False  # frame_source found no phase table for this frame
         self.heatmap_job = None   # server/heatmap/: the id of this connection's distances being computed
         self.heatmap_last = None  # and the newest finished: (error_um, error_max, error_seq)

@@ -134,3 +134,21 @@ def test_bad_requests_are_clear_errors(gait_space):
         player.set_mode("cubic")
     player.set_mode("nonlinear")
     assert player.step(1 / 60).vertices.shape == (gait_space.n_vertices, 3)
+
+
+def test_state_key_stays_the_same_objects_exactly_while_the_frame_fields_do(gait_space):
+    player = Player(gait_space, smoothing=0.2)
+    player.advance(0.1)
+    key = player.state_key
+    for _ in range(5):  # settled: the same objects
+        player.advance(1 / 60)
+        assert all(a is b for a, b in zip(key, player.state_key))
+    fields = (player.requested, player.realised, player.weights, player.clamped, player.mode)
+    player.set_params({"speed": 2.0})
+    changed = player.state_key
+    assert any(a is not b for a, b in zip(key, changed))
+    player.advance(1 / 60)  # moving: new objects every step, and new values
+    assert any(a is not b for a, b in zip(changed, player.state_key))
+    assert not np.array_equal(player.requested, fields[0])
+    player.set_mode("linear")
+    assert player.state_key[3] == "linear"

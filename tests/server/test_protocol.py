@@ -194,6 +194,27 @@ def test_frame_parts_are_the_bytes_msgpack_packs_for_the_whole_map(n_bytes):
     assert isinstance(decoded, P.Frame) and decoded.vertices == vertices.tobytes() and decoded.seq == 7
 
 
+@pytest.mark.parametrize("seq, ack, dropped, finished", [(1, 0, 0, False), (127, 128, 255, True),
+                                                         (65536, 2**32, 300, False), (2**40, 5, 2**31, True)])
+def test_a_streamed_frame_is_the_bytes_frame_parts_gives(seq, ack, dropped, finished):
+    from server.frames import StreamedFrame, frame_parts, joined
+
+    rng = np.random.default_rng(seq % 1000)
+    requested, realised, weights = rng.normal(size=2).tolist(), rng.normal(size=2).tolist(), rng.random(4).tolist()
+    time_, phase, heading, sent_at = 1e3 * rng.random(), float(rng.random()), -2.5 * rng.random(), 1.7e9 + rng.random()
+    root = [float(rng.normal()), -0.0, float(rng.normal())]
+    vertices = rng.integers(0, 65535, size=9000).astype("<u2")
+    small = {"type": "frame", "seq": seq, "ack": ack, "time": time_, "phase": phase, "mode": "linear",
+             "requested": requested, "realised": realised, "clamped": not finished, "weights": weights, "root": root,
+             "heading": heading, "dropped": dropped, "finished": finished, "sent_at": sent_at, "pull_id": None,
+             "error_max": None, "error_seq": None, "node": None, "target": None, "progress": None, "error_um": None}
+    middle = StreamedFrame.middle("linear", requested, realised, not finished, weights)
+    fast = joined(StreamedFrame.parts(seq, ack, time_, phase, middle, root, heading, dropped, finished, sent_at,
+                                      vertices))
+    assert fast == joined(frame_parts(small, [("vertices", vertices)]))
+    assert fast == msgpack.packb({**small, "vertices": vertices.tobytes()})  # key order and all
+
+
 @pytest.mark.parametrize("length", [0, 125, 126, 65535, 65536, 200000])
 def test_the_websocket_header_is_rfc_6455s(length):
     from websockets.frames import Frame, Opcode

@@ -138,3 +138,50 @@ def test_a_batch_that_fails_to_blend_falls_back_to_one_by_one(built_spaces, monk
         assert all(len(s.gauge.messages) == 1 and not s.closed for s in sessions)
 
     run(main)
+
+
+class RawRecorder(Recorder):
+    """Keeps each message's wire bytes."""
+
+    def write_message(self, parts):
+        self.messages.append(joined(parts))
+        return True
+
+
+def test_streamed_frames_are_the_whole_maps_msgpack_packing(built_spaces):
+    """A streamed frame is packed from cached pieces (server.frames.StreamedFrame): its bytes must
+    be msgpack's packing of the whole map in Frame's field order, with the player's values, both
+    while the parameters move and once they have settled (the cached pieces kept)."""
+    registry = SpaceRegistry(built_spaces)
+    space = registry.get("speed")
+    order = ["type", "seq", "ack", "time", "phase", "mode", "requested", "realised", "clamped", "weights", "root",
+             "heading", "dropped", "finished", "sent_at", "pull_id", "error_max", "error_seq", "node", "target",
+             "progress", "error_um", "vertices"]
+
+    async def main():
+        scheduler = FrameScheduler()
+        sessions = _sessions(registry, scheduler, space)
+        for session in sessions:
+            session.ws = Socket(RawRecorder())
+            session.gauge = session.ws.scope["extensions"][GAUGE]
+            session.ack, session.dropped = 3, 200
+            session.player.smoothing = 0.05  # settled within the run
+        settled = 0
+        for step in range(60):
+            now = 100.0 + step / 60.0
+            for session in sessions:
+                session.next_due = now
+            scheduler._produce(list(sessions), now)
+            for session in sessions:
+                raw = session.gauge.messages[-1]
+                message = msgpack.unpackb(raw)
+                assert list(message) == order and msgpack.packb(message) == raw
+                player = session.player
+                assert message["seq"] == step + 1 and message["ack"] == 3 and message["dropped"] == 200
+                assert message["weights"] == player.weights.tolist() and message["requested"] == player.requested.tolist()
+                assert message["realised"] == player.realised.tolist() and message["phase"] == player.phase
+                assert message["root"] == player.position.tolist() and message["mode"] == player.mode
+                settled += player.settled
+        assert settled > 0 and scheduler.table_frames > 0  # settled ones too (their pieces kept)
+
+    run(main)
