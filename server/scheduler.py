@@ -233,11 +233,8 @@ class FrameScheduler:
                 group[1].append((session, source[1], source[2]))
         for table, codec, members in groups.values():
             try:
-                rows = table.rows_at([m.player.phase for m in members])
-                if codec == "q16":
-                    rows = rows.astype("<u2")  # the table is in codec units, + 0.5: truncation rounds
-                else:
-                    rows = rows.astype("<f4", copy=False)  # (no copy on little-endian machines)
+                # a q16 table is in codec units, + 0.5: truncating to uint16 rounds
+                rows = table.rows_cast([m.player.phase for m in members], "<u2" if codec == "q16" else "<f4")
             except Exception:  # noqa: BLE001 - its members blend one by one below
                 log.exception("stream: gathering %d frames from a phase table failed", len(members))
                 continue

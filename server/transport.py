@@ -84,12 +84,20 @@ class TransportGauge:
         # one gathered write (writev), no copy here: the transport keeps a reference to what the
         # kernel does not take at once, so the parts must not change afterwards (they are new
         # buffers each frame: server/frames.py)
-        self._transport.writelines([websocket_header(length), *parts])
+        header = _HEADERS.get(length)
+        if header is None:
+            header = websocket_header(length)
+            if len(_HEADERS) < 256:
+                _HEADERS[length] = header
+        self._transport.writelines([header, *parts])
         return True
 
     def abort(self):
         """Drop the TCP connection at once, unsent bytes and all (a client that reads nothing)."""
         self._transport.abort()
+
+
+_HEADERS = {}  # length -> websocket_header(length), for the few lengths a server's frames have
 
 
 def websocket_header(length):

@@ -93,10 +93,13 @@ class ManyBlender:
     def _hybrid_row(self, lam, phase, out):
         p0, p1, a = phase_samples(phase, self.n_phases, self.cyclic)
         first = True
+        made = self._rows
         for g, r in zip(lam, self._cells[self._leaf(lam)]):
             if g <= 0.0:
                 continue
-            rows = self.reference_rows(r)
+            rows = made[r]
+            if rows is None:
+                rows = self.reference_rows(r)
             for p, c in ((p0, g * (1.0 - a)), (p1, g * a)):
                 if c == 0.0:
                     continue

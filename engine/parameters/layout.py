@@ -68,9 +68,17 @@ class Layout:
         Plain Python on the one or two coordinates: the player asks every frame."""
         u = [min(max(float(x), 0.0), 1.0) for x in (u if isinstance(u, list) else np.atleast_1d(u).tolist())]
         w = [0.0] * self.n_sources
-        if self.kind == "chain":
+        kind, chain = self.kind, self.chain
+        if kind == "fan" and len(chain) == 2:  # _chain_weights of a two-source chain, inline
+            d = 2.0 * u[1] - 1.0
+            share, a = 1.0 - abs(d), u[0]
+            w[chain[0]] += share * (1.0 - a)
+            w[chain[1]] += share * a
+            w[self.left] += max(d, 0.0)
+            w[self.right] += max(-d, 0.0)
+        elif kind == "chain":
             self._chain_weights(u[0], self.chain, w)
-        elif self.kind == "grid":
+        elif kind == "grid":
             a, b = u
             for corner, coefficient in zip(self.corners, ((1 - a) * (1 - b), a * (1 - b), (1 - a) * b, a * b)):
                 w[corner] += coefficient

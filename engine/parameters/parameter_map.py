@@ -235,8 +235,9 @@ class ParameterMap:
         if p.shape != (len(self.names),):
             raise ValueError(f"expected {len(self.names)} parameters ({', '.join(self.names)}), got {p.shape}")
         p_list = p.tolist()
-        if not all(math.isfinite(x) for x in p_list):
-            raise ValueError(f"parameters must be finite, got {p_list}")
+        for x in p_list:
+            if not math.isfinite(x):
+                raise ValueError(f"parameters must be finite, got {p_list}")
         if start is None:
             distance = np.linalg.norm((self._dense_p - p) / self.ranges, axis=1)
             u_list = self._dense_u[int(np.argmin(distance))].astype(float).tolist()
@@ -246,7 +247,11 @@ class ParameterMap:
         u_list, realised_list = self._gauss_newton(p_list, u_list)
         u = np.array(u_list)
         realised = np.array(realised_list)
-        clamped = any(abs(r - q) > tolerance * s for r, q, s in zip(realised_list, p_list, self._ranges_list))
+        clamped = False
+        for r, q, s in zip(realised_list, p_list, self._ranges_list):
+            if abs(r - q) > tolerance * s:
+                clamped = True
+                break
         message = ""
         if clamped:
             parts = [f"{n} {q:g} {unit} -> {r:.3g}" for n, q, r, unit in zip(self.names, p, realised, self.units)]

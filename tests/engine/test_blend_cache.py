@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from engine.blend import LinearBlender
-from engine.blend.cache import PhaseTableBlender
+from engine.blend.cache import PhaseTable, PhaseTableBlender
 
 
 @pytest.mark.parametrize("cyclic", [True, False])
@@ -72,3 +72,13 @@ def test_tables_in_use_are_not_replaced_so_many_viewers_never_thrash():
     assert blender.builds == 2               # the first two got tables, the others blend directly
     now[0] += 2.0                            # everyone idle: a new weight vector replaces the oldest
     assert blender.lookup(np.array([0.5, 0.5])) is not None and blender.builds == 3
+
+
+@pytest.mark.parametrize("K", [1, 8, 9, 20])
+def test_rows_cast_is_rows_at_cast_exactly(K):
+    rng = np.random.default_rng(K)
+    table = PhaseTable((rng.random((12, 50, 3)) * 60000).astype(np.float32), cyclic=True)
+    phases = rng.random(K).tolist()
+    for dtype in ("<u2", "<f4"):
+        cast = table.rows_cast(phases, dtype, chunk=8)
+        assert cast.dtype == np.dtype(dtype) and np.array_equal(cast, table.rows_at(phases).astype(dtype))

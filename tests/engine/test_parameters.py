@@ -118,3 +118,18 @@ def test_root_after_stops_a_one_shot_clip_at_its_end():
     root, heading, phase = track.after(np.array([1.0]), 5.0)
     assert phase == 1.0 and heading == 0.0
     np.testing.assert_allclose(root, [0.0, 0.0, 1.5], atol=1e-12)
+
+
+def test_fan_weights_are_the_chain_share_and_the_turns_exactly():
+    """A two-source fan's weights (computed inline) are _chain_weights' of the speed chain scaled
+    by the share left from the turn, plus the turn: the same floats, bit for bit."""
+    layout = Layout("fan", 4, chain=(1, 0), left=3, right=2)
+    rng = np.random.default_rng(5)
+    for u in [[0.0, 0.0], [1.0, 1.0], [0.5, 0.5], [-0.2, 1.3]] + rng.random((200, 2)).tolist():
+        expected = [0.0] * 4
+        d = 2.0 * min(max(u[1], 0.0), 1.0) - 1.0
+        layout._chain_weights(min(max(u[0], 0.0), 1.0), layout.chain, expected, 1.0 - abs(d))
+        expected[3] += max(d, 0.0)
+        expected[2] += max(-d, 0.0)
+        assert layout.weights(u).tolist() == expected
+        assert layout.weights(np.array(u)).tolist() == expected
