@@ -65,7 +65,7 @@ def chain(meshes, truth, faces, root, count, momentum, options):
 
     V, F, C = meshes[root]
     V, F, kept = main_components(V, F)
-    colours = C is not None and colours_carry_texture([C[kept]])
+    colours = C is not None and colours_carry_texture(V, F)
     aligner = PairwiseAligner(V, F, C[kept] if colours else None, options=options)
     size = model_size(truth[root])
     previous, pose, errors = None, aligner.V_tet, []

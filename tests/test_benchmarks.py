@@ -175,6 +175,18 @@ def check_align_speed(record, stdout):
     assert "TARGET alignment <= 3 CPU s/frame at 10k: not judged (1,0" in stdout
 
 
+def check_align_breakdown(record, stdout):
+    assert record["dataset"] == "tiny" and record["frames"] == 6 and record["method"] == "tree"
+    assert record["options"]["patches"] == 8 and positive(record["cpu_seconds_per_frame"])
+    assert 0 < record["mean_pct"] <= record["p95_pct"] < 100
+    (part,) = record["per_part"].values()  # no studio parts: one, all of the vertices and all of the tail
+    assert part["share_of_vertices"] == 1.0 and part["share_of_tail"] == 1.0 and part["p95_without_pct"] is None
+    assert sum(row["frames"] for row in record["per_depth"]) == 5 and len(record["worst_frames"]) == 5
+    for calibration in record["confidence"].values():
+        assert calibration["flagged_bad"] <= min(calibration["flagged"], calibration["bad"])
+    assert "of the tail" in stdout and "flag vs frames over 3pct" in stdout and non_negative(record["load_average_before"][0])
+
+
 def check_align_momentum(record, stdout):
     assert record["dataset"] == "tiny" and record["root"] == 2 and record["frames"] == 4
     assert [run["momentum"] for run in record["runs"]] == [0.0, 0.5, 1.0]
@@ -220,6 +232,7 @@ def check_godot_client(result, stdout):
 
 
 CHECKS = {
+    "align_breakdown.py": check_align_breakdown,
     "align_momentum.py": check_align_momentum,
     "align_speed.py": check_align_speed,
     "blend_scaling.py": check_blend_scaling,

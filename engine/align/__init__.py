@@ -16,6 +16,8 @@ One module per step, in pipeline order:
 ``captures``         ``align_captures(meshes, lengths)``             all of the above, end to end
 ``facing``           ``body_facing(V)``: the way a body's front faces (feet ahead of ankles)
 ``evaluation``       ``score_alignment``, the pattern pictures (fig. 2)
+``breakdown``        ``error_breakdown``: where the error lies (parts, frames, tree depth) and
+                     whether the confidence's flag finds the bad frames
 """
 
 from engine.align.captures import CaptureAlignment, align_captures

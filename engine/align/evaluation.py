@@ -107,6 +107,26 @@ def score_alignment(aligned, root, root_vertices, truth, template_faces, model_s
     return errors, error_summary(errors[others] if others.any() else errors, model_size)
 
 
+def part_labels(root_vertices, truth_root, template_faces, part_counts):
+    """The template part (0, 1, ...) each root vertex lies on.
+
+    Parameters
+    ----------
+    root_vertices : (n, 3) float array   the root mesh as aligned
+    truth_root : (m, 3) float array      the template at the root frame
+    template_faces : (l, 3) int array
+    part_counts : dict name -> int        the template's vertices part by part, in order
+
+    Returns
+    -------
+    labels : (n,) int array   index into ``list(part_counts)``
+    """
+    faces, bary, _ = surface_coordinates(root_vertices, truth_root, template_faces)
+    nearest = np.asarray(template_faces)[faces, np.argmax(bary, axis=1)]
+    bounds = np.cumsum([0] + [int(c) for c in part_counts.values()])
+    return np.searchsorted(bounds, nearest, side="right") - 1
+
+
 def part_errors(errors, root, root_vertices, truth, template_faces, part_counts, model_size):
     """Error summaries per part of the body (the body, a skirt, each sleeve ...).
 
@@ -123,10 +143,7 @@ def part_errors(errors, root, root_vertices, truth, template_faces, part_counts,
     dict name -> dict   ``error_summary`` of the root vertices that lie on that part (over all
                         frames but the root) and ``vertices``, how many there are
     """
-    faces, bary, _ = surface_coordinates(root_vertices, truth[root], template_faces)
-    nearest = template_faces[faces, np.argmax(bary, axis=1)]
-    bounds = np.cumsum([0] + [int(c) for c in part_counts.values()])
-    label = np.searchsorted(bounds, nearest, side="right") - 1
+    label = part_labels(root_vertices, truth[root], template_faces, part_counts)
     others = np.ones(len(errors), dtype=bool)
     others[root] = False
     out = {}
@@ -277,6 +294,7 @@ def pattern_sheet(vertices, faces, root, lengths, names=None, *, count=6, title=
     return pattern_render(frames, faces, colors, columns=columns, size=size, title=title, facing=facing)
 
 
-__all__ = ["correspondence_errors", "score_alignment", "error_summary", "part_errors", "pattern_colors", "pattern_frames",
+__all__ = ["correspondence_errors", "score_alignment", "error_summary", "part_errors", "part_labels", "pattern_colors",
+           "pattern_frames",
            "pattern_render", "pattern_sheet",
            "surface_coordinates", "true_positions"]

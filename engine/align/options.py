@@ -50,6 +50,10 @@ class AlignmentOptions:
     orientation_margin : float  a rigid start facing more than 90 degrees away from the best
                                 one whose fit score is within this factor of the best's is
                                 aligned from too (front-back ambiguity, see ``_rigid_starts``)
+    patch_coupling : float      pull between adjacent patches' rigid steps, relative to their
+                                data (0: every patch steps on its own); a patch whose data
+                                leave a motion free (a plain sleeve's twist) then moves with
+                                its neighbours (``engine.align.rigid.coupled_patch_steps``)
     tet_resolution : float      lattice cells along the model size when the root is
                                 tetrahedralised here (``engine.tetmesh.tetrahedralize``)
     """
@@ -75,6 +79,7 @@ class AlignmentOptions:
     search_angles: tuple = (30.0, 60.0, 90.0)
     search_samples: int = 24
     search_cap: float = 0.05
+    patch_coupling: float = 1.0
     tet_resolution: float = 48.0
     orientation_margin: float = 1.25
     match_samples: int = 3000

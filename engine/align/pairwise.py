@@ -167,7 +167,8 @@ class PairwiseAligner:
                 search = level < o.search_levels and round_ < o.search_rounds
                 goal, confidence = self._match_patches(S, target, labels, count, use_colour,
                                                        level=level if search else None,
-                                                       subsample=level < o.match_sample_levels)
+                                                       subsample=level < o.match_sample_levels,
+                                                       graph=self.patch_graph[level])
                 X, R = self._deform(X, R, solver, goal, confidence, prior)
         solver = self._solvers[o.final_stiffness]
         for _ in range(o.final_rounds):
@@ -288,14 +289,16 @@ class PairwiseAligner:
                 starts.append(X @ fits[1][1].T + fits[1][2])
         return starts
 
-    def _match_patches(self, S, target, labels, count, use_colour, level=None, subsample=True):
+    def _match_patches(self, S, target, labels, count, use_colour, level=None, subsample=True, graph=None):
         """Rigidly match every patch to the target; returns per-vertex goals and confidences.
 
         With ``subsample``, the rigid steps are driven by at most ``options.match_samples`` source
         vertices and as many target vertices (fixed random subsets); every vertex moves with its
         patch. With
         ``level`` given, badly fitting patches also try articulated hypotheses
-        (:func:`engine.align.patches.search_patches`) after the ICP steps.
+        (:func:`engine.align.patches.search_patches`) after the ICP steps. With ``graph`` (the
+        level's ``patch_adjacency``) and ``options.patch_coupling`` > 0, adjacent patches' steps
+        are solved together (:func:`engine.align.rigid.coupled_patch_steps`).
         """
         o = self.options
         x = S.copy()
@@ -318,7 +321,10 @@ class PairwiseAligner:
             W = np.concatenate([w, ws])
             Tw = np.concatenate([tangential, np.zeros(len(src))])
             L = np.concatenate([picked_labels, labels[src]])
-            omega, shift, centres = patch_rigid_steps(P, Y, M, W, Tw, L, count)
+            coupling = None
+            if graph is not None and o.patch_coupling > 0:
+                coupling = _border_points(x, graph) + (o.patch_coupling,)
+            omega, shift, centres = patch_rigid_steps(P, Y, M, W, Tw, L, count, coupling=coupling)
             Rp = rodrigues(omega)
             x = np.einsum("pij,pj->pi", Rp[labels], x - centres[labels]) + centres[labels] + shift[labels]
             n = np.einsum("pij,pj->pi", Rp[labels], n)
@@ -355,6 +361,20 @@ class PairwiseAligner:
             current = self.B @ X
             X = solver.solve(stack_rotations(R), c * goal + (1.0 - c) * current)
         return X, R
+
+
+def _border_points(x, graph):
+    """(pairs, border point, spread) of adjacent patches: the mean of their shared border
+    vertices at positions ``x`` and those vertices' rms distance from it (at least 1 mm)."""
+    pairs, border = graph
+    e = len(pairs)
+    vertex, pair = border[:, 0], border[:, 2]
+    counts = np.maximum(np.bincount(pair, minlength=e), 1).astype(float)
+    points = np.stack([np.bincount(pair, weights=x[vertex, a], minlength=e) for a in range(3)], axis=1)
+    points /= counts[:, None]
+    d2 = np.sum((x[vertex] - points[pair]) ** 2, axis=1)
+    spread = np.sqrt(np.maximum(np.bincount(pair, weights=d2, minlength=e) / counts, 1e-6))
+    return pairs, points, spread
 
 
 @functools.lru_cache(maxsize=16)

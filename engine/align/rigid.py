@@ -119,11 +119,16 @@ def point_to_plane_step(P, Q, M, w):
     return rodrigues(delta[:3][None])[0], delta[3:]
 
 
-def patch_rigid_steps(P, Y, M, W, tangential, labels, count):
+def patch_rigid_steps(P, Y, M, W, tangential, labels, count, coupling=None):
     """Batched rigid steps per patch (linearised), point-to-plane plus a tangential part.
 
     Minimises, per patch, sum w [((x - y) . m)^2 + tau |(I - m m^T)(x - y)|^2] with
     x = p + omega x (p - c) + shift, c the patch's weighted centre.
+
+    With ``coupling = (pairs, points, spread, weight)`` the patches' steps are solved together,
+    adjacent patches' steps pulled towards each other (:func:`coupled_patch_steps`): a patch
+    whose data leave a motion free (a plain sleeve's twist about its arm) takes its
+    neighbours' step there instead of none.
 
     Returns
     -------
@@ -159,9 +164,85 @@ def patch_rigid_steps(P, Y, M, W, tangential, labels, count):
     Hs = Hs.reshape(count, 6, 6)
     scale = np.trace(Hs, axis1=1, axis2=2) / 6.0
     Hs = Hs + (1e-3 * scale + 1e-12)[:, None, None] * np.eye(6)
-    delta = -np.linalg.solve(Hs, gs[..., None])[..., 0]
+    if coupling is not None and coupling[3] > 0 and len(coupling[0]):
+        delta = coupled_patch_steps(Hs, gs, centres, *coupling)
+    else:
+        delta = -np.linalg.solve(Hs, gs[..., None])[..., 0]
     return delta[:, :3], delta[:, 3:], centres
 
 
-__all__ = ["kabsch", "patch_rigid_steps", "point_to_plane_step", "rodrigues", "rotation_fit", "rotation_set",
+def coupled_patch_steps(H, g, centres, pairs, points, spread, weight):
+    """Rigid steps of all patches at once, adjacent patches' steps kept alike.
+
+    Minimises ``sum_p (d_p^T H_p d_p / 2 + g_p^T d_p)`` plus, for every adjacent pair (a, b),
+    ``k_ab / 2 (|u_a(q) - u_b(q)|^2 + r^2 |omega_a - omega_b|^2)``: ``u_p(q) = omega_p x (q - c_p) +
+    shift_p`` is the step's displacement at the pair's border point ``q``, ``r`` the border's
+    spread, and ``k_ab = weight * (tr_a + tr_b) / 6`` with ``tr`` the trace of a patch's
+    translational data block (so the pull scales with the data and ``weight`` is unitless).
+
+    The pull is on the *steps*, not the poses: where a patch's data determine its motion the
+    iteration still converges to that motion (a zero step costs nothing); where they leave a
+    direction free (a plain cone's twist, a cylinder's slide) the patch moves with its
+    neighbours there instead of staying behind.
+
+    Parameters
+    ----------
+    H : (count, 6, 6) float array   per-patch data Hessians (omega, shift)
+    g : (count, 6) float array      per-patch gradients
+    centres : (count, 3) float array
+    pairs : (e, 2) int array        adjacent patches
+    points : (e, 3) float array     a border point of each pair
+    spread : (e,) float array       r of each pair (m)
+    weight : float
+
+    Returns
+    -------
+    delta : (count, 6) float array   (omega, shift) per patch
+    """
+    import scipy.sparse as sp
+    import scipy.sparse.linalg as spla
+
+    count = len(H)
+    pairs = np.asarray(pairs, dtype=np.int64)
+    trans = np.trace(H[:, 3:, 3:], axis1=1, axis2=2)
+    k = float(weight) * (trans[pairs[:, 0]] + trans[pairs[:, 1]]) / 6.0
+    e = len(pairs)
+
+    def jacobian(q, c):  # (e, 3, 6): u = -[q - c]x omega + shift
+        d = q - c
+        J = np.zeros((len(d), 3, 6))
+        J[:, 0, 1], J[:, 0, 2] = d[:, 2], -d[:, 1]
+        J[:, 1, 0], J[:, 1, 2] = -d[:, 2], d[:, 0]
+        J[:, 2, 0], J[:, 2, 1] = d[:, 1], -d[:, 0]
+        J[:, :, 3:] = np.eye(3)
+        return J
+
+    Ja, Jb = jacobian(points, centres[pairs[:, 0]]), jacobian(points, centres[pairs[:, 1]])
+    E = np.zeros((e, 6, 6))
+    E[:, [0, 1, 2], [0, 1, 2]] = (np.asarray(spread, dtype=np.float64) ** 2)[:, None]
+    kk = k[:, None, None]
+    Aaa = kk * (np.einsum("eki,ekj->eij", Ja, Ja) + E)
+    Abb = kk * (np.einsum("eki,ekj->eij", Jb, Jb) + E)
+    Aab = -kk * (np.einsum("eki,ekj->eij", Ja, Jb) + E)
+    six = np.arange(6)
+    rows, cols, vals = [], [], []
+
+    def add(block_rows, block_cols, blocks):
+        r = (6 * block_rows[:, None, None] + six[None, :, None]) + 0 * six[None, None, :]
+        c = (6 * block_cols[:, None, None] + six[None, None, :]) + 0 * six[None, :, None]
+        rows.append(r.ravel())
+        cols.append(c.ravel())
+        vals.append(blocks.ravel())
+
+    add(np.arange(count), np.arange(count), H)
+    add(pairs[:, 0], pairs[:, 0], Aaa)
+    add(pairs[:, 1], pairs[:, 1], Abb)
+    add(pairs[:, 0], pairs[:, 1], Aab)
+    add(pairs[:, 1], pairs[:, 0], np.swapaxes(Aab, 1, 2))
+    A = sp.csc_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                      shape=(6 * count, 6 * count))
+    return -spla.spsolve(A, np.asarray(g, dtype=np.float64).ravel()).reshape(count, 6)
+
+
+__all__ = ["coupled_patch_steps", "kabsch", "patch_rigid_steps", "point_to_plane_step", "rodrigues", "rotation_fit", "rotation_set",
            "stack_rotations"]

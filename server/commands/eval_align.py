@@ -26,7 +26,8 @@ import numpy as np
 from tqdm import tqdm
 
 from engine.align import AlignmentOptions, align_captures, error_summary, pattern_sheet, score_alignment
-from engine.align.evaluation import part_errors
+from engine.align.breakdown import error_breakdown
+from engine.align.evaluation import part_errors, part_labels
 from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
 from engine.align.captures import ROOT_CHOICES
 from engine.align.repair import TRUSTED
@@ -90,7 +91,7 @@ def _truth_in_metres(parts, conventions):
 
 def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, lengths, names, *, residual=None,
            residual_max=None, seconds=None, retried=None, cpu_seconds=None, confidence=None, repaired=None,
-           part_counts=None):
+           part_counts=None, depth=None):
     errors, summary = score_alignment(aligned_vertices, root, root_vertices, truth, faces, size)
     frames = len(aligned_vertices)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -122,6 +123,16 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
         record["frames_over_3pct_flagged"] = int(np.sum(bad & (confidence < TRUSTED)))
     record["worst_frame_mean_mm"] = round(1000 * float(frame_mean.max()), 2)
     record["worst_frame_mean_pct"] = round(100 * float(frame_mean.max()) / size, 3)
+    if len(errors) > 1:  # where the error lies (engine.align.breakdown)
+        labels = names_of_parts = None
+        if part_counts:
+            labels = part_labels(root_vertices, truth[root], faces, part_counts)
+            names_of_parts = list(part_counts)
+        breakdown = error_breakdown(errors, root, size, labels=labels, names=names_of_parts, depth=depth,
+                                    confidence=confidence, trusted=TRUSTED)
+        breakdown.pop("mean_pct")
+        breakdown.pop("p95_pct")
+        record["breakdown"] = breakdown
     return record, errors
 
 
@@ -266,7 +277,7 @@ def run(args):
                                    lengths, names, residual=a.residual, residual_max=a.residual_max,
                                    seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds,
                                    confidence=a.confidence, repaired=a.repaired,
-                                   part_counts=_part_counts(manifest))
+                                   part_counts=_part_counts(manifest), depth=result.tree.depth)
                 report[method] = {**report.get(method, {}), **record}
                 results[method] = (a.vertices, a.faces, a.root_vertices)
             if "sequential" in report:

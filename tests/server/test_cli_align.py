@@ -170,6 +170,12 @@ def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
         assert report[method]["frames"] == 6
         assert {"mean_pct", "p95_pct", "max_pct", "residual_mean_mm", "seconds_per_frame"} <= set(report[method])
     assert report["tree"]["mean_pct"] < 1.5
+    for method in ("tree", "sequential"):  # where the error lies, and whether the flag finds the bad frames
+        breakdown = report[method]["breakdown"]
+        assert {row["depths"] for row in breakdown["per_depth"]} <= {"1", "2-4", "5-16", "17-64", "65+"}
+        assert sum(row["frames"] for row in breakdown["per_depth"]) == 5  # every frame but the root
+        assert set(breakdown["confidence"]) == {"over_2pct", "over_3pct"}
+        assert len(breakdown["worst_frames"]) == 5 and breakdown["worst_frames"][0]["frame"] != report["root"]
     assert (out / "aligned_pattern.png").is_file() and (out / "results.json").is_file()
 
 
