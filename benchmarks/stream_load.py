@@ -21,7 +21,9 @@ websockets connections asking for ``--fps`` frames per second in the q16 codec. 
 - latency: a share of the clients request new parameters every ``--update-every`` seconds; the
   time from sending to the first frame whose ``ack`` covers the request (median, p95, p99),
 - the server's CPU (of all its processes) per delivered frame (its cores over the frames the
-  clients received per second) and resident memory, and the CPU the client processes
+  clients received per second; benchmarks/_load_round.py) and of it the system time, the
+  kernel's share (the socket writes; on loopback also the clients' receiving side, which the
+  kernel runs in the sender's call), resident memory, and the CPU the client processes
   themselves used; with ``--heatmap-clients N``, the first N clients also ask for the heatmap
   and their frames delivered are reported apart; with ``--soak``, resident memory sampled while
   clients connect and leave (start, end, max, and the slope of a line fitted to the second half).

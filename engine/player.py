@@ -198,11 +198,17 @@ class Player:
 
     def _track_at(self, w):
         """(step (P, 3), turn (P,), duration) of the blend at weights w, kept while w is."""
+        cache = self._track_cache
+        if cache is not None and cache[4] is w:  # the same weights array (never changed in place)
+            return cache[1:4]
         key = w.tobytes()
-        if self._track_cache is None or self._track_cache[0] != key:
+        if cache is None or cache[0] != key:
             step, turn = self.track.rates(w)
-            self._track_cache = (key, step.tolist(), turn.tolist(), self.track.duration(w))
-        return self._track_cache[1:]
+            cache = (key, step.tolist(), turn.tolist(), self.track.duration(w), w)
+        else:
+            cache = cache[:4] + (w,)
+        self._track_cache = cache
+        return cache[1:4]
 
     @property
     def weights(self):

@@ -101,10 +101,18 @@ class FrameOutput:
         player = self.player
         if player.mode == "nonlinear" or self.graph is not None:  # a graph's state moves between spaces
             return None, self.codec
-        table = player.space.frame_blender(player.mode).lookup(player.weights)
+        space, mode, blender = self.frame_blender
+        if space is not player.space or mode != player.mode:
+            blender = player.space.frame_blender(player.mode)
+            self.frame_blender = player.space, player.mode, blender
+        table = blender.lookup(player.weights)
         self.table_missed = table is None  # send_frame blends without asking again
         if table is not None and self.codec == "q16":
-            table = self.quantiser.table(table)
+            source, scaled = self.scaled_table
+            if source is not table or self.quantiser.key is not self.scaled_key:
+                scaled, self.scaled_key = self.quantiser.table(table), self.quantiser.key
+                self.scaled_table = table, scaled
+            table = scaled
         return table, self.codec
 
     def moving_source(self):

@@ -84,6 +84,9 @@ class StreamSession(FrameOutput):
         self.version = 0        # the scheduler's bookkeeping
         self.payload = None     # encoded vertices the scheduler prepared for the next frame
         self.middle = (None, b"")  # (player.state_key, its packed fields): FrameOutput._streamed_parts
+        self.frame_blender = (None, None, None)  # (space, mode, space.frame_blender(mode)): frame_source
+        self.scaled_table = (None, None)  # (a phase table, it in this connection's q16 units)
+        self.scaled_key = None             # the quantiser key of scaled_table
         self.table_missed = False  # frame_source found no phase table for this frame
         self.heatmap_job = None   # server/heatmap/: the id of this connection's distances being computed
         self.heatmap_last = None  # and the newest finished: (error_um, error_max, error_seq)

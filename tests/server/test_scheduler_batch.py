@@ -185,3 +185,29 @@ def test_streamed_frames_are_the_whole_maps_msgpack_packing(built_spaces):
         assert settled > 0 and scheduler.table_frames > 0  # settled ones too (their pieces kept)
 
     run(main)
+
+
+def test_frame_source_follows_the_weights_and_the_quantiser(built_spaces):
+    """frame_source keeps the last (table, its q16 form) and the space's frame blender: a new
+    request, a new quantiser or a new mode must give the table of now, never the kept one."""
+    registry = SpaceRegistry(built_spaces)
+    space = registry.get("speed")
+
+    async def main():
+        scheduler = FrameScheduler()
+        session = _sessions(registry, scheduler, space)[0]  # hybrid, q16
+        for speed in (1.2, 2.2, 1.2):
+            session.player.set_params({"speed": speed}, immediate=True)
+            blender = space.frame_blender(session.player.mode)
+            for _ in range(blender.after):  # the table is built on the after-th request
+                table, codec = session.frame_source()
+            assert codec == "q16" and table is session.quantiser.table(blender.lookup(session.player.weights))
+        session.quantiser = P.Quantiser(session.bounds * 2.0, space.n_vertices)
+        table, _ = session.frame_source()
+        assert table is session.quantiser.table(space.frame_blender("hybrid").lookup(session.player.weights))
+        session.player.set_mode("linear")
+        for _ in range(space.frame_blender("linear").after):
+            table, _ = session.frame_source()
+        assert table is session.quantiser.table(space.frame_blender("linear").lookup(session.player.weights))
+
+    run(main)
