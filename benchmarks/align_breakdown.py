@@ -9,7 +9,8 @@ whose mean error is truly over 2% and 3% of the model size. ``--picture`` draws 
 mean error per part, the flagged frames marked.
 
     .venv/bin/python benchmarks/align_breakdown.py /tmp/studio-full --sequence strikes --start 130 --frames 60 \\
-        [--option patch_coupling=1.0] [--method sequential] [--picture /tmp/b.png] [--out result.json]
+        [--option patch_coupling=1.0] [--method sequential] [--picture /tmp/b.png] [--save /tmp/b.npz] \\
+        [--out result.json]
     .venv/bin/python benchmarks/align_breakdown.py --tiny --out /tmp/align_breakdown.json
 
 ``--tiny`` (the test suite's smoke run) needs no dataset: 6 frames of the generator's 1,000-vertex
@@ -102,6 +103,9 @@ def main(argv=None):
     parser.add_argument("--option", dest="options", action="append", default=None, metavar="NAME=VALUE",
                         help="an AlignmentOptions field (repeatable), e.g. patch_coupling=1.0")
     parser.add_argument("--picture", type=Path, help="draw the per-frame, per-part errors here (PNG)")
+    parser.add_argument("--save", type=Path, help="write the per-frame figures here (.npz: mean error in %% of "
+                        "the model size, residual, residual_max, distortion, distortion_tail, confidence, "
+                        "repaired, depth, parent)")
     parser.add_argument("--tiny", action="store_true", help="the test suite's smoke run (no dataset)")
     parser.add_argument("--out", type=Path, help="write the JSON here too")
     args = parse_arguments(parser, argv, TINY)
@@ -157,6 +161,15 @@ def main(argv=None):
                  f"options {changes or 'default'}: mean {breakdown['mean_pct']:.2f}%, p95 {breakdown['p95_pct']:.2f}%")
         picture(args.picture, errors, root, labels, names, aligned.confidence, size, title)
         print(f"wrote {args.picture}")
+    if args.save is not None:
+        args.save.parent.mkdir(parents=True, exist_ok=True)
+        np.savez(args.save, frame_mean_pct=100.0 * errors.mean(axis=1) / size, residual=aligned.residual,
+                 residual_max=aligned.residual_max, distortion=aligned.distortion,
+                 distortion_tail=aligned.distortion_tail, confidence=aligned.confidence, repaired=aligned.repaired,
+                 depth=run.tree.depth, parent=run.tree.parent, root=root, labels=labels,
+                 part_mean_pct=np.stack([100.0 * errors[:, labels == k].mean(axis=1) / size if np.any(labels == k)
+                                         else np.zeros(n) for k in range(len(names))], axis=1))
+        print(f"wrote {args.save}")
     text = json.dumps(record, indent=1)
     print(text)
     if args.out is not None:

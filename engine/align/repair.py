@@ -18,16 +18,20 @@ import numpy as np
 
 from engine.align.matching import TargetSurface
 
-TAIL_SCALE = 4.0       # distortion tail (||F - R||^2 over the worst 5% of the solid) at confidence 1/e
+TAIL_SCALE = 4.0       # distortion tail (||F - R||^2 over the worst 5% of the solid) at confidence 1/e ...
+TAIL_RELATIVE = 0.25   # ... plus this share of the capture's floor (a garment that deforms by 10 in every
+                       # frame deforms by a few more or less from pose to pose without any slip)
 RESIDUAL_SCALE = 0.01  # mean two-sided fit residual, as a fraction of the model size, at 1/e
 TRUSTED = 0.5          # frames at or above this confidence are trusted sources and left alone
 
 
 def alignment_badness(residual, distortion_tail, model_size, reference=0.0):
     """Badness of aligned frames: fit residual and the distortion tail beyond ``reference``
-    (:func:`tail_reference`), each in units of its scale."""
+    (:func:`tail_reference`), each in units of its scale (the tail's: ``TAIL_SCALE +
+    TAIL_RELATIVE * reference``)."""
     excess = np.maximum(np.asarray(distortion_tail, dtype=np.float64) - float(reference), 0.0)
-    return excess / TAIL_SCALE + np.asarray(residual) / (RESIDUAL_SCALE * float(model_size))
+    scale = TAIL_SCALE + TAIL_RELATIVE * max(float(reference), 0.0)
+    return excess / scale + np.asarray(residual) / (RESIDUAL_SCALE * float(model_size))
 
 
 def alignment_confidence(residual, distortion_tail, model_size, reference=0.0):
