@@ -231,6 +231,13 @@ def check_godot_client(result, stdout):
         assert f"{key}: 1000 vertices, decode median" in stdout
 
 
+def check_stream_socket(result, stdout):
+    assert result["clients"] == 8 and result["bytes"] == 18000 and result["frames"] + result["skipped"] > 0
+    assert result["frames"] > 0 and positive(result["cpu_us_per_frame"])
+    assert non_negative(result["user_us_per_frame"]) and non_negative(result["system_us_per_frame"])
+    assert "us of the writer's CPU a frame" in stdout
+
+
 CHECKS = {
     "align_breakdown.py": check_align_breakdown,
     "align_momentum.py": check_align_momentum,
@@ -245,6 +252,7 @@ CHECKS = {
     "similarity_scaling.py": check_similarity_scaling,
     "speed_ground_truth.py": check_speed_ground_truth,
     "stream_load.py": check_stream_load,
+    "stream_socket.py": check_stream_socket,
     "stream_stall.py": check_stream_stall,
     "tetrahedra.py": check_tetrahedra,
 }
