@@ -6,9 +6,9 @@ frame to its transport, then sleeps until the next one falls due (at least a tic
 client message makes a frame urgent). Per tick:
 
 - clients whose weights have a phase table (settled parameters, or many viewers at the same
-  ones) are grouped by table; each group's rows are interpolated in one gather, q16 clients'
-  straight from the table in codec units (``Quantiser.table``), so their integers need one
-  truncating cast;
+  ones) are grouped by table; each group's rows are gathered, interpolated and cast eight at a
+  time (``PhaseTable.rows_cast``), q16 clients' straight from the table in codec units
+  (``Quantiser.table``), so their integers need one truncating cast;
 - clients at moving weights (steering, linear or hybrid) are grouped by blender: each group is
   one ``ManyBlender.blend`` (engine/blend/many.py: a hybrid frame interpolates its simplex leaf's
   reference blends) and its q16 clients one encode (``Quantiser.encode_rows``); a row's bytes do
