@@ -41,30 +41,7 @@ def dataset(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def shared_tetrahedra():
-    """Runs in this module share the tet mesh of equal root meshes.
-
-    The tetrahedraliser does not yet give the same tets twice (issue 12); sharing them lets a
-    comparison of two runs isolate what it is about (here: the units and up-axis conversion).
-    """
-    import engine.tetmesh
-
-    original, cache = engine.tetmesh.tetrahedralize, {}
-
-    def tetrahedralize(V, F, **options):
-        key = (np.asarray(V, dtype=np.float64).tobytes(), np.asarray(F, dtype=np.int64).tobytes(),
-               repr(sorted(options.items())))
-        if key not in cache:
-            cache[key] = original(V, F, **options)
-        return cache[key]
-
-    with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(engine.tetmesh, "tetrahedralize", tetrahedralize)
-        yield
-
-
-@pytest.fixture(scope="module")
-def aligned_run(dataset, tmp_path_factory, shared_tetrahedra):
+def aligned_run(dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("aligned") / "out"
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
@@ -100,7 +77,7 @@ def dataset_mm_z_up(dataset, tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
-def aligned_mm_run(dataset_mm_z_up, tmp_path_factory, shared_tetrahedra):
+def aligned_mm_run(dataset_mm_z_up, tmp_path_factory):
     out = tmp_path_factory.mktemp("aligned") / "out_mm"
     err, stdout = io.StringIO(), io.StringIO()
     with contextlib.redirect_stderr(err), contextlib.redirect_stdout(stdout):
