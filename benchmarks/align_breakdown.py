@@ -9,7 +9,7 @@ whose mean error is truly over 2% and 3% of the model size. ``--picture`` draws 
 mean error per part, the flagged frames marked.
 
     .venv/bin/python benchmarks/align_breakdown.py /tmp/studio-full --sequence strikes --start 130 --frames 60 \\
-        [--option patch_coupling=1.0] [--method sequential] [--picture /tmp/b.png] [--save /tmp/b.npz] \\
+        [--option patch_coupling=1.0] [--tail-relative 0.25] [--method sequential] [--picture /tmp/b.png] [--save /tmp/b.npz] \\
         [--out result.json]
     .venv/bin/python benchmarks/align_breakdown.py --tiny --out /tmp/align_breakdown.json
 
@@ -106,6 +106,9 @@ def main(argv=None):
     parser.add_argument("--save", type=Path, help="write the per-frame figures here (.npz: mean error in %% of "
                         "the model size, residual, residual_max, distortion, distortion_tail, confidence, "
                         "repaired, depth, parent)")
+    parser.add_argument("--tail-relative", type=float, default=None, metavar="SHARE",
+                        help="the confidence's tail scale grows by this share of the capture's floor "
+                             "(engine.align.repair.TAIL_RELATIVE, default 0)")
     parser.add_argument("--tiny", action="store_true", help="the test suite's smoke run (no dataset)")
     parser.add_argument("--out", type=Path, help="write the JSON here too")
     args = parse_arguments(parser, argv, TINY)
@@ -119,6 +122,11 @@ def main(argv=None):
     from engine.align.breakdown import error_breakdown, part_labels
 
     options, changes = parse_options(args.options)
+    if args.tail_relative is not None:
+        import engine.align.repair
+
+        engine.align.repair.TAIL_RELATIVE = args.tail_relative
+        changes = {**changes, "tail_relative": args.tail_relative}
     frames, truth, faces, size = load_frames(args.dataset, args.sequence, args.start, args.frames, args.tiny)
     parts = part_counts(args.dataset, args.tiny)
     load_before = os.getloadavg()
