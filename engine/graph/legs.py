@@ -179,7 +179,8 @@ class LegRig:
         the motion puts it. ``joints``: ``joints(mesh, k)`` if already known.
 
         (On Python floats, summing in numpy's order for 3-vectors: the same numbers as numpy's
-        norms and dot products of them, for a fraction of the calls' cost.)"""
+        norms and dot products of them to rounding (numpy's SIMD kernels may differ in the last
+        bit on another CPU), for a fraction of the calls' cost.)"""
         hip, knee, ankle = (tuple(j.tolist()) for j in (self.joints(mesh, k) if joints is None else joints))
         o = tuple(float(x) for x in offset)
         size = _norm(o)

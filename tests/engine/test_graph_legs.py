@@ -1,4 +1,4 @@
-"""The leg rig's hot path (engine/graph/legs.py) gives the same numbers, bit for bit, as the plain
+"""The leg rig's hot path (engine/graph/legs.py) gives the same numbers, to rounding, as the plain
 numpy formulation it replaced (kept here as the reference: ``reference_reachable`` and
 ``reference_move``), over random holds of the tiny graph's frames: offsets within reach, out of
 reach, past the cap, straight legs that stretch; and joints found once and reused give the same
@@ -80,7 +80,7 @@ def random_holds(graph, count, seed):
 
 
 @pytest.mark.parametrize("stretch", [0.03, 0.0])
-def test_the_rig_moves_the_legs_as_the_plain_numpy_formulation_bit_for_bit(graph, stretch):
+def test_the_rig_moves_the_legs_as_the_plain_numpy_formulation(graph, stretch):
     rest = np.asarray(graph.nodes[0].space.container["rest"])
     rig = LegRig(rest, foot_vertices(rest), stretch=stretch)
     stretched = shortened = 0
@@ -88,11 +88,13 @@ def test_the_rig_moves_the_legs_as_the_plain_numpy_formulation_bit_for_bit(graph
         shares, joints = rig.reach(mesh, offsets)
         expected = [reference_reachable(rig, k, o, j) if j is not None else 1.0
                     for k, (o, j) in enumerate(zip(offsets, joints))]
-        assert shares.tolist() == expected
+        # to rounding, not bit for bit: numpy's norms and dot products of 3-vectors sum in an order
+        # that depends on the CPU's SIMD kernels (a fresh CI host differed in the last bit)
+        np.testing.assert_allclose(shares, expected, rtol=1e-12, atol=0)
         moved, reference = mesh.copy(), mesh.copy()
         rig.move(moved, offsets, shares, joints)
         reference_move(rig, reference, offsets, shares, joints)
-        np.testing.assert_array_equal(moved, reference)
+        np.testing.assert_allclose(moved, reference, rtol=0, atol=1e-6)  # float32 metres: a few ulps
         shortened += int((shares < 1.0).sum())
         for k, j in enumerate(joints):
             if j is not None:
