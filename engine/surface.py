@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
 
 def model_size(V):
@@ -176,7 +175,9 @@ class SurfaceQuery:
         self.V = np.asarray(V, dtype=float)
         self.F = np.asarray(F, dtype=np.int64)
         self.k = int(min(k, len(self.V)))
-        self.tree = cKDTree(self.V)
+        from engine.nearest import PointTree
+
+        self.tree = PointTree(self.V)
         n = len(self.V)
         incidence = sp.csr_matrix(
             (np.ones(3 * len(self.F)), (self.F.ravel(), np.repeat(np.arange(len(self.F)), 3))),

@@ -9,10 +9,11 @@ an :class:`engine.align.pairwise.AlignmentOptions`.
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from engine.align.closest import closest_among_faces
 from engine.align.shape_histogram import shape_centre
-from engine.surface import closest_on_triangles, main_components, vertex_normals
+from engine.nearest import PointTree
+from engine.surface import closest_on_triangles, main_components, vertex_normals  # noqa: F401 (re-exported)
 
 
 class TargetSurface:
@@ -37,9 +38,9 @@ class TargetSurface:
         self.F = np.ascontiguousarray(F, dtype=np.int64)
         self.colors = None if colors is None else np.asarray(colors, dtype=np.float64)[kept]
         self.normals = vertex_normals(self.V, self.F)
-        self.tree = cKDTree(self.V)
+        self.tree = PointTree(self.V)
         self.face_centres = self.V[self.F].mean(axis=1)
-        self.face_tree = cKDTree(self.face_centres)
+        self.face_tree = PointTree(self.face_centres)
         edges = self.V[self.F] - self.V[np.roll(self.F, 1, axis=1)]
         self.edge_length = float(np.mean(np.linalg.norm(edges, axis=2)))
         self.centre = shape_centre(self.V, self.F)
@@ -196,7 +197,7 @@ def reverse_correspondences(x, n, F, target, options, labels=None, count=1, subs
     w : (t,) weights
     """
     o = options
-    tree = cKDTree(x[F].mean(axis=1))
+    tree = PointTree(x[F].mean(axis=1))
     TV = target.V if subset is None else target.V[subset]
     TN = target.normals if subset is None else target.normals[subset]
     points, d, face, bary = closest_points(TV, x, F, tree)
@@ -256,19 +257,12 @@ def closest_points(P, V, F, face_tree, k=6):
     """
     k = min(k, len(F))
     _, faces = face_tree.query(P, k=k)
-    faces = faces.reshape(len(P), k)
-    tri = V[F[faces]]  # (p, k, 3 corners, 3)
-    Pq = P[:, None, :]
-    points, bary = closest_on_triangles(Pq, tri[:, :, 0], tri[:, :, 1], tri[:, :, 2])
-    dist = np.linalg.norm(points - Pq, axis=-1)
-    best = np.argmin(dist, axis=1)
-    rows = np.arange(len(P))
-    return points[rows, best], dist[rows, best], faces[rows, best], bary[rows, best]
+    return closest_among_faces(P, V, F, faces.reshape(len(P), k))
 
 
 def point_to_mesh_distance(P, V, F, k=6):
     """Distance from points P to the closest of the k faces (of V, F) with the nearest centres."""
-    return closest_points(P, V, F, cKDTree(V[F].mean(axis=1)), k=k)[1]
+    return closest_points(P, V, F, PointTree(V[F].mean(axis=1)), k=k)[1]
 
 
 __all__ = ["TargetSurface", "closest_on_triangles", "closest_points", "colour_flow", "compatible_closest",

@@ -1,0 +1,117 @@
+"""Closest points on a triangle mesh among given candidate faces, compiled (numba).
+
+The correspondence searches of an alignment ask this about 90 times per pair of 10,000-vertex
+frames, for 3,000-10,000 points and 6 candidate faces each: written as numpy array operations
+(:func:`engine.surface.closest_on_triangles`) it was about a third of the aligner's CPU, here a
+loop over the points that keeps each point's candidates in registers is about ten times faster.
+
+The region tests are Ericson's ("Real-Time Collision Detection", section 5.1.5), as in
+:func:`engine.surface.closest_on_triangles`; the nearest candidate wins, the first of equals.
+Compiled on first use and cached beside this file (``__pycache__``), as numba does with
+``cache=True``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def _closest_among(P, V, F, faces):  # pragma: no cover (compiled; tested through closest_among_faces)
+    q, k = faces.shape
+    points = np.empty((q, 3))
+    bary = np.empty((q, 3))
+    dist = np.empty(q)
+    best_face = np.full(q, -1, dtype=np.int64)
+    for i in range(q):
+        px, py, pz = P[i, 0], P[i, 1], P[i, 2]
+        best = np.inf
+        for j in range(k):
+            f = faces[i, j]
+            if f < 0:
+                continue
+            a, b, c = F[f, 0], F[f, 1], F[f, 2]
+            ax, ay, az = V[a, 0], V[a, 1], V[a, 2]
+            bx, by, bz = V[b, 0], V[b, 1], V[b, 2]
+            cx, cy, cz = V[c, 0], V[c, 1], V[c, 2]
+            abx, aby, abz = bx - ax, by - ay, bz - az
+            acx, acy, acz = cx - ax, cy - ay, cz - az
+            apx, apy, apz = px - ax, py - ay, pz - az
+            d1 = abx * apx + aby * apy + abz * apz
+            d2 = acx * apx + acy * apy + acz * apz
+            if d1 <= 0.0 and d2 <= 0.0:
+                u, v, w = 1.0, 0.0, 0.0
+            else:
+                bpx, bpy, bpz = px - bx, py - by, pz - bz
+                d3 = abx * bpx + aby * bpy + abz * bpz
+                d4 = acx * bpx + acy * bpy + acz * bpz
+                if d3 >= 0.0 and d4 <= d3:
+                    u, v, w = 0.0, 1.0, 0.0
+                else:
+                    vc = d1 * d4 - d3 * d2
+                    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+                        t = d1 / (d1 - d3)
+                        u, v, w = 1.0 - t, t, 0.0
+                    else:
+                        cpx, cpy, cpz = px - cx, py - cy, pz - cz
+                        d5 = abx * cpx + aby * cpy + abz * cpz
+                        d6 = acx * cpx + acy * cpy + acz * cpz
+                        if d6 >= 0.0 and d5 <= d6:
+                            u, v, w = 0.0, 0.0, 1.0
+                        else:
+                            vb = d5 * d2 - d1 * d6
+                            if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+                                t = d2 / (d2 - d6)
+                                u, v, w = 1.0 - t, 0.0, t
+                            else:
+                                va = d3 * d6 - d5 * d4
+                                if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
+                                    t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+                                    u, v, w = 0.0, 1.0 - t, t
+                                else:
+                                    denom = va + vb + vc
+                                    if denom != 0.0:
+                                        v = vb / denom
+                                        w = vc / denom
+                                        u = 1.0 - v - w
+                                    else:  # a degenerate face: its centre
+                                        u = v = w = 1.0 / 3.0
+            x = u * ax + v * bx + w * cx
+            y = u * ay + v * by + w * cy
+            z = u * az + v * bz + w * cz
+            d = (x - px) * (x - px) + (y - py) * (y - py) + (z - pz) * (z - pz)
+            if d < best:
+                best = d
+                best_face[i] = f
+                points[i, 0], points[i, 1], points[i, 2] = x, y, z
+                bary[i, 0], bary[i, 1], bary[i, 2] = u, v, w
+        if best_face[i] < 0:  # no candidate: the point stays, infinitely far
+            points[i, 0], points[i, 1], points[i, 2] = px, py, pz
+            bary[i, 0], bary[i, 1], bary[i, 2] = 1.0, 0.0, 0.0
+        dist[i] = np.sqrt(best)
+    return points, dist, best_face, bary
+
+
+def closest_among_faces(P, V, F, faces):
+    """Per point, the closest point on the nearest of its candidate faces.
+
+    Parameters
+    ----------
+    P : (q, 3) float array      query points
+    V : (n, 3) float array      mesh vertices
+    F : (m, 3) int array        mesh faces
+    faces : (q, k) int array    candidate faces of each point (-1: none)
+
+    Returns
+    -------
+    points : (q, 3)   distance : (q,)   face : (q,) int64 (-1 where a point had no candidate)
+    bary : (q, 3) barycentric coordinates of the point in its face
+    """
+    P = np.ascontiguousarray(P, dtype=np.float64)
+    faces = np.ascontiguousarray(faces, dtype=np.int64).reshape(len(P), -1)
+    return _closest_among(P, np.ascontiguousarray(V, dtype=np.float64), np.ascontiguousarray(F, dtype=np.int64),
+                          faces)
+
+
+__all__ = ["closest_among_faces"]

@@ -1,0 +1,81 @@
+"""The compiled closest-point search (engine/align/closest.py) and the k-d tree behind it
+(engine/nearest.py) against plain references: the numpy region tests over every candidate, and
+scipy's cKDTree."""
+
+import pickle
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from engine.align.closest import closest_among_faces
+from engine.align.matching import TargetSurface
+from engine.nearest import PointTree
+from engine.surface import closest_on_triangles
+
+
+@pytest.fixture(scope="module")
+def mesh():
+    m = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    V = np.asarray(m.vertices) * [1.0, 1.6, 0.7]  # uneven triangles: edge, corner and face regions all occur
+    return V, np.asarray(m.faces)
+
+
+def test_the_nearest_candidate_matches_the_numpy_region_tests(mesh):
+    V, F = mesh
+    rng = np.random.default_rng(3)
+    P = V[rng.integers(0, len(V), 500)] * rng.uniform(0.8, 1.2, (500, 1)) + rng.normal(0, 0.02, (500, 3))
+    candidates = rng.integers(0, len(F), (500, 7))
+    candidates[::5, 3:] = -1  # padding: no candidate there
+    points, distance, face, bary = closest_among_faces(P, V, F, candidates)
+    safe = np.where(candidates >= 0, candidates, 0)
+    tri = V[F[safe]]
+    ref_points, ref_bary = closest_on_triangles(P[:, None, :], tri[:, :, 0], tri[:, :, 1], tri[:, :, 2])
+    ref_distance = np.where(candidates >= 0, np.linalg.norm(ref_points - P[:, None, :], axis=2), np.inf)
+    best = np.argmin(ref_distance, axis=1)
+    rows = np.arange(len(P))
+    np.testing.assert_allclose(distance, ref_distance[rows, best], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(points, ref_points[rows, best], rtol=0, atol=1e-12)
+    # the face may differ only where two candidates share the closest point (an edge or a corner)
+    np.testing.assert_allclose(np.einsum("qk,qkc->qc", bary, V[F[face]]), points, rtol=0, atol=1e-12)
+    assert np.all(bary >= -1e-12) and np.allclose(bary.sum(axis=1), 1.0)
+    assert (face == candidates[rows, best]).mean() > 0.9
+
+
+def test_a_point_without_candidates_is_infinitely_far(mesh):
+    V, F = mesh
+    P = np.array([[0.0, 0.0, 1.0], [0.0, 0.9, 0.0]])
+    points, distance, face, _ = closest_among_faces(P, V, F, np.array([[-1, -1], [0, -1]]))
+    assert face[0] == -1 and np.isinf(distance[0]) and np.array_equal(points[0], P[0])
+    assert face[1] == 0 and np.isfinite(distance[1])
+
+
+def test_closest_points_on_a_target_are_the_exact_ones_nearly_everywhere(mesh):
+    """TargetSurface.closest looks among the 6 faces with the nearest centres: never nearer than
+    the exact closest point (every face a candidate), and that one for nearly every point."""
+    V, F = mesh
+    rng = np.random.default_rng(4)
+    P = V[rng.integers(0, len(V), 300)] + rng.normal(0, 0.003, (300, 3))
+    _, distance, _ = TargetSurface(V, F).closest(P)
+    _, exact, _, _ = closest_among_faces(P, V, F, np.broadcast_to(np.arange(len(F)), (len(P), len(F))))
+    assert np.all(distance >= exact - 1e-12)
+    assert np.mean(distance <= exact + 1e-12) > 0.95
+    assert np.max(distance - exact) < 1e-4
+
+
+def test_the_point_tree_finds_cKDTrees_neighbours_and_survives_pickling(mesh):
+    V, _ = mesh
+    rng = np.random.default_rng(5)
+    P = rng.normal(0, 0.5, (400, 3))
+    tree = PointTree(V)
+    for k in (1, 6):
+        d, i = tree.query(P, k=k)
+        d_ref, i_ref = cKDTree(V).query(P, k=k)
+        assert i.dtype == np.int64 and i.shape == i_ref.shape
+        np.testing.assert_array_equal(i, i_ref)
+        np.testing.assert_allclose(d, d_ref, rtol=1e-12)
+    again = pickle.loads(pickle.dumps(tree))
+    np.testing.assert_array_equal(again.query(P, k=3)[1], tree.query(P, k=3)[1])
+    with pytest.raises(ValueError, match="k must be between"):
+        tree.query(P, k=len(V) + 1)
