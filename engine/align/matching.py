@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.align.closest import closest_among_faces
+from engine.align.compiled import closest_among_faces, colour_choice
 from engine.align.shape_histogram import shape_centre
 from engine.nearest import PointTree
 from engine.surface import closest_on_triangles, main_components, vertex_normals  # noqa: F401 (re-exported)
@@ -159,30 +159,9 @@ def colour_flow(y, m, face, bary, target, colors, options):
     k = min(o.neighbours, len(target.V))
     _, idx = target.tree.query(y, k=k)
     idx = idx.reshape(len(y), k)
-    here = np.einsum("pk,pkc->pc", bary, target.colors[target.F[face]])
-    there = target.colors[idx]
-    # candidates: y, the k vertices, the k midpoints; scored block by block (no (p, 2k + 1, 3) copies)
-    vertices = target.V[idx]
-    middles = 0.5 * (y[:, None, :] + vertices)
-    sigma2, reach = o.colour_sigma ** 2, 2.0 * h * h
-    wanted = colors[:, None, :]
-    score = np.concatenate([
-        np.sum((here[:, None, :] - wanted) ** 2, axis=2) / sigma2,  # y itself: no distance
-        np.sum((there - wanted) ** 2, axis=2) / sigma2 + np.sum((vertices - y[:, None, :]) ** 2, axis=2) / reach,
-        np.sum((0.5 * (here[:, None, :] + there) - wanted) ** 2, axis=2) / sigma2
-        + np.sum((middles - y[:, None, :]) ** 2, axis=2) / reach], axis=1)
-    facing = np.einsum("pkc,pc->pk", target.normals[idx], m) > 0.5
-    allowed = np.concatenate([np.ones((len(y), 1), dtype=bool), facing, facing], axis=1)
-    score = np.where(allowed, score, np.inf)
-    best = np.argmin(score, axis=1)
-    rows = np.arange(len(y))
-    gain = score[:, 0] - score[rows, best]
-    pick = np.clip((best - 1) % k, 0, k - 1)
-    chosen = np.where((best <= k)[:, None], vertices[rows, pick], middles[rows, pick])
-    shift = np.where((best == 0)[:, None], 0.0, chosen - y)
-    shift -= np.einsum("pc,pc->p", shift, m)[:, None] * m
-    strength = gain / (gain + 1.0)
-    return shift, strength
+    # candidates: y (its colour interpolated in its face), the k vertices, the k midpoints
+    # towards them, scored one point at a time (engine.align.compiled.colour_choice)
+    return colour_choice(y, m, face, bary, idx, target, colors, o.colour_sigma, 2.0 * h * h)
 
 
 def reverse_correspondences(x, n, F, target, options, labels=None, count=1, subset=None):

@@ -1,4 +1,4 @@
-"""The compiled closest-point search (engine/align/closest.py) and the k-d tree behind it
+"""The compiled closest-point search (engine/align/compiled.py) and the k-d tree behind it
 (engine/nearest.py) against plain references: the numpy region tests over every candidate, and
 scipy's cKDTree."""
 
@@ -9,7 +9,7 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
-from engine.align.closest import closest_among_faces
+from engine.align.compiled import closest_among_faces
 from engine.align.matching import TargetSurface
 from engine.nearest import PointTree
 from engine.surface import closest_on_triangles
@@ -79,3 +79,48 @@ def test_the_point_tree_finds_cKDTrees_neighbours_and_survives_pickling(mesh):
     np.testing.assert_array_equal(again.query(P, k=3)[1], tree.query(P, k=3)[1])
     with pytest.raises(ValueError, match="k must be between"):
         tree.query(P, k=len(V) + 1)
+
+
+def reference_colour_flow(y, m, face, bary, idx, target, colors, sigma, reach):
+    """The colour cues' choice as (points, 2k + 1) numpy arrays (the formulation before the compiled one)."""
+    k = idx.shape[1]
+    here = np.einsum("pk,pkc->pc", bary, target.colors[target.F[face]])
+    there, vertices = target.colors[idx], target.V[idx]
+    middles = 0.5 * (y[:, None, :] + vertices)
+    wanted = colors[:, None, :]
+    score = np.concatenate([
+        np.sum((here[:, None, :] - wanted) ** 2, axis=2) / sigma**2,
+        np.sum((there - wanted) ** 2, axis=2) / sigma**2 + np.sum((vertices - y[:, None, :]) ** 2, axis=2) / reach,
+        np.sum((0.5 * (here[:, None, :] + there) - wanted) ** 2, axis=2) / sigma**2
+        + np.sum((middles - y[:, None, :]) ** 2, axis=2) / reach], axis=1)
+    facing = np.einsum("pkc,pc->pk", target.normals[idx], m) > 0.5
+    score = np.where(np.concatenate([np.ones((len(y), 1), dtype=bool), facing, facing], axis=1), score, np.inf)
+    best = np.argmin(score, axis=1)
+    rows = np.arange(len(y))
+    gain = score[:, 0] - score[rows, best]
+    pick = np.clip((best - 1) % k, 0, k - 1)
+    chosen = np.where((best <= k)[:, None], vertices[rows, pick], middles[rows, pick])
+    shift = np.where((best == 0)[:, None], 0.0, chosen - y)
+    shift -= np.einsum("pc,pc->p", shift, m)[:, None] * m
+    return shift, gain / (gain + 1.0)
+
+
+def test_the_colour_choice_matches_the_array_formulation(mesh):
+    from engine.align.compiled import colour_choice
+
+    V, F = mesh
+    rng = np.random.default_rng(6)
+    colours = rng.uniform(0, 1, (len(V), 3))
+    target = TargetSurface(V, F, colours)
+    P = V[rng.integers(0, len(V), 400)] + rng.normal(0, 0.01, (400, 3))
+    y, _, face = target.closest(P)
+    _, _, _, bary = closest_among_faces(P, target.V, target.F, target.face_tree.query(P, k=6)[1])
+    m = target.normals[target.F[face, 0]]
+    wanted = np.clip(colours[target.F[face, 0]] + rng.normal(0, 0.2, (400, 3)), 0, 1)
+    idx = target.tree.query(y, k=8)[1]
+    reach = 2.0 * target.edge_length**2
+    shift, strength = colour_choice(y, m, face, bary, idx, target, wanted, 0.12, reach)
+    ref_shift, ref_strength = reference_colour_flow(y, m, face, bary, idx, target, wanted, 0.12, reach)
+    np.testing.assert_allclose(shift, ref_shift, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(strength, ref_strength, rtol=0, atol=1e-12)
+    assert 0.2 < np.mean(strength > 0) < 1.0  # some matches move, some stay

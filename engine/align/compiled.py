@@ -1,13 +1,15 @@
-"""Closest points on a triangle mesh among given candidate faces, compiled (numba).
+"""The correspondence search's inner loops, compiled (numba).
 
-The correspondence searches of an alignment ask this about 90 times per pair of 10,000-vertex
+Closest points on a triangle mesh among given candidate faces (:func:`closest_among_faces`), and
+the colour cues' choice among a match's neighbours (:func:`colour_choice`). The correspondence searches of an alignment ask this about 90 times per pair of 10,000-vertex
 frames, for 3,000-10,000 points and 6 candidate faces each: written as numpy array operations
 (:func:`engine.surface.closest_on_triangles`) it was about a third of the aligner's CPU, here a
 loop over the points that keeps each point's candidates in registers is about ten times faster.
 
 The region tests are Ericson's ("Real-Time Collision Detection", section 5.1.5), as in
 :func:`engine.surface.closest_on_triangles`; the nearest candidate wins, the first of equals.
-Compiled on first use and cached beside this file (``__pycache__``), as numba does with
+:func:`colour_choice` scores the candidates of :func:`engine.align.matching.colour_flow` one
+point at a time instead of as (points, 17) arrays. Compiled on first use and cached beside this file (``__pycache__``), as numba does with
 ``cache=True``.
 """
 
@@ -114,4 +116,66 @@ def closest_among_faces(P, V, F, faces):
                           faces)
 
 
-__all__ = ["closest_among_faces"]
+@njit(cache=True, nogil=True)
+def _colour_choice(y, m, face, bary, idx, TV, TF, TN, TC, wanted, sigma2, reach):  # pragma: no cover
+    p, k = idx.shape
+    shift = np.zeros((p, 3))
+    strength = np.zeros(p)
+    for i in range(p):
+        f = face[i]
+        here = np.empty(3)
+        for c in range(3):
+            here[c] = bary[i, 0] * TC[TF[f, 0], c] + bary[i, 1] * TC[TF[f, 1], c] + bary[i, 2] * TC[TF[f, 2], c]
+        base = ((here[0] - wanted[i, 0]) ** 2 + (here[1] - wanted[i, 1]) ** 2
+                + (here[2] - wanted[i, 2]) ** 2) / sigma2
+        best, best_j, middle = base, -1, False
+        for half in range(2):  # the vertices first, then the midpoints (ties: the earlier wins)
+            for j in range(k):
+                v = idx[i, j]
+                if TN[v, 0] * m[i, 0] + TN[v, 1] * m[i, 1] + TN[v, 2] * m[i, 2] <= 0.5:
+                    continue
+                colour, reach2 = 0.0, 0.0
+                for c in range(3):
+                    there = TC[v, c] if half == 0 else 0.5 * (here[c] + TC[v, c])
+                    colour += (there - wanted[i, c]) ** 2
+                    gap = TV[v, c] - y[i, c] if half == 0 else 0.5 * (y[i, c] + TV[v, c]) - y[i, c]
+                    reach2 += gap * gap
+                score = colour / sigma2 + reach2 / reach
+                if score < best:
+                    best, best_j, middle = score, j, half == 1
+        gain = base - best
+        strength[i] = gain / (gain + 1.0)
+        if best_j >= 0:
+            v = idx[i, best_j]
+            along = 0.0
+            for c in range(3):
+                chosen = 0.5 * (y[i, c] + TV[v, c]) if middle else TV[v, c]
+                shift[i, c] = chosen - y[i, c]
+                along += shift[i, c] * m[i, c]
+            for c in range(3):
+                shift[i, c] -= along * m[i, c]
+    return shift, strength
+
+
+def colour_choice(y, m, face, bary, neighbours, target, colours, sigma, reach):
+    """The colour cues' tangential shifts and strengths (see :func:`engine.align.matching.colour_flow`).
+
+    Parameters
+    ----------
+    y, m : (p, 3) matches on the target and the target's normals there
+    face, bary : (p,), (p, 3) the face each match lies on and its barycentric coordinates
+    neighbours : (p, k) int   the target vertices nearest each match
+    target : TargetSurface with colours     colours : (p, 3) the source points' colours
+    sigma : float   the colour distance scale     reach : float   the squared distance scale
+
+    Returns
+    -------
+    shift : (p, 3) tangential shifts     strength : (p,) in [0, 1)
+    """
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    return _colour_choice(f64(y), f64(m), np.ascontiguousarray(face, dtype=np.int64), f64(bary),
+                          np.ascontiguousarray(neighbours, dtype=np.int64), target.V, target.F, target.normals,
+                          f64(target.colors), f64(colours), float(sigma) ** 2, float(reach))
+
+
+__all__ = ["closest_among_faces", "colour_choice"]
