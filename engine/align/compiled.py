@@ -178,4 +178,49 @@ def colour_choice(y, m, face, bary, neighbours, target, colours, sigma, reach):
                           f64(target.colors), f64(colours), float(sigma) ** 2, float(reach))
 
 
-__all__ = ["closest_among_faces", "colour_choice"]
+@njit(cache=True, nogil=True)
+def _rotation_fit(R, F, iterations):  # pragma: no cover (compiled; tested through rotation_fit)
+    out = np.empty_like(R)
+    for k in range(len(R)):
+        r00, r01, r02 = R[k, 0, 0], R[k, 0, 1], R[k, 0, 2]
+        r10, r11, r12 = R[k, 1, 0], R[k, 1, 1], R[k, 1, 2]
+        r20, r21, r22 = R[k, 2, 0], R[k, 2, 1], R[k, 2, 2]
+        f00, f01, f02 = F[k, 0, 0], F[k, 0, 1], F[k, 0, 2]
+        f10, f11, f12 = F[k, 1, 0], F[k, 1, 1], F[k, 1, 2]
+        f20, f21, f22 = F[k, 2, 0], F[k, 2, 1], F[k, 2, 2]
+        for _ in range(iterations):
+            # omega = sum_j r_j x f_j / (|r . f| + eps) over the columns j
+            wx = (r10 * f20 - r20 * f10) + (r11 * f21 - r21 * f11) + (r12 * f22 - r22 * f12)
+            wy = (r20 * f00 - r00 * f20) + (r21 * f01 - r01 * f21) + (r22 * f02 - r02 * f22)
+            wz = (r00 * f10 - r10 * f00) + (r01 * f11 - r11 * f01) + (r02 * f12 - r12 * f02)
+            dot = (r00 * f00 + r01 * f01 + r02 * f02 + r10 * f10 + r11 * f11 + r12 * f12
+                   + r20 * f20 + r21 * f21 + r22 * f22)
+            scale = abs(dot) + 1e-9
+            wx, wy, wz = wx / scale, wy / scale, wz / scale
+            angle = np.sqrt(wx * wx + wy * wy + wz * wz)
+            norm = angle if angle > 0 else 1.0
+            x, y, z = wx / norm, wy / norm, wz / norm
+            c, s = np.cos(angle), np.sin(angle)
+            u = 1.0 - c
+            q00, q01, q02 = c + x * x * u, x * y * u - z * s, x * z * u + y * s
+            q10, q11, q12 = y * x * u + z * s, c + y * y * u, y * z * u - x * s
+            q20, q21, q22 = z * x * u - y * s, z * y * u + x * s, c + z * z * u
+            r00, r10, r20 = q00 * r00 + q01 * r10 + q02 * r20, q10 * r00 + q11 * r10 + q12 * r20, \
+                q20 * r00 + q21 * r10 + q22 * r20
+            r01, r11, r21 = q00 * r01 + q01 * r11 + q02 * r21, q10 * r01 + q11 * r11 + q12 * r21, \
+                q20 * r01 + q21 * r11 + q22 * r21
+            r02, r12, r22 = q00 * r02 + q01 * r12 + q02 * r22, q10 * r02 + q11 * r12 + q12 * r22, \
+                q20 * r02 + q21 * r12 + q22 * r22
+        out[k, 0, 0], out[k, 0, 1], out[k, 0, 2] = r00, r01, r02
+        out[k, 1, 0], out[k, 1, 1], out[k, 1, 2] = r10, r11, r12
+        out[k, 2, 0], out[k, 2, 1], out[k, 2, 2] = r20, r21, r22
+    return out
+
+
+def rotation_fit_compiled(F, R0, iterations):
+    """:func:`engine.align.rigid.rotation_fit`'s iteration, one matrix at a time."""
+    return _rotation_fit(np.ascontiguousarray(R0, dtype=np.float64), np.ascontiguousarray(F, dtype=np.float64),
+                         int(iterations))
+
+
+__all__ = ["closest_among_faces", "colour_choice", "rotation_fit_compiled"]

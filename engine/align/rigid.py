@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from engine.align.compiled import rotation_fit_compiled
 from engine.rotations import axis_angle_matrix
 
 
@@ -33,54 +34,13 @@ def rotation_fit(F, R0, iterations=4):
     -----
     Müller, Bender, Chentanez, Macklin, "A robust method to extract the rotational part of
     deformations" (MIG 2016): ``omega = sum_i r_i x f_i / (|sum_i r_i . f_i| + eps)`` over the
-    columns, ``R <- exp(omega) R``. Each step is a few vectorised products, far cheaper than a
+    columns, ``R <- exp(omega) R``. Each step is a few products, far cheaper than a
     batched SVD, and a warm start needs only a few steps.
+    The iteration runs one matrix at a time in compiled code
+    (:func:`engine.align.compiled.rotation_fit_compiled`), about three times faster than as
+    batched array operations.
     """
-    R = np.array(R0, dtype=np.float64, copy=True)
-    F = np.asarray(F, dtype=np.float64)
-    Fc = np.ascontiguousarray(F.transpose(1, 2, 0))  # (3, 3, t): one contiguous row per entry
-    for _ in range(iterations):
-        cross = _column_cross_sum(np.ascontiguousarray(R.transpose(1, 2, 0)), Fc)
-        dot = np.einsum("tij,tij->t", R, F)
-        scale = np.abs(dot) + 1e-9
-        R = _rodrigues_rows(cross[0] / scale, cross[1] / scale, cross[2] / scale) @ R
-    return R
-
-
-def _column_cross_sum(R, F):
-    """``sum_j R[:, j] x F[:, j]`` for (3, 3, t) entry-major matrices: its three (t,) components.
-
-    The arithmetic of ``np.cross(R, F, axisa=1, axisb=1, axisc=1).sum(axis=2)`` on (t, 3, 3)
-    stacks (the same numbers) on contiguous rows, about ten times faster.
-    """
-    a = R[1] * F[2] - R[2] * F[1]
-    b = R[2] * F[0] - R[0] * F[2]
-    c = R[0] * F[1] - R[1] * F[0]
-    return a[0] + a[1] + a[2], b[0] + b[1] + b[2], c[0] + c[1] + c[2]
-
-
-def _rodrigues_rows(wx, wy, wz):
-    """:func:`rodrigues` of the rotation vectors (wx, wy, wz) given as three (t,) arrays: (t, 3, 3).
-
-    The arithmetic of ``engine.rotations.axis_angle_matrix(omega, |omega|)`` (the same numbers)
-    on contiguous rows.
-    """
-    angle = np.sqrt(wx * wx + wy * wy + wz * wz)
-    norm = np.where(angle > 0, angle, 1.0)
-    x, y, z = wx / norm, wy / norm, wz / norm
-    c, s = np.cos(angle), np.sin(angle)
-    t = 1.0 - c
-    R = np.empty((len(angle), 3, 3))
-    R[:, 0, 0] = c + x * x * t
-    R[:, 0, 1] = x * y * t - z * s
-    R[:, 0, 2] = x * z * t + y * s
-    R[:, 1, 0] = y * x * t + z * s
-    R[:, 1, 1] = c + y * y * t
-    R[:, 1, 2] = y * z * t - x * s
-    R[:, 2, 0] = z * x * t - y * s
-    R[:, 2, 1] = z * y * t + x * s
-    R[:, 2, 2] = c + z * z * t
-    return R
+    return rotation_fit_compiled(F, R0, iterations)
 
 
 def stack_rotations(R):
