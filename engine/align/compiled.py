@@ -223,4 +223,50 @@ def rotation_fit_compiled(F, R0, iterations):
                          int(iterations))
 
 
-__all__ = ["closest_among_faces", "colour_choice", "rotation_fit_compiled"]
+@njit(cache=True, nogil=True)
+def _patch_normal_equations(p, r, M, W, tangential, labels, count):  # pragma: no cover (compiled)
+    H = np.zeros((count, 6, 6))
+    g = np.zeros((count, 6))
+    J = np.zeros((3, 6))
+    metric = np.empty((3, 3))
+    JtM = np.empty((6, 3))
+    for q in range(len(p)):
+        w, tau = W[q], tangential[q]
+        for i in range(3):
+            for j in range(3):
+                mm = M[q, i] * M[q, j]
+                metric[i, j] = w * (mm + tau * ((1.0 if i == j else 0.0) - mm))
+        # x - y = (p + c - y) + [-[p]x  I] [omega; shift]
+        J[0, 1], J[0, 2], J[0, 3] = p[q, 2], -p[q, 1], 1.0
+        J[1, 0], J[1, 2], J[1, 4] = -p[q, 2], p[q, 0], 1.0
+        J[2, 0], J[2, 1], J[2, 5] = p[q, 1], -p[q, 0], 1.0
+        for i in range(6):
+            for l in range(3):
+                JtM[i, l] = J[0, i] * metric[0, l] + J[1, i] * metric[1, l] + J[2, i] * metric[2, l]
+        k = labels[q]
+        for i in range(6):
+            for j in range(6):
+                H[k, i, j] += JtM[i, 0] * J[0, j] + JtM[i, 1] * J[1, j] + JtM[i, 2] * J[2, j]
+            g[k, i] += JtM[i, 0] * r[q, 0] + JtM[i, 1] * r[q, 1] + JtM[i, 2] * r[q, 2]
+    return H, g
+
+
+def patch_normal_equations(p, r, M, W, tangential, labels, count):
+    """Per patch, the 6x6 normal matrix and the 6-vector of :func:`engine.align.rigid.patch_rigid_steps`.
+
+    Parameters
+    ----------
+    p : (q, 3) points relative to their patch's centre     r : (q, 3) residuals P - Y
+    M : (q, 3) unit normals     W, tangential : (q,) weights     labels : (q,) patch of each point
+    count : int number of patches
+
+    Returns
+    -------
+    H : (count, 6, 6)     g : (count, 6)   sums over each patch's points, in the points' order
+    """
+    f64 = lambda a: np.ascontiguousarray(a, dtype=np.float64)  # noqa: E731
+    return _patch_normal_equations(f64(p), f64(r), f64(M), f64(W), f64(tangential),
+                                   np.ascontiguousarray(labels, dtype=np.int64), int(count))
+
+
+__all__ = ["closest_among_faces", "colour_choice", "patch_normal_equations", "rotation_fit_compiled"]

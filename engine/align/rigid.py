@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.align.compiled import rotation_fit_compiled
+from engine.align.compiled import patch_normal_equations, rotation_fit_compiled
 from engine.rotations import axis_angle_matrix
 
 
@@ -101,26 +101,9 @@ def patch_rigid_steps(P, Y, M, W, tangential, labels, count, coupling=None):
     centres = np.where(weight_sum[:, None] > 1e-9, centres / np.maximum(weight_sum, 1e-300)[:, None],
                        fallback / np.maximum(plain, 1.0)[:, None])
     p = P - centres[labels]
-    # Written out on contiguous rows, entry by entry, with the arithmetic (and the order of the
-    # sums) of the per-point einsums they replace: the same numbers, several times faster.
-    # metric M_i = w (m m^T + tau (I - m m^T))
-    Mt = np.ascontiguousarray(M.T)
-    eye = np.eye(3)
-    metric = [[W * (Mt[i] * Mt[j] + tangential * (eye[i, j] - Mt[i] * Mt[j])) for j in range(3)]
-              for i in range(3)]
-    # x - y = (p + c - y) + [-[p]x  I] [omega; shift]: J (3, 6) per point
-    pt = np.ascontiguousarray(p.T)
-    zero, one = np.zeros(len(p)), np.ones(len(p))
-    J = [[zero, pt[2], -pt[1], one, zero, zero],
-         [-pt[2], zero, pt[0], zero, one, zero],
-         [pt[1], -pt[0], zero, zero, zero, one]]
-    JtM = [[J[0][i] * metric[0][l] + J[1][i] * metric[1][l] + J[2][i] * metric[2][l] for l in range(3)]
-           for i in range(6)]
-    H = [JtM[i][0] * J[0][j] + JtM[i][1] * J[1][j] + JtM[i][2] * J[2][j] for i in range(6) for j in range(6)]
-    # (this one stays an einsum over a (p, 6, 3) copy: its sum is not taken in written order)
-    g = np.einsum("pil,pl->pi", np.stack([np.stack(row, axis=1) for row in JtM], axis=1), P - Y)
-    Hs = np.stack([np.bincount(labels, weights=h, minlength=count) for h in H], axis=1)
-    gs = np.stack([np.bincount(labels, weights=g[:, a], minlength=count) for a in range(6)], axis=1)
+    # per point: metric w (m m^T + tau (I - m m^T)), J = [-[p]x  I] (x - y = p + c - y + J delta),
+    # J^T metric J and J^T metric (x - y), summed per patch (compiled)
+    Hs, gs = patch_normal_equations(p, P - Y, M, W, tangential, labels, count)
     Hs = Hs.reshape(count, 6, 6)
     scale = np.trace(Hs, axis1=1, axis2=2) / 6.0
     Hs = Hs + (1e-3 * scale + 1e-12)[:, None, None] * np.eye(6)

@@ -146,3 +146,28 @@ def test_the_rotation_fit_matches_the_batched_array_formulation():
     U, _, Vt = np.linalg.svd(F)
     polar = U @ Vt  # the closest rotations (all proper here)
     assert np.abs(rotation_fit(F, R0, iterations=12) - polar).max() < 1e-6  # it converges to them
+
+
+def test_the_patch_normal_equations_match_the_per_point_einsums():
+    from engine.align.compiled import patch_normal_equations
+
+    rng = np.random.default_rng(8)
+    q, count = 3000, 17
+    p, r = rng.normal(0, 0.1, (q, 3)), rng.normal(0, 0.01, (q, 3))
+    M = rng.normal(size=(q, 3))
+    M /= np.linalg.norm(M, axis=1, keepdims=True)
+    W, tau = rng.uniform(0, 1, q), rng.uniform(0, 0.3, q)
+    labels = rng.integers(0, count - 1, q)  # the last patch gets no point
+    metric = W[:, None, None] * (M[:, :, None] * M[:, None, :]
+                                 + tau[:, None, None] * (np.eye(3) - M[:, :, None] * M[:, None, :]))
+    cross = np.zeros((q, 3, 3))  # -[p]x: cross @ omega = omega x p
+    cross[:, 0, 1], cross[:, 0, 2], cross[:, 1, 0] = p[:, 2], -p[:, 1], -p[:, 2]
+    cross[:, 1, 2], cross[:, 2, 0], cross[:, 2, 1] = p[:, 0], p[:, 1], -p[:, 0]
+    J = np.concatenate([cross, np.broadcast_to(np.eye(3), (q, 3, 3))], axis=2)  # (q, 3, 6)
+    H_points = np.einsum("pri,prl,plj->pij", J, metric, J)
+    g_points = np.einsum("pri,prl,pl->pi", J, metric, r)
+    H, g = patch_normal_equations(p, r, M, W, tau, labels, count)
+    for k in range(count):
+        np.testing.assert_allclose(H[k], H_points[labels == k].sum(axis=0), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(g[k], g_points[labels == k].sum(axis=0), rtol=1e-12, atol=1e-15)
+    assert not H[count - 1].any() and not g[count - 1].any()
