@@ -6,6 +6,8 @@ One module per step, in pipeline order:
 ``similarity``       ``D, yaw = dissimilarity_matrix(H)``, ``shape_dissimilarity(meshes, lengths)``
 ``similarity_tree``  ``tree = similarity_tree(D)``                   pruned minimum spanning tree
 ``matching``         ``TargetSurface(V, F)``, correspondences on a frame's surface
+``compiled``         their inner loops in numba: closest points among candidate faces, the
+                     colour cues' choice, the rotation fit, the patches' normal equations
 ``rigid``            ``rotation_fit``, point-to-plane and per-patch rigid steps
 ``patches``          ``farthest_point_patches``, the articulated patch search
 ``pairwise``         ``PairwiseAligner(V, F).align(X, target)``      one frame onto another
