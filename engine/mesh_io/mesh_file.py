@@ -5,7 +5,7 @@ from __future__ import annotations
 import os
 from pathlib import Path, PurePosixPath
 
-from .errors import MeshFormatError
+from .errors import MeshFormatError, MeshValidationError
 from .glb import read_glb
 from .obj import read_obj, write_obj
 from .off import read_off, write_off
@@ -56,7 +56,7 @@ def read_mesh(path_or_file, *, name=None, file_type=None):
     MeshFormatError
         Unsupported type, missing or unreadable file, parse error, truncated file.
     MeshValidationError
-        Empty mesh, non-finite coordinate, face index out of range.
+        Empty mesh or file, non-finite coordinate, face index out of range.
     """
     if isinstance(path_or_file, (str, os.PathLike)):
         source = name if name is not None else os.fspath(path_or_file)
@@ -82,6 +82,8 @@ def read_mesh(path_or_file, *, name=None, file_type=None):
         raise TypeError(
             f"read_mesh needs a path, bytes or a binary file, not {type(path_or_file).__name__}"
         )
+    if len(data) == 0:  # whatever its type (a PLY reader would say "not a PLY file")
+        raise MeshValidationError(f"{source}: the mesh is empty (the file has 0 bytes)")
     return reader(data, str(source))
 
 

@@ -384,7 +384,7 @@ def run(args):
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
           f"{result.tree.components} components reconnected), tetrahedralise {t['tetrahedralize']:.1f} s, "
           f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "
-          f"{args.workers} workers ({aligned.seconds.sum() / max(frames - 1, 1):.2f} s, "
+          f"{args.workers} worker{'s' if args.workers != 1 else ''} ({aligned.seconds.sum() / max(frames - 1, 1):.2f} s, "
           f"{aligned.cpu_seconds.sum() / max(frames - 1, 1):.2f} CPU s per frame and aligner)")
     size = model_size(aligned.root_vertices)
     convention = common_convention(conventions)

@@ -419,7 +419,10 @@ def test_non_finite_coordinate_names_the_file_and_vertex(tmp_path):
 @pytest.mark.parametrize(
     "name, data, expected",
     [
-        ("empty.obj", b"", "0 vertices"),
+        ("empty.obj", b"", "the file has 0 bytes"),
+        ("empty.ply", b"", "the file has 0 bytes"),
+        ("empty.off", b"", "the file has 0 bytes"),
+        ("no_vertices.obj", b"# nothing\n", "0 vertices"),
         ("points.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\n", "0 faces"),
         ("points.off", b"OFF\n3 0 0\n0 0 0\n1 0 0\n0 1 0\n", "0 faces"),
         ("points.ply", b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n"
