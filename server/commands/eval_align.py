@@ -177,6 +177,24 @@ def _truth_conventions(dataset, manifest, aligned, names, parts, units, up):
     return conventions
 
 
+def _depth(edges, root, frames):
+    """Each frame's depth in the similarity tree (``alignment.npz``'s ``tree_edges``, the tree the
+    frames were aligned along, as ``eval-align`` reports it; repairs change a frame's ``parent``,
+    not its depth), or None without it."""
+    if edges is None:
+        return None
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order
+
+    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(frames, frames))
+    order, predecessors = breadth_first_order(graph, int(root), directed=False)
+    depth = np.zeros(frames, dtype=np.int64)
+    for frame in order[1:]:
+        depth[frame] = depth[predecessors[frame]] + 1
+    return depth
+
+
 def _load_aligned(directory, dataset_names):
     """An earlier `morphspace align` output: vertices, faces, root, root vertices, names, lengths."""
     path = directory / "alignment.npz"
@@ -185,8 +203,8 @@ def _load_aligned(directory, dataset_names):
             names = [str(n) for n in data["sequence_names"]]
             lengths = data["lengths"].astype(np.int64)
             root = int(data["root"])
-            extra = {k: data[k] for k in ("residual", "residual_max", "seconds", "retried", "cpu_seconds")
-                     if k in data.files}
+            extra = {k: data[k] for k in ("residual", "residual_max", "seconds", "retried", "cpu_seconds",
+                                          "confidence", "repaired", "tree_edges") if k in data.files}
     except FileNotFoundError:
         raise MeshFormatError(f"{path}: not found; is {directory} a `morphspace align` output?") from None
     except (OSError, ValueError, KeyError) as exc:
@@ -229,7 +247,9 @@ def run(args):
             record, _ = _score("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths, names,
                                residual=extra.get("residual"), residual_max=extra.get("residual_max"),
                                seconds=extra.get("seconds"), retried=extra.get("retried"),
-                               cpu_seconds=extra.get("cpu_seconds"), part_counts=_part_counts(manifest))
+                               cpu_seconds=extra.get("cpu_seconds"), confidence=extra.get("confidence"),
+                               repaired=extra.get("repaired"), part_counts=_part_counts(manifest),
+                               depth=_depth(extra.get("tree_edges"), root, int(lengths.sum())))
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, aligned=record,
                           **_units_report(names, conventions))
             results = {"aligned": (vertices, faces, root_vertices)}

@@ -160,6 +160,14 @@ def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, cap
     assert main(["eval-align", str(dataset), "--aligned", str(aligned), "--out", str(tmp_path), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["aligned"]["mean_pct"] < 1.5
+    # the confidence the alignment recorded, and the tree depths it aligned along (alignment.npz)
+    record = np.load(aligned / "alignment.npz")
+    assert report["aligned"]["flagged_frames"] == int(np.sum(record["confidence"] < 0.5))
+    assert report["aligned"]["repaired_frames"] == int(np.sum(record["repaired"]))
+    breakdown = report["aligned"]["breakdown"]
+    assert set(breakdown["confidence"]) == {"over_2pct", "over_3pct"}
+    assert sum(row["frames"] for row in breakdown["per_depth"]) == report["frames"] - 1
+    assert all({"depth", "confidence"} <= set(row) for row in breakdown["worst_frames"])
 
 
 def test_bad_input_gives_a_clear_error(tmp_path, capsys, dataset):
