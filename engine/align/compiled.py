@@ -1,16 +1,19 @@
-"""The correspondence search's inner loops, compiled (numba).
+"""The alignment's inner loops, compiled (numba).
 
-Closest points on a triangle mesh among given candidate faces (:func:`closest_among_faces`), and
-the colour cues' choice among a match's neighbours (:func:`colour_choice`). The correspondence searches of an alignment ask this about 90 times per pair of 10,000-vertex
-frames, for 3,000-10,000 points and 6 candidate faces each: written as numpy array operations
-(:func:`engine.surface.closest_on_triangles`) it was about a third of the aligner's CPU, here a
-loop over the points that keeps each point's candidates in registers is about ten times faster.
+- :func:`closest_among_faces`: closest points on a triangle mesh among given candidate faces.
+  The correspondence searches of an alignment ask this about 90 times per pair of 10,000-vertex
+  frames, for 3,000-10,000 points and 6 candidate faces each: as numpy array operations
+  (:func:`engine.surface.closest_on_triangles`) it was about a third of the aligner's CPU; a loop
+  over the points that keeps each point's candidates in registers is about ten times faster. The
+  region tests are Ericson's ("Real-Time Collision Detection", section 5.1.5); the nearest
+  candidate wins, the first of equals.
+- :func:`colour_choice`: the colour cues' choice among a match's 17 candidates
+  (:func:`engine.align.matching.colour_flow`), one point at a time.
+- :func:`rotation_fit_compiled`: :func:`engine.align.rigid.rotation_fit`'s iteration, one matrix
+  at a time.
+- :func:`patch_normal_equations`: the per-patch sums of :func:`engine.align.rigid.patch_rigid_steps`.
 
-The region tests are Ericson's ("Real-Time Collision Detection", section 5.1.5), as in
-:func:`engine.surface.closest_on_triangles`; the nearest candidate wins, the first of equals.
-:func:`colour_choice` scores the candidates of :func:`engine.align.matching.colour_flow` one
-point at a time instead of as (points, 17) arrays. Compiled on first use and cached beside this file (``__pycache__``), as numba does with
-``cache=True``.
+Compiled on first use (about 3 s) and cached on disk (:func:`_compiled` says where).
 """
 
 from __future__ import annotations
@@ -19,7 +22,19 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True)
+def _compiled(function):
+    """``function`` compiled with numba, its machine code cached on disk where numba can write:
+    beside this file, else numba's per-user cache (or ``NUMBA_CACHE_DIR``). Where neither is
+    writable (a read-only install run by a user without a writable home: numba refuses to cache
+    there with a RuntimeError at import), it is compiled in every process instead (a few seconds
+    the first time it is called)."""
+    try:
+        return njit(cache=True, nogil=True)(function)
+    except RuntimeError:
+        return njit(nogil=True)(function)
+
+
+@_compiled
 def _closest_among(P, V, F, faces):  # pragma: no cover (compiled; tested through closest_among_faces)
     q, k = faces.shape
     points = np.empty((q, 3))
@@ -116,7 +131,7 @@ def closest_among_faces(P, V, F, faces):
                           faces)
 
 
-@njit(cache=True, nogil=True)
+@_compiled
 def _colour_choice(y, m, face, bary, idx, TV, TF, TN, TC, wanted, sigma2, reach):  # pragma: no cover
     p, k = idx.shape
     shift = np.zeros((p, 3))
@@ -178,7 +193,7 @@ def colour_choice(y, m, face, bary, neighbours, target, colours, sigma, reach):
                           f64(target.colors), f64(colours), float(sigma) ** 2, float(reach))
 
 
-@njit(cache=True, nogil=True)
+@_compiled
 def _rotation_fit(R, F, iterations):  # pragma: no cover (compiled; tested through rotation_fit)
     out = np.empty_like(R)
     for k in range(len(R)):
@@ -223,7 +238,7 @@ def rotation_fit_compiled(F, R0, iterations):
                          int(iterations))
 
 
-@njit(cache=True, nogil=True)
+@_compiled
 def _patch_normal_equations(p, r, M, W, tangential, labels, count):  # pragma: no cover (compiled)
     H = np.zeros((count, 6, 6))
     g = np.zeros((count, 6))

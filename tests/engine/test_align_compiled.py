@@ -171,3 +171,35 @@ def test_the_patch_normal_equations_match_the_per_point_einsums():
         np.testing.assert_allclose(H[k], H_points[labels == k].sum(axis=0), rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(g[k], g_points[labels == k].sum(axis=0), rtol=1e-12, atol=1e-15)
     assert not H[count - 1].any() and not g[count - 1].any()
+
+
+def test_a_read_only_install_without_a_writable_home_still_aligns(tmp_path):
+    """numba refuses ``cache=True`` with a RuntimeError at import where neither the package nor a
+    user cache is writable (a container's read-only install run as a user without a home): the
+    loops then compile in the process. Checked with the package and HOME mounted read-only in a
+    mount namespace of their own (skipped where the host does not allow one)."""
+    import shutil
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[2]
+    package = tmp_path / "install"
+    shutil.copytree(root / "engine", package / "engine", ignore=shutil.ignore_patterns("__pycache__"))
+    home = tmp_path / "home"
+    home.mkdir()
+    probe = ("import numpy as np; from engine.align.compiled import closest_among_faces; "
+             "V = np.eye(3); F = np.array([[0, 1, 2]]); "
+             "print(closest_among_faces(np.zeros((1, 3)), V, F, np.zeros((1, 1), dtype=int))[1][0])")
+    script = (f"mount --bind {package} {package} && mount -o remount,bind,ro {package} && "
+              f"mount --bind {home} {home} && mount -o remount,bind,ro {home} && "
+              f"! touch {package}/probe 2>/dev/null && "
+              f"HOME={home} NUMBA_CACHE_DIR= PYTHONPATH={package} {sys.executable} -c '{probe}'")
+    if shutil.which("unshare") is None or subprocess.run(["unshare", "-m", "true"], capture_output=True).returncode:
+        pytest.skip("no mount namespaces here")
+    done = subprocess.run(["unshare", "-m", "bash", "-c", script], capture_output=True, text=True, timeout=300,
+                          cwd=tmp_path, env={k: v for k, v in __import__("os").environ.items()
+                                             if k != "NUMBA_CACHE_DIR"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert abs(float(done.stdout.split()[-1]) - 1 / np.sqrt(3)) < 1e-12  # the origin to the plane x+y+z=1
+    assert not list((package / "engine" / "align").glob("__pycache__/*.nbi"))  # nothing cached there
