@@ -13,17 +13,17 @@ from __future__ import annotations
 import numpy as np
 from pykdtree.kdtree import KDTree
 
-_single_thread = None
+_single_thread = False
 
 
 def _one_thread():
     """Hold pykdtree's OpenMP runtime (libgomp) to one thread, once per process."""
     global _single_thread
-    if _single_thread is None:
+    if not _single_thread:
         from threadpoolctl import ThreadpoolController
 
-        controller = ThreadpoolController()
-        _single_thread = controller.select(user_api="openmp").limit(limits=1) or True
+        ThreadpoolController().select(user_api="openmp").limit(limits=1)
+        _single_thread = True
 
 
 class PointTree:
@@ -45,9 +45,6 @@ class PointTree:
         self.leafsize = int(leafsize)
         _one_thread()
         self._tree = KDTree(self.points, leafsize=self.leafsize)
-
-    def __len__(self):
-        return len(self.points)
 
     def query(self, P, k=1):
         """Distances and indices of the ``k`` nearest points to each of P (q, 3).

@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from engine.nearest import PointTree
+
 
 def model_size(V):
     """Largest extent of the axis-aligned bounding box (DESIGN.md: "model size").
@@ -175,8 +177,6 @@ class SurfaceQuery:
         self.V = np.asarray(V, dtype=float)
         self.F = np.asarray(F, dtype=np.int64)
         self.k = int(min(k, len(self.V)))
-        from engine.nearest import PointTree
-
         self.tree = PointTree(self.V)
         n = len(self.V)
         incidence = sp.csr_matrix(

@@ -13,7 +13,7 @@ import numpy as np
 from engine.align.compiled import closest_among_faces, colour_choice
 from engine.align.shape_histogram import shape_centre
 from engine.nearest import PointTree
-from engine.surface import closest_on_triangles, main_components, vertex_normals  # noqa: F401 (re-exported)
+from engine.surface import main_components, vertex_normals
 
 
 class TargetSurface:
@@ -244,6 +244,6 @@ def point_to_mesh_distance(P, V, F, k=6):
     return closest_points(P, V, F, PointTree(V[F].mean(axis=1)), k=k)[1]
 
 
-__all__ = ["TargetSurface", "closest_on_triangles", "closest_points", "colour_flow", "compatible_closest",
+__all__ = ["TargetSurface", "closest_points", "colour_flow", "compatible_closest",
            "correspondence_weights", "correspondences", "nearest_compatible",
            "normal_cosine", "point_to_mesh_distance", "reverse_correspondences", "robust_weights", "sample_cost"]

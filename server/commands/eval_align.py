@@ -28,7 +28,7 @@ from tqdm import tqdm
 from engine.align import AlignmentOptions, align_captures, error_summary, pattern_sheet, score_alignment
 from engine.align.breakdown import error_breakdown
 from engine.align.evaluation import part_errors, part_labels
-from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
+from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS, rooted_tree
 from engine.align.captures import ROOT_CHOICES
 from engine.align.repair import TRUSTED
 from engine.mesh_io import read_mesh, read_sequence
@@ -177,22 +177,13 @@ def _truth_conventions(dataset, manifest, aligned, names, parts, units, up):
     return conventions
 
 
-def _depth(edges, root, frames):
-    """Each frame's depth in the similarity tree (``alignment.npz``'s ``tree_edges``, the tree the
-    frames were aligned along, as ``eval-align`` reports it; repairs change a frame's ``parent``,
-    not its depth), or None without it."""
-    if edges is None:
+def _depth(extra, root, frames):
+    """Each frame's depth in the similarity tree the frames were aligned along (``alignment.npz``'s
+    ``tree_edges``; repairs change a frame's ``parent``, not its depth), or None without it."""
+    if "tree_edges" not in extra:
         return None
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import breadth_first_order
-
-    edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(frames, frames))
-    order, predecessors = breadth_first_order(graph, int(root), directed=False)
-    depth = np.zeros(frames, dtype=np.int64)
-    for frame in order[1:]:
-        depth[frame] = depth[predecessors[frame]] + 1
-    return depth
+    edges = extra["tree_edges"]
+    return rooted_tree(edges, extra.get("tree_weights", np.zeros(len(edges))), root, frames).depth
 
 
 def _load_aligned(directory, dataset_names):
@@ -204,7 +195,7 @@ def _load_aligned(directory, dataset_names):
             lengths = data["lengths"].astype(np.int64)
             root = int(data["root"])
             extra = {k: data[k] for k in ("residual", "residual_max", "seconds", "retried", "cpu_seconds",
-                                          "confidence", "repaired", "tree_edges") if k in data.files}
+                                          "confidence", "repaired", "tree_edges", "tree_weights") if k in data.files}
     except FileNotFoundError:
         raise MeshFormatError(f"{path}: not found; is {directory} a `morphspace align` output?") from None
     except (OSError, ValueError, KeyError) as exc:
@@ -249,7 +240,7 @@ def run(args):
                                seconds=extra.get("seconds"), retried=extra.get("retried"),
                                cpu_seconds=extra.get("cpu_seconds"), confidence=extra.get("confidence"),
                                repaired=extra.get("repaired"), part_counts=_part_counts(manifest),
-                               depth=_depth(extra.get("tree_edges"), root, int(lengths.sum())))
+                               depth=_depth(extra, root, int(lengths.sum())))
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, aligned=record,
                           **_units_report(names, conventions))
             results = {"aligned": (vertices, faces, root_vertices)}

@@ -178,6 +178,7 @@ def test_a_read_only_install_without_a_writable_home_still_aligns(tmp_path):
     user cache is writable (a container's read-only install run as a user without a home): the
     loops then compile in the process. Checked with the package and HOME mounted read-only in a
     mount namespace of their own (skipped where the host does not allow one)."""
+    import os
     import shutil
     import subprocess
     import sys
@@ -198,8 +199,7 @@ def test_a_read_only_install_without_a_writable_home_still_aligns(tmp_path):
     if shutil.which("unshare") is None or subprocess.run(["unshare", "-m", "true"], capture_output=True).returncode:
         pytest.skip("no mount namespaces here")
     done = subprocess.run(["unshare", "-m", "bash", "-c", script], capture_output=True, text=True, timeout=300,
-                          cwd=tmp_path, env={k: v for k, v in __import__("os").environ.items()
-                                             if k != "NUMBA_CACHE_DIR"})
+                          cwd=tmp_path, env={k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"})
     assert done.returncode == 0, done.stderr[-2000:]
     assert abs(float(done.stdout.split()[-1]) - 1 / np.sqrt(3)) < 1e-12  # the origin to the plane x+y+z=1
     assert not list((package / "engine" / "align").glob("__pycache__/*.nbi"))  # nothing cached there
