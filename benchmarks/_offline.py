@@ -81,6 +81,12 @@ async def _measure(space_path, clients, seconds, share, seed):
         session.ready = True
         sessions.append(session)
         steering.append(rng.random() < share)
+    try:  # what the server does before it serves (trees before it had no compiled loops)
+        from engine.blend.compiled import warm_up
+    except ImportError:
+        pass
+    else:
+        warm_up()
     gc.freeze()
     period = 1.0 / 60.0
     next_request = [rng.uniform(0.0, 0.5) if s else float("inf") for s in steering]

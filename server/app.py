@@ -20,6 +20,7 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
+from engine.blend.compiled import warm_up as warm_up_stream
 from server import __version__
 from server.api import datasets, exports, graphs, jobs, spaces
 from server.jobs import JobService
@@ -48,6 +49,9 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
         for directory in (settings.data_dir, settings.spaces_dir, settings.datasets_dir, settings.work_dir):
             directory.mkdir(parents=True, exist_ok=True)
         await app.state.jobs.start()
+        # the stream's compiled loops, loaded from numba's cache (compiled the first time: a few
+        # seconds) before the first client, not in the middle of its first frames
+        await asyncio.to_thread(warm_up_stream)
         publisher = stop_listening = None
         if worker is not None:
             publisher = asyncio.create_task(worker.publish_forever(lambda: local_counters(app.state)))

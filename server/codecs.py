@@ -31,6 +31,7 @@ class Quantiser:
         self._scale = np.tile(self.scale, self.n_vertices)
         self._offset = np.tile(self.offset, self.n_vertices)
         self._q = np.empty(3 * self.n_vertices, dtype=np.float32)
+        self.codes = (self._scale, self._offset)  # per flat value: what compiled encoders take
         self.key = ("q16", self.scale.tobytes(), self.offset.tobytes())
 
     def encode(self, V):
@@ -42,17 +43,6 @@ class Quantiser:
         call: its raw bytes are ``encode(V)``)."""
         q = self._q
         np.multiply(np.asarray(V, dtype=np.float32).reshape(-1), self._scale, out=q)
-        np.add(q, self._offset, out=q)
-        np.clip(q, np.float32(0.0), np.float32(65535.0), out=q)
-        return q.astype("<u2")
-
-    def encode_rows(self, R, overwrite=False):
-        """(K, 3 n) little-endian uint16 codes of K frames' flat vertices ``R`` (K, 3 n) float32:
-        each row the same numbers as ``encode_array`` of it (the same float32 steps, in one pass
-        over all rows). ``overwrite``: ``R`` (a float32 array) is the scratch of those steps (its
-        values are lost; no new float array)."""
-        R = np.asarray(R, dtype=np.float32)
-        q = np.multiply(R, self._scale, out=R if overwrite else None)
         np.add(q, self._offset, out=q)
         np.clip(q, np.float32(0.0), np.float32(65535.0), out=q)
         return q.astype("<u2")

@@ -10,10 +10,10 @@ client message makes a frame urgent). Per tick:
   time (``PhaseTable.rows_cast``), q16 clients' straight from the table in codec units
   (``Quantiser.table``), so their integers need one truncating cast;
 - clients at moving weights (steering, linear or hybrid) are grouped by blender: each group is
-  one ``ManyBlender.blend`` (engine/blend/many.py: a hybrid frame interpolates its simplex leaf's
-  reference blends) and its q16 clients one encode (``Quantiser.encode_rows``); a row's bytes do
-  not depend on the rest of its group, so a client blended alone (``send_frame(None)``) gets the
-  same frame;
+  one ``ManyBlender.blend`` per codec (engine/blend/many.py: a hybrid frame interpolates its
+  simplex leaf's reference blends, q16 clients' codes made in the same compiled pass); a row's
+  bytes do not depend on the rest of its group, so a client blended alone (``send_frame(None)``)
+  gets the same frame;
 - the non-linear mode and motion graphs blend one client at a time;
 - frames are written without a task switch, straight to the transport (server/transport.py: the
   message assembled with one copy), and only into a transport that has taken everything before
@@ -184,22 +184,21 @@ class FrameScheduler:
 
     def _blend_together(self, blender, members):
         """The frames of ``members`` [(session, weights, phase)] at moving weights of one blender:
-        one blend, then one q16 encode per quantiser; sets each session's payload."""
-        rows = self.many_blender(blender).blend([m[1] for m in members], [m[2] for m in members])
-        f32 = rows.astype("<f4", copy=False)  # (no copy on little-endian machines)
-        by_quantiser = {}
+        one blend per codec (q16 clients' codes made in the same pass); sets each session's
+        payload."""
+        many = self.many_blender(blender)
+        by_codec = {}
         for k, (session, _, _) in enumerate(members):
-            if session.codec == "q16":
-                by_quantiser.setdefault(session.quantiser.key, (session.quantiser, []))[1].append(k)
-            else:
-                session.payload = f32[k]  # its bytes are the frame's vertices
-        for quantiser, ks in by_quantiser.values():
-            if len(ks) == len(members):  # every row q16 with this quantiser: the rows are its scratch
-                codes = quantiser.encode_rows(rows, overwrite=True)
-            else:
-                codes = quantiser.encode_rows(rows[ks])
-            for k, row in zip(ks, codes):
-                members[k][0].payload = row
+            quantiser = session.quantiser if session.codec == "q16" else None
+            key = None if quantiser is None else quantiser.key
+            by_codec.setdefault(key, (quantiser, []))[1].append(members[k])
+        for quantiser, group in by_codec.values():
+            rows = many.blend([m[1] for m in group], [m[2] for m in group],
+                              None if quantiser is None else quantiser.codes)
+            if quantiser is None:
+                rows = rows.astype("<f4", copy=False)  # (no copy on little-endian machines)
+            for (session, _, _), row in zip(group, rows):
+                session.payload = row  # its bytes are the frame's vertices
         self.batched_frames += len(members)
 
     def _produce(self, batch, now):

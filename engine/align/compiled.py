@@ -13,25 +13,14 @@
   at a time.
 - :func:`patch_normal_equations`: the per-patch sums of :func:`engine.align.rigid.patch_rigid_steps`.
 
-Compiled on first use (about 3 s) and cached on disk (:func:`_compiled` says where).
+Compiled on first use (about 3 s) and cached on disk (:func:`engine.jit.compiled` says where).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
-
-def _compiled(function):
-    """``function`` compiled with numba, its machine code cached on disk where numba can write:
-    beside this file, else numba's per-user cache (or ``NUMBA_CACHE_DIR``). Where neither is
-    writable (a read-only install run by a user without a writable home: numba refuses to cache
-    there with a RuntimeError at import), it is compiled in every process instead (a few seconds
-    the first time it is called)."""
-    try:
-        return njit(cache=True, nogil=True)(function)
-    except RuntimeError:
-        return njit(nogil=True)(function)
+from engine.jit import compiled as _compiled
 
 
 @_compiled

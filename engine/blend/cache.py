@@ -27,6 +27,7 @@ from collections import OrderedDict
 import numpy as np
 from scipy.linalg.blas import saxpy
 
+from engine.blend.compiled import interpolate_rows
 from engine.blend.phase import phase_of_sample, phase_samples
 
 
@@ -82,21 +83,14 @@ class PhaseTable:
         R += self.rows[p0]
         return R
 
-    def rows_cast(self, phases, dtype, chunk=8):
+    def rows_cast(self, phases, dtype):
         """(K, n * 3) ``dtype`` rows at K phases: ``rows_at(phases).astype(dtype)``, the same
-        numbers, made ``chunk`` rows at a time so that the float32 rows stay in the cache between
-        their multiply, add and cast (a q16 table's rows cast to "<u2" are the encoded frames)."""
+        numbers, each row made in one compiled pass (engine/blend/compiled.py; a q16 table's rows
+        cast to "<u2" are the encoded frames)."""
         samples = [phase_samples(t, self.n_phases, self.cyclic) for t in phases]
-        p0 = np.fromiter((s[0] for s in samples), dtype=np.intp, count=len(samples))
+        p0 = np.fromiter((s[0] for s in samples), dtype=np.int64, count=len(samples))
         a = np.fromiter((s[2] for s in samples), dtype=np.float32, count=len(samples))
-        out = np.empty((len(samples), self.rows.shape[1]), dtype=dtype)
-        for first in range(0, len(samples), chunk):
-            index = p0[first:first + chunk]
-            R = np.take(self.delta, index, axis=0)
-            R *= a[first:first + chunk, None]
-            R += self.rows[index]
-            out[first:first + chunk] = R  # (a C cast: what astype does)
-        return out
+        return interpolate_rows(self.rows, self.delta, p0, a, np.empty((len(samples), self.rows.shape[1]), dtype=dtype))
 
     def scaled(self, scale, offset, lo=None, hi=None, key=None):
         """This table in the affine coordinates ``scale * B + offset`` (per axis), clipped to

@@ -9,11 +9,12 @@ phase per row, for a server that blends every moving client of a tick together.
   M_L(t, w_j) + D_NL(t, w_j) is the hybrid blend at the reference itself). So each reference's
   hybrid blends at the phase samples are made once, by ``HybridBlender.blend``, when a row first
   needs them (P x 3n float32: 1.2 MB for 32 phases of 3,000 vertices), and a frame is
-  sum_j g_j ((1 - a) H_j[p0] + a H_j[p1]): two contiguous row passes per reference with g_j > 0
-  (2 or 3 on a layout's sheet), instead of the 2N source rows, about five dense correction rows
-  and the scattered entries of the others, with no per-node work beyond the walk to the leaf.
-  The result equals ``HybridBlender.blend`` to float32 rounding (a few 1e-7 m on a body of
-  1.75 m), not bit for bit.
+  sum_j g_j ((1 - a) H_j[p0] + a H_j[p1]): a weighted sum of two rows per reference with
+  g_j > 0 (2 or 3 on a layout's sheet), made in one compiled pass (engine/blend/compiled.py,
+  with the q16 codes in the same pass when asked), instead of the 2N source rows, about five
+  dense correction rows and the scattered entries of the others, with no per-node work beyond
+  the walk to the leaf. The result equals ``HybridBlender.blend`` to float32 rounding (a few
+  1e-7 m on a body of 1.75 m), not bit for bit.
 
 Every row is computed on its own, with the same calls whatever else is in the batch, into a row
 that starts on a 64-byte boundary: a batch of K gives the bytes of K calls of one row each.
@@ -22,8 +23,8 @@ that starts on a 64-byte boundary: a batch of K gives the bytes of K calls of on
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg.blas import saxpy
 
+from engine.blend.compiled import combine_rows
 from engine.blend.hybrid import HybridBlender
 from engine.blend.linear import LinearBlender, blend_rows
 from engine.blend.phase import phase_of_sample, phase_samples
@@ -62,17 +63,19 @@ class ManyBlender:
             self._references = tree.references
             self._cells = tree.cells.tolist()
             self._children, self._split = blender._children, blender._split
-            self._rows = [None] * len(self._references)  # reference -> (P, 3n) hybrid blends, made on first use
+            self._stack = None  # (R, P, 3n) float32 hybrid blends per reference, allocated on first use
+            self._made = [False] * len(self._references)  # a reference's rows are made on first use
 
     def reference_rows(self, r):
         """(P, 3 n) float32: the hybrid blend at reference ``r`` at every phase sample."""
-        rows = self._rows[r]
-        if rows is None:
+        if self._stack is None:  # (untouched pages cost no memory: only references used fill it)
+            self._stack = np.empty((len(self._references), self.n_phases, 3 * self.n_vertices), dtype=np.float32)
+        rows = self._stack[r]
+        if not self._made[r]:
             P = self.n_phases
-            rows = np.empty((P, 3 * self.n_vertices), dtype=np.float32)
             for p in range(P):
                 self.blender.blend(self._references[r], phase_of_sample(p, P, self.cyclic), out=rows[p].reshape(-1, 3))
-            self._rows[r] = rows
+            self._made[r] = True
         return rows
 
     def _leaf(self, lam):
@@ -90,40 +93,48 @@ class ManyBlender:
                 node = children[node][1]
         return node
 
-    def _hybrid_row(self, lam, phase, out):
+    def _hybrid_terms(self, lam, phase, refs, samples, coefs):
+        """Append a hybrid frame's terms (reference, phase sample, coefficient) to the lists."""
         p0, p1, a = phase_samples(phase, self.n_phases, self.cyclic)
-        first = True
-        made = self._rows
+        made = self._made
         for g, r in zip(lam, self._cells[self._leaf(lam)]):
             if g <= 0.0:
                 continue
-            rows = made[r]
-            if rows is None:
-                rows = self.reference_rows(r)
+            if not made[r]:
+                self.reference_rows(r)
             for p, c in ((p0, g * (1.0 - a)), (p1, g * a)):
-                if c == 0.0:
-                    continue
-                if first:  # c x, as 0 + c x would give
-                    np.multiply(rows[p], np.float32(c), out=out)
-                    first = False
-                else:
-                    saxpy(rows[p], out, a=c)  # in place, one pass
-        if first:  # (weights never all zero: unreachable)
-            out[...] = 0.0
+                if c != 0.0:
+                    refs.append(r)
+                    samples.append(p)
+                    coefs.append(c)
 
-    def blend(self, weights, phases):
+    def blend(self, weights, phases, codes=None):
         """(K, 3 n) float32 blends of ``weights`` (K, N) non-negative, not all zero per row, at
-        ``phases`` (K,) in [0, 1]."""
+        ``phases`` (K,) in [0, 1]; with ``codes`` = (scale, offset), (3 n,) float32 each, the
+        q16 codes instead: (K, 3 n) uint16 ``clip(v * scale + offset, 0, 65535)`` truncated
+        (``server.codecs.Quantiser``'s steps on the float32 rows: the same bytes)."""
         W = np.asarray(weights, dtype=np.float64)
         if W.ndim != 2 or len(W) != len(phases):
             raise ValueError(f"expected (K, N) weights and K phases, got {W.shape} and {len(phases)}")
-        out = aligned_rows(len(W), 3 * self.n_vertices)
-        if self.hybrid:
-            for lam, phase, row in zip((W / W.sum(axis=1, keepdims=True)).tolist(), phases, out):
-                self._hybrid_row(lam, phase, row)
-        else:
-            flat = self.blender._flat
-            for w, phase, row in zip(W, phases, out):
-                p0, p1, a = phase_samples(phase, self.n_phases, self.cyclic)
-                blend_rows(flat, w / w.sum(), p0, p1, a, row)  # as LinearBlender.blend
-        return out
+        m = 3 * self.n_vertices
+        if self.hybrid:  # one compiled pass per row over its terms (engine/blend/compiled.py)
+            refs, samples, coefs, starts = [], [], [], [0]
+            for lam, phase in zip((W / W.sum(axis=1, keepdims=True)).tolist(), phases):
+                self._hybrid_terms(lam, phase, refs, samples, coefs)
+                starts.append(len(refs))
+            out = aligned_rows(len(W), m) if codes is None else np.empty((len(W), m), dtype="<u2")
+            stack = self._stack if self._stack is not None else np.zeros((1, self.n_phases, m), dtype=np.float32)
+            return combine_rows(stack, np.array(refs, dtype=np.int64), np.array(samples, dtype=np.int64),
+                                np.array(coefs, dtype=np.float32), np.array(starts, dtype=np.int64), out, codes)
+        out = aligned_rows(len(W), m)
+        flat = self.blender._flat
+        for w, phase, row in zip(W, phases, out):
+            p0, p1, a = phase_samples(phase, self.n_phases, self.cyclic)
+            blend_rows(flat, w / w.sum(), p0, p1, a, row)  # as LinearBlender.blend
+        if codes is None:
+            return out
+        scale, offset = codes
+        q = np.multiply(out, scale, out=out)
+        np.add(q, offset, out=q)
+        np.clip(q, np.float32(0.0), np.float32(65535.0), out=q)
+        return q.astype("<u2")

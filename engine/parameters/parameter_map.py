@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from engine.jit import compiled
 from engine.parameters.layout import MEASURES, Layout
 
 
@@ -47,6 +48,7 @@ class ParameterMap:
         flat = self.values.reshape(-1, len(self.names))
         self.ranges = np.maximum(flat.max(axis=0) - flat.min(axis=0), 1e-9)
         self._values_list = np.asarray(self.values, dtype=float).tolist()
+        self._values_array = np.ascontiguousarray(self.values, dtype=np.float64)
         self._ranges_list = self.ranges.tolist()
         self._last = len(self.axes[0]) - 1
         self._dense_u, self._dense_p = self._dense()
@@ -121,41 +123,13 @@ class ParameterMap:
         return at, jac
 
     def _newton_square(self, p, u):
-        """``_gauss_newton`` for two parameters on a two-dimensional sheet, unrolled: the
-        Gauss-Newton step of a square Jacobian is the Newton step J^-1 r. The player's hot path.
-        Returns None where the Jacobian is singular (the general solver takes over)."""
-        values, last = self._values_list, self._last
-        s0, s1 = self._ranges_list
-        q0, q1 = p
-        x0, x1 = u
-        norm = None
-        for _ in range(21):
-            x = min(max(x0, 0.0), 1.0) * last
-            y = min(max(x1, 0.0), 1.0) * last
-            i, j = min(int(x), last - 1), min(int(y), last - 1)
-            a, b = x - i, y - j
-            row0, row1 = values[i], values[i + 1]
-            (c00, d00), (c10, d10), (c01, d01), (c11, d11) = row0[j], row1[j], row0[j + 1], row1[j + 1]
-            wa, wb = 1.0 - a, 1.0 - b
-            at0 = wa * wb * c00 + a * wb * c10 + wa * b * c01 + a * b * c11
-            at1 = wa * wb * d00 + a * wb * d10 + wa * b * d01 + a * b * d11
-            r0, r1 = (at0 - q0) / s0, (at1 - q1) / s1
-            norm_here = math.sqrt(r0 * r0 + r1 * r1)
-            if norm is not None:
-                if norm_here >= norm:  # no longer improving: keep the last point
-                    break
-            u, at, norm = [x0, x1], [at0, at1], norm_here
-            if norm < 1e-9:
-                break
-            j00, j01 = last * (wb * (c10 - c00) + b * (c11 - c01)), last * (wa * (c01 - c00) + a * (c11 - c10))
-            j10, j11 = last * (wb * (d10 - d00) + b * (d11 - d01)), last * (wa * (d01 - d00) + a * (d11 - d10))
-            det = j00 * j11 - j01 * j10
-            if abs(det) <= 1e-12 * max(abs(j00 * j11), abs(j01 * j10), 1e-30):
-                return None
-            e0, e1 = at0 - q0, at1 - q1
-            x0 = min(max(u[0] - (j11 * e0 - j01 * e1) / det, 0.0), 1.0)
-            x1 = min(max(u[1] - (j00 * e1 - j10 * e0) / det, 0.0), 1.0)
-        return u, at
+        """``_gauss_newton`` for two parameters on a two-dimensional sheet: the Gauss-Newton step
+        of a square Jacobian is the Newton step J^-1 r. The player's hot path, compiled
+        (:func:`_newton_square_compiled`). Returns None where the Jacobian is singular (the
+        general solver takes over)."""
+        ok, x0, x1, at0, at1 = _newton_square_compiled(self._values_array, self._last, self._ranges_list[0],
+                                                       self._ranges_list[1], p[0], p[1], u[0], u[1])
+        return ([x0, x1], [at0, at1]) if ok else None
 
     def _gauss_newton(self, p, u):
         """Sheet coordinates u (list) minimising |(at(u) - p) / ranges|, from ``u``, projected
@@ -271,3 +245,45 @@ class ParameterMap:
         layout = Layout.from_dict(metadata["layout"])
         return cls(layout=layout, names=list(metadata["names"]), units=list(metadata["units"]),
                    axes=[np.asarray(axis)] * layout.dims, values=np.asarray(values))
+
+
+@compiled
+def _newton_square_compiled(values, last, s0, s1, q0, q1, x0, x1):  # pragma: no cover (compiled)
+    """Newton's method on the bilinear interpolation of ``values`` (G, G, 2) for the two
+    parameters (q0, q1) (ranges s0, s1), from sheet coordinates (x0, x1), projected onto the unit
+    square; at most 21 evaluations, stopping when a step no longer reduces the scaled residual.
+    Returns (ok, u0, u1, at0, at1): ok False where the Jacobian is singular."""
+    u0, u1, at0, at1, norm = x0, x1, 0.0, 0.0, 0.0
+    for it in range(21):
+        x = min(max(x0, 0.0), 1.0) * last
+        y = min(max(x1, 0.0), 1.0) * last
+        i, j = min(int(x), last - 1), min(int(y), last - 1)
+        a, b = x - i, y - j
+        c00, d00 = values[i, j, 0], values[i, j, 1]
+        c10, d10 = values[i + 1, j, 0], values[i + 1, j, 1]
+        c01, d01 = values[i, j + 1, 0], values[i, j + 1, 1]
+        c11, d11 = values[i + 1, j + 1, 0], values[i + 1, j + 1, 1]
+        wa, wb = 1.0 - a, 1.0 - b
+        here0 = wa * wb * c00 + a * wb * c10 + wa * b * c01 + a * b * c11
+        here1 = wa * wb * d00 + a * wb * d10 + wa * b * d01 + a * b * d11
+        r0, r1 = (here0 - q0) / s0, (here1 - q1) / s1
+        norm_here = math.sqrt(r0 * r0 + r1 * r1)
+        if it > 0 and norm_here >= norm:  # no longer improving: keep the last point
+            break
+        u0, u1, at0, at1, norm = x0, x1, here0, here1, norm_here
+        if norm < 1e-9:
+            break
+        j00, j01 = last * (wb * (c10 - c00) + b * (c11 - c01)), last * (wa * (c01 - c00) + a * (c11 - c10))
+        j10, j11 = last * (wb * (d10 - d00) + b * (d11 - d01)), last * (wa * (d01 - d00) + a * (d11 - d10))
+        det = j00 * j11 - j01 * j10
+        if abs(det) <= 1e-12 * max(abs(j00 * j11), abs(j01 * j10), 1e-30):
+            return False, u0, u1, at0, at1
+        e0, e1 = here0 - q0, here1 - q1
+        x0 = min(max(u0 - (j11 * e0 - j01 * e1) / det, 0.0), 1.0)
+        x1 = min(max(u1 - (j00 * e1 - j10 * e0) / det, 0.0), 1.0)
+    return True, u0, u1, at0, at1
+
+
+def warm_up():
+    """Compile (or load from numba's cache) the Newton solve."""
+    _newton_square_compiled(np.zeros((2, 2, 2)), 1, 1.0, 1.0, 0.0, 0.0, 0.5, 0.5)

@@ -131,17 +131,19 @@ class FrameOutput:
         error_um = error_max = error_seq = None
         if payload is None:
             if self.graph is not None:  # blended by its GraphStream as it advanced
-                vertices = player.vertices()
+                payload = self._vertex_bytes(player.vertices())
             else:
                 space, mode, weights, phase = player.space, player.mode, player.weights, player.phase
                 blender = space.frame_blender(mode)
                 if self.table_missed and mode != "nonlinear":  # no phase table at these weights: the
                     # scheduler's batched blend for this one alone (the same bytes as in a batch)
                     many = self.scheduler.many_blender(blender.blender)
-                    vertices = many.blend([weights], [phase])[0].reshape(-1, 3)
+                    if self.codec == "q16":
+                        payload = many.blend([weights], [phase], self.quantiser.codes)[0]
+                    else:
+                        payload = many.blend([weights], [phase])[0].astype("<f4", copy=False)
                 else:
-                    vertices = blender.blend(weights, phase)
-            payload = self._vertex_bytes(vertices)
+                    payload = self._vertex_bytes(blender.blend(weights, phase))
         self.table_missed = False
         if self.heatmap:  # off the event loop, in a helper process (server/heatmap/)
             distances = self.scheduler.heatmaps.frame_error(self, player.space, player.mode, player.weights,

@@ -80,5 +80,5 @@ def test_rows_cast_is_rows_at_cast_exactly(K):
     table = PhaseTable((rng.random((12, 50, 3)) * 60000).astype(np.float32), cyclic=True)
     phases = rng.random(K).tolist()
     for dtype in ("<u2", "<f4"):
-        cast = table.rows_cast(phases, dtype, chunk=8)
+        cast = table.rows_cast(phases, dtype)
         assert cast.dtype == np.dtype(dtype) and np.array_equal(cast, table.rows_at(phases).astype(dtype))

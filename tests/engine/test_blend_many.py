@@ -90,3 +90,25 @@ def test_only_linear_and_hybrid_blenders_and_matching_shapes():
     blender = LinearBlender(np.zeros((4, 2, 5, 3), np.float32), True)
     with pytest.raises(ValueError, match="K phases"):
         ManyBlender(blender).blend([[1.0, 0.0]], [0.1, 0.2])
+
+
+@pytest.mark.parametrize("kind", ["linear", "hybrid"])
+def test_q16_codes_in_the_blend_are_the_quantisers_codes_of_its_rows(kind):
+    """``blend(..., codes)`` makes the q16 codes in the same pass: byte for byte the quantiser's
+    encoding of the float32 rows (what a client blended alone, or given f32, decodes to)."""
+    from server.codecs import Quantiser
+
+    if kind == "hybrid":
+        blender = _hybrid(False)[0]
+    else:
+        blender = LinearBlender(np.random.default_rng(14).normal(size=(6, 4, 40, 3)).astype(np.float32), False)
+    many = ManyBlender(blender)
+    W, phases = _weights(4, 17, seed=15)
+    rows = many.blend(W, phases)
+    lo, hi = rows.reshape(-1, 3).min(axis=0), rows.reshape(-1, 3).max(axis=0)
+    quantiser = Quantiser((lo + 0.2 * (hi - lo), hi - 0.2 * (hi - lo)), 40)  # some values clamp
+    codes = many.blend(W, phases, quantiser.codes)
+    assert codes.dtype == np.dtype("<u2") and codes.shape == (17, 120)
+    for row, code in zip(rows, codes):
+        assert code.tobytes() == quantiser.encode(row.reshape(-1, 3))
+    assert (codes == 0).any() and (codes == 65535).any()

@@ -1,0 +1,124 @@
+"""The stream's per-frame row arithmetic, compiled (numba): one pass per frame instead of one
+numpy pass (and temporary) per operation.
+
+- :func:`interpolate_rows`: K frames of a phase table, ``rows[p0] + a * delta[p0]`` each, cast
+  to the output's type (float32, or uint16 codes from a table held in codec units): the same
+  float32 operations as the numpy formulation (``PhaseTable.rows_at``), so the same bytes.
+- :func:`combine_rows`: K frames that are each a weighted sum of a few rows of a stack (a hybrid
+  frame: its simplex leaf's reference blends at the two phase samples around its phase), summed
+  in float32 in the order given, and optionally quantised in the same pass (``q = clip(v *
+  scale + offset, 0, 65535)`` truncated to uint16: ``server.codecs.Quantiser``'s float32
+  steps). Worked in blocks of a few thousand values, so the partial sums stay in the first-level
+  cache.
+
+Compiled on first use (a second or two) and cached on disk (:func:`engine.jit.compiled`);
+:func:`warm_up` compiles them ahead (a server does so before it serves).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine.jit import compiled
+
+BLOCK = 2048  # float32 values of partial sums kept in cache at a time (8 KB)
+
+
+@compiled
+def _interpolate_rows(rows, delta, p0, a, out):  # pragma: no cover (compiled; tested through interpolate_rows)
+    K, m = out.shape
+    for k in range(K):
+        r = rows[p0[k]]
+        d = delta[p0[k]]
+        ak = a[k]
+        o = out[k]
+        for i in range(m):
+            o[i] = d[i] * ak + r[i]
+
+
+def interpolate_rows(rows, delta, p0, a, out):
+    """``out[k] = rows[p0[k]] + a[k] * delta[p0[k]]`` cast to ``out``'s type (float32 or uint16),
+    in float32 (``a`` is float32): the numbers of numpy's ``take(delta) * a + rows`` and cast.
+
+    rows, delta : (P, m) float32 C-contiguous;  p0 : (K,) int64;  a : (K,) float32;
+    out : (K, m) float32 or uint16 (rows contiguous). Returns ``out``.
+    """
+    _interpolate_rows(rows, delta, p0, a, out)
+    return out
+
+
+@compiled
+def _combine_rows(stack, ref, phase, coef, starts, scale, offset, encode, out_f32, out_u16):  # pragma: no cover
+    K = len(starts) - 1
+    m = stack.shape[2]
+    scratch = np.empty(BLOCK, dtype=np.float32)
+    for k in range(K):
+        s, e = starts[k], starts[k + 1]
+        for b0 in range(0, m, BLOCK):
+            n = min(BLOCK, m - b0)
+            partial = scratch[:n]  # (slices: the loops below vectorise)
+            if s == e:
+                partial[:] = 0.0
+            else:
+                row = stack[ref[s], phase[s], b0:b0 + n]
+                c = coef[s]
+                for i in range(n):
+                    partial[i] = row[i] * c
+                for t in range(s + 1, e):
+                    row = stack[ref[t], phase[t], b0:b0 + n]
+                    c = coef[t]
+                    for i in range(n):
+                        partial[i] = row[i] * c + partial[i]
+            if encode:
+                codes = out_u16[k, b0:b0 + n]
+                sc, of = scale[b0:b0 + n], offset[b0:b0 + n]
+                for i in range(n):
+                    q = partial[i] * sc[i] + of[i]
+                    codes[i] = np.uint16(min(max(q, np.float32(0.0)), np.float32(65535.0)))
+            else:
+                values = out_f32[k, b0:b0 + n]
+                for i in range(n):
+                    values[i] = partial[i]
+
+
+def combine_rows(stack, ref, phase, coef, starts, out, codes=None):
+    """K frames, frame k the float32 sum over t in [starts[k], starts[k + 1]) of
+    ``coef[t] * stack[ref[t], phase[t]]`` (the first term a product, each later one added, in
+    that order), written to ``out`` (K, m) float32; with ``codes`` = (scale, offset), (m,)
+    float32 each, ``out`` is (K, m) uint16 and gets ``clip(v * scale + offset, 0, 65535)``
+    truncated (the q16 codes). Returns ``out``.
+
+    stack : (R, P, m) float32 C-contiguous;  ref, phase : (T,) int64;  coef : (T,) float32;
+    starts : (K + 1,) int64.
+    """
+    if codes is None:
+        none = np.empty((1, 1), dtype=np.uint16)
+        _combine_rows(stack, ref, phase, coef, starts, np.empty(0, np.float32), np.empty(0, np.float32), False,
+                      out, none)
+    else:
+        scale, offset = codes
+        _combine_rows(stack, ref, phase, coef, starts, scale, offset, True, np.empty((1, 1), np.float32), out)
+    return out
+
+
+def warm_up():
+    """Compile (or load from numba's cache) the stream's compiled loops for the types it uses:
+    every kernel here, and the parameter map's Newton solve."""
+    from engine.parameters.parameter_map import warm_up as warm_up_solve
+
+    warm_up_solve()
+    rows = np.zeros((2, 4), dtype=np.float32)
+    p0, a = np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.float32)
+    for dtype in ("<f4", "<u2"):
+        interpolate_rows(rows, rows, p0, a, np.empty((1, 4), dtype=dtype))
+    stack = np.zeros((1, 2, 4), dtype=np.float32)
+    terms = np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.float32)
+    starts = np.array([0, 1], dtype=np.int64)
+    padded = np.empty((1, 16), dtype=np.float32)[:, :4]  # ManyBlender's rows: padded, not C-contiguous
+    for out in (padded, np.empty((1, 4), dtype=np.float32)):
+        combine_rows(stack, *terms, starts, out)
+    combine_rows(stack, *terms, starts, np.empty((1, 4), dtype=np.uint16),
+                 (np.ones(4, dtype=np.float32), np.zeros(4, dtype=np.float32)))
+
+
+__all__ = ["combine_rows", "interpolate_rows", "warm_up"]
