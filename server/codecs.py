@@ -6,6 +6,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from engine.blend.compiled import encode_q16
+
+
 def quantisation_error(bounds):
     """Largest distance (m) between a point in ``bounds`` and its q16 reconstruction: half a
     step along each axis."""
@@ -30,7 +33,6 @@ class Quantiser:
         self.n_vertices = int(n_vertices)
         self._scale = np.tile(self.scale, self.n_vertices)
         self._offset = np.tile(self.offset, self.n_vertices)
-        self._q = np.empty(3 * self.n_vertices, dtype=np.float32)
         self.codes = (self._scale, self._offset)  # per flat value: what compiled encoders take
         self.key = ("q16", self.scale.tobytes(), self.offset.tobytes())
 
@@ -40,12 +42,12 @@ class Quantiser:
 
     def encode_array(self, V):
         """The encoded (3 n,) little-endian uint16 array of (n, 3) vertices (a new array each
-        call: its raw bytes are ``encode(V)``)."""
-        q = self._q
-        np.multiply(np.asarray(V, dtype=np.float32).reshape(-1), self._scale, out=q)
-        np.add(q, self._offset, out=q)
-        np.clip(q, np.float32(0.0), np.float32(65535.0), out=q)
-        return q.astype("<u2")
+        call: its raw bytes are ``encode(V)``): ``floor(clip(v * scale + offset, 0, 65535))`` in
+        float32, one compiled pass (engine/blend/compiled.py)."""
+        flat = np.ascontiguousarray(V, dtype=np.float32).reshape(-1)
+        if flat.shape[0] != self._scale.shape[0]:
+            raise ValueError(f"expected {self.n_vertices} vertices, got {flat.shape[0] / 3:g}")
+        return encode_q16(flat, self._scale, self._offset)
 
     def table(self, table):
         """A PhaseTable (engine.blend.cache) in codec units: interpolating its rows and

@@ -10,6 +10,8 @@ numpy pass (and temporary) per operation.
   scale + offset, 0, 65535)`` truncated to uint16: ``server.codecs.Quantiser``'s float32
   steps). Worked in blocks of a few thousand values, so the partial sums stay in the first-level
   cache.
+- :func:`encode_q16`: one frame's q16 codes (the same float32 steps), for frames blended one at
+  a time (motion graphs, the non-linear mode).
 
 Compiled on first use (a second or two) and cached on disk (:func:`engine.jit.compiled`);
 :func:`warm_up` compiles them ahead (a server does so before it serves).
@@ -101,6 +103,24 @@ def combine_rows(stack, ref, phase, coef, starts, out, codes=None):
     return out
 
 
+@compiled
+def _encode_q16(values, scale, offset, out):  # pragma: no cover (compiled; tested through encode_q16)
+    for i in range(values.shape[0]):
+        q = values[i] * scale[i] + offset[i]
+        out[i] = np.uint16(min(max(q, np.float32(0.0)), np.float32(65535.0)))
+
+
+def encode_q16(values, scale, offset):
+    """(m,) uint16 ``clip(values * scale + offset, 0, 65535)`` truncated, in float32 (the q16
+    codes of flat vertices: ``server.codecs.Quantiser``), in one pass.
+
+    values, scale, offset : (m,) float32 C-contiguous. Returns a new array.
+    """
+    out = np.empty(values.shape[0], dtype="<u2")
+    _encode_q16(values, scale, offset, out)
+    return out
+
+
 def warm_up():
     """Compile (or load from numba's cache) the stream's compiled loops for the types it uses:
     every kernel here, and the parameter map's Newton solve."""
@@ -117,8 +137,9 @@ def warm_up():
     padded = np.empty((1, 16), dtype=np.float32)[:, :4]  # ManyBlender's rows: padded, not C-contiguous
     for out in (padded, np.empty((1, 4), dtype=np.float32)):
         combine_rows(stack, *terms, starts, out)
-    combine_rows(stack, *terms, starts, np.empty((1, 4), dtype=np.uint16),
-                 (np.ones(4, dtype=np.float32), np.zeros(4, dtype=np.float32)))
+    codes = np.ones(4, dtype=np.float32), np.zeros(4, dtype=np.float32)
+    combine_rows(stack, *terms, starts, np.empty((1, 4), dtype=np.uint16), codes)
+    encode_q16(np.zeros(4, dtype=np.float32), *codes)
 
 
-__all__ = ["combine_rows", "interpolate_rows", "warm_up"]
+__all__ = ["combine_rows", "encode_q16", "interpolate_rows", "warm_up"]

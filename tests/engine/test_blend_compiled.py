@@ -55,6 +55,21 @@ def test_combine_rows_sums_in_float32_in_order_and_encodes_as_the_quantiser(m):
     assert (codes == 0).any() and (codes == 65535).any()
 
 
+def test_the_quantisers_codes_are_numpys_float32_steps():
+    from server.codecs import Quantiser
+
+    rng = np.random.default_rng(5)
+    V = rng.normal(size=(500, 3)).astype(np.float32)
+    quantiser = Quantiser((np.float32([-1.5, -1.0, -2.0]), np.float32([1.5, 1.2, 2.0])), 500)
+    q = V.reshape(-1) * quantiser._scale + quantiser._offset
+    np.clip(q, np.float32(0.0), np.float32(65535.0), out=q)
+    assert quantiser.encode(V) == q.astype("<u2").tobytes()
+    assert (q <= 0).any() and (q >= 65535).any()  # some clamp at each end
+    assert quantiser.encode(V.astype(np.float64)[::-1][::-1]) == quantiser.encode(V)  # any layout and type
+    with pytest.raises(ValueError, match="expected 500 vertices, got 499"):
+        quantiser.encode(V[:-1])
+
+
 def _newton_square_python(values, last, ranges, p, u):
     """The Python formulation the compiled solve replaced (engine/parameters/parameter_map.py
     before it), kept here as its reference."""
