@@ -9,11 +9,12 @@ as a list of buffers, which ``TransportGauge.write_message`` (server/transport.p
 transport behind the WebSocket frame header in one gathered write, without joining them. The bytes are exactly ``msgpack.packb`` of the whole map in
 the same key order (a test checks).
 
-A streamed frame of a space (no pull, heatmap or graph fields) has a fixed layout: ``StreamedFrame``
-packs it from a few ``struct`` calls around constant byte strings, with the fields that change
-only with the player's parameters (mode, requested, realised, clamped, weights) packed once per
-change (``StreamedFrame.middle``); its bytes are those of ``frame_parts`` for the same values (a
-test checks).
+A streamed frame (no pull or heatmap fields) has a fixed layout: ``StreamedFrame`` packs it from
+a few ``struct`` calls around constant byte strings, with the fields that change only with the
+player's parameters (mode, requested, realised, clamped, weights) packed once per change
+(``StreamedFrame.middle``) and a motion graph's node, target and progress packed apart
+(``StreamedFrame.graph``); its bytes are those of ``frame_parts`` for the same values (a test
+checks).
 """
 
 from __future__ import annotations
@@ -82,6 +83,11 @@ _FINISHED = {True: _pair("finished", True) + _KEYS["sent_at"] + b"\xcb",
              False: _pair("finished", False) + _KEYS["sent_at"] + b"\xcb"}
 _NONES_VERTICES = b"".join(_pair(name, None) for name in ("pull_id", "error_max", "error_seq", "node", "target",
                                                            "progress", "error_um")) + _KEYS["vertices"]
+_NONES_NODE = b"".join(_pair(name, None) for name in ("pull_id", "error_max", "error_seq")) + _KEYS["node"]
+_TARGET, _PROGRESS = _KEYS["target"], _KEYS["progress"]
+_NO_ERROR_VERTICES = _pair("error_um", None) + _KEYS["vertices"]
+_NIL = msgpack.packb(None)
+_PROGRESS_FLOAT = struct.Struct(f">{len(_PROGRESS)}s1sd").pack  # _PROGRESS, _F, progress
 
 
 def _uint(n):
@@ -102,14 +108,24 @@ class StreamedFrame:
         return packed[1:]  # without the map's own header (one byte: five entries)
 
     @staticmethod
-    def parts(seq, ack, time_, phase, middle, root, heading, dropped, finished, sent_at, vertices):
+    def graph(node, target, progress):
+        """The packed ``node``, ``target`` (str or None) and ``progress`` (float or None) fields
+        of a motion graph's frame, for ``parts``."""
+        return b"".join((_NONES_NODE, _packb(node), _TARGET, _packb(target),
+                         _PROGRESS + _NIL if progress is None else _PROGRESS_FLOAT(_PROGRESS, _F, progress),
+                         _NO_ERROR_VERTICES))
+
+    @staticmethod
+    def parts(seq, ack, time_, phase, middle, root, heading, dropped, finished, sent_at, vertices, graph=None):
         """The frame's body as buffers (``frame_parts``' form: the small fields in one piece, then
         the vertices, not copied). ``seq``, ``ack``, ``dropped``: non-negative ints; ``time_``,
         ``phase``, ``heading``, ``sent_at``: floats; ``root``: three floats; ``finished``: bool;
-        ``middle``: from ``middle``; ``vertices``: bytes or a C-contiguous array."""
+        ``middle``: from ``middle``; ``vertices``: bytes or a C-contiguous array; ``graph``: a
+        motion graph's fields from ``graph`` (None: a space's frame, those fields nil)."""
         x, y, z = root
         view = memoryview(vertices).cast("B")
         return [b"".join((_HEAD, _uint(seq), _ACK, _uint(ack), _TIME, _TIME_PHASE(time_, _PHASE, phase), middle,
                           _ROOT, _ROOT_HEADING(x, _F, y, _F, z, _HEADING, heading), _DROPPED, _uint(dropped),
-                          _FINISHED[finished], _SENT_AT(sent_at), _NONES_VERTICES, _bin_header(view.nbytes))),
+                          _FINISHED[finished], _SENT_AT(sent_at), _NONES_VERTICES if graph is None else graph,
+                          _bin_header(view.nbytes))),
                 view]

@@ -150,7 +150,9 @@ class FrameOutput:
                                                             player.phase, self.seq + 1)
             if distances is not None:
                 error_um, error_max, error_seq = distances
-        if self.heatmap or self.graph is not None:
+        if self.graph is not None and not self.heatmap:
+            parts = self._graph_streamed_parts(player, payload)
+        elif self.heatmap or self.graph is not None:
             parts = self._frame_parts(time_=player.time, phase=player.phase, mode=player.mode,
                                       requested=player.requested, realised=player.realised, clamped=player.clamped,
                                       weights=player.weights, root=player.position, heading=player.heading,
@@ -250,6 +252,19 @@ class FrameOutput:
         return StreamedFrame.parts(self.seq, self.ack, float(player.time), float(player.phase), middle,
                                    player.position.tolist(), float(player.heading), self.dropped,
                                    bool(player.finished), time.time(), vertices)
+
+    def _graph_streamed_parts(self, stream, vertices):
+        """``_frame_parts`` of a streamed frame of a motion graph (``stream``: its GraphStream)
+        without the heatmap (the same bytes)."""
+        self.seq += 1
+        self.stats.frames += 1
+        middle = StreamedFrame.middle(stream.mode, np.asarray(stream.requested, dtype=float).tolist(),
+                                      np.asarray(stream.realised, dtype=float).tolist(), bool(stream.clamped),
+                                      np.asarray(stream.weights, dtype=float).tolist())
+        return StreamedFrame.parts(self.seq, self.ack, float(stream.time), float(stream.phase), middle,
+                                   np.asarray(stream.position, dtype=float).tolist(), float(stream.heading),
+                                   self.dropped, bool(stream.finished), time.time(), vertices,
+                                   StreamedFrame.graph(stream.node, stream.target, stream.progress))
 
     def _frame_parts(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
                      vertices, finished, pull_id=None, error_um=None, error_max=None, error_seq=None):

@@ -213,6 +213,13 @@ def test_a_streamed_frame_is_the_bytes_frame_parts_gives(seq, ack, dropped, fini
                                       vertices))
     assert fast == joined(frame_parts(small, [("vertices", vertices)]))
     assert fast == msgpack.packb({**small, "vertices": vertices.tobytes()})  # key order and all
+    # a motion graph's frame: its node, target and progress (none, or a blend's progress)
+    for node, target, progress in (("walk", None, None), ("stand", "jump", 0.375), ("é" * 40, "reach", 1.0)):
+        graph = StreamedFrame.graph(node, target, progress)
+        fast = joined(StreamedFrame.parts(seq, ack, time_, phase, middle, root, heading, dropped, finished, sent_at,
+                                          vertices, graph))
+        with_graph = {**small, "node": node, "target": target, "progress": progress}
+        assert fast == msgpack.packb({**with_graph, "vertices": vertices.tobytes()})
 
 
 @pytest.mark.parametrize("length", [0, 125, 126, 65535, 65536, 200000])
