@@ -51,7 +51,7 @@ TINY = {"clients": 8, "seconds": 3.0, "repeat": 1, "action_every": 1.0}
 
 class _Counter:
     """Takes every frame at once (a transport that never fills); with ``digest``, hashes the
-    frame's vertices (the message's fourth part: server.frames.frame_parts)."""
+    frame's vertices (the message's last part: server.frames.frame_parts, StreamedFrame.parts)."""
 
     def __init__(self, digest=None):
         self.frames = self.bytes = 0
@@ -68,7 +68,7 @@ class _Counter:
         for part in parts:
             self.bytes += part.nbytes if isinstance(part, memoryview) else len(part)
         if self.digest is not None:
-            self.digest.update(parts[3])
+            self.digest.update(parts[-1])
         return True
 
 

@@ -284,6 +284,12 @@ class GraphStream:
         return self.player.clock.weights
 
     @property
+    def state_key(self):
+        """Objects that stay the same (``is``) while ``requested``, ``realised``, ``clamped``,
+        ``weights`` and ``mode`` do (``Player.state_key``'s contract)."""
+        return self._state(), self.player.clock.weights, self.mode, None
+
+    @property
     def requested(self):
         return self._state()[0]
 

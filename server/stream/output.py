@@ -150,16 +150,16 @@ class FrameOutput:
                                                             player.phase, self.seq + 1)
             if distances is not None:
                 error_um, error_max, error_seq = distances
-        if self.graph is not None and not self.heatmap:
-            parts = self._graph_streamed_parts(player, payload)
-        elif self.heatmap or self.graph is not None:
+        if self.heatmap:
             parts = self._frame_parts(time_=player.time, phase=player.phase, mode=player.mode,
                                       requested=player.requested, realised=player.realised, clamped=player.clamped,
                                       weights=player.weights, root=player.position, heading=player.heading,
                                       vertices=payload, finished=player.finished, error_um=error_um,
                                       error_max=error_max, error_seq=error_seq)
         else:
-            parts = self._streamed_parts(player, payload)
+            graph = self.graph
+            parts = self._streamed_parts(player, payload, None if graph is None else
+                                         StreamedFrame.graph(graph.node, graph.target, graph.progress))
         try:
             if self.gauge is not None:  # straight to the transport, one copy (server/transport.py)
                 sent = self.gauge.write_message(parts)
@@ -236,9 +236,10 @@ class FrameOutput:
             return self.quantiser.encode_array(vertices)
         return P.encode_vertices(vertices, "f32", None)  # a copy: ``vertices`` may be a blender's scratch
 
-    def _streamed_parts(self, player, vertices):
-        """``_frame_parts`` of a streamed frame of a space without the heatmap (the same bytes):
-        the fields that change only with the parameters are packed once per change."""
+    def _streamed_parts(self, player, vertices, graph=None):
+        """``_frame_parts`` of a streamed frame without the heatmap (the same bytes): the fields
+        that change only with the parameters are packed once per change; ``graph``: a motion
+        graph's fields (``StreamedFrame.graph``), ``player`` its GraphStream."""
         self.seq += 1
         self.stats.frames += 1
         key, middle = self.middle
@@ -251,20 +252,7 @@ class FrameOutput:
             self.middle = state, middle
         return StreamedFrame.parts(self.seq, self.ack, float(player.time), float(player.phase), middle,
                                    player.position.tolist(), float(player.heading), self.dropped,
-                                   bool(player.finished), time.time(), vertices)
-
-    def _graph_streamed_parts(self, stream, vertices):
-        """``_frame_parts`` of a streamed frame of a motion graph (``stream``: its GraphStream)
-        without the heatmap (the same bytes)."""
-        self.seq += 1
-        self.stats.frames += 1
-        middle = StreamedFrame.middle(stream.mode, np.asarray(stream.requested, dtype=float).tolist(),
-                                      np.asarray(stream.realised, dtype=float).tolist(), bool(stream.clamped),
-                                      np.asarray(stream.weights, dtype=float).tolist())
-        return StreamedFrame.parts(self.seq, self.ack, float(stream.time), float(stream.phase), middle,
-                                   np.asarray(stream.position, dtype=float).tolist(), float(stream.heading),
-                                   self.dropped, bool(stream.finished), time.time(), vertices,
-                                   StreamedFrame.graph(stream.node, stream.target, stream.progress))
+                                   bool(player.finished), time.time(), vertices, graph)
 
     def _frame_parts(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
                      vertices, finished, pull_id=None, error_um=None, error_max=None, error_seq=None):
