@@ -52,6 +52,8 @@ class ParameterMap:
         self._ranges_list = self.ranges.tolist()
         self._last = len(self.axes[0]) - 1
         self._dense_u, self._dense_p = self._dense()
+        self._dense_p = np.ascontiguousarray(self._dense_p, dtype=np.float64)
+        self.ranges = np.ascontiguousarray(self.ranges, dtype=np.float64)
 
     @classmethod
     def sample(cls, layout, names, measure_at, resolution=None, progress=None):
@@ -213,8 +215,8 @@ class ParameterMap:
             if not math.isfinite(x):
                 raise ValueError(f"parameters must be finite, got {p_list}")
         if start is None:
-            distance = np.linalg.norm((self._dense_p - p) / self.ranges, axis=1)
-            u_list = self._dense_u[int(np.argmin(distance))].astype(float).tolist()
+            nearest = _nearest_scaled(self._dense_p, p, self.ranges)  # argmin |(dense - p) / ranges|, compiled
+            u_list = self._dense_u[nearest].astype(float).tolist()
         else:
             u_list = np.asarray(start, dtype=float).reshape(self.layout.dims).tolist()
             u_list = [min(max(x, 0.0), 1.0) for x in u_list]
@@ -284,6 +286,24 @@ def _newton_square_compiled(values, last, s0, s1, q0, q1, x0, x1):  # pragma: no
     return True, u0, u1, at0, at1
 
 
+@compiled
+def _nearest_scaled(points, p, ranges):  # pragma: no cover (compiled)
+    """The index of the row of ``points`` (N, k) nearest ``p`` (k,) in units of ``ranges`` (k,):
+    ``argmin(norm((points - p) / ranges, axis=1))`` with numpy's operations in numpy's order
+    (the first of equals), one pass, no temporaries."""
+    best, index = np.inf, 0
+    for i in range(points.shape[0]):
+        total = 0.0
+        for c in range(points.shape[1]):
+            d = (points[i, c] - p[c]) / ranges[c]
+            total += d * d
+        distance = math.sqrt(total)
+        if distance < best:
+            best, index = distance, i
+    return index
+
+
 def warm_up():
-    """Compile (or load from numba's cache) the Newton solve."""
+    """Compile (or load from numba's cache) the parameter solve's loops."""
     _newton_square_compiled(np.zeros((2, 2, 2)), 1, 1.0, 1.0, 0.0, 0.0, 0.5, 0.5)
+    _nearest_scaled(np.zeros((2, 2)), np.zeros(2), np.ones(2))

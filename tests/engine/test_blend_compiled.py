@@ -126,13 +126,29 @@ def test_the_compiled_newton_solve_gives_the_python_solves_numbers():
     assert singular > 0
 
 
+def test_the_nearest_dense_sample_is_numpys_argmin():
+    """A cold parameter solve starts from the dense sample nearest the request (scaled by the
+    ranges): the compiled search gives numpy's index, ties to the first."""
+    from engine.parameters.parameter_map import _nearest_scaled
+
+    rng = np.random.default_rng(6)
+    for k in (1, 2, 3):
+        points = np.round(rng.random((3000, k)) * 20) / 20  # a coarse grid: many exact ties
+        points[1500] = points[10]
+        ranges = rng.uniform(0.1, 3.0, k)
+        for p in rng.uniform(-0.2, 1.2, (300, k)).tolist() + [points[10].tolist()]:
+            p = np.array(p)
+            assert _nearest_scaled(points, p, ranges) == int(np.argmin(np.linalg.norm((points - p) / ranges, axis=1)))
+
+
 def test_warm_up_compiles_every_signature_the_stream_uses():
     """After ``warm_up`` (a server's start), the stream's calls compile nothing new."""
     from engine.blend import compiled
     from engine.parameters import parameter_map
 
     warm_up()
-    kernels = (compiled._interpolate_rows, compiled._combine_rows, parameter_map._newton_square_compiled)
+    kernels = (compiled._interpolate_rows, compiled._combine_rows, compiled._encode_q16,
+               parameter_map._newton_square_compiled, parameter_map._nearest_scaled)
     before = [len(kernel.signatures) for kernel in kernels]
     assert all(before)
     rng = np.random.default_rng(4)
@@ -144,4 +160,6 @@ def test_warm_up_compiles_every_signature_the_stream_uses():
     for dtype in ("<f4", "<u2"):
         interpolate_rows(stack[0], stack[1], np.zeros(2, np.int64), np.zeros(2, np.float32), np.empty((2, 30), dtype))
     parameter_map._newton_square_compiled(rng.random((3, 3, 2)), 2, 1.0, 1.0, 0.2, 0.3, 0.1, 0.9)
+    parameter_map._nearest_scaled(rng.random((5, 2)), rng.random(2), np.ones(2))
+    compiled.encode_q16(stack[0, 0], stack[0, 1], stack[0, 2])
     assert [len(kernel.signatures) for kernel in kernels] == before
