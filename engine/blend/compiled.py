@@ -134,9 +134,10 @@ def warm_up():
     stack = np.zeros((1, 2, 4), dtype=np.float32)
     terms = np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.float32)
     starts = np.array([0, 1], dtype=np.int64)
-    padded = np.empty((1, 16), dtype=np.float32)[:, :4]  # ManyBlender's rows: padded, not C-contiguous
-    for out in (padded, np.empty((1, 4), dtype=np.float32)):
-        combine_rows(stack, *terms, starts, out)
+    # ManyBlender's rows: padded, so not C-contiguous (numpy calls a single row contiguous: two)
+    padded = np.empty((2, 16), dtype=np.float32)[:, :4]
+    combine_rows(stack, *terms, np.array([0, 1, 1], dtype=np.int64), padded)
+    combine_rows(stack, *terms, starts, np.empty((1, 4), dtype=np.float32))
     codes = np.ones(4, dtype=np.float32), np.zeros(4, dtype=np.float32)
     combine_rows(stack, *terms, starts, np.empty((1, 4), dtype=np.uint16), codes)
     encode_q16(np.zeros(4, dtype=np.float32), *codes)

@@ -48,12 +48,13 @@ class ParameterMap:
         flat = self.values.reshape(-1, len(self.names))
         self.ranges = np.maximum(flat.max(axis=0) - flat.min(axis=0), 1e-9)
         self._values_list = np.asarray(self.values, dtype=float).tolist()
-        self._values_array = np.ascontiguousarray(self.values, dtype=np.float64)
+        # an array of the compiled solve's own (writable, C order: a space's mapped, read-only
+        # values would be another type to numba, compiled again at the first stream)
+        self._values_array = np.array(self.values, dtype=np.float64, order="C")
         self._ranges_list = self.ranges.tolist()
         self._last = len(self.axes[0]) - 1
         self._dense_u, self._dense_p = self._dense()
-        self._dense_p = np.ascontiguousarray(self._dense_p, dtype=np.float64)
-        self.ranges = np.ascontiguousarray(self.ranges, dtype=np.float64)
+        self._dense_p = np.array(self._dense_p, dtype=np.float64, order="C")
 
     @classmethod
     def sample(cls, layout, names, measure_at, resolution=None, progress=None):

@@ -161,5 +161,15 @@ def test_warm_up_compiles_every_signature_the_stream_uses():
         interpolate_rows(stack[0], stack[1], np.zeros(2, np.int64), np.zeros(2, np.float32), np.empty((2, 30), dtype))
     parameter_map._newton_square_compiled(rng.random((3, 3, 2)), 2, 1.0, 1.0, 0.2, 0.3, 0.1, 0.9)
     parameter_map._nearest_scaled(rng.random((5, 2)), rng.random(2), np.ones(2))
+    # a space's parameter map holds mapped, read-only arrays: its solves compile nothing new either
+    from engine.parameters.layout import Layout
+
+    axis = np.linspace(0.0, 1.0, 5)
+    values = np.stack(np.meshgrid(axis, 2 * axis, indexing="ij"), axis=-1)
+    values.setflags(write=False)
+    pm = parameter_map.ParameterMap(layout=Layout(kind="grid", n_sources=4, corners=[0, 1, 2, 3]),
+                                    names=["speed", "turn"], units=["m/s", "rad/s"], axes=[axis, axis], values=values)
+    pm.solve([0.3, 1.1])
+    pm.solve([0.35, 1.0], start=[0.3, 0.5])
     compiled.encode_q16(stack[0, 0], stack[0, 1], stack[0, 2])
     assert [len(kernel.signatures) for kernel in kernels] == before
