@@ -6,9 +6,9 @@ frame to its transport, then sleeps until the next one falls due (at least a tic
 client message makes a frame urgent). Per tick:
 
 - clients whose weights have a phase table (settled parameters, or many viewers at the same
-  ones) are grouped by table; each group's rows are gathered, interpolated and cast eight at a
-  time (``PhaseTable.rows_cast``), q16 clients' straight from the table in codec units
-  (``Quantiser.table``), so their integers need one truncating cast;
+  ones) are grouped by table; each group's rows are interpolated and cast in one call, one
+  compiled pass a row (``PhaseTable.rows_cast``), q16 clients' straight from the table in codec
+  units (``Quantiser.table``), so their integers need one truncating cast;
 - clients at moving weights (steering, linear or hybrid) are grouped by blender: each group is
   one ``ManyBlender.blend`` per codec (engine/blend/many.py: a hybrid frame interpolates its
   simplex leaf's reference blends, q16 clients' codes made in the same compiled pass); a row's
