@@ -188,10 +188,9 @@ class FrameScheduler:
         payload."""
         many = self.many_blender(blender)
         by_codec = {}
-        for k, (session, _, _) in enumerate(members):
-            quantiser = session.quantiser if session.codec == "q16" else None
-            key = None if quantiser is None else quantiser.key
-            by_codec.setdefault(key, (quantiser, []))[1].append(members[k])
+        for member in members:
+            quantiser = member[0].quantiser if member[0].codec == "q16" else None
+            by_codec.setdefault(None if quantiser is None else quantiser.key, (quantiser, []))[1].append(member)
         for quantiser, group in by_codec.values():
             rows = many.blend([m[1] for m in group], [m[2] for m in group],
                               None if quantiser is None else quantiser.codes)

@@ -65,7 +65,7 @@ class PhaseTable:
             interpolate_rows(self.rows, self.delta, np.array([p0], dtype=np.int64), np.array([a], dtype=np.float32),
                              V.reshape(1, -1))
         else:
-            V.reshape(-1)[:] = self.rows[p0] + self.delta[p0] * np.float32(a)
+            V[...] = (self.rows[p0] + self.delta[p0] * np.float32(a)).reshape(V.shape)
         return V
 
     def rows_at(self, phases, out=None):

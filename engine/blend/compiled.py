@@ -94,13 +94,14 @@ def combine_rows(stack, ref, phase, coef, starts, out, codes=None):
     starts : (K + 1,) int64.
     """
     if codes is None:
-        none = np.empty((1, 1), dtype=np.uint16)
-        _combine_rows(stack, ref, phase, coef, starts, np.empty(0, np.float32), np.empty(0, np.float32), False,
-                      out, none)
+        _combine_rows(stack, ref, phase, coef, starts, _NO_CODES, _NO_CODES, False, out, _NO_U16)
     else:
-        scale, offset = codes
-        _combine_rows(stack, ref, phase, coef, starts, scale, offset, True, np.empty((1, 1), np.float32), out)
+        _combine_rows(stack, ref, phase, coef, starts, codes[0], codes[1], True, _NO_F32, out)
     return out
+
+
+# the output (and codes) ``_combine_rows`` is not given: fixed types, never read or written
+_NO_CODES, _NO_F32, _NO_U16 = np.empty(0, np.float32), np.empty((1, 1), np.float32), np.empty((1, 1), np.uint16)
 
 
 @compiled
@@ -110,13 +111,15 @@ def _encode_q16(values, scale, offset, out):  # pragma: no cover (compiled; test
         out[i] = np.uint16(min(max(q, np.float32(0.0)), np.float32(65535.0)))
 
 
-def encode_q16(values, scale, offset):
+def encode_q16(values, scale, offset, out=None):
     """(m,) uint16 ``clip(values * scale + offset, 0, 65535)`` truncated, in float32 (the q16
     codes of flat vertices: ``server.codecs.Quantiser``), in one pass.
 
-    values, scale, offset : (m,) float32 C-contiguous. Returns a new array.
+    values, scale, offset : (m,) float32 C-contiguous; ``out``: (m,) uint16 to write, else a new
+    array. Returns it.
     """
-    out = np.empty(values.shape[0], dtype="<u2")
+    if out is None:
+        out = np.empty(values.shape[0], dtype="<u2")
     _encode_q16(values, scale, offset, out)
     return out
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.blend.compiled import combine_rows
+from engine.blend.compiled import combine_rows, encode_q16
 from engine.blend.hybrid import HybridBlender
 from engine.blend.linear import LinearBlender, blend_rows
 from engine.blend.phase import phase_of_sample, phase_samples
@@ -63,13 +63,13 @@ class ManyBlender:
             self._references = tree.references
             self._cells = tree.cells.tolist()
             self._children, self._split = blender._children, blender._split
-            self._stack = None  # (R, P, 3n) float32 hybrid blends per reference, allocated on first use
+            # (R, P, 3n) float32 hybrid blends per reference (untouched pages cost no memory: only
+            # the references used fill theirs, on first use)
+            self._stack = np.empty((len(self._references), self.n_phases, 3 * self.n_vertices), dtype=np.float32)
             self._made = [False] * len(self._references)  # a reference's rows are made on first use
 
     def reference_rows(self, r):
         """(P, 3 n) float32: the hybrid blend at reference ``r`` at every phase sample."""
-        if self._stack is None:  # (untouched pages cost no memory: only references used fill it)
-            self._stack = np.empty((len(self._references), self.n_phases, 3 * self.n_vertices), dtype=np.float32)
         rows = self._stack[r]
         if not self._made[r]:
             P = self.n_phases
@@ -123,8 +123,7 @@ class ManyBlender:
                 self._hybrid_terms(lam, phase, refs, samples, coefs)
                 starts.append(len(refs))
             out = aligned_rows(len(W), m) if codes is None else np.empty((len(W), m), dtype="<u2")
-            stack = self._stack if self._stack is not None else np.zeros((1, self.n_phases, m), dtype=np.float32)
-            return combine_rows(stack, np.array(refs, dtype=np.int64), np.array(samples, dtype=np.int64),
+            return combine_rows(self._stack, np.array(refs, dtype=np.int64), np.array(samples, dtype=np.int64),
                                 np.array(coefs, dtype=np.float32), np.array(starts, dtype=np.int64), out, codes)
         out = aligned_rows(len(W), m)
         flat = self.blender._flat
@@ -133,8 +132,7 @@ class ManyBlender:
             blend_rows(flat, w / w.sum(), p0, p1, a, row)  # as LinearBlender.blend
         if codes is None:
             return out
-        scale, offset = codes
-        q = np.multiply(out, scale, out=out)
-        np.add(q, offset, out=q)
-        np.clip(q, np.float32(0.0), np.float32(65535.0), out=q)
-        return q.astype("<u2")
+        encoded = np.empty((len(W), m), dtype="<u2")
+        for row, code in zip(out, encoded):
+            encode_q16(row, *codes, out=code)
+        return encoded

@@ -54,7 +54,6 @@ class ParameterMap:
         self._ranges_list = self.ranges.tolist()
         self._last = len(self.axes[0]) - 1
         self._dense_u, self._dense_p = self._dense()
-        self._dense_p = np.array(self._dense_p, dtype=np.float64, order="C")
 
     @classmethod
     def sample(cls, layout, names, measure_at, resolution=None, progress=None):

@@ -267,9 +267,6 @@ class FrameOutput:
                  "heading": float(heading), "dropped": self.dropped, "finished": bool(finished),
                  "sent_at": time.time(), "pull_id": pull_id, "error_max": error_max, "error_seq": error_seq,
                  "node": None, "target": None, "progress": None}
-        graph = self.graph
-        if graph is not None:
-            small["node"], small["target"], small["progress"] = graph.node, graph.target, graph.progress
         bulk = [("vertices", vertices)]
         if error_um is None:
             small["error_um"] = None
