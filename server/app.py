@@ -20,7 +20,8 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.responses import RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
-from engine.blend.compiled import warm_up as warm_up_stream
+from engine.blend.compiled import warm_up as warm_up_blends
+from engine.graph.compiled import warm_up as warm_up_graphs
 from server import __version__
 from server.api import datasets, exports, graphs, jobs, spaces
 from server.jobs import JobService
@@ -34,6 +35,12 @@ from server.workers.context import WorkerHeader, local_counters, server_counters
 log = logging.getLogger("morphspace.server")
 WEB_CLIENT = Path(__file__).resolve().parent.parent / "web_client" / "static"
 
+
+def warm_up_stream():
+    """Compile (or load from numba's cache) every compiled loop a stream runs: the blends, casts
+    and solves (engine/blend/compiled.py) and a motion graph's held feet (engine/graph/compiled.py)."""
+    warm_up_blends()
+    warm_up_graphs()
 
 def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
     """The morphspace server for ``settings`` (default: from the environment).
@@ -51,7 +58,7 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
         await app.state.jobs.start()
         # the stream's compiled loops, loaded from numba's cache (compiled the first time: a few
         # seconds) before the first client, not in the middle of its first frames
-        await asyncio.to_thread(warm_up_stream)
+        await asyncio.to_thread(warm_up_stream)  # (the motion graphs' held feet too)
         publisher = stop_listening = None
         if worker is not None:
             publisher = asyncio.create_task(worker.publish_forever(lambda: local_counters(app.state)))

@@ -217,7 +217,7 @@ class GraphStream:
     def advance(self, dt):
         """Step the performance by ``dt`` seconds; a queued action planned meanwhile gets its
         ``planned`` notice (through ``notify``)."""
-        self._frame = self.player.step(dt, placed=False)
+        self._frame = self.player.step(dt, placed=False, vertices=False)
         if self._queued_seq is not None and any(e.startswith("plan queued") for e in self._frame.events):
             answer, seq = self.player.planned, self._queued_seq
             self._queued_seq = None
@@ -228,8 +228,16 @@ class GraphStream:
                 self.notify(P.Notice(code="planned", message=text, seq=seq))
 
     def vertices(self):
-        """(n, 3) float32 root-local vertices of the current frame (the player's buffer)."""
+        """(n, 3) float32 root-local vertices of the current frame (the player's buffer; a frame
+        ``table_source`` gives is blended here, on first asking)."""
+        if self._frame.vertices is None:
+            return self.player.local_vertices()
         return self._frame.vertices
+
+    def table_source(self):
+        """``GraphPlayer.table_source``: (phase-table blender, weights, phase) when the frame is
+        one read of a phase table (the scheduler then reads it with others'), else None."""
+        return self.player.table_source()
 
     def _state(self):
         """(requested, realised, clamped) of the shown node at what it was last asked for."""

@@ -31,6 +31,7 @@ import numpy as np
 
 from engine.blend.phase import phase_of_sample, phase_samples
 from engine.graph.clock import contact_moves
+from engine.graph.compiled import contact_moves as compiled_contact_moves
 from engine.graph.legs import LegRig
 
 
@@ -86,6 +87,7 @@ class FootPins:
     def __init__(self, rest, feet, ground, *, release=1.0, creep=0.02, cap=0.2, stretch=0.03):
         self.feet, self.ground = list(feet), float(ground)
         self._bounds = np.cumsum([0] + [len(f) for f in self.feet]).tolist()  # stacked feet: foot k's rows
+        self._bounds_array = np.array(self._bounds, dtype=np.int64)
         self.release, self.creep = float(release), float(creep)
         self.rig = LegRig(rest, self.feet, cap=cap, stretch=stretch)
         self.offsets = np.zeros((len(self.feet), 2))
@@ -98,7 +100,10 @@ class FootPins:
         table = node.cached("contacts", lambda: contact_table(node.space, self.feet, self.ground).astype(float))
         n_phases = table.shape[1]
         p = int(round(phase * (n_phases if node.cyclic else n_phases - 1))) % n_phases
-        return weights @ table[:, p, :] / weights.sum()
+        w = np.asarray(weights, dtype=float).tolist()  # (a few sources and two feet: Python floats)
+        total = sum(w)
+        rows = table[:, p, :].tolist()
+        return np.array([sum(x * row[k] for x, row in zip(w, rows)) / total for k in range(table.shape[2])])
 
     def holding(self):
         """Some foot is held away from where the motion puts it."""
@@ -138,25 +143,35 @@ class FootPins:
             before = np.concatenate(before)
         if not isinstance(now, np.ndarray):
             now = np.concatenate(now)
-        moves = contact_moves(before, now, self.ground, self._bounds)  # the pivots' moves (clock.foot_slide)
-        change = np.zeros_like(self.offsets)
+        if before.dtype == now.dtype == np.float32:  # the pivots' moves (clock.foot_slide), compiled
+            moves, found = compiled_contact_moves(before, now, self.ground, self._bounds_array)
+            moves = [m if f else None for m, f in zip(moves.tolist(), found.tolist())]
+        else:
+            moves = [None if m is None else m.tolist() for m in contact_moves(before, now, self.ground, self._bounds)]
+        planted = np.asarray(planted).tolist()
+        change = [[0.0, 0.0] for _ in moves]
         offsets = self.offsets.tolist()
-        for k, move in enumerate(moves):
+        for k, move in enumerate(moves):  # (on Python floats: two feet of two numbers)
             held = offsets[k] != [0.0, 0.0]
             if planted[k] and move is not None and (blending or held):
-                change[k] = -move                            # planted: stay where it was
+                change[k] = [-move[0], -move[1]]             # planted: stay where it was
                 if not blending:                             # after the blend: creep back, slowly
-                    change[k] += self._towards_zero(self.offsets[k] + change[k], self.creep * dt)
+                    toward = self._towards_zero(offsets[k][0] + change[k][0], offsets[k][1] + change[k][1],
+                                                self.creep * dt)
+                    change[k] = [change[k][0] + toward[0], change[k][1] + toward[1]]
             elif held and not planted[k]:                    # moving: catch up with the motion
-                change[k] = self._towards_zero(self.offsets[k], self.release * dt)
-        self.offsets += change
-        self.offsets[np.hypot(self.offsets[:, 0], self.offsets[:, 1]) < 1e-6] = 0.0
-        return change
+                change[k] = self._towards_zero(offsets[k][0], offsets[k][1], self.release * dt)
+        for k, (dx, dz) in enumerate(change):
+            x, z = offsets[k][0] + dx, offsets[k][1] + dz
+            offsets[k] = [x, z] if math.hypot(x, z) >= 1e-6 else [0.0, 0.0]
+        self.offsets[:] = offsets
+        return np.array(change)
 
     @staticmethod
-    def _towards_zero(offset, distance):
-        """The change that shortens ``offset`` (2,) by at most ``distance``."""
-        length = float(np.hypot(*offset))
+    def _towards_zero(x, z, distance):
+        """The change [dx, dz] that shortens the offset (x, z) by at most ``distance``."""
+        length = math.hypot(x, z)
         if length == 0.0:
-            return np.zeros(2)
-        return -offset * (min(length, distance) / length)
+            return [0.0, 0.0]
+        share = min(length, distance) / length
+        return [-x * share, -z * share]

@@ -26,6 +26,8 @@ import math
 
 import numpy as np
 
+from engine.graph.compiled import move_legs, ring_means
+
 # heights as fractions of the rest mesh's height above its lowest point (a standing human body)
 BANDS = {"ankle": (0.04, 0.08), "knee": (0.26, 0.31), "hip": (0.46, 0.50)}  # hip: the pelvis, one side
 FOOT_TOP, SHIN_BOTTOM = 0.03, 0.13       # foot -> shin blend
@@ -103,16 +105,6 @@ def _sub(a, b):
     return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
 
 
-def put_rows(V, index, rows):
-    """``V[index] = rows`` for a C-contiguous (n, 3) float32 ``V`` and (k, 3) float32 ``rows``:
-    each row moved as one 12-byte item (numpy's row-wise fancy assignment costs ~3x more)."""
-    if V.dtype == np.float32 and V.flags.c_contiguous and V.ndim == 2 and V.shape[1] == 3:
-        item = np.dtype((np.void, 12))
-        np.put(V.view(item).reshape(-1), index, np.ascontiguousarray(rows, dtype=np.float32).view(item).reshape(-1))
-    else:
-        V[index] = rows
-
-
 class LegRig:
     """Each leg's vertices, joint rings and segment weights on the rest mesh.
 
@@ -128,7 +120,7 @@ class LegRig:
     """
 
     def __init__(self, rest, feet, *, cap=0.2, stretch=0.03):
-        rest = np.asarray(rest, dtype=np.float64)
+        rest = np.array(rest, dtype=np.float64)  # (a writable copy: one compiled signature for every rest mesh)
         low = rest[:, 1].min()
         height = rest[:, 1].max() - low
         y = (rest[:, 1] - low) / height
@@ -149,28 +141,29 @@ class LegRig:
             rings = {name: np.flatnonzero(on_side & (y >= lo) & (y < hi)) for name, (lo, hi) in BANDS.items()}
             if any(len(r) == 0 for r in rings.values()):
                 raise ValueError("the rest mesh has no vertices at a leg joint's height (is it a standing body?)")
-            ring_index = np.concatenate([rings[name] for name in ("hip", "knee", "ankle")])
-            means = np.zeros((3, len(ring_index)))  # (hip, knee, ankle) = means @ mesh[ring_index]
-            start = 0
-            for row, name in enumerate(("hip", "knee", "ankle")):
-                means[row, start:start + len(rings[name])] = 1.0 / len(rings[name])
-                start += len(rings[name])
-            self.legs.append({"index": index, "weights": np.stack([thigh_w, shin_w, foot_w], axis=1),
-                              "rings": rings, "ring_index": ring_index, "means": means,
+            ring_index = np.concatenate([rings[name] for name in ("hip", "knee", "ankle")]).astype(np.int64)
+            ring_bounds = np.cumsum([0] + [len(rings[name]) for name in ("hip", "knee", "ankle")]).astype(np.int64)
+            self.legs.append({"index": index.astype(np.int64), "weights": np.stack([thigh_w, shin_w, foot_w], axis=1),
+                              "rings": rings, "ring_index": ring_index, "ring_bounds": ring_bounds,
                               "kept": (1.0 - (thigh_w + shin_w + foot_w) + foot_w)[:, None],
                               "thigh": thigh_w[:, None].copy(), "shin": shin_w[:, None].copy()})
             hip, _, ankle = self.joints(rest, len(self.legs) - 1)
             self.legs[-1]["length"] = float(np.linalg.norm(hip - ankle))
         self.index = np.concatenate([leg["index"] for leg in self.legs])
-        self._bounds = np.cumsum([0] + [len(leg["index"]) for leg in self.legs]).tolist()  # leg k: rows of index
-        self._all = {name: np.concatenate([leg[name] for leg in self.legs])
-                     for name in ("weights", "kept", "thigh", "shin")}  # every leg's rows, stacked as index
+        self._bounds_array = np.cumsum([0] + [len(leg["index"]) for leg in self.legs]).astype(np.int64)
+        # every leg's rows stacked as ``index``, for the compiled move: weights (m, 3), the rest (m,)
+        self._all = {"weights": np.ascontiguousarray(np.concatenate([leg["weights"] for leg in self.legs]))}
+        for name in ("kept", "thigh", "shin"):
+            self._all[name + "1"] = np.ascontiguousarray(np.concatenate([leg[name][:, 0] for leg in self.legs]))
 
     def joints(self, mesh, k):
-        """(hip, knee, ankle) (3,) float64 of leg ``k`` on root-local ``mesh``."""
+        """(3, 3) float64: the rows hip, knee, ankle of leg ``k`` on root-local ``mesh`` (the means
+        of their rings of vertices)."""
         leg = self.legs[k]
-        hip, knee, ankle = leg["means"] @ np.take(mesh, leg["ring_index"], axis=0).astype(np.float64)
-        return hip, knee, ankle
+        mesh = np.asarray(mesh)
+        if mesh.dtype != np.float32:
+            mesh = mesh.astype(np.float64, copy=False)
+        return ring_means(mesh, leg["ring_index"], leg["ring_bounds"])
 
     def reachable(self, mesh, k, offset, joints=None):
         """The share t in [0, 1] of the root-local horizontal ``offset`` (3,) leg ``k`` can carry
@@ -181,7 +174,7 @@ class LegRig:
         (On Python floats, summing in numpy's order for 3-vectors: the same numbers as numpy's
         norms and dot products of them to rounding (numpy's SIMD kernels may differ in the last
         bit on another CPU), for a fraction of the calls' cost.)"""
-        hip, knee, ankle = (tuple(j.tolist()) for j in (self.joints(mesh, k) if joints is None else joints))
+        hip, knee, ankle = np.asarray(self.joints(mesh, k) if joints is None else joints).tolist()
         o = tuple(float(x) for x in offset)
         size = _norm(o)
         if size == 0.0:
@@ -226,59 +219,26 @@ class LegRig:
     def move(self, mesh, offsets, shares, joints):
         """``deform``'s vertex work, with ``reach``'s answer for the same ``mesh`` and ``offsets``.
         A foot's vertices move by exactly ``share x offset`` (the foot's weight is 1 there), which
-        the graph player uses to read the held feet without moving the legs. The legs moved are
-        gathered, blended and written back together (each leg's products with its own maps)."""
-        maps = []  # (leg, A1, A2, b) of each leg moved: (3, 3) each
-        for k, (leg, offset, t, found) in enumerate(zip(self.legs, np.asarray(offsets, dtype=np.float64).tolist(),
-                                                        np.asarray(shares, dtype=np.float64).tolist(), joints)):
-            if found is None or t == 0.0:
-                continue
-            hip, knee, ankle = (tuple(j.tolist()) for j in found)
-            step = (t * offset[0], t * offset[1], t * offset[2])
-            target = (ankle[0] + step[0], ankle[1] + step[1], ankle[2] + step[2])
-            scale = max(1.0, _norm(_sub(target, hip)) / (_norm(_sub(knee, hip)) + _norm(_sub(ankle, knee))))
-            new_knee = _two_bone(hip, knee, ankle, target, scale, (0.0, 0.0, 1.0))
-            R1 = _rotation(_sub(knee, hip), _sub(new_knee, hip))
-            R2 = _rotation(_sub(ankle, knee), _sub(target, new_knee))
-            # each segment's map is affine, x -> x A + b: thigh (x - hip) R1^T S1 + hip, shin
-            # (x - knee) R2^T S2 + new_knee (S: the stretch along the new bone), foot x + t offset;
-            # a vertex takes their blend by its weights w: x (unmoved + w_foot) + w_thigh x A1
-            # + w_shin x A2 + w @ [b1, b2, b3]
-            A1, A2 = np.array(R1).T, np.array(R2).T
-            if scale > 1.0:  # lengthened along the bones only
-                e1 = np.array(_sub(new_knee, hip)) / _norm(_sub(new_knee, hip))
-                e2 = np.array(_sub(target, new_knee)) / _norm(_sub(target, new_knee))
-                A1 = A1 @ (np.eye(3) + (scale - 1.0) * np.outer(e1, e1))
-                A2 = A2 @ (np.eye(3) + (scale - 1.0) * np.outer(e2, e2))
-            b = np.stack([found[0] - found[0] @ A1, np.array(new_knee) - found[1] @ A2, np.array(step)])
-            maps.append((k, A1, A2, b))
-        if len(maps) == len(self.legs):  # every leg: gathered and written back together
-            bounds = self._bounds
-            self._blend(mesh, self.index, self._all, [(bounds[k], bounds[k + 1], A1, A2, b) for k, A1, A2, b in maps])
-        else:
-            for k, A1, A2, b in maps:
-                leg = self.legs[k]
-                self._blend(mesh, leg["index"], leg, [(0, len(leg["index"]), A1, A2, b)])
-
-    @staticmethod
-    def _blend(mesh, index, rows, parts):
-        """Move the vertices ``index`` of ``mesh`` by their segments' affine maps, blended by their
-        weights (``rows``: their "weights", "kept", "thigh", "shin"); ``parts``: [(lo, hi, A1, A2,
-        b)] the rows of each leg and its maps. (Each product on contiguous arrays: a strided
-        operand costs numpy several times more; the same numbers as one (n, 6) product.)"""
-        x = np.take(mesh, index, axis=0).astype(np.float64)
-        thigh, shin, shift = np.empty_like(x), np.empty_like(x), np.empty_like(x)  # x A1, x A2, w @ b
-        for lo, hi, A1, A2, b in parts:
-            np.matmul(x[lo:hi], A1, out=thigh[lo:hi])
-            np.matmul(x[lo:hi], A2, out=shin[lo:hi])
-            np.matmul(rows["weights"][lo:hi], b, out=shift[lo:hi])
-        moved = x * rows["kept"]
-        thigh *= rows["thigh"]
-        moved += thigh
-        shin *= rows["shin"]
-        moved += shin
-        moved += shift
-        put_rows(mesh, index, moved.astype(np.float32))
+        the graph player uses to read the held feet without moving the legs. Each moved leg's
+        segments are mapped affinely, x -> x A + b (thigh: (x - hip) R1^T S1 + hip; shin: (x -
+        knee) R2^T S2 + the new knee, S the stretch along the new bone; foot: x + share x offset),
+        and a vertex takes the blend of its segments' maps by its weights, in one compiled pass
+        (``engine.graph.compiled.move_legs``; a float32 C-contiguous mesh, else numpy's)."""
+        found = np.zeros((len(self.legs), 3, 3))
+        moved = np.zeros(len(self.legs), dtype=bool)
+        for k, j in enumerate(joints):
+            if j is not None:
+                found[k], moved[k] = j, True
+        offsets = np.ascontiguousarray(offsets, dtype=np.float64)
+        shares = np.ascontiguousarray(shares, dtype=np.float64)
+        if mesh.dtype == np.float32 and mesh.flags.c_contiguous and mesh.flags.writeable:
+            rows = self._all
+            move_legs(mesh, self.index, rows["weights"], rows["kept1"], rows["thigh1"], rows["shin1"],
+                      self._bounds_array, found, offsets, shares, moved)
+        else:  # another layout: moved in a float32 copy, written back
+            work = np.ascontiguousarray(mesh, dtype=np.float32).copy()
+            self.move(work, offsets, shares, joints)
+            mesh[self.index] = work[self.index]
 
     def segments(self, mesh):
         """(legs, 2) thigh and shin lengths (hip-knee, knee-ankle ring centroids) on ``mesh``."""

@@ -21,6 +21,7 @@ import numpy as np
 
 from engine.graph.build import GraphError
 from engine.graph.clock import NodeClock, foot_vertices, move, place
+from engine.graph.compiled import feet_world
 from engine.graph.feet import FootPins
 from engine.graph.search import TransitionSearch
 
@@ -112,15 +113,14 @@ class GraphPlayer:
         self.foot_lock = bool(foot_lock)
         rest = np.asarray(start.space.container["rest"])
         self._feet = foot_vertices(rest)
-        self._feet_index = np.concatenate(self._feet)  # both feet in one gather
-        self._feet_sizes = [len(f) for f in self._feet]
+        self._feet_index = np.concatenate(self._feet).astype(np.int64)  # both feet in one gather
+        self._feet_bounds = np.cumsum([0] + [len(f) for f in self._feet]).astype(np.int64)
         self._ground = float(rest[:, 1].min()) + float(contact)  # below this: on the ground
         self.pins = FootPins(rest, self._feet, self._ground)
         self._cached = None      # (frames, root-local mesh, progress) of the current state
         self._moved = False      # the cached mesh's legs have been moved to hold the feet (shown)
         self._hold = None        # FootPins.prepare's answer for the cached mesh (None: no foot held)
         self._joints = None      # the legs' joints found on the cached mesh (LegRig.reach's ``known``)
-        self._feet_mesh = None   # the cached mesh's feet, root-local, before the feet were held
         self._feet_before, self._feet_frame = None, None  # the feet in the world, at frame number
         self._dt = 0.0           # the last step's length (a blend planned to start within it is near)
         if not start.cyclic:
@@ -236,8 +236,9 @@ class GraphPlayer:
 
     # playing ----------------------------------------------------------------------------------
 
-    def step(self, dt, *, placed=True):
-        """Advance ``dt`` seconds; the frame there (``placed=False``: root-local, as ``frame``)."""
+    def step(self, dt, *, placed=True, vertices=True):
+        """Advance ``dt`` seconds; the frame there (``placed=False``: root-local, as ``frame``;
+        ``vertices=False``: as ``frame``, without the vertices of a frame ``table_source`` gives)."""
         dt = float(dt)
         if not (dt >= 0 and math.isfinite(dt)):
             raise ValueError(f"dt must be a non-negative number of seconds, got {dt}")
@@ -276,7 +277,21 @@ class GraphPlayer:
             events += self._enter()
         elif self.blend is None and self.pending is None and not self.node.cyclic and self.clock.finished:
             self._plan_return()  # the planned return could not be kept: leave now
-        return self.frame(events, placed=placed)
+        return self.frame(events, placed=placed, vertices=vertices)
+
+    def table_source(self):
+        """(phase-table blender, weights, phase) when the current frame is one read of the playing
+        space's phase table (a player with ``tables``, linear or hybrid, no transition blending, no
+        foot held), else None: the frame's root-local vertices are then
+        ``blender.blend(weights, phase)``, as ``frame`` gives them."""
+        if not self.tables or self.mode == "nonlinear" or self.blend is not None or self.pins.holding():
+            return None
+        return self.clock.space.frame_blender(self.mode), self.clock.weights, self.clock.phase
+
+    def local_vertices(self):
+        """(n, 3) float32 root-local vertices of the current frame (the player's buffer, overwritten
+        by the next step)."""
+        return self._shown()[0]
 
     def _locking(self, held):
         """The next step may blend, so the feet's places are needed (``held``: ``pins.holding()``)."""
@@ -332,7 +347,6 @@ class GraphPlayer:
         mesh = self._buffer
         # the feet held: planned here, the legs moved once, when the frame is shown (_shown)
         self._joints = [None] * len(self.pins.rig.legs)  # found once a frame, for both plans of a hold
-        self._feet_mesh = None
         self._hold = self.pins.prepare(mesh, self.heading, self._joints) if self.pins.holding() else None
         self._moved = False
         self._cached = (self.frames, mesh, progress)
@@ -348,17 +362,14 @@ class GraphPlayer:
 
     def _feet_at(self):
         """The feet's vertices in the world now, (F, 3) float32, stacked in ``FootPins.feet``'s
-        order (held: moved by their offsets, as ``_shown`` moves them, without moving the legs)."""
+        order (held: moved by their offsets, as ``_shown`` moves them, without moving the legs;
+        one compiled pass, ``engine.graph.compiled.feet_world``)."""
         mesh, _ = self._local()
+        hold = None
         if self._hold is not None and not self._moved:
-            if self._feet_mesh is None:  # gathered once a frame (a held frame reads them twice)
-                self._feet_mesh = np.take(mesh, self._feet_index, axis=0)
             local, shares, _ = self._hold
-            shift = np.repeat(shares[:, None] * local, self._feet_sizes, axis=0)
-            feet = (self._feet_mesh + shift).astype(np.float32)  # what LegRig.move writes into the mesh
-        else:
-            feet = np.take(mesh, self._feet_index, axis=0)
-        return place(feet, self.position, self.heading)
+            hold = (local, shares)  # what LegRig.move writes into the feet's rows
+        return feet_world(mesh, self._feet_index, self._feet_bounds, self.position, self.heading, hold)
 
     def _hold_feet(self, dt):
         """Hold the feet on the ground where they were, on the mesh just shown (``FootPins``)."""
@@ -375,10 +386,15 @@ class GraphPlayer:
                 mesh = self._local()[0]
                 self._hold = self.pins.prepare(mesh, self.heading, self._joints) if self.pins.holding() else None
 
-    def frame(self, events=None, *, placed=True):
+    def frame(self, events=None, *, placed=True, vertices=True):
         """The frame at the current state (nothing advances); ``placed=False``: its vertices are
-        root-local (the player's buffer, overwritten by the next step: encode or copy them)."""
-        mesh, progress = self._shown()
+        root-local (the player's buffer, overwritten by the next step: encode or copy them);
+        ``vertices=False``: ``vertices`` is None where ``table_source`` gives them (not blended:
+        ``local_vertices`` blends them if needed)."""
+        if not vertices and not placed and self.table_source() is not None:
+            mesh, progress = None, None
+        else:
+            mesh, progress = self._shown()
         target = None
         if progress is not None:
             target = self.blend.plan.target
@@ -392,5 +408,5 @@ class GraphPlayer:
         return GraphFrame(time=self.time, node=self.node.name, phase=self.clock.phase, target=target,
                           progress=progress, params=params, root_position=self.position.copy(),
                           heading=float(self.heading),
-                          vertices=place(mesh, self.position, self.heading) if placed else mesh,
+                          vertices=place(mesh, self.position, self.heading) if placed and mesh is not None else mesh,
                           events=list(events or []))

@@ -97,15 +97,23 @@ class FrameOutput:
     def frame_source(self):
         """(phase table or None, codec): a table when this frame is one interpolation of it
         (linear or hybrid at weights that recur; heatmaps too: server/heatmap/ works off the
-        loop); q16 tables are in codec units."""
+        loop; a motion graph's while it plays one node's space, no transition blending and no foot
+        held); q16 tables are in codec units."""
         player = self.player
-        if player.mode == "nonlinear" or self.graph is not None:  # a graph's state moves between spaces
+        if self.graph is not None:  # a graph's frame reads a table only while it plays one node
+            source = self.graph.table_source()
+            if source is None:
+                return None, self.codec
+            blender, weights, _ = source
+        elif player.mode == "nonlinear":
             return None, self.codec
-        space, mode, blender = self.frame_blender
-        if space is not player.space or mode != player.mode:
-            blender = player.space.frame_blender(player.mode)
-            self.frame_blender = player.space, player.mode, blender
-        table = blender.lookup(player.weights)
+        else:
+            space, mode, blender = self.frame_blender
+            if space is not player.space or mode != player.mode:
+                blender = player.space.frame_blender(player.mode)
+                self.frame_blender = player.space, player.mode, blender
+            weights = player.weights
+        table = blender.lookup(weights)
         self.table_missed = table is None  # send_frame blends without asking again
         if table is not None and self.codec == "q16":
             source, scaled = self.scaled_table
