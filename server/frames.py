@@ -88,6 +88,7 @@ _TARGET, _PROGRESS = _KEYS["target"], _KEYS["progress"]
 _NO_ERROR_VERTICES = _pair("error_um", None) + _KEYS["vertices"]
 _NIL = msgpack.packb(None)
 _PROGRESS_FLOAT = struct.Struct(f">{len(_PROGRESS)}s1sd").pack  # _PROGRESS, _F, progress
+_GRAPH_STILL = {}  # (node, target) -> StreamedFrame.graph's bytes without a transition's progress
 
 
 def _uint(n):
@@ -110,10 +111,18 @@ class StreamedFrame:
     @staticmethod
     def graph(node, target, progress):
         """The packed ``node``, ``target`` (str or None) and ``progress`` (float or None) fields
-        of a motion graph's frame, for ``parts``."""
+        of a motion graph's frame, for ``parts`` (outside a transition, packed once per node and
+        target)."""
+        if progress is None:
+            packed = _GRAPH_STILL.get((node, target))
+            if packed is None:
+                packed = b"".join((_NONES_NODE, _packb(node), _TARGET, _packb(target), _PROGRESS + _NIL,
+                                   _NO_ERROR_VERTICES))
+                if len(_GRAPH_STILL) < 1024:
+                    _GRAPH_STILL[(node, target)] = packed
+            return packed
         return b"".join((_NONES_NODE, _packb(node), _TARGET, _packb(target),
-                         _PROGRESS + _NIL if progress is None else _PROGRESS_FLOAT(_PROGRESS, _F, progress),
-                         _NO_ERROR_VERTICES))
+                         _PROGRESS_FLOAT(_PROGRESS, _F, progress), _NO_ERROR_VERTICES))
 
     @staticmethod
     def parts(seq, ack, time_, phase, middle, root, heading, dropped, finished, sent_at, vertices, graph=None):

@@ -14,7 +14,10 @@ client message makes a frame urgent). Per tick:
   simplex leaf's reference blends, q16 clients' codes made in the same compiled pass); a row's
   bytes do not depend on the rest of its group, so a client blended alone (``send_frame(None)``)
   gets the same frame;
-- the non-linear mode and motion graphs blend one client at a time;
+- a motion graph's client playing one node, no transition blending and no foot held, reads its
+  node's phase table like a space's client (``GraphPlayer.table_source``); the non-linear mode
+  and the rest of a graph's frames (transitions, held feet: blended by its player) are made one
+  client at a time;
 - frames are written without a task switch, straight to the transport (server/transport.py: the
   message assembled with one copy), and only into a transport that has taken everything before
   it (the session checks before it blends; a connection whose transport still holds bytes skips
