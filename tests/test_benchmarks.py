@@ -207,7 +207,7 @@ def check_dask_align(records, stdout):
         assert positive(row["median_s"]) and row["tasks"] >= 3 and row["repeats_equal"]
         assert {"similarity", "align", "repair", "pieces", "critical_path_frames"} <= set(row["stages_s"])
     assert positive(record["speedup"]) and non_negative(record["load_average"])
-    assert "speedup 2 vs 1 workers" in stdout and "full figure: " in stdout and "results equal" in stdout
+    assert "speedup 2 vs 1 workers" in stdout and "target run: " in stdout and "results equal" in stdout
     assert "TARGET the demo's 973 frames >= 1.7x faster on 2 workers" in stdout and "not the target run" in stdout
 
 
