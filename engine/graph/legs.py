@@ -41,64 +41,8 @@ def _ramp(y, lo, hi):
     return u * u * (3.0 - 2.0 * u)
 
 
-def _unit(v):
-    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-    return (v[0] / n, v[1] / n, v[2] / n)
-
-
 def _norm(v):
     return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
-
-
-def rotation_between(p, q):
-    """(3, 3) the smallest rotation turning the direction of ``p`` into that of ``q``.
-
-    (On Python floats: these are 3-vectors, and numpy's per-call cost was most of a held
-    frame's.)"""
-    return np.array(_rotation(p, q))
-
-
-def _rotation(p, q):
-    """``rotation_between`` as a tuple of its three rows (tuples of Python floats)."""
-    px, py, pz = _unit(p)
-    qx, qy, qz = _unit(q)
-    ax, ay, az = py * qz - pz * qy, pz * qx - px * qz, px * qy - py * qx
-    s, c = math.sqrt(ax * ax + ay * ay + az * az), px * qx + py * qy + pz * qz
-    if s < 1e-12:
-        return ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))  # the same direction (a leg never folds back here)
-    kx, ky, kz = ax / s, ay / s, az / s
-    d = 1.0 - c  # Rodrigues: I + s K + (1 - c) K^2, K the cross-product matrix of the unit axis
-    return ((1.0 - d * (ky * ky + kz * kz), -s * kz + d * kx * ky, s * ky + d * kx * kz),
-            (s * kz + d * kx * ky, 1.0 - d * (kx * kx + kz * kz), -s * kx + d * ky * kz),
-            (-s * ky + d * kx * kz, s * kx + d * ky * kz, 1.0 - d * (kx * kx + ky * ky)))
-
-
-def two_bone(hip, knee, ankle, target, scale=1.0, forward=(0.0, 0.0, 1.0)):
-    """The knee's new place for the ankle at ``target``, the thigh and shin keeping their
-    lengths times ``scale``, the knee bending in the plane it bends in now (``forward`` if the
-    leg is straight). ``target`` must be within reach (no farther from the hip than the two
-    lengths added)."""
-    hip, knee, ankle, target = (tuple(map(float, a)) for a in (hip, knee, ankle, target))
-    return np.array(_two_bone(hip, knee, ankle, target, scale, tuple(map(float, forward))))
-
-
-def _two_bone(hip, knee, ankle, target, scale, forward):
-    """``two_bone`` on tuples of Python floats; the knee as a tuple."""
-    thigh = (knee[0] - hip[0], knee[1] - hip[1], knee[2] - hip[2])
-    l1 = scale * _norm(thigh)
-    l2 = scale * _norm((ankle[0] - knee[0], ankle[1] - knee[1], ankle[2] - knee[2]))
-    reach = (target[0] - hip[0], target[1] - hip[1], target[2] - hip[2])
-    d = _norm(reach)
-    u = (reach[0] / d, reach[1] / d, reach[2] / d)
-    along = thigh[0] * u[0] + thigh[1] * u[1] + thigh[2] * u[2]
-    bend = (thigh[0] - along * u[0], thigh[1] - along * u[1], thigh[2] - along * u[2])
-    if _norm(bend) < 1e-6 * l1:
-        along = forward[0] * u[0] + forward[1] * u[1] + forward[2] * u[2]
-        bend = (forward[0] - along * u[0], forward[1] - along * u[1], forward[2] - along * u[2])
-    v = _unit(bend)
-    cos = min(max((l1 * l1 + d * d - l2 * l2) / (2.0 * l1 * d), -1.0), 1.0)
-    sin = math.sqrt(1.0 - cos * cos)
-    return tuple(h + l1 * (cos * a + sin * b) for h, a, b in zip(hip, u, v))
 
 
 def _sub(a, b):

@@ -1,8 +1,8 @@
-"""The leg rig's hot path (engine/graph/legs.py) gives the same numbers, to rounding, as the plain
-numpy formulation it replaced (kept here as the reference: ``reference_reachable`` and
-``reference_move``), over random holds of the tiny graph's frames: offsets within reach, out of
-reach, past the cap, straight legs that stretch; and joints found once and reused give the same
-plan."""
+"""The leg rig's hot path (engine/graph/legs.py, compiled in engine/graph/compiled.py) gives the
+same numbers, to rounding, as the plain numpy formulation it replaced (kept here as the
+reference: ``reference_reachable``, ``reference_move``, ``two_bone``, ``rotation_between``), over
+random holds of the tiny graph's frames: offsets within reach, out of reach, past the cap,
+straight legs that stretch; and joints found once and reused give the same plan."""
 
 import math
 
@@ -12,11 +12,38 @@ import pytest
 from engine.graph import MotionGraph
 from engine.graph.clock import foot_vertices
 from engine.graph.feet import FootPins
-from engine.graph.legs import LegRig, rotation_between, two_bone
+from engine.graph.legs import LegRig
 
 
 def _norm(v):
     return math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+
+
+def rotation_between(p, q):
+    """(3, 3) the smallest rotation turning the direction of ``p`` into that of ``q`` (Rodrigues)."""
+    p, q = np.asarray(p, dtype=float) / _norm(p), np.asarray(q, dtype=float) / _norm(q)
+    axis = np.cross(p, q)
+    s, c = _norm(axis), float(p @ q)
+    if s < 1e-12:
+        return np.eye(3)
+    kx, ky, kz = axis / s
+    K = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
+    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
+
+
+def two_bone(hip, knee, ankle, target, scale=1.0, forward=(0.0, 0.0, 1.0)):
+    """The knee's new place for the ankle at ``target``, thigh and shin keeping their lengths
+    times ``scale``, the knee bending in the plane it bends in now (``forward`` if straight)."""
+    hip, knee, ankle, target = (np.asarray(x, dtype=float) for x in (hip, knee, ankle, target))
+    l1, l2 = scale * _norm(knee - hip), scale * _norm(ankle - knee)
+    d = _norm(target - hip)
+    u = (target - hip) / d
+    bend = (knee - hip) - ((knee - hip) @ u) * u
+    if _norm(bend) < 1e-6 * l1:
+        bend = np.asarray(forward, dtype=float) - (np.asarray(forward, dtype=float) @ u) * u
+    v = bend / _norm(bend)
+    cos = min(max((l1 * l1 + d * d - l2 * l2) / (2.0 * l1 * d), -1.0), 1.0)
+    return hip + l1 * (cos * u + math.sqrt(1.0 - cos * cos) * v)
 
 
 def reference_reachable(rig, k, offset, joints):
