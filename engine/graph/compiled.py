@@ -106,7 +106,7 @@ def _move_legs(mesh, index, weights, kept, thigh, shin, bounds, joints, offsets,
         l_thigh = _norm3(knee[0] - hip[0], knee[1] - hip[1], knee[2] - hip[2])
         l_shin = _norm3(ankle[0] - knee[0], ankle[1] - knee[1], ankle[2] - knee[2])
         scale = max(1.0, _norm3(target[0] - hip[0], target[1] - hip[1], target[2] - hip[2]) / (l_thigh + l_shin))
-        # the two-bone solution (legs._two_bone): the knee in the plane it bends in now
+        # the two-bone solution: the knee in the plane it bends in now, thigh and shin keeping their lengths
         l1, l2 = scale * l_thigh, scale * l_shin
         d = _norm3(target[0] - hip[0], target[1] - hip[1], target[2] - hip[2])
         for i in range(3):
