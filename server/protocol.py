@@ -262,14 +262,17 @@ class Frame:
     phase: float = wire("float", "phase in [0, 1] of the cycle or clip")
     mode: str = wire("str", "blend mode of this frame")
     requested: list = wire("floats", "a streamed frame: the parameters on their way (smoothed) to the nearest "
-                            "reachable ones of the last request; a pulled frame: the pull's request as asked")
+                            "reachable ones of the last request; a pulled frame: the pull's request as asked; "
+                            "a graph's frame: the node's parameters as last asked (not smoothed, not clamped)")
     realised: list = wire("floats", "parameters the blend realises")
     clamped: bool = wire("bool", "the request is outside the reachable domain")
     weights: list = wire("floats", "blend weights, one per source")
     root: list = wire("floats", "root position [x, y, z] (m, world)")
     heading: float = wire("float", "root heading (radians about +Y; 0 faces +Z)")
     vertices: bytes = wire("bytes", "n_vertices x 3, f32 or q16 per the topology's codec")
-    dropped: int = wire("int", "frames skipped so far because the client fell behind")
+    dropped: int = wire("int", "frames skipped so far: due frames not sent because the client fell behind "
+                               "(its transport still held earlier bytes) or the server did (a frame more "
+                               "than a period late)")
     finished: bool = wire("bool", "a one-shot clip reached its end")
     sent_at: float = wire("float", "server wall clock (s since the epoch) when encoded")
     pull_id: int = wire("int", "the Pull's id, or nil for streamed frames", optional=True)
