@@ -13,6 +13,9 @@ microseconds of overhead on two 3-vectors or a few hundred rows), each done here
 - :func:`contact_moves`: ``clock.contact_moves`` for float32 feet (each foot's least horizontal
   move of a vertex on the ground in both frames).
 
+(The transition search's played candidates are compiled beside their numpy formulation, in
+``engine.graph.terms._play_blends``; :func:`warm_up` covers them too.)
+
 The same IEEE operations as the Python formulations they replace (no fast-math), summed in the
 order written; the 3x3 products are summed row by column, where numpy's BLAS may order a sum
 differently, so the legs agree with ``tests/engine/test_graph_legs.py``'s numpy reference to
@@ -249,6 +252,13 @@ def warm_up():
     for hold in (None, (np.zeros((2, 3)), np.zeros(2))):
         feet_world(mesh, index, bounds, np.zeros(3), 0.0, hold)
     contact_moves(mesh, mesh, 0.0, bounds)
+    from engine.graph import terms  # the transition search's played candidates (terms.predict)
+
+    points, index = np.zeros((2, 3, 3), dtype=np.float32), np.zeros((1, 2), dtype=np.int64)
+    rates, ground = np.zeros((2, 2)), np.zeros((2, 1))
+    terms._play_blends(points, points, index, index, np.zeros((1, 2)), rates, rates, rates[:, 0].copy(),
+                       rates[:, 0].copy(), ground, ground, terms.FRAME, np.empty((1, 1), dtype=np.float32),
+                       np.empty((1, 2, 1, 2), dtype=np.float32), np.empty((1, 2, 1), dtype=np.bool_))
 
 
 __all__ = ["contact_moves", "feet_world", "move_legs", "ring_means", "warm_up"]

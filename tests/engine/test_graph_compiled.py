@@ -79,13 +79,16 @@ def test_contact_moves_are_the_numpy_ones():
 def test_warm_up_compiles_every_signature_a_graph_stream_calls(graph):
     """After ``warm_up`` (a server's start), a held frame's calls compile nothing new."""
     compiled.warm_up()
-    kernels = (compiled._ring_means, compiled._move_legs, compiled._feet_world, compiled._contact_moves)
+    from engine.graph import terms
+
+    kernels = (compiled._ring_means, compiled._move_legs, compiled._feet_world, compiled._contact_moves,
+               terms._play_blends)
     before = [len(kernel.signatures) for kernel in kernels]
     assert all(before)
     from engine.graph import GraphPlayer
 
     player = GraphPlayer(graph, record=False, tables=True)
-    held = 0
+    held = 0  # (the requests' searches play their candidates: terms.predict)
     for node in ("jump", "walk", "stand", "walk"):
         if node in {n.name for n in graph.nodes}:
             player.request(node)
@@ -94,3 +97,29 @@ def test_warm_up_compiles_every_signature_a_graph_stream_calls(graph):
             held += player.pins.holding()
     assert held > 0  # frames with a foot held: every kernel ran
     assert [len(kernel.signatures) for kernel in kernels] == before
+
+
+def test_predicted_candidates_are_the_numpy_plays(graph):
+    """The search's compiled play of candidate blends (terms.predict) gives exactly the numbers of
+    the numpy formulation (terms._play and the same reductions), over every edge."""
+    from engine.graph import terms
+    from engine.graph.search import TransitionSearch
+
+    search = TransitionSearch(graph)
+    rng = np.random.default_rng(5)
+    for a, b in graph.edges:
+        pa, pb = search._profiles[a], search._profiles[b]
+        for _ in range(10):
+            ka, kb = int(rng.integers(pa.points.shape[0])), int(rng.integers(pb.points.shape[0]))
+            phase_a, phase_b = rng.random(8), rng.random(8)
+            lengths = rng.choice([0.15, 0.3, 0.5, 0.7], 8)
+            frames = np.maximum(np.rint(lengths / terms.FRAME).astype(int), 1)
+            count = int(frames.max())
+            steps, feet, down = terms._play(pa, ka, phase_a, pb, kb, phase_b, frames, count)
+            inside = np.arange(count)[None, :] < frames[:, None]
+            ratio = np.where(inside, steps, 0.0).max(1) / max(pa.largest[ka], pb.largest[kb], 1e-9)
+            moved = np.sqrt(((feet[:, 1:] - feet[:, :-1]) ** 2).sum(-1))
+            held = down[:, 1:] & down[:, :-1] & inside[:, :, None]
+            drift = np.where(held, moved, 0.0).sum(1).max(-1)
+            got_ratio, got_drift = terms.predict(pa, ka, phase_a, pb, kb, phase_b, lengths)
+            assert np.array_equal(got_ratio, ratio) and np.array_equal(got_drift, drift)
