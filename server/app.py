@@ -38,9 +38,11 @@ WEB_CLIENT = Path(__file__).resolve().parent.parent / "web_client" / "static"
 
 def warm_up_stream():
     """Compile (or load from numba's cache) every compiled loop a stream runs: the blends, casts
-    and solves (engine/blend/compiled.py) and a motion graph's held feet (engine/graph/compiled.py)."""
+    and solves (engine/blend/compiled.py), a motion graph's held feet and its transition search's
+    played candidates (engine/graph/compiled.py)."""
     warm_up_blends()
     warm_up_graphs()
+
 
 def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
     """The morphspace server for ``settings`` (default: from the environment).
@@ -58,7 +60,7 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
         await app.state.jobs.start()
         # the stream's compiled loops, loaded from numba's cache (compiled the first time: a few
         # seconds) before the first client, not in the middle of its first frames
-        await asyncio.to_thread(warm_up_stream)  # (the motion graphs' held feet too)
+        await asyncio.to_thread(warm_up_stream)
         publisher = stop_listening = None
         if worker is not None:
             publisher = asyncio.create_task(worker.publish_forever(lambda: local_counters(app.state)))

@@ -235,8 +235,8 @@ class GraphStream:
         return self._frame.vertices
 
     def table_source(self):
-        """``GraphPlayer.table_source``: (phase-table blender, weights, phase) when the frame is
-        one read of a phase table (the scheduler then reads it with others'), else None."""
+        """``GraphPlayer.table_source``: (phase-table blender, weights) when the frame is one read
+        of a phase table at ``phase`` (the scheduler then reads it with others'), else None."""
         return self.player.table_source()
 
     def _state(self):

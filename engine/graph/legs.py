@@ -96,9 +96,9 @@ class LegRig:
         self.index = np.concatenate([leg["index"] for leg in self.legs])
         self._bounds_array = np.cumsum([0] + [len(leg["index"]) for leg in self.legs]).astype(np.int64)
         # every leg's rows stacked as ``index``, for the compiled move: weights (m, 3), the rest (m,)
-        self._all = {"weights": np.ascontiguousarray(np.concatenate([leg["weights"] for leg in self.legs]))}
-        for name in ("kept", "thigh", "shin"):
-            self._all[name + "1"] = np.ascontiguousarray(np.concatenate([leg[name][:, 0] for leg in self.legs]))
+        self._weights = np.ascontiguousarray(np.concatenate([leg["weights"] for leg in self.legs]))
+        self._kept, self._thigh, self._shin = (np.concatenate([leg[name][:, 0] for leg in self.legs])
+                                               for name in ("kept", "thigh", "shin"))
 
     def joints(self, mesh, k):
         """(3, 3) float64: the rows hip, knee, ankle of leg ``k`` on root-local ``mesh`` (the means
@@ -176,11 +176,10 @@ class LegRig:
         offsets = np.ascontiguousarray(offsets, dtype=np.float64)
         shares = np.ascontiguousarray(shares, dtype=np.float64)
         if mesh.dtype == np.float32 and mesh.flags.c_contiguous and mesh.flags.writeable:
-            rows = self._all
-            move_legs(mesh, self.index, rows["weights"], rows["kept1"], rows["thigh1"], rows["shin1"],
-                      self._bounds_array, found, offsets, shares, moved)
+            move_legs(mesh, self.index, self._weights, self._kept, self._thigh, self._shin, self._bounds_array,
+                      found, offsets, shares, moved)
         else:  # another layout: moved in a float32 copy, written back
-            work = np.ascontiguousarray(mesh, dtype=np.float32).copy()
+            work = np.array(mesh, dtype=np.float32, order="C")
             self.move(work, offsets, shares, joints)
             mesh[self.index] = work[self.index]
 

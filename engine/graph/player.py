@@ -280,13 +280,13 @@ class GraphPlayer:
         return self.frame(events, placed=placed, vertices=vertices)
 
     def table_source(self):
-        """(phase-table blender, weights, phase) when the current frame is one read of the playing
+        """(phase-table blender, weights) when the current frame is one read of the playing
         space's phase table (a player with ``tables``, linear or hybrid, no transition blending, no
         foot held), else None: the frame's root-local vertices are then
-        ``blender.blend(weights, phase)``, as ``frame`` gives them."""
+        ``blender.blend(weights, frame.phase)``, as ``frame`` gives them."""
         if not self.tables or self.mode == "nonlinear" or self.blend is not None or self.pins.holding():
             return None
-        return self.clock.space.frame_blender(self.mode), self.clock.weights, self.clock.phase
+        return self.clock.space.frame_blender(self.mode), self.clock.weights
 
     def local_vertices(self):
         """(n, 3) float32 root-local vertices of the current frame (the player's buffer, overwritten

@@ -137,20 +137,25 @@ def own_windows(profile, phases, lengths):
     return out
 
 
+def _entries(a, ka, phase_a, b, kb, phase_b, frames_n, count, own):
+    """(ia, ib, s) (C, count + 1): each candidate's frames' table entries in ``a`` and ``b`` and
+    the blend's weight of ``b`` there (0 throughout for ``own`` or a candidate of 0 frames)."""
+    t = np.arange(count + 1) * FRAME                                  # (T,)
+    ia = a.index(ka, phase_a[:, None] + t[None, :] / a.duration[ka])  # (C, T)
+    ib = b.index(kb, phase_b[:, None] + t[None, :] / b.duration[kb])
+    if own:
+        return ia, ib, np.zeros((len(phase_a), count + 1))
+    n = np.maximum(frames_n, 1)[:, None]
+    return ia, ib, np.where(frames_n[:, None] > 0, _smooth(np.arange(count + 1)[None, :] / n), 0.0)
+
+
 def _play(a, ka, phase_a, b, kb, phase_b, frames_n, count, *, own=False):
     """Play candidates: ``phase_a`` / ``phase_b`` (C,) the phases the blend leaves and enters at,
     ``frames_n`` (C,) its frames (0: the source alone); ``count`` frames after the first.
     Returns (C, count) the largest tracked-vertex step of each frame, (C, count + 1, F, 2) the
     feet's world xz and (C, count + 1, F) whether each is on the ground."""
     C = len(phase_a)
-    t = np.arange(count + 1) * FRAME                                  # (T,)
-    ia = a.index(ka, phase_a[:, None] + t[None, :] / a.duration[ka])  # (C, T)
-    ib = b.index(kb, phase_b[:, None] + t[None, :] / b.duration[kb])
-    n = np.maximum(frames_n, 1)[:, None]
-    if own:
-        s = np.zeros((C, count + 1))
-    else:
-        s = np.where(frames_n[:, None] > 0, _smooth(np.arange(count + 1)[None, :] / n), 0.0)  # (C, T)
+    ia, ib, s = _entries(a, ka, phase_a, b, kb, phase_b, frames_n, count, own)
     sv = s[:, :, None]
     local = a.points[ka][ia]                                          # (C, T, V, 3) float32
     if not own:
@@ -233,10 +238,7 @@ def predict(a, ka, phase_a, b, kb, phase_b, lengths):
     frames_n = np.maximum(np.rint(np.asarray(lengths) / FRAME).astype(int), 1)
     count = int(frames_n.max())
     phase_a, phase_b = np.asarray(phase_a, float), np.asarray(phase_b, float)
-    t = np.arange(count + 1) * FRAME
-    ia = a.index(ka, phase_a[:, None] + t[None, :] / a.duration[ka])
-    ib = b.index(kb, phase_b[:, None] + t[None, :] / b.duration[kb])
-    s = np.where(frames_n[:, None] > 0, _smooth(np.arange(count + 1)[None, :] / frames_n[:, None]), 0.0)
+    ia, ib, s = _entries(a, ka, phase_a, b, kb, phase_b, frames_n, count, False)
     C, F = len(phase_a), a.ground.shape[2]
     steps = np.empty((C, count), dtype=np.float32)
     feet = np.empty((C, count + 1, F, 2), dtype=np.float32)

@@ -104,7 +104,7 @@ class FrameOutput:
             source = self.graph.table_source()
             if source is None:
                 return None, self.codec
-            blender, weights, _ = source
+            blender, weights = source
         elif player.mode == "nonlinear":
             return None, self.codec
         else:
