@@ -356,3 +356,16 @@ def test_export_measures_a_graph_performance(tmp_path):
     assert set(record["met"]) == {"glb_seconds", "glb_megabytes", "usd_seconds"}
     assert "graph tiny: 61 frames" in run.stdout
     assert recorded_results() == before and not list(cwd.iterdir())
+
+
+def test_align_speed_measures_a_denser_capture(tmp_path):
+    """``align_speed.py --tiny --subdivide 1``: the tiny run's frames with every triangle split in four
+    (about 4,000 vertices), aligned and scored against the same truth."""
+    out = tmp_path / "align_speed.json"
+    run = subprocess.run([sys.executable, str(BENCHMARKS / "align_speed.py"), "--tiny", "--subdivide", "1",
+                          "--out", str(out)], cwd=tmp_path, capture_output=True, text=True, timeout=180)
+    assert run.returncode == 0, run.stderr[-4000:]
+    record = json.loads(out.read_text())
+    assert record["subdivide"] == 1 and 3600 < record["vertices_mean"] < 4400
+    assert 0 < record["mean_pct"] <= record["p95_pct"] < 100 and record["target_met"] is None
+    assert "not judged (4," in run.stdout

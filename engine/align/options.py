@@ -46,7 +46,11 @@ class AlignmentOptions:
                                 rigid matching (a fixed random subset of each when a mesh has
                                 more; all vertices still move with their patch, and the final
                                 per-vertex rounds use all of them)
-    match_sample_levels : int   the coarse levels that subsample so; finer ones use every vertex
+    match_sample_levels : int   the coarse levels that subsample so
+    fine_match_samples : int    the same limit at the finer levels: a dense capture (40k-50k
+                                vertices) is matched there on a fixed subset of this many, so
+                                their cost follows the body rather than the vertex count (a
+                                10k-vertex capture uses every vertex)
     orientation_margin : float  a rigid start facing more than 90 degrees away from the best
                                 one whose fit score is within this factor of the best's is
                                 aligned from too (front-back ambiguity, see ``_rigid_starts``)
@@ -86,6 +90,7 @@ class AlignmentOptions:
     orientation_margin: float = 1.25
     match_samples: int = 3000
     match_sample_levels: int = 2
+    fine_match_samples: int = 12000
 
 
 @dataclass

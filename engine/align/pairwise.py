@@ -106,6 +106,7 @@ class PairwiseAligner:
                               for labels, count in zip(self.patch_labels, counts)]
         self._search_rotations = rotation_set(o.search_angles)
         self._match_subset = _subset(n, o.match_samples, seed)
+        self._fine_subset = _subset(n, o.fine_match_samples, seed)
         self._tet_volume = np.abs(tet_volumes(self.V_tet, self.T))
         scale = float(tet_laplacian(self.V_tet, self.T).diagonal().mean())
         weights = sorted(set(list(o.stiffness[:o.levels]) + [o.final_stiffness]))
@@ -167,7 +168,7 @@ class PairwiseAligner:
                 search = level < o.search_levels and round_ < o.search_rounds
                 goal, confidence = self._match_patches(S, target, labels, count, use_colour,
                                                        level=level if search else None,
-                                                       subsample=level < o.match_sample_levels,
+                                                       coarse=level < o.match_sample_levels,
                                                        graph=self.patch_graph[level])
                 X, R = self._deform(X, R, solver, goal, confidence, prior)
         solver = self._solvers[o.final_stiffness]
@@ -289,12 +290,12 @@ class PairwiseAligner:
                 starts.append(X @ fits[1][1].T + fits[1][2])
         return starts
 
-    def _match_patches(self, S, target, labels, count, use_colour, level=None, subsample=True, graph=None):
+    def _match_patches(self, S, target, labels, count, use_colour, level=None, coarse=True, graph=None):
         """Rigidly match every patch to the target; returns per-vertex goals and confidences.
 
-        With ``subsample``, the rigid steps are driven by at most ``options.match_samples`` source
-        vertices and as many target vertices (fixed random subsets); every vertex moves with its
-        patch. With
+        The rigid steps are driven by at most ``options.match_samples`` source vertices and as
+        many target vertices (fixed random subsets) on a ``coarse`` level, and at most
+        ``options.fine_match_samples`` on the others; every vertex moves with its patch. With
         ``level`` given, badly fitting patches also try articulated hypotheses
         (:func:`engine.align.patches.search_patches`) after the ICP steps. With ``graph`` (the
         level's ``patch_adjacency``) and ``options.patch_coupling`` > 0, adjacent patches' steps
@@ -305,10 +306,10 @@ class PairwiseAligner:
         n = vertex_normals(S, self.F)
         size = np.bincount(labels, minlength=count).astype(float)
         colours = self.colors if use_colour else None
-        pick = self._match_subset if subsample else None
+        pick = self._match_subset if coarse else self._fine_subset
         picked_labels = labels if pick is None else labels[pick]
         picked_colours = colours if colours is None or pick is None else colours[pick]
-        target_pick = _subset(len(target.V), o.match_samples, 0) if subsample else None
+        target_pick = _subset(len(target.V), o.match_samples if coarse else o.fine_match_samples, 0)
         for _ in range(o.icp_steps):
             xs, ns = (x, n) if pick is None else (x[pick], n[pick])
             y, m, w, tangential, d = correspondences(xs, ns, target, o, picked_colours, picked_labels, count)

@@ -67,3 +67,40 @@ def test_patches_are_nested_and_cover_the_surface(walk_aligner):
         assert len(np.unique(label)) == count
     again = farthest_point_patches(walk_aligner.V, walk_aligner.F, counts, seed=0)
     assert all(np.array_equal(a, b) for a, b in zip(labels, again))  # reproducible from the seed
+
+
+def test_subdivision_keeps_the_surface_and_carries_colours():
+    from engine.synthetic.remesh import subdivide
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], dtype=float)
+    F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    C = np.eye(4)[:, :3].astype(np.float32)
+    V2, F2, C2 = subdivide(V, F, C)
+    assert len(V2) == 4 + 6 and len(F2) == 16 and C2.dtype == np.float32
+    area = lambda V, F: 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum()
+    assert np.isclose(area(V2, F2), area(V, F))
+    midpoint = int(np.flatnonzero(np.all(np.isclose(V2, [0.5, 0.0, 0.0]), axis=1))[0])
+    np.testing.assert_allclose(C2[midpoint], 0.5 * (C[0] + C[1]))
+    assert np.array_equal(subdivide(V, F)[1], F2)
+
+
+def test_a_dense_capture_is_matched_on_a_subset_at_the_fine_levels(walk_capture):
+    """A 4x denser root and target (every triangle split in four), matched at every patch level on
+    a fixed subset (``fine_match_samples``): aligned as well as the 1,000-vertex capture is."""
+    from engine.align import AlignmentOptions, PairwiseAligner
+    from engine.synthetic.remesh import subdivide
+    from engine.tetmesh import tetrahedralize
+
+    body, V, frames = walk_capture
+    (V0, F0, C0), (V1, F1, C1) = frames[0], frames[1]
+    V0, F0, C0 = subdivide(V0, F0, C0)
+    V1, F1, C1 = subdivide(V1, F1, C1)
+    options = AlignmentOptions(fine_match_samples=1500)
+    aligner = PairwiseAligner(V0, F0, C0, tets=tetrahedralize(V0, F0, resolution=48), options=options)
+    assert len(aligner._fine_subset) == 1500 and len(V0) > 3000
+    result = aligner.align(aligner.V_tet, TargetSurface(V1, F1, C1))
+    faces, bary, _ = surface_coordinates(aligner.V, V[0], body.F)
+    errors = np.linalg.norm(result.V - true_positions(V[1:2], body.F, faces, bary)[0], axis=1)
+    size = np.ptp(V[0], axis=0).max()
+    assert errors.mean() < 0.01 * size and np.percentile(errors, 95) < 0.03 * size
+    assert result.residual < 0.003
