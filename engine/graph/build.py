@@ -104,7 +104,8 @@ def build_graph(path, nodes, edges, *, name, options=None, open_space=None, prog
 
     Returns
     -------
-    report : dict   the file's metadata plus timings
+    report : dict   the file's metadata, its ``path`` and ``build_s`` (seconds; not in the file, so the
+                    same input gives the same bytes)
     """
     from engine.motion_space import MotionSpace
 
@@ -148,9 +149,8 @@ def build_graph(path, nodes, edges, *, name, options=None, open_space=None, prog
     arrays["vertices"] = vertices.astype(np.int32)
     metadata = {"format": GRAPH_FORMAT, "version": GRAPH_VERSION, "name": name, "nodes": node_meta,
                 "edges": edge_meta, "window": asdict(options), "model_size": float(spaces[0].model_size),
-                "n_vertices": int(spaces[0].n_vertices),
-                "build_s": round(time.perf_counter() - started, 3)}
-    write_container(path, arrays, metadata)
+                "n_vertices": int(spaces[0].n_vertices)}
+    write_container(path, arrays, metadata)  # no timings in it: the same input gives the same bytes
     for space in spaces:
         space.close()
-    return {"path": str(path), **metadata}
+    return {"path": str(path), **metadata, "build_s": round(time.perf_counter() - started, 3)}

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.mesh_io.errors import MeshFormatError
+from engine.mesh_io.npz import savez_stable
 
 DATASET_FORMAT = "morphspace-capture-dataset"
 DATASET_VERSION = 1
@@ -44,7 +45,7 @@ def _write_npz(path, arrays):
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".npz")
     with os.fdopen(fd, "wb") as fh:
-        np.savez_compressed(fh, **arrays)
+        savez_stable(fh, arrays)
     os.replace(tmp, path)
 
 

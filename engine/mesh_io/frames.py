@@ -50,6 +50,29 @@ def list_frames(
         return list(frames.names)
 
 
+# Mesh formats this package does not read: a file in one of them beside the frames is most
+# likely a frame delivered in another format, so callers say it was left out.
+OTHER_MESH_EXTENSIONS = (".stl", ".fbx", ".abc", ".glb", ".gltf", ".dae", ".3ds", ".wrl", ".x3d", ".vtk",
+                         ".vtu", ".usd", ".usda", ".usdc", ".usdz", ".blend")
+
+
+def left_out_frames(path):
+    """Names of files in ``path`` (a directory or zip of frames) in a mesh format this package does
+    not read (an ``.stl`` among ``.obj`` frames), sorted naturally; ``[]`` when there are none or
+    ``path`` cannot be listed (reading the frames reports that)."""
+    path = Path(path)
+    try:
+        if path.is_dir():
+            names = [entry.name for entry in os.scandir(path) if entry.is_file() and not entry.name.startswith(".")]
+        else:
+            with zipfile.ZipFile(path) as archive:
+                names = [info.filename for info in archive.infolist()
+                         if not info.is_dir() and not _hidden(info.filename)]
+    except (OSError, zipfile.BadZipFile):
+        return []
+    return sorted((name for name in names if Path(name).suffix.lower() in OTHER_MESH_EXTENSIONS), key=natural_key)
+
+
 class FrameContainer:
     """Open directory or zip archive of frames; use as a context manager.
 

@@ -90,10 +90,32 @@ def save_sequence_npz(
         raise ValueError(f"{source}: metadata is not JSON-compatible ({err})") from err
     arrays["metadata"] = np.array(text)
 
-    save = np.savez_compressed if compress else np.savez
     with atomic_write(path) as file:
-        save(file, **arrays)
+        savez_stable(file, arrays, compress=compress)
     return path
+
+
+_EPOCH = (1980, 1, 1, 0, 0, 0)  # the earliest time a zip entry can carry
+
+
+def savez_stable(file, arrays, *, compress=True):
+    """``np.savez(_compressed)`` with nothing of the moment in it: numpy stamps every entry with
+    the time it was written, so the same arrays saved twice differ; here every entry carries the
+    same time, and the same arrays give the same bytes. ``np.load`` reads it as any npz.
+
+    Parameters
+    ----------
+    file : path or binary file object
+    arrays : dict name -> array_like    saved in this order, as ``name.npy``, never pickled
+    """
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with zipfile.ZipFile(file, mode="w", compression=method, allowZip64=True) as archive:
+        for name, value in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=_EPOCH)
+            info.compress_type = method
+            info.external_attr = 0o644 << 16
+            with archive.open(info, mode="w", force_zip64=True) as entry:
+                np.lib.format.write_array(entry, np.asanyarray(value), allow_pickle=False)
 
 
 def load_sequence_npz(path):

@@ -275,7 +275,9 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
 
     Returns
     -------
-    report : dict   what was built (sizes, timings, hybrid report)
+    report : dict   what was built: the file's metadata, its ``path``, and ``timings`` (seconds
+                    per stage; not in the file, which holds only what the input decides, so the
+                    same input gives the same bytes)
     """
     report_progress = progress or (lambda stage, done, total: None)
     extra = dict(metadata or {})
@@ -380,7 +382,6 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
                    "nonlinear_evaluations": hybrid_report.nonlinear_evaluations,
                    "stored_fraction": hybrid_report.stored_fraction,
                    "correction_bytes": int(corrections.nbytes()), "source_bytes": int(sources32.nbytes)},
-        "timings": {k: round(v, 3) for k, v in timings.items()},
         "parameters": None if parameter_map is None else parameter_map.to_metadata(),
         **extra,
     }
@@ -397,7 +398,6 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
     arrays.update({f"corrections_{key}": value for key, value in corrections.to_arrays().items()})
     if parameter_map is not None:
         arrays.update(parameter_map.to_arrays())
+    write_container(path, arrays, metadata)  # no timings in it: the same input gives the same bytes
     timings["total_s"] = time.perf_counter() - started
-    metadata["timings"]["total_s"] = round(timings["total_s"], 3)
-    write_container(path, arrays, metadata)
-    return {"path": str(path), **metadata}
+    return {"path": str(path), **metadata, "timings": {k: round(v, 3) for k, v in timings.items()}}

@@ -30,7 +30,7 @@ import os
 import shutil
 import sys
 import time
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 
 import numpy as np
 from tqdm import tqdm
@@ -39,9 +39,11 @@ from engine.align import AlignmentOptions, align_captures
 from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
 from engine.align.captures import ROOT_CHOICES
 from engine.align.repair import TRUSTED
-from engine.mesh_io import read_frames, write_obj, write_sequence
+from engine.mesh_io import MESH_EXTENSIONS, read_frames, write_obj, write_sequence
+from engine.mesh_io.frames import left_out_frames
 from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
+from engine.mesh_io.npz import savez_stable
 from engine.mesh_io.units import Convention
 from engine.surface import model_size
 from server.units import (
@@ -88,7 +90,8 @@ def add_arguments(parser):
                         help="vertex colours as local matching cues when every frame has them: auto (default) "
                              "when the meshes are fine enough for colours to carry texture (median edge "
                              "under 1.4%% of the model size), on (--colors alone), off")
-    parser.add_argument("--fps", type=float, default=30.0, help="frame rate of inputs without meta.json (default 30)")
+    parser.add_argument("--fps", type=float, default=None,
+                        help="frame rate of inputs without meta.json (default 30, with a note that it was assumed)")
     add_units_arguments(parser)
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                         help="worker processes for the dissimilarity matrix (default: up to 2)")
@@ -207,12 +210,24 @@ def parse_root(text, sequences, lengths):
     return index
 
 
-def read_inputs(sequences, progress=None):
-    """All frames of all sequences (concatenated) and the frame count of each sequence."""
+DEFAULT_FPS = 30.0  # the frame rate of inputs without a meta.json, unless --fps says
+
+
+def read_inputs(sequences, progress=None, *, say=None):
+    """All frames of all sequences (concatenated) and the frame count of each sequence.
+
+    ``say(line)`` is told of files beside a sequence's frames in a mesh format that is not read
+    (an ``.stl`` among ``.obj`` frames): they are left out, and the frames renumbered without them.
+    """
     meshes, lengths = [], []
     for s in sequences:
         frames = read_frames(s["frames"], progress=(lambda d, t: progress("read", len(meshes) + d, None))
                              if progress else None)
+        left_out = left_out_frames(s["frames"])
+        if left_out and say is not None:
+            shown = ", ".join(left_out[:5]) + (f" and {len(left_out) - 5} more" if len(left_out) > 5 else "")
+            say(f"warning: {s['name']}: {len(left_out)} file(s) in a mesh format that is not read "
+                f"({', '.join(MESH_EXTENSIONS)} are), left out of the sequence: {shown}")
         if len(frames) < 1:
             raise MeshFormatError(f"{s['frames']}: no frames")
         meshes.extend(frames)
@@ -285,7 +300,9 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         meta["units"], meta["up"] = "m", "+Y"  # what the written frames are in
         meta["alignment"] = {
             "method": result.method, "root": f"{root_sequence}:{root_frame}",
-            "source": str(s["frames"]), "source_units": conventions[k].units,
+            "source": str(s["frames"]),
+            "source_files": [_file_name(meshes[i].source) for i in range(starts[k], starts[k] + lengths[k])],
+            "source_units": conventions[k].units,
             "source_up": conventions[k].up_label, "input": conventions[k].to_metadata(),
             "residual_mean_mm": float(1000 * aligned.residual[span].mean()),
             "residual_max_mm": float(1000 * aligned.residual_max[span].max()),
@@ -298,8 +315,8 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         }
         (base / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
         metas.append(meta)
-    np.savez_compressed(
-        out / "alignment.npz",
+    savez_stable(
+        out / "alignment.npz", dict(
         format=np.array(ALIGNMENT_FORMAT), version=np.array(ALIGNMENT_VERSION),
         sequence_names=np.array([s["name"] for s in sequences]), lengths=lengths,
         root=np.array(root), method=np.array(result.method),
@@ -309,11 +326,15 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         tree_edges=tree.edges, tree_weights=tree.weights, tree_threshold=np.array(tree.threshold),
         tree_components=np.array(tree.components), parent=aligned.parent,
         residual=aligned.residual, residual_max=aligned.residual_max, distortion=aligned.distortion,
-        seconds=aligned.seconds, retried=aligned.retried, distortion_tail=aligned.distortion_tail,
+        retried=aligned.retried, distortion_tail=aligned.distortion_tail,
         confidence=aligned.confidence, repaired=aligned.repaired,
-        **({} if aligned.cpu_seconds is None else {"cpu_seconds": aligned.cpu_seconds}),
         source_units=np.array([c.units for c in conventions]), source_up=np.array([c.up_label for c in conventions]),
-    )
+    ))
+    # the only output that differs from run to run: how long it took
+    timings = {"stages_s": {k: round(v, 3) for k, v in result.timings.items()},
+               "seconds": [round(float(x), 4) for x in aligned.seconds],
+               "cpu_seconds": None if aligned.cpu_seconds is None else [round(float(x), 4) for x in aligned.cpu_seconds]}
+    (out / "timings.json").write_text(json.dumps(timings, indent=1) + "\n")
     names = [s["name"] for s in sequences]
     Image.fromarray(similarity_image(result.similarity.dissimilarity, lengths, names)).save(out / "similarity.png")
     Image.fromarray(tree_image(tree, lengths, names)).save(out / "tree.png")
@@ -321,7 +342,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         out / "aligned_pattern.png")
     write_capture_manifest(out, {
         "aligned": True, "alignment": {"method": result.method, "root": f"{root_sequence}:{root_frame}",
-                                       "options": options_record, "timings_s": result.timings,
+                                       "options": options_record,
                                        "input": {s["name"]: c.to_metadata() for s, c in zip(sequences, conventions)},
                                        "display_unit": display_unit(common)},
         "body": {"vertices": int(len(aligned.root_vertices)), "faces": int(len(aligned.faces)),
@@ -330,6 +351,12 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
                  "source_up": common.up_label if common.up_from != "mixed" else "mixed"},
         "fps": fps, "sequences": metas,
     })
+
+
+def _file_name(source):
+    """A frame's file name from its ``Mesh.source`` (a path, or ``archive.zip:member``)."""
+    archive, sep, member = str(source).rpartition(".zip:")
+    return PurePosixPath(member).name if sep else Path(str(source)).name
 
 
 def run(args):
@@ -345,9 +372,13 @@ def run(args):
     progress = Progress()
     started = time.perf_counter()
     try:
-        meshes, lengths = read_inputs(sequences, progress)
-        meshes, conventions = convert_inputs(meshes, sequences, lengths, args.units, args.up,
-                                             say=lambda line: tqdm.write(f"morphspace align: {line}", file=sys.stderr))
+        say = lambda line: tqdm.write(f"morphspace align: {line}", file=sys.stderr)  # noqa: E731
+        meshes, lengths = read_inputs(sequences, progress, say=say)
+        meshes, conventions = convert_inputs(meshes, sequences, lengths, args.units, args.up, say=say)
+        unlabelled = [s["name"] for s in sequences if not s["meta"]]
+        if unlabelled and args.fps is None:
+            say(f"note: {', '.join(unlabelled)}: no meta.json gives the frame rate; written as {DEFAULT_FPS:g} "
+                f"frames/s (say --fps)")
         root = parse_root(args.root, sequences, lengths)
         options = AlignmentOptions(patches=args.patches, levels=args.levels)
         result = align_captures(meshes, lengths, method="sequential" if args.sequential else "tree", tree_kind=args.tree,
@@ -360,7 +391,7 @@ def run(args):
             shutil.rmtree(staging)
         staging.mkdir(parents=True)
         try:
-            write_alignment(staging, sequences, meshes, lengths, result, fps=args.fps,
+            write_alignment(staging, sequences, meshes, lengths, result, fps=args.fps or DEFAULT_FPS,
                             options_record={"patches": args.patches, "levels": args.levels, "window": args.window,
                                             "retries": args.retries, "repair_budget": args.repair_budget, "tree": args.tree,
                                             "root_choice": args.root_choice, "colors": args.colors,

@@ -200,6 +200,15 @@ def _load_aligned(directory, dataset_names):
         raise MeshFormatError(f"{path}: not found; is {directory} a `morphspace align` output?") from None
     except (OSError, ValueError, KeyError) as exc:
         raise MeshFormatError(f"{path}: unreadable alignment record: {exc}") from None
+    timings = directory / "timings.json"  # per-frame times (older outputs kept them in alignment.npz)
+    if timings.is_file():
+        try:
+            recorded = json.loads(timings.read_text())
+            for key in ("seconds", "cpu_seconds"):
+                if recorded.get(key) is not None:
+                    extra[key] = np.asarray(recorded[key], dtype=np.float64)
+        except (OSError, ValueError, TypeError) as exc:
+            raise MeshFormatError(f"{timings}: unreadable: {exc}") from None
     missing = [n for n in names if n not in dataset_names]
     if missing:
         raise ValueError(f"{directory}: sequence(s) {', '.join(missing)} are not in the dataset")
@@ -246,7 +255,7 @@ def run(args):
             results = {"aligned": (vertices, faces, root_vertices)}
         else:
             sequences = resolve_inputs([dataset], args.only)
-            meshes, lengths = read_inputs(sequences, progress)
+            meshes, lengths = read_inputs(sequences, progress, say=_say_line)
             if args.max_frames is not None:
                 keep = np.concatenate([np.arange(s, s + min(n, args.max_frames))
                                        for s, n in zip(np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths)])

@@ -86,14 +86,17 @@ def run(args):
     space = MotionSpace.open(args.space)
     player = Player(space, mode=args.mode, smoothing=args.smoothing, loop=args.loop or None)
     names = player.names
+    notes = []
     if args.set:
-        player.set_params(_assignments(args.set, names), immediate=True)
+        solution = player.set_params(_assignments(args.set, names), immediate=True)
+        if solution.clamped:
+            notes.append(f"t=0.00 s: {solution.message}")
     script = sorted(scripted(args.at, names), key=lambda item: item[0])
     duration = args.seconds or (10.0 if space.cyclic or args.loop else
                                 player.track.duration(player._solution.weights) + 0.5)
     dt = 1.0 / args.fps
     steps = int(round(duration * args.fps))
-    log, trail, notes = [], [], []
+    log, trail = [], []
     every = max(1, int(round(args.trail_every * args.fps)))
     if args.frames:
         args.frames.mkdir(parents=True, exist_ok=True)

@@ -210,7 +210,7 @@ def run_build(payload, reporter, runner=None):
                "n_vertices": report["n_vertices"], "n_tets": report["n_tets"], "epsilon_mm": epsilon_mm,
                "hybrid_references": hybrid["references"], "hybrid_max_test_error_mm": 1000 * hybrid["max_test_error"],
                "source_units": report["source_units"], "source_up": report["source_up"],
-               "seconds": round(time.perf_counter() - started, 2)}
+               "seconds": round(time.perf_counter() - started, 2), "stage_seconds": report["timings"]}
     if report.get("parameters"):
         p = report["parameters"]
         summary["parameters"] = [{"name": n, "unit": u, "min": lo, "max": hi}
@@ -268,7 +268,7 @@ def run_align(payload, reporter, runner=None):
         if frames.name != "unstructured" and (frames / "consistent").is_dir():
             entry["frames"] = frames / "consistent"
     started = time.perf_counter()
-    meshes, lengths = read_inputs(sequences, reporter.progress)
+    meshes, lengths = read_inputs(sequences, reporter.progress, say=reporter.log)
     reporter.log(f"read {int(lengths.sum())} frames of {len(sequences)} sequences")
     meshes, conventions = convert_inputs(meshes, sequences, lengths, params.get("units", "auto"),
                                          params.get("up", "auto"), say=reporter.log)

@@ -32,6 +32,21 @@ def space_path(body, tmp_path_factory):
     return path
 
 
+def test_the_same_build_gives_the_same_bytes(body, space_path, tmp_path):
+    """Built again from the same clips (in another directory, at another time): the file is the
+    same, byte for byte; the timings are in the returned report only."""
+    clips = []
+    for name, speed, phase in (("slow", 0.9, 0.0), ("fast", 2.6, 0.4)):
+        motion = gait(body.skeleton, speed, cycles=2.0, start_phase=phase, fps=15)
+        clips.append(SourceClip(name, animate(body, motion), motion.fps, True))
+    again = tmp_path / "gait.mspace"
+    report = build_motion_space(again, clips, body.F, name="gait", n_phases=10, epsilon=0.006, rest=body.V)
+    assert again.read_bytes() == space_path.read_bytes()
+    assert report["timings"]["total_s"] > 0
+    with MotionSpace.open(again) as space:
+        assert "timings" not in space.metadata
+
+
 def test_prepared_sources_are_root_local_aligned_cycles(body):
     """Two walks captured from different start phases and places end up on the same poses."""
     clips = []

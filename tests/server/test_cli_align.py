@@ -138,6 +138,42 @@ def test_align_writes_a_dataset_that_build_and_read_sequence_accept(dataset, ali
     assert 0 <= root < n and names == ["walk", "jog"]
 
 
+def test_aligning_again_gives_the_same_bytes_but_for_the_timings(dataset, aligned, tmp_path):
+    """The same frames aligned again (another output directory, another moment): every file the
+    same, byte for byte, but ``timings.json``, which holds the stage and per-frame seconds."""
+    again = tmp_path / "again"
+    with contextlib.redirect_stderr(io.StringIO()):
+        assert main(["align", str(dataset), "--out", str(again), "--workers", "1", "--levels", "3"]) == 0
+    files = sorted(p.relative_to(aligned) for p in aligned.rglob("*") if p.is_file())
+    assert files == sorted(p.relative_to(again) for p in again.rglob("*") if p.is_file())
+    assert {str(f) for f in files} >= {"alignment.npz", "manifest.json", "timings.json", "template/body.obj"}
+    differ = [str(f) for f in files if (aligned / f).read_bytes() != (again / f).read_bytes()]
+    assert differ == ["timings.json"], differ
+    timings = json.loads((aligned / "timings.json").read_text())
+    assert len(timings["seconds"]) == len(timings["cpu_seconds"]) == 6 and timings["stages_s"]["align"] > 0
+    with np.load(aligned / "alignment.npz") as record:
+        assert "seconds" not in record.files and "cpu_seconds" not in record.files
+    names = json.loads((aligned / "sequences" / "walk" / "meta.json").read_text())["alignment"]["source_files"]
+    assert names == sorted(p.name for p in (dataset / "sequences" / "walk" / "unstructured").iterdir())
+
+
+def test_a_frame_in_a_format_not_read_is_named_and_left_out(dataset, tmp_path):
+    """A directory of frames with one ``.stl`` among them and no meta.json: the ``.stl`` is left out
+    with a warning naming it, the assumed frame rate is noted, and meta.json lists the files read."""
+    frames = tmp_path / "take"
+    shutil.copytree(dataset / "sequences" / "walk" / "unstructured", frames)
+    (frames / "frame_0001b.stl").write_bytes(b"solid x\nendsolid x\n")
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["align", str(frames), "--out", str(tmp_path / "out"), "--workers", "1", "--levels", "2"]) == 0
+    err = err.getvalue()
+    assert "take: 1 file(s) in a mesh format that is not read" in err and "frame_0001b.stl" in err
+    assert "take: no meta.json gives the frame rate; written as 30 frames/s (say --fps)" in err
+    meta = json.loads((tmp_path / "out" / "sequences" / "take" / "meta.json").read_text())
+    assert meta["alignment"]["source_files"] == sorted(p.name for p in frames.iterdir() if p.suffix != ".stl")
+    assert meta["fps"] == 30
+
+
 def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
     out = tmp_path / "eval"
     assert main(["eval-align", str(dataset), "--max-frames", "3", "--out", str(out), "--json",
