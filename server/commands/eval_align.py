@@ -51,6 +51,9 @@ def add_arguments(parser):
     parser.add_argument("dataset", type=Path, help="capture dataset with ground truth (morphspace synth output)")
     parser.add_argument("--only", nargs="+", metavar="NAME", help="only these sequences")
     parser.add_argument("--max-frames", type=int, metavar="N", help="use at most the first N frames of each sequence")
+    parser.add_argument("--every", type=int, default=1, metavar="K",
+                        help="use every K-th frame of each sequence from its first (default 1: all): frames far "
+                             "apart in time, as when a few frames of a long take are re-meshed and scored")
     parser.add_argument("--aligned", type=Path, metavar="DIR", help="score this `morphspace align` output "
                         "instead of aligning here")
     parser.add_argument("--tree", choices=TREE_KINDS, default=DEFAULT_TREE,
@@ -70,18 +73,25 @@ def add_arguments(parser):
     add_units_arguments(parser)
 
 
-def _truth(dataset, sequences, lengths):
+def _truth(dataset, sequences, picks):
     """Template positions of each sequence's frames (a list, in the files' units and axes) and
-    the template faces."""
+    the template faces. ``picks``: per sequence, the frame count, or the indices of the frames
+    kept (``--every``, ``--max-frames``)."""
     template = read_mesh(dataset / "template" / "body.obj")
     parts = []
-    for s, n in zip(sequences, lengths):
+    for s, pick in zip(sequences, picks):
+        pick = np.arange(pick) if np.ndim(pick) == 0 else np.asarray(pick)
         positions = load_capture_truth(dataset, s["name"])["template_positions"]
-        if len(positions) < n:
+        if len(pick) and len(positions) <= pick.max():
             raise MeshFormatError(f"{dataset}/sequences/{s['name']}/truth.npz: ground truth for {len(positions)} "
-                                  f"frames, the sequence has {n}")
-        parts.append(np.asarray(positions[:n], dtype=np.float64))
+                                  f"frames, the sequence has {pick.max() + 1}")
+        parts.append(np.asarray(positions[pick], dtype=np.float64))
     return parts, template.faces
+
+
+def _picked_frames(lengths, every, max_frames):
+    """Per sequence, the frames kept: every ``every``-th from the first, at most ``max_frames``."""
+    return [np.arange(0, n, every)[:max_frames] for n in lengths]
 
 
 def _truth_in_metres(parts, conventions):
@@ -230,6 +240,10 @@ def run(args):
     out = args.out or dataset.with_name(dataset.name + "-align-eval")
     if args.max_frames is not None and args.max_frames < 2:
         raise ValueError(f"--max-frames must be >= 2, got {args.max_frames}")
+    if args.every < 1:
+        raise ValueError(f"--every must be >= 1, got {args.every}")
+    if args.every > 1 and args.aligned is not None:
+        raise ValueError("--every picks the frames to align; it does not apply to --aligned")
     progress = Progress()
     report = {"dataset": str(dataset)}
     started = time.perf_counter()
@@ -256,19 +270,18 @@ def run(args):
         else:
             sequences = resolve_inputs([dataset], args.only)
             meshes, lengths = read_inputs(sequences, progress, say=_say_line)
-            if args.max_frames is not None:
-                keep = np.concatenate([np.arange(s, s + min(n, args.max_frames))
-                                       for s, n in zip(np.concatenate([[0], np.cumsum(lengths)[:-1]]), lengths)])
-                meshes = [meshes[i] for i in keep]
-                lengths = np.minimum(lengths, args.max_frames)
+            picks = _picked_frames(lengths, args.every, args.max_frames)
+            starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+            meshes = [meshes[start + i] for start, pick in zip(starts, picks) for i in pick]
+            lengths = np.array([len(pick) for pick in picks], dtype=np.int64)
             names = [s["name"] for s in sequences]
             meshes, conventions = convert_inputs(meshes, sequences, lengths, args.units, args.up, say=_say_line)
-            parts, template_faces = _truth(dataset, sequences, lengths)
+            parts, template_faces = _truth(dataset, sequences, picks)
             truth = _truth_in_metres(parts, conventions)  # in the same units and axes as the frames
             size = _model_size(manifest, conventions, truth)
             root = parse_root(args.root, sequences, lengths)
             options = AlignmentOptions()
-            report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names,
+            report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, every=args.every,
                           **_units_report(names, conventions))
             tree_run = align_captures(meshes, lengths, method="tree", tree_kind=args.tree, root=root,
                                       root_choice=args.root_choice, options=options,

@@ -192,6 +192,24 @@ def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
     assert (out / "aligned_pattern.png").is_file() and (out / "results.json").is_file()
 
 
+def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsys):
+    """``--every 2``: frames 0 and 2 of each sequence, aligned and scored against their own truth."""
+    from server.commands.eval_align import _picked_frames, _truth
+
+    picks = _picked_frames([3, 3], 2, None)
+    assert [p.tolist() for p in picks] == [[0, 2], [0, 2]]
+    assert [p.tolist() for p in _picked_frames([7], 2, 3)] == [[0, 2, 4]]
+    parts, _ = _truth(dataset, [{"name": "walk"}, {"name": "jog"}], picks)
+    for part, name in zip(parts, ("walk", "jog")):
+        np.testing.assert_array_equal(part, load_capture_truth(dataset, name)["template_positions"][[0, 2]])
+    assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "eval"),
+                 "--json", "--workers", "1"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["every"] == 2 and report["frames"] == 4 and report["tree"]["frames"] == 4
+    assert report["tree"]["mean_pct"] < 2.0
+    assert main(["eval-align", str(dataset), "--every", "0"]) == 2
+
+
 def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, capsys):
     assert main(["eval-align", str(dataset), "--aligned", str(aligned), "--out", str(tmp_path), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
