@@ -81,6 +81,11 @@ def read_obj(data, source):
             f"{shown!r}, which is not an OBJ statement"
         )
     V, colors = _parse_vertices(vertex_lines, vertex_line_numbers, source)
+    if vertex_lines and not face_lines:
+        raise MeshValidationError(
+            f"{source}: the mesh is empty (0 faces): {len(vertex_lines)} vertices and no 'f' lines (a point "
+            f"cloud, or a file cut short before its faces)"
+        )
     F = _parse_faces(face_lines, face_line_numbers, vertices_before_face, len(V), source)
     return Mesh(V, F, colors, source)
 

@@ -436,6 +436,15 @@ def test_empty_meshes_are_rejected(tmp_path, name, data, expected):
         read_mesh(path)
 
 
+def test_an_obj_cut_short_before_its_faces_says_so(tmp_path):
+    V, F = tetrahedron()
+    whole = polygon_obj(V, F.tolist())
+    cut = write_bytes(tmp_path, "frame_3.obj", whole[:whole.index(b"\nf ") + 1])
+    with pytest.raises(MeshValidationError, match=r"0 faces\): 4 vertices and no 'f' lines \(a point cloud, or a "
+                                                  r"file cut short before its faces\)"):
+        read_mesh(cut)
+
+
 def test_face_index_out_of_range_names_face_and_index(tmp_path):
     V, F = tetrahedron()
     obj = write_bytes(tmp_path, "frame_12.obj", polygon_obj(V, [[0, 1, 2], [0, 1, 4]]))
