@@ -16,6 +16,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from engine.blend import (
     FrameDecomposer,
@@ -99,7 +100,8 @@ def _blend(args, w, progress):
     ``result[args.mode]`` is the one written, converted back), and the seconds from the meshes
     read to the blend written."""
     meshes, convention = meshes_to_metres(_load(args.meshes, progress), args.units, args.up)
-    say_conventions([convention], ["the meshes"], lambda line: print(f"morphspace blend: {line}", file=sys.stderr))
+    # tqdm.write: the line goes above the progress bar instead of onto its line
+    say_conventions([convention], ["the meshes"], lambda line: tqdm.write(f"morphspace blend: {line}", file=sys.stderr))
     faces = meshes[0].faces
     sources = np.stack([m.vertices for m in meshes])[None].astype(np.float32)  # (P=1, N, n, 3)
     N, n = sources.shape[1:3]
