@@ -118,11 +118,13 @@ def detect_up(extents):
     Returns
     -------
     up : str          "y" or "z"
-    ratio : float     median over frames of (Y extent / Z extent)
+    ratio : float     median over frames of (Y extent / Z extent), taken on a log scale, so
+                      the same frames turned Z up give exactly its inverse (also for an even
+                      number of frames)
     confident : bool  the ratio is at least 1.25 (or at most 1 / 1.25)
     """
     extents = np.atleast_2d(np.asarray(extents, dtype=np.float64))
-    ratio = float(np.median(extents[:, 1] / np.maximum(extents[:, 2], 1e-300)))
+    ratio = float(np.exp(np.median(np.log(np.maximum(extents[:, 1], 1e-300) / np.maximum(extents[:, 2], 1e-300)))))
     up = "y" if ratio >= 1.0 else "z"
     return up, ratio, bool(max(ratio, 1.0 / max(ratio, 1e-300)) >= UP_RATIO_CONFIDENT)
 

@@ -55,6 +55,10 @@ def test_units_from_a_human_sized_model():
 
 def test_up_axis_from_the_longer_extent():
     assert detect_up([[0.5, 1.8, 0.3], [0.6, 1.7, 0.4]])[0::2] == ("y", True)
+    # the same frames with Y and Z swapped (Z up): exactly the inverse ratio, an even count too
+    extents = np.array([[0.5, 1.8, 0.3], [0.6, 1.7, 0.4], [0.4, 1.6, 0.9], [0.5, 1.75, 0.5]])
+    ratio_y, ratio_z = detect_up(extents)[1], detect_up(extents[:, [0, 2, 1]])[1]
+    assert abs(ratio_y * ratio_z - 1.0) < 1e-12
     assert detect_up([[0.5, 0.3, 1.8]])[0::2] == ("z", True)
     up, ratio, confident = detect_up([[1.7, 1.7, 1.6]])  # arms out, facing along the other axis
     assert not confident and ratio == pytest.approx(1.7 / 1.6)
