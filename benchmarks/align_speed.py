@@ -80,7 +80,7 @@ def denser(frame, times):
 
     V, F, C = frame.vertices, frame.faces, frame.colors
     for _ in range(times):
-        V, F, C = subdivide(V, F, C) if C is not None else (*subdivide(V, F), None)
+        V, F, C = subdivide(V, F, C)
     return Mesh(V, F, colors=C)
 
 

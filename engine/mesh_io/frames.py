@@ -50,9 +50,9 @@ def list_frames(
         return list(frames.names)
 
 
-# Mesh formats this package does not read: a file in one of them beside the frames is most
-# likely a frame delivered in another format, so callers say it was left out.
-OTHER_MESH_EXTENSIONS = (".stl", ".fbx", ".abc", ".glb", ".gltf", ".dae", ".3ds", ".wrl", ".x3d", ".vtk",
+# Mesh formats of other tools: a file in one this package does not read (``mesh_file_type`` None)
+# beside the frames is most likely a frame delivered in another format, so callers say it was left out.
+OTHER_MESH_EXTENSIONS = (".stl", ".fbx", ".abc", ".gltf", ".dae", ".3ds", ".wrl", ".x3d", ".vtk",
                          ".vtu", ".usd", ".usda", ".usdc", ".usdz", ".blend")
 
 
@@ -70,7 +70,8 @@ def left_out_frames(path):
                          if not info.is_dir() and not _hidden(info.filename)]
     except (OSError, zipfile.BadZipFile):
         return []
-    return sorted((name for name in names if Path(name).suffix.lower() in OTHER_MESH_EXTENSIONS), key=natural_key)
+    return sorted((name for name in names if mesh_file_type(name) is None
+                   and Path(name).suffix.lower() in OTHER_MESH_EXTENSIONS), key=natural_key)
 
 
 class FrameContainer:

@@ -18,8 +18,8 @@ from engine.surface import SurfaceQuery, vertex_normals
 
 def subdivide(V, F, colors=None):
     """Midpoint subdivision: every triangle into four, the shape unchanged (a denser capture of
-    the same surface). Returns (V, F) or, with per-vertex ``colors``, (V, F, colors), a midpoint
-    taking the mean colour of its edge's ends."""
+    the same surface). Returns (V, F, colors): with per-vertex ``colors`` a midpoint takes the
+    mean colour of its edge's ends; without, colors is None."""
     edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
     unique, inverse = np.unique(edges, axis=0, return_inverse=True)
     inverse = inverse.ravel()
@@ -30,7 +30,7 @@ def subdivide(V, F, colors=None):
     F2 = np.concatenate([np.stack([a, ab, ca], 1), np.stack([ab, b, bc], 1),
                          np.stack([ca, bc, c], 1), np.stack([ab, bc, ca], 1)])
     if colors is None:
-        return V2, F2
+        return V2, F2, None
     colors = np.asarray(colors)
     mixed = 0.5 * (colors[unique[:, 0]].astype(np.float64) + colors[unique[:, 1]])
     return V2, F2, np.concatenate([colors, mixed.astype(colors.dtype)])
@@ -74,7 +74,7 @@ def remesh_frame(V, F, colors=None, *, seed=0, vertex_ratio=(0.85, 1.15), noise=
     query = SurfaceQuery(V, F)
     for attempt in range(attempts):
         slide = 0.12 * 0.5**attempt if attempt < attempts - 1 else 0.0  # last try: no sliding
-        Vs, Fs = subdivide(V, F)
+        Vs, Fs, _ = subdivide(V, F)
         # Slide every vertex a random fraction along one of its edges: stays on the surface.
         edges = np.concatenate([Fs[:, [0, 1]], Fs[:, [1, 2]], Fs[:, [2, 0]]])
         adjacency = sp.csr_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(len(Vs),) * 2)

@@ -75,12 +75,11 @@ def add_arguments(parser):
 
 def _truth(dataset, sequences, picks):
     """Template positions of each sequence's frames (a list, in the files' units and axes) and
-    the template faces. ``picks``: per sequence, the frame count, or the indices of the frames
-    kept (``--every``, ``--max-frames``)."""
+    the template faces. ``picks``: per sequence, the indices of its frames that were kept
+    (``_picked_frames``)."""
     template = read_mesh(dataset / "template" / "body.obj")
     parts = []
     for s, pick in zip(sequences, picks):
-        pick = np.arange(pick) if np.ndim(pick) == 0 else np.asarray(pick)
         positions = load_capture_truth(dataset, s["name"])["template_positions"]
         if len(pick) and len(positions) <= pick.max():
             raise MeshFormatError(f"{dataset}/sequences/{s['name']}/truth.npz: ground truth for {len(positions)} "
@@ -252,7 +251,7 @@ def run(args):
             dataset_names = [s["name"] for s in manifest.get("sequences", [])]
             vertices, faces, root, root_vertices, names, lengths, extra = _load_aligned(args.aligned, dataset_names)
             sequences = [{"name": n} for n in names]
-            parts, template_faces = _truth(dataset, sequences, lengths)
+            parts, template_faces = _truth(dataset, sequences, [np.arange(n) for n in lengths])
             # the ground truth is in the files' units and axes; the aligned frames in metres, +Y up
             conventions = _truth_conventions(dataset, manifest, args.aligned, names, parts, args.units, args.up)
             say_conventions(conventions, names, _say_line, what="ground truth")

@@ -805,3 +805,20 @@ def test_obj_fixed_precision_rounds_coordinates(tmp_path):
     assert np.abs(mesh.vertices - V).max() <= 5e-7
     assert "0.123457" in path.read_text()
     np.testing.assert_allclose(mesh.colors, 0.5)
+
+
+def test_left_out_frames_are_the_other_tools_formats_the_reader_skips(tmp_path):
+    """Beside the frames: an .stl and an .fbx are named as left out; a .glb (read as a frame), a
+    hidden file, a text file and a directory are not."""
+    from engine.mesh_io.frames import left_out_frames
+
+    for name in ("frame_1.obj", "frame_2.glb", "frame_10.STL", "frame_3.fbx", ".frame_4.stl", "notes.txt"):
+        (tmp_path / name).write_bytes(b"x")
+    (tmp_path / "more.stl").mkdir()
+    assert left_out_frames(tmp_path) == ["frame_3.fbx", "frame_10.STL"]
+    archive = tmp_path / "take.zip"
+    with zipfile.ZipFile(archive, "w") as zf:
+        for name in ("take/frame_1.ply", "take/frame_2.stl", "__MACOSX/take/frame_2.stl", "take/frame_3.glb"):
+            zf.writestr(name, b"x")
+    assert left_out_frames(archive) == ["take/frame_2.stl"]
+    assert left_out_frames(tmp_path / "missing") == []
