@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from engine import evaluation
+from engine.evaluation import ground_truth
 from engine.mesh_io.dataset import read_capture_manifest
 from engine.motion_space import MotionSpace
 from engine.synthetic import build_body, gait
@@ -38,14 +39,14 @@ def compare_speeds(space, body, speeds, fps):
     generator's gait at that speed (``fps``: the truth's frame rate)."""
     cache = evaluation.BlendCache(space)
     faces = np.asarray(space.faces, dtype=np.int64)
-    edges = evaluation._edges(faces)
+    edges = ground_truth.mesh_edges(faces)
     rows = []
     for speed in speeds:
         solution = space.parameter_map.solve([speed])
         truth = evaluation.true_samples(space, body, gait(body.skeleton, speed, cycles=2.0, fps=fps))
         row = {"speed": speed, "weights": solution.weights.round(4).tolist(), "clamped": solution.clamped}
         for method in ("linear", "hybrid", "nonlinear"):
-            row[method] = evaluation._truth_errors(cache.blend(method, solution.weights), truth, faces, edges)
+            row[method] = ground_truth.truth_errors(cache.blend(method, solution.weights), truth, faces, edges)
         row["ratio_mean"] = row["linear"]["mean_mm"] / row["nonlinear"]["mean_mm"]
         row["ratio_volume"] = row["linear"]["volume_error_percent"] / row["nonlinear"]["volume_error_percent"]
         row["ratio_edge"] = row["linear"]["edge_error_percent"] / row["nonlinear"]["edge_error_percent"]
