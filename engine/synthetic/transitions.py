@@ -12,16 +12,9 @@ import numpy as np
 
 from engine.rotations import rot_x
 from engine.synthetic.kinematics import PoseTargets, foot_pose, pose_joints
-from engine.synthetic.motions import (
-    STAND_PELVIS,
-    GaitParameters,
-    Motion,
-    _gait_pose,
-    _relaxed_arms,
-    _standing_feet,
-    _torso,
-    jump,
-)
+from engine.synthetic.gaits import GaitParameters, _gait_pose
+from engine.synthetic.jumps import jump
+from engine.synthetic.motion_base import STAND_PELVIS, Motion, _relaxed_arms, _standing_feet, _torso
 from engine.synthetic.ramps import Ramp
 
 
