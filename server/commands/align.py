@@ -94,7 +94,8 @@ def add_arguments(parser):
                         help="frame rate of inputs without meta.json (default 30, with a note that it was assumed)")
     add_units_arguments(parser)
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
-                        help="worker processes for the dissimilarity matrix (default: up to 2)")
+                        help="worker processes for the shape histograms, the dissimilarity matrix (from 3,000 "
+                             "frames) and independent pieces of the tree (default: up to 2)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (patch sampling; default 0)")
     parser.add_argument("--force", action="store_true", help="replace an existing output directory")
 

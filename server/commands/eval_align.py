@@ -68,7 +68,8 @@ def add_arguments(parser):
                         "(default: <dataset>-align-eval next to the dataset)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
-                        help="worker processes for the dissimilarity matrix (default: up to 2)")
+                        help="worker processes for the shape histograms, the dissimilarity matrix (from 3,000 "
+                             "frames) and independent pieces of the tree (default: up to 2)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     add_units_arguments(parser)
 
