@@ -153,7 +153,7 @@ async def on_pull(session, m):
     if unknown:
         raise P.ProtocolError("invalid_params", f"pull: unknown parameter(s) {', '.join(unknown)}; "
                                                 f"{session.space_name} has {', '.join(names)}", "pull", m.id)
-    request = player.target
+    request = player.asked  # what was asked for, not where the clamp put it (as params do)
     for name, value in (m.params or {}).items():
         request[names.index(name)] = value
     solution = player.map.solve(request)

@@ -28,6 +28,12 @@ log = logging.getLogger("morphspace.stream")
 CLOSE_GRACE = 5.0  # seconds a closing client has to read the close frame before the TCP connection drops
 
 
+def message_seq(m):
+    """What stands for client message ``m`` in an error's ``seq``: a pull's ``id``, else its
+    ``seq`` (docs/protocol.md, Errors)."""
+    return m.id if m.type == P.Pull.type else getattr(m, "seq", None)
+
+
 class TokenBucket:
     """``rate`` tokens per second, at most ``burst`` saved."""
 
@@ -198,7 +204,7 @@ class StreamSession(FrameOutput):
         except P.ProtocolError as exc:
             await self.error(exc.code, exc.message, exc.ref, exc.seq)
         except ValueError as exc:  # the engine's checks on values (unknown parameters, ranges)
-            await self.error("invalid_field", str(exc), message.type, getattr(message, "seq", None))
+            await self.error("invalid_field", str(exc), message.type, message_seq(message))
         except Exception as exc:  # noqa: BLE001 - report, keep the connection and the server
             log.exception("stream: failed to apply %r", data[:200])
             await self.error("internal", f"the server failed on this message: {type(exc).__name__}: {exc}")
@@ -207,6 +213,6 @@ class StreamSession(FrameOutput):
         """Hand client message ``m`` to its handler (server/stream/messages.py; on a graph stream,
         server/graph_stream.py's where it has one)."""
         if self.player is None and m.type not in BEFORE_HELLO:
-            raise P.ProtocolError("not_ready", f"send hello before {m.type}", ref=m.type, seq=getattr(m, "seq", None))
+            raise P.ProtocolError("not_ready", f"send hello before {m.type}", ref=m.type, seq=message_seq(m))
         handler = GRAPH_HANDLERS.get(m.type) if self.graph is not None else None
         await (handler or HANDLERS[m.type])(self, m)

@@ -253,6 +253,17 @@ def test_pull_is_the_frame_at_those_params_and_time(server, speed_space):
     assert by_phase.mode == "linear" and by_phase.phase == pytest.approx(0.5)
 
 
+def test_a_pull_fills_the_parameters_it_leaves_out_from_the_request_as_asked(server):
+    """docs/protocol.md: a pulled frame's ``requested`` is the pull's request as asked; the
+    parameters a pull does not name come from the stream's request as asked, not as clamped."""
+    async def go():
+        async with StreamClient.connect(server.ws_url, "speed", rate=5, params={"speed": 99.0}) as c:
+            return await c.pull(phase=0.5), await c.pull({"speed": 1.5}, phase=0.5)
+    left_out, named = run(go())
+    assert left_out.requested == {"speed": 99.0} and left_out.clamped and left_out.realised["speed"] < 99.0
+    assert named.requested == {"speed": 1.5} and not named.clamped
+
+
 async def raw_session(url, messages, *, hello=True, settle=0.3, pack=msgpack.packb):
     """Send raw messages, collect every error/notice, then check the stream still answers."""
     async with websockets.connect(url, max_size=2**26) as ws:
@@ -345,9 +356,13 @@ def test_messages_before_hello_are_refused(server):
     async def go():
         async with websockets.connect(server.ws_url) as ws:
             await ws.send(msgpack.packb({"type": "params", "params": {"speed": 1.0}, "seq": 3}))
-            return msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
-    reply = run(go())
+            params = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
+            await ws.send(msgpack.packb({"type": "pull", "id": 7, "phase": 0.5}))
+            return params, msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
+    reply, pulled = run(go())
     assert reply["type"] == "error" and reply["code"] == "not_ready" and reply["seq"] == 3
+    # a pull's id stands for its seq (docs/protocol.md, Errors)
+    assert (pulled["code"], pulled["ref"], pulled["seq"]) == ("not_ready", "pull", 7)
 
 
 def test_every_client_message_has_one_handler():
