@@ -118,7 +118,8 @@ class Params:
     """Request new high-level parameters (only the named ones change)."""
     type = "params"
     params: dict = wire("params", "parameter name -> value, in the space's units")
-    immediate: bool = wire("bool", "jump there at once instead of smoothing", default=False)
+    immediate: bool = wire("bool", "jump there at once instead of smoothing (while paused, the only way to "
+                                            "see new parameters before Resume)", default=False)
     seq: int = wire("int", "client sequence number, echoed as the frames' ack", default=0)
 
 
@@ -140,7 +141,9 @@ class Rate:
 
 @dataclass(frozen=True)
 class Pause:
-    """Stop the clock; frames stop until Resume (Seek and Params still answer with one frame)."""
+    """Stop the clock; frames stop until Resume (Seek and Params still answer with one frame). A
+    smoothed Params waits for the clock: the frame answering it shows the parameters where they
+    were, and the move towards the new ones starts on Resume (with ``immediate``, at once)."""
     type = "pause"
     seq: int = wire("int", "client sequence number", default=0)
 

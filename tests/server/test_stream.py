@@ -196,12 +196,15 @@ def test_smoothing_follows_the_documented_spring(server):
             lo, hi = c.topology.parameters[0]["min"], c.topology.parameters[0]["max"]
             start = (await c.next_frame(after=await c.set_params(speed=lo, immediate=True))).requested["speed"]
             paused = await c.next_frame(after=await c.pause())
-            await c.set_params(speed=hi)                      # the spring waits for the clock
+            answer = await c.next_frame(after=await c.set_params(speed=hi))  # the spring waits for the clock
             frames = [await c.next_frame(after=await c.resume())]
             while frames[-1].time - paused.time < 0.5:
                 frames.append(await c.next_frame())
-            return start, hi, paused, frames
-    start, hi, paused, frames = run(go())
+            return start, hi, paused, answer, frames
+    start, hi, paused, answer, frames = run(go())
+    # docs/protocol.md, pause: the frame answering a smoothed params while paused shows the
+    # parameters where they were
+    assert answer.time == paused.time and answer.requested["speed"] == start
     for f in frames:
         x = (f.time - paused.time) / 0.25
         progress = (f.requested["speed"] - start) / (hi - start)
