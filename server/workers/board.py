@@ -95,16 +95,22 @@ class CounterBoard:
         return self._read(2 * self.workers)
 
     # --- reading it all -------------------------------------------------------------------------
-    def summary(self, now=None):
+    def summary(self, now=None, shape=None):
         """(workers, totals, restarts): one record per index (``index``, ``pid``, ``alive``,
         ``jobs`` (runs the job queue), ``started_at``, ``restarts``, ``last_exit``, the counters),
-        the counters summed over the live workers and the retired ones, and restarts in all."""
+        the counters summed over the live workers and the retired ones, and restarts in all.
+
+        ``shape``: counters (the caller's own) whose keys, zeroed, stand in for those of a worker
+        that has published nothing yet or has ended (between a worker's end and its restart), so
+        every record carries every counter (docs/rest.md)."""
         now = time.time() if now is None else now
         workers, totals, restarts = [], self.retired(), 0
         for index in range(self.workers):
             slot, published = self.slot(index), self.worker(index)
             current = published.get("pid") == slot.get("pid") and slot.get("pid") is not None
             counters = published.get("counters", {}) if current else {}
+            if shape is not None:
+                counters = {**zeroed(shape), **counters}
             restarts += slot.get("restarts", 0)
             totals = add_counters(totals, counters)
             workers.append({"index": index, "pid": slot.get("pid"), "alive": current, "jobs": index == 0,
@@ -113,6 +119,12 @@ class CounterBoard:
                             "published_ago": round(now - published["published_at"], 3) if current else None,
                             **counters})
         return workers, totals, restarts
+
+
+def zeroed(counters):
+    """``counters`` with every number 0 (nested dicts too): the counters of a worker that has none."""
+    return {key: zeroed(value) if isinstance(value, dict) else type(value)() if isinstance(value, (int, float))
+            else value for key, value in counters.items()}
 
 
 def add_counters(a, b, skip=()):

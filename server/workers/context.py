@@ -95,4 +95,4 @@ def server_counters(state):
                   "restarts": 0, "last_exit": None, "published_ago": 0.0, **counters}
         return [record], counters, 0
     worker.publish(counters)
-    return worker.board.summary(time.time())
+    return worker.board.summary(time.time(), shape=counters)

@@ -37,3 +37,22 @@ def test_counters_add_key_by_key_and_peaks_take_the_largest():
     b = {"frames": 3, "connections": 4, "scheduler": {"ticks": 2, "transport_bytes_max": 7}, "flag": True}
     assert add_counters(a, b, skip={"connections"}) == {"frames": 5, "scheduler": {"ticks": 3, "transport_bytes_max": 10}}
     assert a == {"frames": 2, "scheduler": {"ticks": 1, "transport_bytes_max": 10}}  # unchanged
+
+
+def test_a_worker_between_its_end_and_its_restart_reports_every_counter_as_zero():
+    """docs/rest.md lists ``connections``, ``frames_sent``, ... in every worker record, also for
+    a worker that has ended and not yet started again (a client parsing health crashed on it)."""
+    board = CounterBoard(2)
+    mine = {"connections": 3, "frames_sent": 10, "frames_dropped": 1, "stream_errors": 0,
+            "scheduler": {"ticks": 4, "transport_bytes_max": 900}}
+    board.set_slot(0, pid=100, started_at=1.0, restarts=0)
+    board.publish(0, 100, mine)
+    board.set_slot(1, pid=None, restarts=1, last_exit="pid 101 was killed by SIGKILL")
+    workers, totals, _ = board.summary(shape=mine)
+    assert workers[0]["alive"] and workers[0]["frames_sent"] == 10
+    ended = workers[1]
+    assert not ended["alive"] and ended["pid"] is None and ended["published_ago"] is None
+    assert {key: ended[key] for key in mine} == {"connections": 0, "frames_sent": 0, "frames_dropped": 0,
+                                                 "stream_errors": 0,
+                                                 "scheduler": {"ticks": 0, "transport_bytes_max": 0}}
+    assert totals["frames_sent"] == 10

@@ -28,12 +28,20 @@ def health(server):
     return httpx.get(server.url + "/v1/health", timeout=10).json()
 
 
+# every worker record's keys (docs/rest.md), also while a worker is down between its end and restart
+WORKER_KEYS = {"index", "pid", "alive", "jobs", "started_at", "restarts", "last_exit", "published_ago",
+               "connections", "frames_sent", "frames_dropped", "stream_errors", "scheduler"}
+
+
 def wait_health(server, until, timeout=30.0):
-    """Poll /v1/health until ``until(record)``; fails after ``timeout`` s."""
+    """Poll /v1/health until ``until(record)``; fails after ``timeout`` s. Every record on the way
+    must carry every documented key of every worker."""
     deadline, record = time.monotonic() + timeout, None
     while time.monotonic() < deadline:
         with contextlib.suppress(httpx.HTTPError):
             record = health(server)
+            for worker in record["workers"]:
+                assert set(worker) == WORKER_KEYS, (worker, record)
             if until(record):
                 return record
         time.sleep(0.1)
