@@ -359,8 +359,10 @@ CLOSE_STALLED, CLOSE_TOO_BIG, CLOSE_INTERNAL, CLOSE_BUSY = 1008, 1009, 1011, 101
 CLOSE_CODES = {
     CLOSE_STALLED: "the client took no due frame for `stall_timeout` seconds (reason `stalled: ...`)",
     CLOSE_TOO_BIG: "a message over max(1 MiB, 4 x `max_message`): refused by the WebSocket layer itself",
-    CLOSE_INTERNAL: "the server failed to produce a frame (after an `internal` error) or to send",
-    CLOSE_BUSY: "the server has as many connections as it accepts (after a `server_busy` error)",
+    CLOSE_INTERNAL: "the server failed to produce a frame (after an `internal` error; reason `internal error: ...`) "
+                    "or to send (reason `sending failed`)",
+    CLOSE_BUSY: "the server has as many connections as it accepts (after a `server_busy` error; reason "
+                "`server busy: ...`)",
 }
 
 

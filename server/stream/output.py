@@ -209,7 +209,7 @@ class FrameOutput:
         try:
             await self.ws.send_bytes(P.to_wire(P.Error(code="internal", message=f"the server failed to produce a "
                                                        f"frame: {type(exc).__name__}: {exc}")))
-            await self.ws.close(code=P.CLOSE_INTERNAL)
+            await self.ws.close(code=P.CLOSE_INTERNAL, reason="internal error: no frame could be made")
         except (WebSocketDisconnect, OSError, RuntimeError):
             pass
 

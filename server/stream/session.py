@@ -159,9 +159,9 @@ class StreamSession(FrameOutput):
     async def run(self):
         await self.ws.accept()
         if self.stats.connections >= self.settings.stream_max_clients:
-            await self.error("server_busy", f"the server streams to at most {self.settings.stream_max_clients} "
-                                            "clients at once; try again later")
-            await self.ws.close(code=P.CLOSE_BUSY)
+            limit = self.settings.stream_max_clients
+            await self.error("server_busy", f"the server streams to at most {limit} clients at once; try again later")
+            await self.ws.close(code=P.CLOSE_BUSY, reason=f"server busy: at most {limit} streaming clients")
             return
         self.stats.connections += 1
         self.scheduler.add(self)

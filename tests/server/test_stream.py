@@ -544,12 +544,12 @@ def test_connections_over_the_limit_are_told_so_and_others_keep_streaming(built_
                 with pytest.raises(websockets.ConnectionClosed) as closed:
                     await asyncio.wait_for(second.recv(), 5)
             frame = await first.next_frame()
-        return reply, closed.value.rcvd.code, frame
+        return reply, closed.value.rcvd, frame
 
     with LiveServer(data, env={"MORPHSPACE_STREAM_MAX_CLIENTS": "1"}) as live:
-        reply, code, frame = run(go(live))
+        reply, close, frame = run(go(live))
     assert reply["type"] == "error" and reply["code"] == "server_busy" and "at most 1" in reply["message"]
-    assert code == 1013
+    assert close.code == 1013 and close.reason.startswith("server busy: ")  # docs/protocol.md's close codes
     assert frame.seq > 1
 
 
