@@ -48,6 +48,25 @@ def resolve(host, port):
     return family, address
 
 
+def check_free(family, address, host):
+    """Raise OSError when a socket is already bound to ``address`` (port 0 is always free).
+
+    Workers join the port with ``SO_REUSEPORT``, which another server's workers would share
+    without a word: a probe bound without it fails on any socket bound there (a TIME_WAIT
+    connection is allowed, ``SO_REUSEADDR``), so a second server on the port is refused."""
+    if address[1] == 0:
+        return
+    probe = socket.socket(family, socket.SOCK_STREAM)
+    try:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        probe.bind(address)
+    except OSError as exc:
+        raise OSError(exc.errno, f"{host}:{address[1]} is already in use (another server on this port? "
+                                 f"{exc.strerror})") from None
+    finally:
+        probe.close()
+
+
 def reuseport_socket(family, address, listen=True):
     """A TCP socket bound to ``address`` with SO_REUSEADDR and SO_REUSEPORT (listening if asked)."""
     sock = socket.socket(family, socket.SOCK_STREAM)
@@ -96,6 +115,7 @@ class Supervisor:
         self.workers, self.serve, self.grace = int(workers), serve, float(grace)
         self.family, self.address = resolve(host, port)
         self.log = log or (lambda line: print(line, file=sys.stderr, flush=True))
+        check_free(self.family, self.address, host)
         self.reserve = reuseport_socket(self.family, self.address, listen=False)
         self.address = self.reserve.getsockname()
         self.port = self.address[1]

@@ -265,3 +265,15 @@ def test_the_supervisor_gives_up_on_workers_that_cannot_start(tmp_path):
     assert "starting it again in" in process.stderr
     assert "giving up: worker" in process.stderr and "5 times in a row within 10 s of starting" in process.stderr
     assert "exited with status 3" in process.stderr
+
+
+def test_a_second_server_on_the_same_port_is_refused(two_workers, tmp_path):
+    """Workers join their port with SO_REUSEPORT, which would let a second ``serve --workers``
+    share it silently: the supervisor refuses a port something is bound to, naming it."""
+    port = str(two_workers.port)
+    process = subprocess.run(
+        [sys.executable, "-m", "server.cli", "serve", "--data-dir", str(tmp_path), "--port", port,
+         "--workers", "2", "--log-level", "critical"], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert process.returncode == 2, process.stderr[-2000:]
+    assert f"127.0.0.1:{port} is already in use" in process.stderr
+    assert health(two_workers)["status"] == "ok"  # the first server serves on
