@@ -14,7 +14,15 @@ from engine.synthetic.kinematics import (
     pose_joints,
     smoothstep,
 )
-from engine.synthetic.motion_base import GRAVITY, STAND_PELVIS, Motion, _relaxed_arms, _standing_feet, _torso
+from engine.synthetic.motion_base import (
+    GRAVITY,
+    STAND_PELVIS,
+    Motion,
+    _relaxed_arms,
+    _standing_feet,
+    _torso,
+    sample_one_shot,
+)
 
 
 def _jump_pose(skeleton, t, height_rise, distance, palm_offset):
@@ -124,15 +132,8 @@ def jump(skeleton, rise, distance, *, fps=30.0, name=None, palm_offset=0.07):
         raise ValueError(f"jump rise must be between 0.02 and 0.9 m, got {rise}")
     if not 0.0 <= distance <= 2.0:
         raise ValueError(f"jump distance must be between 0 and 2 m, got {distance}")
-    _, _, _, _, events = _jump_pose(skeleton, np.zeros(1), rise, distance, palm_offset)
-    frames = int(np.ceil(events["end_time"] * fps)) + 1
-    times = np.arange(frames) / fps
-
-    def pose_at(t):
-        R, P, root, heading, _ = _jump_pose(skeleton, np.asarray(t, dtype=float), rise, distance, palm_offset)
-        return R, P, root, heading
-
-    R, P, root, heading, events = _jump_pose(skeleton, times, rise, distance, palm_offset)
+    times, pose_at, R, P, root, heading, events = sample_one_shot(
+        lambda t: _jump_pose(skeleton, t, rise, distance, palm_offset), fps)
     frame_events = {k.replace("_time", "_frame"): int(round(v * fps)) for k, v in events.items()
                     if k != "end_time"}
     frame_events["take_off_frame"] = int(np.ceil(events["take_off_time"] * fps))

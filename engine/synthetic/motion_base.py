@@ -95,3 +95,18 @@ def _relaxed_arms(chest_rot, t, swing=None):
         arm_dir[side] = _arm_direction(chest_rot, swing, np.radians(8.0) * np.ones(f), sign)
         elbow[side] = np.radians(12.0) + 0.3 * np.maximum(swing, 0)
     return arm_dir, elbow
+
+
+def sample_one_shot(pose, fps):
+    """Sample a one-shot motion: ``pose(t)`` -> (R, P, root, heading, events) for times ``t``
+    (frames,), with ``events["end_time"]`` its length. Returns (times, pose_at, R, P, root,
+    heading, events): the frames at ``fps`` up to and including the end, and ``pose_at(t)`` ->
+    (R, P, root, heading) for the Motion."""
+    end = pose(np.zeros(1))[4]["end_time"]
+    times = np.arange(int(np.ceil(end * fps)) + 1) / fps
+
+    def pose_at(t):
+        R, P, root, heading, _ = pose(np.asarray(t, dtype=float))
+        return R, P, root, heading
+
+    return (times, pose_at, *pose(times))

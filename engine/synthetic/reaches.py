@@ -11,7 +11,7 @@ from engine.synthetic.kinematics import (
     minimum_jerk,
     pose_joints,
 )
-from engine.synthetic.motion_base import STAND_PELVIS, Motion, _relaxed_arms, _standing_feet, _torso
+from engine.synthetic.motion_base import STAND_PELVIS, Motion, _relaxed_arms, _standing_feet, _torso, sample_one_shot
 from engine.synthetic.skeleton import FOREARM, JOINT_INDEX
 
 
@@ -81,15 +81,8 @@ def reach(skeleton, target_height, *, side="r", fps=30.0, name=None, palm_offset
         raise ValueError(f"reach height must be between {lo:.2f} and {hi:.2f} m, got {target_height}")
     if side not in ("l", "r"):
         raise ValueError(f"side must be 'l' or 'r', got {side!r}")
-    _, _, _, _, events = _reach_pose(skeleton, np.zeros(1), target_height, palm_offset, side)
-    frames = int(np.ceil(events["end_time"] * fps)) + 1
-    times = np.arange(frames) / fps
-
-    def pose_at(t):
-        R, P, root, heading, _ = _reach_pose(skeleton, np.asarray(t, dtype=float), target_height, palm_offset, side)
-        return R, P, root, heading
-
-    R, P, root, heading, events = _reach_pose(skeleton, times, target_height, palm_offset, side)
+    times, pose_at, R, P, root, heading, events = sample_one_shot(
+        lambda t: _reach_pose(skeleton, t, target_height, palm_offset, side), fps)
     return Motion(name=name or "reach", kind="reach", fps=float(fps), times=times, rotations=R, positions=P,
                   root_position=root, heading=heading, cyclic=False, frames_per_cycle=None,
                   params={"target_height": float(target_height), "side": side},
