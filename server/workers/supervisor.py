@@ -61,8 +61,7 @@ def check_free(family, address, host):
         probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         probe.bind(address)
     except OSError as exc:
-        raise OSError(exc.errno, f"{host}:{address[1]} is already in use (another server on this port? "
-                                 f"{exc.strerror})") from None
+        raise OSError(f"{host}:{address[1]} is already in use (another server on this port? {exc.strerror})") from None
     finally:
         probe.close()
 
