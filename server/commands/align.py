@@ -350,7 +350,8 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
                  "model_size": size, "up": "+Y", "units": "m",
                  "source_units": common.units if common.units_from != "mixed" else "mixed",
                  "source_up": common.up_label if common.up_from != "mixed" else "mixed"},
-        "fps": fps, "sequences": metas,
+        # the first sequence's frame rate (its meta.json's, else ``fps``): the CLI and the align job agree
+        "fps": float(metas[0].get("fps", fps)) if metas else fps, "sequences": metas,
     })
 
 

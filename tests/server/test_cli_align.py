@@ -125,6 +125,9 @@ def test_align_writes_a_dataset_that_build_and_read_sequence_accept(dataset, ali
         assert meta["name"] == name and meta["alignment"]["method"] == "tree"
         clip, faces = load_source(aligned / "sequences" / name, fps=30.0, cyclic=False)  # as `build` reads it
         assert clip.vertices.shape == sequence.vertices.shape
+        assert meta["fps"] == 15  # the input's meta.json, not align's default for inputs without one
+    # the dataset's frame rate is the sequences' (the align job writes the same)
+    assert json.loads((aligned / "manifest.json").read_text())["fps"] == 15
     with np.load(aligned / "alignment.npz", allow_pickle=False) as record:
         n = int(record["lengths"].sum())
         assert record["dissimilarity"].shape == (n, n)
