@@ -214,6 +214,8 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
     children = [[] for _ in heads]
     for t in range(1, len(heads)):
         children[task_parent[t]].append(t)
+    if progress is not None:  # the stage shows from its start (a runner reports only as pieces finish)
+        progress(0, N)
     if runner is not None:
         jobs = [job_for(t, None) for t in range(len(heads))]  # entry pose and history: from the parent task
         outs = runner.tree(piece_task, jobs, task_parent.tolist(), shared=portable_aligner(aligner),

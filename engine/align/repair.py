@@ -138,6 +138,8 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             confidence[frame] = float(np.exp(-best_badness))
 
     spent, done = 0, 0
+    if progress is not None and flagged:  # the stage shows from its start
+        progress(0, len(flagged))
     if runner is None:
         for frame in flagged:
             sources = plan(frame, spent)

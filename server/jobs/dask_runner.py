@@ -21,6 +21,7 @@ from __future__ import annotations
 import itertools
 
 from engine.tasks import check_parents
+from server.jobs.tasks import JobError
 
 POLL = 0.25  # seconds between cancellation checks while waiting for sub-tasks
 
@@ -85,15 +86,32 @@ class DaskRunner:
                 self.check()
                 finished, pending = _first_finished(pending)
                 for future in finished:
-                    if future.status == "error":
-                        future.result()  # raises the task's exception here
+                    if future.status in ("error", "cancelled", "lost"):
+                        future.result()  # raises the task's exception (or the loss) here
                     done += sizes[index[future.key]]
                 if finished and progress is not None:
                     progress(done, total)
             return client.gather(futures)
-        except BaseException:
+        except BaseException as exc:
             client.cancel([f for f in futures if not f.done()])
+            if _worker_lost(exc):
+                raise WorkerGone(f"a Dask worker was lost while this job's tasks ran, and with it what they needed "
+                                 f"({type(exc).__name__}: {str(exc)[:300]}); queue the job again") from None
             raise
+
+
+class WorkerGone(JobError):
+    """A worker died under the job's tasks (killed, out of memory): their data went with it. The
+    job fails with this message (no traceback), as a local job whose worker process dies does."""
+
+
+def _worker_lost(exc):
+    """Whether ``exc`` is Dask's way of saying a worker died under the tasks (not a task's error)."""
+    from concurrent.futures import CancelledError
+
+    from distributed.scheduler import KilledWorker
+
+    return isinstance(exc, (KilledWorker, CancelledError))
 
 
 def _first_finished(pending):

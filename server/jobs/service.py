@@ -342,7 +342,12 @@ class JobService:
         elif kind == "log":
             state.log.append(_relative(message.get("line", ""), self.settings.data_dir))
         elif kind == "worker":
-            state.worker = {**(state.worker or {}), **message.get("info", {})}
+            info = message.get("info", {})
+            before = (state.worker or {}).get("address")
+            if before and info.get("address") and info["address"] != before:  # Dask lost the job's worker
+                state.log.append(f"the Dask worker running the job ({before}) was lost; Dask started the job "
+                                 f"again on {info['address']} (from its first stage, in the same attempt)")
+            state.worker = {**(state.worker or {}), **info}
         else:
             return
         state.dirty = True

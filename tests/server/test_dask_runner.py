@@ -99,3 +99,39 @@ def test_build_job_split_on_dask_equals_the_local_run(cluster, data_dir):
             assert np.array_equal(np.asarray(a[key]), np.asarray(b[key])), key
         untimed = [{k: v for k, v in c.metadata.items() if k != "timings"} for c in (a, b)]
         assert untimed[0] == untimed[1]
+
+
+def _sleep_task(shared, seconds):
+    time.sleep(seconds)
+    return seconds
+
+
+def _coordinator(prefix):
+    """A job's coordinator in miniature: two tasks through a DaskRunner; what became of them."""
+    from server.jobs.dask_runner import DaskRunner, WorkerGone
+
+    try:
+        DaskRunner(prefix).map(_sleep_task, [0.1, 30.0])
+    except WorkerGone as exc:
+        return f"gone: {exc}"
+    return "finished"
+
+
+def test_tasks_lost_with_their_worker_fail_the_job_with_a_clear_reason(cluster):
+    """When a worker dies, Dask forgets the tasks whose data went with it (the Dask trial saw
+    ``FuturesCancelledError ... already forgotten`` after killing a worker mid-decompose): the
+    runner stops waiting and says so in words, instead of a traceback. The loss is made here
+    by cancelling the running task for every client, which is what the scheduler does then."""
+    coordinator = cluster.submit(_coordinator, "morphspace-test-lost", pure=False)
+    deadline = time.monotonic() + 30
+    key = None
+    while key is None and time.monotonic() < deadline:
+        keys = cluster.run_on_scheduler(lambda dask_scheduler: [str(k) for k, ts in dask_scheduler.tasks.items()
+                                                                 if ts.state == "processing"])
+        key = next((k for k in keys if k.startswith("morphspace-test-lost-") and k.endswith("-1")), None)
+        time.sleep(0.05)
+    assert key is not None, "the long task never started"
+    cluster.cancel([distributed.Future(key, client=cluster)], force=True)
+    answer = coordinator.result(timeout=30)
+    assert answer.startswith("gone: a Dask worker was lost while this job's tasks ran"), answer
+    assert "queue the job again" in answer

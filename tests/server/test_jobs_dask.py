@@ -110,3 +110,21 @@ def executing(dask):
     until the task returns; the scheduler forgets it at once)."""
     return {address: list(keys) for address, keys in
             dask.run(lambda dask_worker: list(dask_worker.active_threads.values())).items() if keys}
+
+
+def test_a_job_dask_starts_again_on_another_worker_says_so_in_its_log(tmp_path):
+    """A Dask worker that dies while it runs a job's coordinator: the scheduler runs the job again
+    on another worker, in the same attempt (the Dask trial saw only its stages start over); the
+    job's log names both workers. The coordinator announces its worker at its start."""
+    from server.jobs.service import JobService, _Running
+    from server.settings import Settings
+
+    service = JobService(Settings(data_dir=tmp_path), registry=None)
+    state = _Running({"id": "job", "log": []})
+    service._on_message(state, {"t": "worker", "info": {"scheduler": "tcp://127.0.0.1:8786", "key": "k"}})
+    service._on_message(state, {"t": "worker", "info": {"address": "tcp://127.0.0.1:40001", "pid": 11}})
+    assert list(state.log) == []
+    service._on_message(state, {"t": "worker", "info": {"address": "tcp://127.0.0.1:40002", "pid": 12}})
+    assert list(state.log) == ["the Dask worker running the job (tcp://127.0.0.1:40001) was lost; Dask started "
+                               "the job again on tcp://127.0.0.1:40002 (from its first stage, in the same attempt)"]
+    assert state.worker["pid"] == 12 and state.worker["scheduler"] == "tcp://127.0.0.1:8786"
