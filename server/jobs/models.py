@@ -106,6 +106,8 @@ class AlignJob(_Body):
     patches: int = Field(30, ge=1, le=500)
     levels: int = Field(4, ge=1, le=8)
     retries: int = Field(3, ge=0, le=10)
+    repair_budget: float = Field(0.5, ge=0, le=10, description="pairwise alignments per frame that repairing "
+                                                               "low-confidence frames may spend (0: no repair)")
     seed: int = Field(0, ge=0, le=2**31 - 1)
     units: Literal["auto", "m", "cm", "mm"] = Field(
         "auto", description="length unit of the input meshes; auto: from the model's size (a person is "

@@ -278,15 +278,18 @@ def run_align(payload, reporter, runner=None):
                             tree_kind=params.get("tree", "mst"), root=root, root_choice=params.get("root_choice", "apart"),
                             options=options, window=params["window"], workers=1, retries=params["retries"],
                             use_colors=COLOUR_MODES[params.get("colors", "auto")],
-                            seed=params["seed"], progress=reporter.progress, runner=runner)
+                            seed=params["seed"], repair_budget=params.get("repair_budget", 0.5),
+                            progress=reporter.progress, runner=runner)
     out = staging / "dataset"
     out.mkdir()
     fps = float((sequences[0].get("meta") or {}).get("fps", 30.0))
     write_alignment(out, sequences, meshes, lengths, result, fps=fps,
-                    options_record={**{k: params[k] for k in ("patches", "levels", "window", "retries", "seed")},
+                    # the keys in `morphspace align`'s order, so the two write the same manifest
+                    options_record={**{k: params[k] for k in ("patches", "levels", "window", "retries")},
+                                    "repair_budget": params.get("repair_budget", 0.5),
                                     "tree": params.get("tree", "mst"), "root_choice": params.get("root_choice", "apart"),
-                                    "colors": params.get("colors", "auto"),
-                                    "colour_cues": result.colour_cues,
+                                    "colors": params.get("colors", "auto"), "colour_cues": result.colour_cues,
+                                    "seed": params["seed"],
                                     "units": params.get("units", "auto"), "up": params.get("up", "auto")},
                     progress=reporter.progress, conventions=conventions)
     aligned = result.aligned

@@ -19,6 +19,8 @@ import httpx
 import pytest
 from live_server import LiveServer
 
+from server.cli import main as cli_main
+
 TOKEN = "test-token-jobs"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
 SEQUENCES = {"slow": 0.9, "fast": 2.6}
@@ -297,3 +299,15 @@ def test_align_job_writes_a_buildable_dataset(client, live, dataset_zip):
     said = [line for line in job["log"] if line.startswith("input fast, slow: units m (given")]
     assert said and "up +Y (detected" in said[0], job["log"]
     assert 0 < job["result"]["residual_mean_pct"] < 1
+    # the same alignment by `morphspace align`: the same arrays, frames and options record
+    out = live.data_dir.parent / f"{live.data_dir.name}-cli-aligned"
+    assert cli_main(["align", str(live.data_dir / "datasets" / "raw"), "--out", str(out), "--patches", "10",
+                     "--levels", "2", "--retries", "0", "--units", "m", "--workers", "1"]) == 0
+    served = live.data_dir / "datasets" / "raw_aligned"
+    assert (out / "alignment.npz").read_bytes() == (served / "alignment.npz").read_bytes()
+    for frame in sorted(out.rglob("consistent/*")):
+        assert frame.read_bytes() == (served / frame.relative_to(out)).read_bytes(), frame
+    cli, job_manifest = (json.loads((d / "manifest.json").read_text()) for d in (out, served))
+    assert cli["alignment"]["options"] == job_manifest["alignment"]["options"]
+    assert list(cli["alignment"]["options"]) == list(job_manifest["alignment"]["options"])  # same key order
+    assert cli["fps"] == job_manifest["fps"] == 10
