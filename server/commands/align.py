@@ -260,6 +260,17 @@ def convert_inputs(meshes, sequences, lengths, units="auto", up="auto", *, say=N
     return converted, conventions
 
 
+OPTION_NAMES = ("patches", "levels", "window", "retries", "repair_budget", "tree", "root_choice", "colors")
+
+
+def options_record(options, colour_cues):
+    """The manifest's ``alignment.options``: ``options`` (a mapping with ``OPTION_NAMES``, ``seed``,
+    ``units`` and ``up``: the command line's or an align job's) and whether colour cues were used,
+    in one order, so `morphspace align` and the align job write the same manifest."""
+    return {**{name: options[name] for name in OPTION_NAMES}, "colour_cues": colour_cues, "seed": options["seed"],
+            "units": options["units"], "up": options["up"]}
+
+
 def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_record, progress=None,
                     conventions=None):
     """Write the aligned frames, metadata, arrays and pictures (see the module docstring).
@@ -394,11 +405,7 @@ def run(args):
         staging.mkdir(parents=True)
         try:
             write_alignment(staging, sequences, meshes, lengths, result, fps=args.fps or DEFAULT_FPS,
-                            options_record={"patches": args.patches, "levels": args.levels, "window": args.window,
-                                            "retries": args.retries, "repair_budget": args.repair_budget, "tree": args.tree,
-                                            "root_choice": args.root_choice, "colors": args.colors,
-                                            "colour_cues": result.colour_cues, "seed": args.seed,
-                                            "units": args.units, "up": args.up},
+                            options_record=options_record(vars(args), result.colour_cues),
                             progress=progress, conventions=conventions)
         except BaseException:
             shutil.rmtree(staging, ignore_errors=True)

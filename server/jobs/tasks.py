@@ -248,14 +248,19 @@ def run_graph(payload, reporter):
 
 
 # --- align ----------------------------------------------------------------------------------------
+# what a job record made before these parameters existed runs with (the AlignJob model's defaults)
+ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "apart", "colors": "auto", "repair_budget": 0.5, "units": "auto",
+                  "up": "auto"}
+
+
 def run_align(payload, reporter, runner=None):
     from engine.align import AlignmentOptions, align_captures
     from engine.surface import model_size
-    from server.commands.align import (COLOUR_MODES, convert_inputs, parse_root, read_inputs, resolve_inputs,
-                                       write_alignment)
+    from server.commands.align import (COLOUR_MODES, DEFAULT_FPS, convert_inputs, options_record, parse_root,
+                                       read_inputs, resolve_inputs, write_alignment)
     from server.units import common_convention, display_unit
 
-    params, staging = payload["params"], Path(payload["staging"])
+    params, staging = {**ALIGN_DEFAULTS, **payload["params"]}, Path(payload["staging"])
     datasets = Path(payload["data_dir"]) / "datasets"
     inputs = []
     for name in params["datasets"]:
@@ -270,27 +275,20 @@ def run_align(payload, reporter, runner=None):
     started = time.perf_counter()
     meshes, lengths = read_inputs(sequences, reporter.progress, say=reporter.log)
     reporter.log(f"read {int(lengths.sum())} frames of {len(sequences)} sequences")
-    meshes, conventions = convert_inputs(meshes, sequences, lengths, params.get("units", "auto"),
-                                         params.get("up", "auto"), say=reporter.log)
+    meshes, conventions = convert_inputs(meshes, sequences, lengths, params["units"], params["up"], say=reporter.log)
     root = parse_root(params.get("root"), sequences, lengths)
     options = AlignmentOptions(patches=params["patches"], levels=params["levels"])
     result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree",
-                            tree_kind=params.get("tree", "mst"), root=root, root_choice=params.get("root_choice", "apart"),
+                            tree_kind=params["tree"], root=root, root_choice=params["root_choice"],
                             options=options, window=params["window"], workers=1, retries=params["retries"],
-                            use_colors=COLOUR_MODES[params.get("colors", "auto")],
-                            seed=params["seed"], repair_budget=params.get("repair_budget", 0.5),
+                            use_colors=COLOUR_MODES[params["colors"]],
+                            seed=params["seed"], repair_budget=params["repair_budget"],
                             progress=reporter.progress, runner=runner)
     out = staging / "dataset"
     out.mkdir()
-    fps = float((sequences[0].get("meta") or {}).get("fps", 30.0))
+    fps = float((sequences[0].get("meta") or {}).get("fps", DEFAULT_FPS))
     write_alignment(out, sequences, meshes, lengths, result, fps=fps,
-                    # the keys in `morphspace align`'s order, so the two write the same manifest
-                    options_record={**{k: params[k] for k in ("patches", "levels", "window", "retries")},
-                                    "repair_budget": params.get("repair_budget", 0.5),
-                                    "tree": params.get("tree", "mst"), "root_choice": params.get("root_choice", "apart"),
-                                    "colors": params.get("colors", "auto"), "colour_cues": result.colour_cues,
-                                    "seed": params["seed"],
-                                    "units": params.get("units", "auto"), "up": params.get("up", "auto")},
+                    options_record=options_record(params, result.colour_cues),
                     progress=reporter.progress, conventions=conventions)
     aligned = result.aligned
     size = model_size(aligned.root_vertices)
