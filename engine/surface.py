@@ -241,13 +241,20 @@ def main_components(V, F, *, min_fraction=0.05):
     Multi-view reconstructions leave small blobs around the performer (noise, props' shadows,
     a studio's edges); as part of a root mesh they would become part of every aligned frame,
     and as part of a target they attract matches. Pieces connected through a shared vertex
-    count as one.
+    count as one; vertices at exactly the same position are welded into one first (the first
+    of them is kept), so an unwelded triangle soup is one piece again.
     """
     from scipy.sparse.csgraph import connected_components
 
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     n = len(V)
+    # vertices at exactly the same place are one (an unwelded export gives every face its own
+    # corners; a UV seam duplicates its vertices): each stands for the first of its twins
+    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    if len(first) < n:
+        F = first[inverse.ravel()][F]
+        F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
     rows = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
     cols = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
     count, label = connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)),

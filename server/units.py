@@ -10,6 +10,9 @@ sequences differ), each with its share of the model size.
 
 from __future__ import annotations
 
+from dataclasses import replace
+from typing import NamedTuple
+
 from engine.mesh_io import Mesh, resolve_convention, to_metres_y_up
 from engine.mesh_io.units import UNITS_PER_METRE, UP_AXES, Convention
 
@@ -30,6 +33,15 @@ def add_units_arguments(parser):
                              "(x, z, -y)")
 
 
+class Declared(NamedTuple):
+    """What the metadata says: ``units`` ("m", "cm", "mm") and ``up`` ("y", "z"), None where no
+    record says; ``ignored``: one line per value that is neither (it is not a claim)."""
+
+    units: str | None
+    up: str | None
+    ignored: tuple = ()
+
+
 def declared_convention(records):
     """The units and up axis the metadata says, the first record that says each winning.
 
@@ -38,21 +50,32 @@ def declared_convention(records):
     records : iterable of dict or None   most specific first, e.g. a sequence's meta.json, then
                                          its dataset manifest's ``body``: their "units" ("m",
                                          "cm", "mm") and "up" ("+Y", "+Z"); other values are
-                                         not a claim
+                                         not a claim, and are named in ``ignored``
 
     Returns
     -------
-    units, up : str or None   None where no record says
+    Declared   (units, up, ignored)
     """
     units = up = None
+    ignored = []
     for record in records:
         if not isinstance(record, dict):
             continue
         said_units = str(record.get("units", "")).strip().lower()
         said_up = str(record.get("up", "")).strip().lower().lstrip("+")
+        if said_units and said_units not in UNITS_PER_METRE:
+            ignored.append(f"the metadata's units {record.get('units')!r} are none of m, cm, mm: ignored")
+        if said_up and said_up not in UP_AXES:
+            ignored.append(f"the metadata's up axis {record.get('up')!r} is neither +Y nor +Z: ignored")
         units = units or (said_units if said_units in UNITS_PER_METRE else None)
         up = up or (said_up if said_up in UP_AXES else None)
-    return units, up
+    return Declared(units, up, tuple(ignored))
+
+
+def with_ignored(convention, declared):
+    """``convention`` with the metadata values ``declared`` ignored added to its warnings."""
+    ignored = tuple(getattr(declared, "ignored", ()))
+    return replace(convention, warnings=convention.warnings + ignored) if ignored else convention
 
 
 def meshes_to_metres(meshes, units="auto", up="auto", *, declared=(None, None)):
@@ -69,8 +92,8 @@ def meshes_to_metres(meshes, units="auto", up="auto", *, declared=(None, None)):
     meshes : list of Mesh                  the same list when nothing changes, else new meshes
     convention : engine.mesh_io.Convention
     """
-    convention = resolve_convention((m.vertices for m in meshes), units, up, declared_units=declared[0],
-                                    declared_up=declared[1])
+    convention = with_ignored(resolve_convention((m.vertices for m in meshes), units, up, declared_units=declared[0],
+                                                 declared_up=declared[1]), declared)
     if convention.units == "m" and convention.up == "y":
         return meshes, convention
     converted = [Mesh(vertices=to_metres_y_up(m.vertices, convention.units, convention.up), faces=m.faces,

@@ -163,7 +163,12 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     C_root = np.asarray(base.colors)[kept] if colours else None
     started = time.perf_counter()
     if tets is None:
-        tets = tetrahedralize(V_root, F_root, resolution=options.tet_resolution)
+        try:
+            tets = tetrahedralize(V_root, F_root, resolution=options.tet_resolution)
+        except ValueError as exc:
+            label = getattr(base, "source", None) or f"frame {tree.root}"
+            raise ValueError(f"{label}: the root frame cannot be filled with tetrahedra: {exc}; align from "
+                             "another root (morphspace align --root SEQUENCE:FRAME)") from None
     timings["tetrahedralize"] = time.perf_counter() - started
     aligner = PairwiseAligner(V_root, F_root, C_root, tets=tets, options=options, seed=seed)
     started = time.perf_counter()

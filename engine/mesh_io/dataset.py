@@ -17,12 +17,11 @@ Everything is written atomically (temporary name, then rename).
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from engine.mesh_io.atomic import atomic_write
 from engine.mesh_io.errors import MeshFormatError
 from engine.mesh_io.npz import savez_stable
 
@@ -33,20 +32,15 @@ DATASET_VERSION = 1
 def _write_json(path, payload):
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(payload, fh, indent=2, sort_keys=False)
-        fh.write("\n")
-    os.replace(tmp, path)
+    with atomic_write(path) as fh:  # (mode 0666 less the umask, like every other file of a dataset)
+        fh.write((json.dumps(payload, indent=2, sort_keys=False) + "\n").encode())
 
 
 def _write_npz(path, arrays):
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".npz")
-    with os.fdopen(fd, "wb") as fh:
+    with atomic_write(path) as fh:
         savez_stable(fh, arrays)
-    os.replace(tmp, path)
 
 
 def sequence_dir(root, name):

@@ -271,6 +271,43 @@ def options_record(options, colour_cues):
             "units": options["units"], "up": options["up"]}
 
 
+# what describes the input's frames and not the aligned ones (their count, mesh structure and axes)
+_INPUT_ONLY = ("frames", "duration", "topology", "vertices", "faces", "unstructured_frames",
+               "unstructured_vertex_counts", "units", "up", "forward", "left", "from_metres_y_up")
+
+
+def aligned_meta(meta, name, frames, fps, vertices, faces):
+    """A written sequence's meta.json: the input's (``meta``, or None) with what describes the
+    frames replaced by what was written: ``frames`` frames of one mesh structure (``vertices``,
+    ``faces``), in metres with +Y up; the input's frame rate, else ``fps``."""
+    meta = {k: v for k, v in (meta or {"cyclic": False, "frames_per_cycle": None}).items() if k not in _INPUT_ONLY}
+    rate = float(meta.get("fps") or fps)
+    return {"name": name, **{k: v for k, v in meta.items() if k != "name"}, "fps": rate, "frames": frames,
+            "duration": frames / rate, "topology": "consistent", "vertices": int(vertices), "faces": int(faces),
+            "units": "m", "up": "+Y"}
+
+
+def frame_label(index, sequences, lengths):
+    """"SEQUENCE:FRAME" of a global frame ``index`` (the form ``--root`` takes)."""
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    k = int(np.searchsorted(starts, int(index), side="right") - 1)
+    return f"{sequences[k]['name']}:{int(index) - int(starts[k])}"
+
+
+def confidence_summary(aligned, sequences, lengths):
+    """The per-frame confidence in a few numbers (the align job's summary, the CLI's last line):
+    ``root_frame`` ("SEQUENCE:FRAME"), ``repaired_frames`` and ``flagged_frames`` (below
+    ``TRUSTED``) counted over all sequences, ``confidence_min``, and ``flagged``: per sequence
+    the frames (its own numbering) still below ``TRUSTED``."""
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    flagged = {s["name"]: [int(i) for i in np.flatnonzero(aligned.confidence[a:a + n] < TRUSTED)]
+               for s, a, n in zip(sequences, starts, lengths)}
+    return {"root_frame": frame_label(aligned.root, sequences, lengths),
+            "repaired_frames": int(np.sum(aligned.repaired)),
+            "flagged_frames": int(np.sum(aligned.confidence < TRUSTED)),
+            "confidence_min": float(np.min(aligned.confidence)), "flagged": flagged}
+
+
 def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_record, progress=None,
                     conventions=None):
     """Write the aligned frames, metadata, arrays and pictures (see the module docstring).
@@ -305,11 +342,8 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         write_sequence(base / "consistent", aligned.vertices[span], aligned.faces, colors=frame_colors,
                        progress=(lambda d, t: progress("write", written + d, int(lengths.sum()))) if progress else None)
         written += int(lengths[k])
-        meta = dict(s["meta"]) if s["meta"] else {"name": s["name"], "fps": fps, "frames": int(lengths[k]),
-                                                   "duration": float(lengths[k] / fps), "cyclic": False,
-                                                   "frames_per_cycle": None}
-        meta["name"] = s["name"]
-        meta["units"], meta["up"] = "m", "+Y"  # what the written frames are in
+        meta = aligned_meta(s["meta"], s["name"], int(lengths[k]), fps, len(aligned.root_vertices),
+                            len(aligned.faces))
         meta["alignment"] = {
             "method": result.method, "root": f"{root_sequence}:{root_frame}",
             "source": str(s["frames"]),
@@ -420,7 +454,8 @@ def run(args):
     t = result.timings
     frames = int(lengths.sum())
     print(f"aligned {frames} frames of {len(sequences)} sequences to {out} in {time.perf_counter() - started:.1f} s "
-          f"({result.method}, root {aligned.root}, {len(aligned.root_vertices)} vertices)")
+          f"({result.method}, root {frame_label(aligned.root, sequences, lengths)} = frame {aligned.root}, "
+          f"{len(aligned.root_vertices)} vertices)")
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
           f"{result.tree.components} components reconnected), tetrahedralise {t['tetrahedralize']:.1f} s, "
           f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "
@@ -434,11 +469,12 @@ def run(args):
           f"{length_text(aligned.residual.mean(), convention, size)}, max "
           f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "
           f"{int(aligned.retried.sum())} frames re-aligned from other parents")
-    flagged = int(np.sum(aligned.confidence < TRUSTED))
-    print(f"  confidence: {int(aligned.repaired.sum())} frames repaired (aligned again from the root or trusted "
-          f"frames), {flagged} of {frames} still below {TRUSTED} (listed per sequence in meta.json)")
+    confidence = confidence_summary(aligned, sequences, lengths)
+    print(f"  confidence: {confidence['repaired_frames']} frames repaired (aligned again from the root or trusted "
+          f"frames), {confidence['flagged_frames']} of {frames} still below {TRUSTED} (listed per sequence in "
+          "meta.json)")
     return 0
 
 
-__all__ = ["add_arguments", "convert_inputs", "parse_root", "read_inputs", "resolve_inputs", "run",
+__all__ = ["add_arguments", "confidence_summary", "convert_inputs", "frame_label", "parse_root", "read_inputs", "resolve_inputs", "run",
            "write_alignment"]

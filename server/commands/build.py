@@ -31,7 +31,7 @@ from engine.mesh_io import read_mesh, read_sequence, resolve_convention, to_metr
 from engine.motion_space import SourceClip, build_motion_space
 from engine.parameters import MEASURES, Layout
 from server.progress import StageBars
-from server.units import add_units_arguments, declared_convention, say_conventions, source_metadata
+from server.units import add_units_arguments, declared_convention, say_conventions, source_metadata, with_ignored
 
 LAYOUT_KEYS = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}
 
@@ -191,8 +191,8 @@ def sources_to_metres(clips, rest, directories, units="auto", up="auto"):
     for clip, directory in zip(clips, map(Path, directories)):
         body = _json_record(directory.parent.parent / "manifest.json", "body")
         declared = declared_convention([_json_record(directory / "meta.json"), body])
-        convention = resolve_convention(clip.vertices, units, up, declared_units=declared[0],
-                                        declared_up=declared[1])
+        convention = with_ignored(resolve_convention(clip.vertices, units, up, declared_units=declared[0],
+                                                     declared_up=declared[1]), declared)
         if (convention.units, convention.up) != ("m", "y"):
             clip = replace(clip, vertices=to_metres_y_up(clip.vertices, convention.units, convention.up))
         converted.append(clip)

@@ -116,6 +116,12 @@ def run(args):
             write_obj(args.frames / f"frame_{k:05d}.obj", frame.vertices, space.faces, precision=6)
         if frame.finished and not args.loop:
             break
+    end = log[-1]["time"]
+    why = ("the one-shot clip ended (--loop plays it again)" if frame.finished and not args.loop
+           else "--seconds ended the play")
+    for when, params in script:  # requests the play never reached: said, not dropped silently
+        asked = ", ".join(f"{name}={value:g}" for name, value in params.items())
+        notes.append(f"t={when:.2f} s: {asked} not applied: {why} at {end:.2f} s")
     root = np.array([entry["root"] for entry in log])
     travelled = float(np.sum(np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=1)))
     report = {"space": space.name, "parameters": names, "mode": args.mode, "seconds": log[-1]["time"],

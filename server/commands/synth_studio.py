@@ -10,9 +10,7 @@ template stay in metres, Y up.
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import tempfile
 import time
 from dataclasses import asdict, replace
 from functools import lru_cache
@@ -21,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.mesh_io import read_mesh, write_obj, write_ply
+from engine.mesh_io.atomic import atomic_write
 from engine.mesh_io.dataset import (
     sequence_dir,
     write_capture_manifest,
@@ -125,11 +124,8 @@ def _preview(job):
 
 
 def _write_json(path, payload):
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(payload, fh, indent=2)
-        fh.write("\n")
-    os.replace(tmp, path)
+    with atomic_write(path) as fh:  # (mode 0666 less the umask, like the frames beside it)
+        fh.write((json.dumps(payload, indent=2) + "\n").encode())
 
 
 def run_studio(args, preset):

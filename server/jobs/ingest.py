@@ -31,7 +31,7 @@ def run_ingest(payload, reporter):
     from engine.mesh_io.dataset import write_capture_manifest
     from engine.surface import model_size
     from server.uploads import KINDS, FrameStats, sequence_meta
-    from server.units import declared_convention
+    from server.units import declared_convention, with_ignored
 
     params, staging = payload["params"], Path(payload["staging"])
     source = Path(payload["data_dir"]) / "datasets" / params["dataset"]
@@ -63,7 +63,7 @@ def run_ingest(payload, reporter):
             if k in sampled:
                 samples.append(mesh.vertices)
             write_obj(out / "sequences" / seq / kind / f"frame_{k:04d}.obj", mesh.vertices, mesh.faces,
-                      colors=mesh.colors, precision=6)
+                      colors=mesh.colors)  # exact: the coordinates as read, to the last bit
             done += 1
             reporter.progress("validate", done, total)
         if kind == "consistent" and not stats.consistent:
@@ -78,9 +78,11 @@ def run_ingest(payload, reporter):
         meta.setdefault("fps", 30.0)
         meta.setdefault("cyclic", False)
         declared = declared_convention([meta, uploaded_body])
-        convention = resolve_convention(samples, declared_units=declared[0], declared_up=declared[1])
+        convention = with_ignored(resolve_convention(samples, declared_units=declared[0], declared_up=declared[1]),
+                                  declared)
         meta.update(units=convention.units, up=convention.up_label, input=convention.to_metadata())
         warnings += [f"sequence {seq}: {warning}" for warning in convention.warnings]
+        reporter.log(f"sequence {seq} ({kind}, {stats.frames} frames): {convention.describe()}")
         record = sequence_meta(seq, meta, kind, stats)
         record["source_frames"] = frames
         if seq in metas:  # both kinds: keep the consistent record, note the other
@@ -96,11 +98,9 @@ def run_ingest(payload, reporter):
                 mesh = read_mesh(path, name=f"{params['dataset']}/template/{path.name}")
             except MeshError as exc:
                 raise JobError(str(exc)) from None
-            write_obj(out / "template" / f"{path.stem}.obj", mesh.vertices, mesh.faces, colors=mesh.colors,
-                      precision=6)
+            write_obj(out / "template" / f"{path.stem}.obj", mesh.vertices, mesh.faces, colors=mesh.colors)
     if not (out / "template" / "body.obj").exists() and template is not None:
-        write_obj(out / "template" / "body.obj", template.vertices, template.faces, colors=template.colors,
-                  precision=6)
+        write_obj(out / "template" / "body.obj", template.vertices, template.faces, colors=template.colors)
         reporter.log("template/body.obj: the first consistent frame (the rest shape builds use)")
     body = {}
     template_path = out / "template" / "body.obj"

@@ -256,8 +256,8 @@ ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "apart", "colors": "auto", "repa
 def run_align(payload, reporter, runner=None):
     from engine.align import AlignmentOptions, align_captures
     from engine.surface import model_size
-    from server.commands.align import (COLOUR_MODES, DEFAULT_FPS, convert_inputs, options_record, parse_root,
-                                       read_inputs, resolve_inputs, write_alignment)
+    from server.commands.align import (COLOUR_MODES, DEFAULT_FPS, TRUSTED, confidence_summary, convert_inputs,
+                                       options_record, parse_root, read_inputs, resolve_inputs, write_alignment)
     from server.units import common_convention, display_unit
 
     params, staging = {**ALIGN_DEFAULTS, **payload["params"]}, Path(payload["staging"])
@@ -293,6 +293,9 @@ def run_align(payload, reporter, runner=None):
     aligned = result.aligned
     size = model_size(aligned.root_vertices)
     reporter.log(f"aligned {int(lengths.sum())} frames in {time.perf_counter() - started:.1f} s")
+    confidence = confidence_summary(aligned, sequences, lengths)
+    reporter.log(f"confidence: {confidence['repaired_frames']} frames repaired, {confidence['flagged_frames']} of "
+                 f"{int(lengths.sum())} still below {TRUSTED} (the summary's flagged lists them per sequence)")
     return {"output": {"type": "dataset", "name": params["output"], "path": out.name},
             "summary": {"dataset": params["output"], "frames": int(lengths.sum()),
                         "sequences": [s["name"] for s in sequences], "root": int(aligned.root),
@@ -301,7 +304,7 @@ def run_align(payload, reporter, runner=None):
                         "residual_mean_pct": float(100 * aligned.residual.mean() / size),
                         "residual_max_pct": float(100 * aligned.residual_max.max() / size),
                         "input": {s["name"]: c.to_metadata() for s, c in zip(sequences, conventions)},
-                        "display_unit": display_unit(common_convention(conventions)),
+                        "display_unit": display_unit(common_convention(conventions)), **confidence,
                         "seconds": round(time.perf_counter() - started, 2)}}
 
 

@@ -13,6 +13,7 @@ import numpy as np
 
 from engine.mesh_io import MeshError, natural_key, read_mesh
 from engine.mesh_io.dataset import write_capture_manifest
+from engine.mesh_io.units import UNITS_PER_METRE, UP_AXES
 from server.uploads.rules import KINDS, META_MAX_BYTES, NAME, UploadError
 
 
@@ -106,6 +107,10 @@ def read_meta(name, path, fps, cyclic):
         raise UploadError(422, f"{name}: fps must be a number in (0, 1000], got {value!r}")
     if not isinstance(meta["cyclic"], bool):
         raise UploadError(422, f"{name}: cyclic must be true or false, got {meta['cyclic']!r}")
+    if "units" in meta and str(meta["units"]).strip().lower() not in UNITS_PER_METRE:
+        raise UploadError(422, f"{name}: units must be one of {', '.join(UNITS_PER_METRE)}, got {meta['units']!r}")
+    if "up" in meta and str(meta["up"]).strip().lower().lstrip("+") not in UP_AXES:
+        raise UploadError(422, f"{name}: up must be +Y or +Z, got {meta['up']!r}")
     return meta
 
 
@@ -181,6 +186,9 @@ def assemble_dataset(extracted, out, dataset_name, *, fps, cyclic, progress=None
                 os.replace(path, target / path.name)
             lo = stats.lo if lo is None else np.minimum(lo, stats.lo)
             hi = stats.hi if hi is None else np.maximum(hi, stats.hi)
+        if len(kinds) > 1 and kinds["consistent"].frames != kinds["unstructured"].frames:
+            raise UploadError(422, f"sequence {seq_name!r}: consistent/ has {kinds['consistent'].frames} frames and "
+                                   f"unstructured/ {kinds['unstructured'].frames}; both hold the same take, frame by frame")
         main = "consistent" if "consistent" in kinds else "unstructured"
         record = sequence_meta(seq_name, meta, main, kinds[main])
         if len(kinds) > 1:

@@ -83,3 +83,21 @@ def test_main_components_drops_small_floating_pieces_and_keeps_the_order():
     np.testing.assert_array_equal(F_kept, body.faces)
     same = main_components(body.vertices, body.faces)  # one piece: given back as it is
     assert same[0] is not None and len(same[2]) == len(body.vertices)
+
+
+def test_main_components_welds_an_unwelded_surface():
+    """A triangle soup (every face with its own three corners, as some exporters write a mesh)
+    is one piece once twins are welded: the first of each set of twins stands for it."""
+    from engine.surface import main_components
+
+    body = trimesh.creation.icosphere(subdivisions=2)
+    soup_V = body.vertices[body.faces].reshape(-1, 3)
+    soup_F = np.arange(len(soup_V)).reshape(-1, 3)
+    V_kept, F_kept, kept = main_components(soup_V, soup_F)
+    assert len(V_kept) == len(body.vertices) and len(F_kept) == len(body.faces)
+    np.testing.assert_array_equal(V_kept, soup_V[kept])
+    # the same surface: every face's corners where the welded mesh's are
+    np.testing.assert_array_equal(np.sort(V_kept[F_kept].reshape(len(F_kept), -1), axis=0),
+                                  np.sort(body.vertices[body.faces].reshape(len(body.faces), -1), axis=0))
+    for first in kept:  # the first of its twins
+        assert not np.any(np.all(soup_V[:first] == soup_V[first], axis=1))

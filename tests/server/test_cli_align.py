@@ -126,6 +126,10 @@ def test_align_writes_a_dataset_that_build_and_read_sequence_accept(dataset, ali
         clip, faces = load_source(aligned / "sequences" / name, fps=30.0, cyclic=False)  # as `build` reads it
         assert clip.vertices.shape == sequence.vertices.shape
         assert meta["fps"] == 15  # the input's meta.json, not align's default for inputs without one
+        # the written frames, whatever the input's meta.json said of its own
+        assert (meta["frames"], meta["topology"], meta["vertices"], meta["faces"]) == \
+            (frames, "consistent", len(template.vertices), len(template.faces))
+        assert meta["duration"] == frames / 15 and "unstructured_vertex_counts" not in meta
     # the dataset's frame rate is the sequences' (the align job writes the same)
     assert json.loads((aligned / "manifest.json").read_text())["fps"] == 15
     with np.load(aligned / "alignment.npz", allow_pickle=False) as record:
@@ -321,3 +325,22 @@ def test_build_converts_sources_in_millimetres_z_up(aligned, tmp_path, capsys):
         for key in ("sources", "rest", "tet_vertices"):
             np.testing.assert_allclose(np.asarray(millimetres.container[key]), np.asarray(metres.container[key]),
                                        atol=1e-6)
+
+
+def test_an_unwelded_root_frame_is_welded_before_its_tetrahedra(dataset, tmp_path, capsys):
+    """A frame exported unwelded (each face its own three vertices) as the root: its twins become
+    one vertex, so it fills with tetrahedra and every frame is aligned onto it."""
+    copy = tmp_path / "soup"
+    shutil.copytree(dataset, copy)
+    path = sorted((copy / "sequences" / "walk" / "unstructured").iterdir())[1]
+    mesh = read_mesh(path)
+    V = mesh.vertices[mesh.faces].reshape(-1, 3)
+    write_ply(path, V, np.arange(len(V)).reshape(-1, 3), colors=mesh.colors[mesh.faces].reshape(-1, 3),
+              dtype=np.float64)
+    out = tmp_path / "out"
+    assert main(["align", str(copy), "--out", str(out), "--workers", "1", "--levels", "2", "--root", "walk:1"]) == 0
+    template = read_mesh(out / "template" / "body.obj")
+    assert len(template.vertices) <= len(np.unique(V, axis=0)) < len(V)
+    assert "root walk:1" in capsys.readouterr().out
+    for name in ("walk", "jog"):
+        assert read_sequence(out / "sequences" / name / "consistent").vertices.shape[1] == len(template.vertices)

@@ -26,3 +26,9 @@ def test_a_clamped_request_is_said_from_set_and_from_at(built_spaces, capsys):
     assert len(report["notes"]) == 1 and report["notes"][0].startswith("t=0.20 s: ")
     assert main(["play", str(built_spaces / "speed.mspace"), "--set", "speed=10", "--seconds", "0.2"]) == 0
     assert "  note: t=0.00 s: outside the reachable domain, clamped: speed 10 m/s" in capsys.readouterr().out
+
+
+def test_a_request_after_the_play_ends_is_said_not_dropped(built_spaces, capsys):
+    report = _play(capsys, built_spaces / "speed.mspace", "--set", "speed=1", "--at", 0.8, "speed=1.5",
+                   "--seconds", 0.5, "--fps", 20)
+    assert report["notes"] == ["t=0.80 s: speed=1.5 not applied: --seconds ended the play at 0.50 s"]

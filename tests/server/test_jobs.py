@@ -16,9 +16,11 @@ import zipfile
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 from live_server import LiveServer
 
+from engine.mesh_io import read_mesh
 from server.cli import main as cli_main
 
 TOKEN = "test-token-jobs"
@@ -224,6 +226,17 @@ def test_ingest_records_the_units_and_up_axis_it_finds(client, live):
     body = json.loads((root / "manifest.json").read_text())["body"]
     assert (body["units"], body["up"]) == ("mm", "+Z") and 1.5 < body["model_size"] < 2.0  # metres
     assert any("template/body.obj: units mm (detected" in line for line in job["log"]), job["log"]
+    for name in SEQUENCES:  # what was found, per sequence
+        assert any(line.startswith(f"sequence {name} (") and "units mm (detected" in line and "up +Z (detected" in line
+                   for line in job["log"]), job["log"]
+    # coordinates copied exactly (the upload's files, read back, against the ingested ones)
+    from engine.mesh_io import read_frames
+
+    for name in SEQUENCES:
+        before = read_frames(live.data_dir / "datasets" / "gaits_mm" / "sequences" / name / "consistent")
+        after = read_frames(root / "sequences" / name / "consistent")
+        for a, b in zip(before, after, strict=True):
+            np.testing.assert_array_equal(a.vertices, b.vertices)
 
 
 def test_a_job_left_running_by_a_crashed_server_is_run_again(tmp_path, dataset_zip):
@@ -299,11 +312,26 @@ def test_align_job_writes_a_buildable_dataset(client, live, dataset_zip):
     said = [line for line in job["log"] if line.startswith("input fast, slow: units m (given")]
     assert said and "up +Y (detected" in said[0], job["log"]
     assert 0 < job["result"]["residual_mean_pct"] < 1
+    # the confidence as `morphspace align` writes it per sequence, in the summary and the log
+    served = live.data_dir / "datasets" / "raw_aligned"
+    result = job["result"]
+    assert set(result["flagged"]) == set(SEQUENCES)
+    for name in SEQUENCES:
+        meta = json.loads((served / "sequences" / name / "meta.json").read_text())
+        assert result["flagged"][name] == meta["alignment"]["flagged_frames"]
+        # the written frames, not the upload's: 3 consistent frames of the root mesh's structure
+        assert (meta["frames"], meta["topology"], meta["units"], meta["up"]) == (3, "consistent", "m", "+Y")
+        assert meta["vertices"] == len(read_mesh(served / "template" / "body.obj").vertices)
+        assert info["sequences"][[s["name"] for s in info["sequences"]].index(name)]["vertices"] == meta["vertices"]
+    assert result["flagged_frames"] == sum(len(f) for f in result["flagged"].values())
+    assert 0 <= result["confidence_min"] <= 1 and 0 <= result["repaired_frames"] <= 6
+    seq, frame = result["root_frame"].split(":")
+    assert seq in SEQUENCES and 0 <= int(frame) < 3
+    assert any(line.startswith("confidence: ") and "still below 0.5" in line for line in job["log"]), job["log"]
     # the same alignment by `morphspace align`: the same arrays, frames and options record
     out = live.data_dir.parent / f"{live.data_dir.name}-cli-aligned"
     assert cli_main(["align", str(live.data_dir / "datasets" / "raw"), "--out", str(out), "--patches", "10",
                      "--levels", "2", "--retries", "0", "--units", "m", "--workers", "1"]) == 0
-    served = live.data_dir / "datasets" / "raw_aligned"
     assert (out / "alignment.npz").read_bytes() == (served / "alignment.npz").read_bytes()
     for frame in sorted(out.rglob("consistent/*")):
         assert frame.read_bytes() == (served / frame.relative_to(out)).read_bytes(), frame

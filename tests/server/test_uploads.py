@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import stat
 import struct
 import zipfile
@@ -63,6 +64,12 @@ def datasets_state(live):
     return sorted(p.name for p in root.iterdir()), sorted(p.name for p in live.data_dir.parent.iterdir())
 
 
+def _umask():
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 def post_zip(client, name, data, **params):
     return client.post("/v1/datasets", params={"name": name, **params}, content=data,
                        headers={**AUTH, "Content-Type": "application/zip"})
@@ -85,6 +92,8 @@ def test_zip_upload_becomes_a_dataset(client, live):
     meta = json.loads((root / "sequences" / "walk" / "meta.json").read_text())
     assert meta["name"] == "walk" and meta["note"] == "kept" and meta["topology"] == "consistent"
     assert json.loads((root / "manifest.json").read_text())["format"] == "morphspace-capture-dataset"
+    for path in (root / "manifest.json", root / "sequences" / "walk" / "meta.json"):  # as umask gives any new file
+        assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~_umask(), path
     listed = client.get("/v1/datasets").json()
     assert "zipped" in [d["name"] for d in listed["datasets"]]
     assert client.get("/v1/datasets/zipped").json()["frames"] == 6
@@ -194,6 +203,13 @@ HOSTILE = {
     "bad meta": (lambda: zip_bytes({"walk/frame_0.obj": tetra_obj(), "walk/meta.json": '{"fps": -1}'}), 422,
                  "walk/meta.json"),
     "no frames": (lambda: zip_bytes({"walk/meta.json": "{}"}), 422, "no frames"),
+    "meta units": (lambda: zip_bytes({"walk/frame_0.obj": tetra_obj(), "walk/meta.json": '{"units": "furlongs"}'}),
+                   422, "units must be one of m, cm, mm, got 'furlongs'"),
+    "meta up": (lambda: zip_bytes({"walk/frame_0.obj": tetra_obj(), "walk/meta.json": '{"up": "-X"}'}),
+                422, "up must be +Y or +Z"),
+    "frame counts differ": (lambda: zip_bytes({**{f"walk/consistent/frame_{k}.obj": tetra_obj() for k in range(3)},
+                                               **{f"walk/unstructured/frame_{k}.obj": tetra_obj() for k in range(2)}}),
+                            422, "consistent/ has 3 frames and unstructured/ 2"),
 }
 
 
