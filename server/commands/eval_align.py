@@ -70,6 +70,9 @@ def add_arguments(parser):
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                         help="worker processes for the shape histograms, the dissimilarity matrix (from 3,000 "
                              "frames) and independent pieces of the tree (default: up to 2)")
+    parser.add_argument("--repair-budget", type=float, default=0.5, metavar="B",
+                        help="pairwise alignments per frame the repair of the tree's low-confidence frames may "
+                             "spend (see `morphspace align --help`; default 0.5; 0 turns the repair off)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     add_units_arguments(parser)
 
@@ -242,6 +245,8 @@ def run(args):
         raise ValueError(f"--max-frames must be >= 2, got {args.max_frames}")
     if args.every < 1:
         raise ValueError(f"--every must be >= 1, got {args.every}")
+    if not args.repair_budget >= 0:
+        raise ValueError(f"--repair-budget must be >= 0, got {args.repair_budget}")
     if args.every > 1 and args.aligned is not None:
         raise ValueError("--every picks the frames to align; it does not apply to --aligned")
     progress = Progress()
@@ -286,13 +291,14 @@ def run(args):
             tree_run = align_captures(meshes, lengths, method="tree", tree_kind=args.tree, root=root,
                                       root_choice=args.root_choice, options=options,
                                       workers=args.workers, use_colors=COLOUR_MODES[args.colors], seed=args.seed,
-                                      progress=progress)
+                                      repair_budget=args.repair_budget, progress=progress)
             root = tree_run.aligned.root
             report["root"] = int(root)
             report["colour_cues"] = bool(tree_run.colour_cues)
             report["similarity_seconds"] = round(tree_run.timings["similarity"], 3)
             report["tree_seconds"] = round(tree_run.timings["tree"], 4)
-            report["tree"] = {"kind": args.tree, "depth_max": int(tree_run.tree.depth.max()),
+            report["tree"] = {"kind": args.tree, "repair_budget": args.repair_budget,
+                              "depth_max": int(tree_run.tree.depth.max()),
                               "depth_mean": round(float(tree_run.tree.depth.mean()), 2),
                               "components_reconnected": int(tree_run.tree.components)}
             runs = {"tree": tree_run}

@@ -210,11 +210,14 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
     for part, name in zip(parts, ("walk", "jog")):
         np.testing.assert_array_equal(part, load_capture_truth(dataset, name)["template_positions"][[0, 2]])
     assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "eval"),
-                 "--json", "--workers", "1"]) == 0
+                 "--json", "--workers", "1", "--repair-budget", "0"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["every"] == 2 and report["frames"] == 4 and report["tree"]["frames"] == 4
     assert report["tree"]["mean_pct"] < 2.0
+    assert report["tree"]["repair_budget"] == 0 and report["tree"]["repaired_frames"] == 0
     assert main(["eval-align", str(dataset), "--every", "0"]) == 2
+    assert main(["eval-align", str(dataset), "--repair-budget", "-1"]) == 2
+    assert "--repair-budget must be >= 0, got -1" in capsys.readouterr().err
 
 
 def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, capsys):
