@@ -23,6 +23,7 @@ TAIL_RELATIVE = 0.0    # ... plus this share of the capture's floor; 0.25 halved
                        # but missed 3 of 8 frames over 3% on studio-tiny (docs/alignment.md), so it is off
 RESIDUAL_SCALE = 0.01  # mean two-sided fit residual, as a fraction of the model size, at 1/e
 TRUSTED = 0.5          # frames at or above this confidence are trusted sources and left alone
+COLOUR_MARGIN = 0.1    # with colours, results whose colours agree within this share of the best compete
 
 
 def alignment_badness(residual, distortion_tail, model_size, reference=0.0):
@@ -79,6 +80,13 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     Returns
     -------
     aligned : AlignedFrames   with ``confidence`` and ``repaired`` filled in
+
+    Notes
+    -----
+    Of the frame's own alignment and the new ones, the one of lowest badness (fit and distortion
+    tail) wins. With vertex colours only those whose colours agree within ``COLOUR_MARGIN`` of
+    the best agreement compete: a body turned the wrong way round can fit and tear no worse than
+    the right one, but its front lands on its back (docs/evaluation.md, "Frames far apart").
     """
     from engine.align.propagation import mesh_arrays
     from engine.surface import model_size
@@ -103,6 +111,7 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         flagged = [f for f in flagged if f in chosen]
     use_colours = aligner.colors is not None
     versions = {}  # frame -> how often its pose was replaced: the runner's results name the pose they started from
+    current_colour = {}  # frame -> how well the colours of its alignment before the repair agree (NaN: no colours)
 
     def plan(frame, spent):
         """The sources the frame is aligned from now (the trusted set grows as frames are repaired)."""
@@ -117,16 +126,20 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             sources = sources[:max(0, int(limit) - spent)]
         return sources
 
-    def starts(frame, sources):
-        return [(aligned.poses[s], None if yaw is None else float(yaw[frame, s])) for s in sources]
+    def job(frame, sources):
+        starts = [(aligned.poses[s], None if yaw is None else float(yaw[frame, s])) for s in sources]
+        return mesh_arrays(meshes[frame], use_colours), starts, aligned.vertices[frame] if use_colours else None
 
     def apply(frame, sources, results):
-        best, best_source = None, None
-        best_badness = alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size, reference)
+        entries = [(alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size, reference),
+                    current_colour.get(frame, float("nan")), None, None)]
         for source, result in zip(sources, results, strict=True):
-            badness = alignment_badness(result.residual, result.distortion_tail, size, reference)
-            if badness < best_badness:
-                best, best_source, best_badness = result, source, badness
+            entries.append((alignment_badness(result.residual, result.distortion_tail, size, reference),
+                            result.colour_distance, source, result))
+        colours = np.array([entry[1] for entry in entries])
+        if np.all(np.isfinite(colours)):  # the appearance rules out a body turned the wrong way
+            entries = [entry for entry in entries if entry[1] <= (1.0 + COLOUR_MARGIN) * colours.min()]
+        best_badness, _, best_source, best = min(entries, key=lambda entry: entry[0])  # the frame's own wins a tie
         if best is not None:
             aligned.vertices[frame] = best.V
             aligned.residual[frame], aligned.residual_max[frame] = best.residual, best.residual_max
@@ -144,7 +157,8 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         for frame in flagged:
             sources = plan(frame, spent)
             spent += len(sources)
-            apply(frame, sources, repair_task(aligner, (mesh_arrays(meshes[frame], use_colours), starts(frame, sources))))
+            results, current_colour[frame] = repair_task(aligner, job(frame, sources))
+            apply(frame, sources, results)
             done += 1
             if progress is not None:
                 progress(done, len(flagged))
@@ -161,10 +175,11 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
                 missing = [s for s in sources if (frame, s, versions.get(s, 0)) not in found]
                 if missing:
                     wanted[frame] = missing
-            jobs = [(mesh_arrays(meshes[f], use_colours), starts(f, sources)) for f, sources in wanted.items()]
+            jobs = [job(f, sources) for f, sources in wanted.items()]
             outs = runner.map(repair_task, jobs, shared=shared, sizes=[len(j[1]) for j in jobs])
-            for (frame, sources), results in zip(wanted.items(), outs, strict=True):
+            for (frame, sources), (results, colour) in zip(wanted.items(), outs, strict=True):
                 found.update({(frame, s, versions.get(s, 0)): r for s, r in zip(sources, results, strict=True)})
+                current_colour[frame] = colour  # (a frame's own alignment stays as it is until its turn)
             # ... then the frames in order, as the serial pass does, while the sources it picks were aligned
             # (a frame repaired in this wave may change a later frame's sources: that one waits for the next)
             while done < len(flagged):
@@ -185,13 +200,18 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
 
 def repair_task(shared, job):
     """Runner task: one frame aligned from several sources. ``job`` is ((V, F, colors), [(pose,
-    yaw hint), ...]); returns a PairAlignment per source."""
+    yaw hint), ...], the frame's aligned vertices now or None); returns (a PairAlignment per
+    source, each with its ``colour_distance``, and the colour distance of the frame's vertices
+    now; NaN without colours)."""
     from engine.tasks import shared_value
 
     aligner = shared_value(shared)
-    (V, F, C), starts = job
+    (V, F, C), starts, current = job
     target = TargetSurface(V, F, C)
-    return [aligner.align(pose, target, yaw=hint) for pose, hint in starts]
+    results = [aligner.align(pose, target, yaw=hint) for pose, hint in starts]
+    for result in results:
+        result.colour_distance = aligner._colour_distance(result.V, target)
+    return results, (float("nan") if current is None else aligner._colour_distance(current, target))
 
 
 def _tree_order(parent, root):
