@@ -84,9 +84,11 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     Notes
     -----
     Of the frame's own alignment and the new ones, the one of lowest badness (fit and distortion
-    tail) wins. With vertex colours only those whose colours agree within ``COLOUR_MARGIN`` of
-    the best agreement compete: a body turned the wrong way round can fit and tear no worse than
-    the right one, but its front lands on its back (docs/evaluation.md, "Frames far apart").
+    tail) wins. With vertex colours, the frame is also aligned from its own alignment turned half
+    round about +Y (:func:`turned_round`; one more alignment of the budget, the last one planned),
+    and only results whose colours agree within ``COLOUR_MARGIN`` of the best agreement compete: a
+    body turned the wrong way round can fit and tear no worse than the right one, but its front
+    lands on its back (docs/evaluation.md, "Frames far apart").
     """
     from engine.align.propagation import mesh_arrays
     from engine.surface import model_size
@@ -100,21 +102,22 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     depth_order = _tree_order(aligned.parent, root)
     flagged = [f for f in depth_order if confidence[f] < TRUSTED]
     limit = np.inf if budget is None else int(np.floor(float(budget) * len(confidence)))
+    use_colours = aligner.colors is not None
     if budget is not None:
         cost = {f: (1 if aligned.parent[f] != root else 0) + (max(0, int(candidates)) if dissimilarity is not None else 0)
-                for f in flagged}
+                + (1 if use_colours else 0) for f in flagged}
         chosen, planned = set(), 0
         for f in sorted(flagged, key=lambda f: (confidence[f], f)):
             if planned + cost[f] <= limit:
                 chosen.add(f)
                 planned += cost[f]
         flagged = [f for f in flagged if f in chosen]
-    use_colours = aligner.colors is not None
     versions = {}  # frame -> how often its pose was replaced: the runner's results name the pose they started from
     current_colour = {}  # frame -> how well the colours of its alignment before the repair agree (NaN: no colours)
 
     def plan(frame, spent):
-        """The sources the frame is aligned from now (the trusted set grows as frames are repaired)."""
+        """The sources the frame is aligned from now (the trusted set grows as frames are repaired);
+        the frame itself stands for its own alignment turned round (with colours)."""
         trusted = np.flatnonzero(confidence >= TRUSTED)
         parent = aligned.parent[frame]
         sources = [] if parent == root else [root]  # the same source again gives the same result
@@ -122,12 +125,15 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             others = trusted[(trusted != root) & (trusted != parent)]
             others = others[np.argsort(np.asarray(dissimilarity)[frame, others], kind="stable")]
             sources += [int(s) for s in others[:max(0, int(candidates))]]
+        if use_colours:  # (a flagged frame is never a trusted source: the frame means this)
+            sources.append(int(frame))
         if spent + len(sources) > limit:
             sources = sources[:max(0, int(limit) - spent)]
         return sources
 
     def job(frame, sources):
-        starts = [(aligned.poses[s], None if yaw is None else float(yaw[frame, s])) for s in sources]
+        starts = [(turned_round(aligned.poses[s]), None) if s == frame else
+                  (aligned.poses[s], None if yaw is None else float(yaw[frame, s])) for s in sources]
         return mesh_arrays(meshes[frame], use_colours), starts, aligned.vertices[frame] if use_colours else None
 
     def apply(frame, sources, results):
@@ -144,7 +150,8 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             aligned.vertices[frame] = best.V
             aligned.residual[frame], aligned.residual_max[frame] = best.residual, best.residual_max
             aligned.distortion[frame], aligned.distortion_tail[frame] = best.distortion, best.distortion_tail
-            aligned.parent[frame] = best_source
+            if best_source != frame:  # (its own alignment turned round keeps its parent)
+                aligned.parent[frame] = best_source
             aligned.poses[frame] = best.X
             versions[frame] = versions.get(frame, 0) + 1
             repaired[frame] = True
@@ -198,6 +205,16 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     return aligned
 
 
+def turned_round(X):
+    """Tet vertices X turned half a turn about the vertical (+Y) axis through their centroid."""
+    X = np.asarray(X, dtype=np.float64)
+    centre = X.mean(axis=0)
+    turned = X - centre
+    turned[:, 0] *= -1.0
+    turned[:, 2] *= -1.0
+    return turned + centre
+
+
 def repair_task(shared, job):
     """Runner task: one frame aligned from several sources. ``job`` is ((V, F, colors), [(pose,
     yaw hint), ...], the frame's aligned vertices now or None); returns (a PairAlignment per
@@ -229,4 +246,5 @@ def _tree_order(parent, root):
     return order
 
 
-__all__ = ["alignment_badness", "alignment_confidence", "repair_alignment", "repair_task", "tail_reference"]
+__all__ = ["alignment_badness", "alignment_confidence", "repair_alignment", "repair_task", "tail_reference",
+           "turned_round"]

@@ -87,9 +87,11 @@ def test_the_repair_budget_repairs_the_worst_frames_first_and_no_more(walk_align
     assert before[2] < 0.5 and before[3] < 0.5
     worst = 2 if before[2] < before[3] else 3
     counting = _Counting(walk_aligner)
-    # 5 frames x 0.2 = one pairwise alignment: only the root is tried, for the worst frame
-    repair_alignment(counting, meshes, aligned, budget=0.2)
-    assert counting.calls == 1
+    # 5 frames x 0.4 = two pairwise alignments: for the worst frame only, from the root and (the
+    # frames have colours) from its own alignment turned round
+    assert walk_aligner.colors is not None
+    repair_alignment(counting, meshes, aligned, budget=0.4)
+    assert counting.calls == 2
     assert aligned.repaired[worst] and not aligned.repaired[5 - worst] and not aligned.repaired[[0, 1, 4]].any()
     assert aligned.confidence[5 - worst] < 0.5  # left flagged, not silently passed
 
@@ -112,3 +114,15 @@ def test_the_tail_floor_is_the_median_tail_of_the_roots_children():
     # a garment that deforms this much in every frame is not flagged for it; a tear beyond it is
     c = alignment_confidence([0.0, 0.0, 0.0], [10.0, 10.0, 18.0], 1.7, reference=10.0)
     assert c[0] == c[1] == 1.0 and c[2] == pytest.approx(np.exp(-2.0))
+
+
+def test_turned_round_is_half_a_turn_about_the_vertical_through_the_centroid():
+    from engine.align.repair import turned_round
+
+    X = np.random.default_rng(0).normal(size=(50, 3)) + [1.0, 2.0, 3.0]
+    T = turned_round(X)
+    np.testing.assert_allclose(T.mean(axis=0), X.mean(axis=0), atol=1e-12)
+    np.testing.assert_array_equal(T[:, 1], X[:, 1])  # heights kept
+    centre = X.mean(axis=0)
+    np.testing.assert_allclose((T - centre)[:, [0, 2]], -(X - centre)[:, [0, 2]], atol=1e-12)
+    np.testing.assert_allclose(turned_round(T), X, atol=1e-12)
