@@ -347,3 +347,16 @@ def test_an_unwelded_root_frame_is_welded_before_its_tetrahedra(dataset, tmp_pat
     assert "root walk:1" in capsys.readouterr().out
     for name in ("walk", "jog"):
         assert read_sequence(out / "sequences" / name / "consistent").vertices.shape[1] == len(template.vertices)
+
+
+def test_metadata_units_that_are_not_units_are_named_and_not_used(dataset):
+    from server.units import declared_convention, meshes_to_metres
+
+    declared = declared_convention([{"units": "furlongs", "up": "+X"}, {"units": "m"}])
+    assert (declared.units, declared.up) == ("m", None)  # the next record's claim
+    assert declared.ignored == ("the metadata's units 'furlongs' are none of m, cm, mm: ignored",
+                                "the metadata's up axis '+X' is neither +Y nor +Z: ignored")
+    meshes = read_frames(dataset / "sequences" / "walk" / "unstructured")
+    _, convention = meshes_to_metres(meshes, declared=declared)
+    assert (convention.units, convention.up) == ("m", "y")
+    assert set(declared.ignored) <= set(convention.warnings)
