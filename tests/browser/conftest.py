@@ -158,7 +158,8 @@ class Page:
         """(h, w, 3) uint8 RGB of the 3D view (a screenshot of the canvas; saved under artifacts/)."""
         from PIL import Image
 
-        for _ in range(3):  # a WebGL canvas caught between drawing-buffer swaps screenshots blank
+        for _ in range(8):  # a WebGL canvas caught between drawing-buffer swaps screenshots blank (three
+            # blank shots in a row were seen once, in a full suite run)
             png = self.page.locator("#view").screenshot(timeout=10000)
             if np.ptp(np.asarray(Image.open(io.BytesIO(png)).convert("L"))) > 0:
                 break
