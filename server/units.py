@@ -72,28 +72,29 @@ def declared_convention(records):
     return Declared(units, up, tuple(ignored))
 
 
-def with_ignored(convention, declared):
-    """``convention`` with the metadata values ``declared`` ignored added to its warnings."""
-    ignored = tuple(getattr(declared, "ignored", ()))
-    return replace(convention, warnings=convention.warnings + ignored) if ignored else convention
+def decide_convention(frames, units="auto", up="auto", declared=Declared(None, None)):
+    """``engine.mesh_io.resolve_convention`` of ``frames`` with what the metadata says
+    (``declared``, :func:`declared_convention`); the metadata values it ignored are added to the
+    warnings."""
+    convention = resolve_convention(frames, units, up, declared_units=declared.units, declared_up=declared.up)
+    return replace(convention, warnings=convention.warnings + declared.ignored) if declared.ignored else convention
 
 
-def meshes_to_metres(meshes, units="auto", up="auto", *, declared=(None, None)):
+def meshes_to_metres(meshes, units="auto", up="auto", *, declared=Declared(None, None)):
     """Decide the inputs' units and up axis and convert the meshes to metres, +Y up.
 
     Parameters
     ----------
     meshes : list of engine.mesh_io.Mesh   all frames of a run (one convention for all)
     units, up : str                        as on the command line ("auto" detects)
-    declared : (units, up)                 what the metadata says (:func:`declared_convention`)
+    declared : Declared                    what the metadata says (:func:`declared_convention`)
 
     Returns
     -------
     meshes : list of Mesh                  the same list when nothing changes, else new meshes
     convention : engine.mesh_io.Convention
     """
-    convention = with_ignored(resolve_convention((m.vertices for m in meshes), units, up, declared_units=declared[0],
-                                                 declared_up=declared[1]), declared)
+    convention = decide_convention((m.vertices for m in meshes), units, up, declared)
     if convention.units == "m" and convention.up == "y":
         return meshes, convention
     converted = [Mesh(vertices=to_metres_y_up(m.vertices, convention.units, convention.up), faces=m.faces,

@@ -299,13 +299,17 @@ def confidence_summary(aligned, sequences, lengths):
     ``root_frame`` ("SEQUENCE:FRAME"), ``repaired_frames`` and ``flagged_frames`` (below
     ``TRUSTED``) counted over all sequences, ``confidence_min``, and ``flagged``: per sequence
     the frames (its own numbering) still below ``TRUSTED``."""
-    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    flagged = {s["name"]: [int(i) for i in np.flatnonzero(aligned.confidence[a:a + n] < TRUSTED)]
-               for s, a, n in zip(sequences, starts, lengths)}
     return {"root_frame": frame_label(aligned.root, sequences, lengths),
             "repaired_frames": int(np.sum(aligned.repaired)),
             "flagged_frames": int(np.sum(aligned.confidence < TRUSTED)),
-            "confidence_min": float(np.min(aligned.confidence)), "flagged": flagged}
+            "confidence_min": float(np.min(aligned.confidence)), "flagged": flagged_by_sequence(aligned, sequences, lengths)}
+
+
+def flagged_by_sequence(aligned, sequences, lengths):
+    """{sequence name: its frames (its own numbering) whose confidence is below ``TRUSTED``}."""
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    return {s["name"]: [int(i) for i in np.flatnonzero(aligned.confidence[a:a + n] < TRUSTED)]
+            for s, a, n in zip(sequences, starts, lengths)}
 
 
 def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_record, progress=None,
@@ -327,9 +331,8 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
     root = aligned.root
     root_mesh = meshes[root]
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    sequence_of = np.repeat(np.arange(len(sequences)), lengths)
-    root_sequence = sequences[int(sequence_of[root])]["name"]
-    root_frame = int(root - starts[sequence_of[root]])
+    root_label = frame_label(root, sequences, lengths)
+    flagged = flagged_by_sequence(aligned, sequences, lengths)
     colors = None if root_mesh.colors is None else np.asarray(root_mesh.colors)[aligned.root_kept]
     write_obj(out / "template" / "body.obj", aligned.root_vertices, aligned.faces, colors=colors)
     size = model_size(aligned.root_vertices)
@@ -345,7 +348,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         meta = aligned_meta(s["meta"], s["name"], int(lengths[k]), fps, len(aligned.root_vertices),
                             len(aligned.faces))
         meta["alignment"] = {
-            "method": result.method, "root": f"{root_sequence}:{root_frame}",
+            "method": result.method, "root": root_label,
             "source": str(s["frames"]),
             "source_files": [_file_name(meshes[i].source) for i in range(starts[k], starts[k] + lengths[k])],
             "source_units": conventions[k].units,
@@ -357,7 +360,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
             "retried_frames": int(aligned.retried[span].sum()),
             "repaired_frames": int(aligned.repaired[span].sum()),
             "confidence_min": float(aligned.confidence[span].min()),
-            "flagged_frames": [int(i) for i in np.flatnonzero(aligned.confidence[span] < TRUSTED)],
+            "flagged_frames": flagged[s["name"]],
         }
         (base / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
         metas.append(meta)
@@ -387,7 +390,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
     Image.fromarray(pattern_sheet(aligned.vertices, aligned.faces, root, lengths, names)).save(
         out / "aligned_pattern.png")
     write_capture_manifest(out, {
-        "aligned": True, "alignment": {"method": result.method, "root": f"{root_sequence}:{root_frame}",
+        "aligned": True, "alignment": {"method": result.method, "root": root_label,
                                        "options": options_record,
                                        "input": {s["name"]: c.to_metadata() for s, c in zip(sequences, conventions)},
                                        "display_unit": display_unit(common)},
@@ -476,5 +479,5 @@ def run(args):
     return 0
 
 
-__all__ = ["add_arguments", "confidence_summary", "convert_inputs", "frame_label", "parse_root", "read_inputs", "resolve_inputs", "run",
-           "write_alignment"]
+__all__ = ["add_arguments", "confidence_summary", "convert_inputs", "flagged_by_sequence", "frame_label", "parse_root",
+           "read_inputs", "resolve_inputs", "run", "write_alignment"]

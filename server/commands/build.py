@@ -27,11 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.mesh_io import read_mesh, read_sequence, resolve_convention, to_metres_y_up
+from engine.mesh_io import read_mesh, read_sequence, to_metres_y_up
 from engine.motion_space import SourceClip, build_motion_space
 from engine.parameters import MEASURES, Layout
 from server.progress import StageBars
-from server.units import add_units_arguments, declared_convention, say_conventions, source_metadata, with_ignored
+from server.units import add_units_arguments, decide_convention, declared_convention, say_conventions, source_metadata
 
 LAYOUT_KEYS = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}
 
@@ -191,14 +191,13 @@ def sources_to_metres(clips, rest, directories, units="auto", up="auto"):
     for clip, directory in zip(clips, map(Path, directories)):
         body = _json_record(directory.parent.parent / "manifest.json", "body")
         declared = declared_convention([_json_record(directory / "meta.json"), body])
-        convention = with_ignored(resolve_convention(clip.vertices, units, up, declared_units=declared[0],
-                                                     declared_up=declared[1]), declared)
+        convention = decide_convention(clip.vertices, units, up, declared)
         if (convention.units, convention.up) != ("m", "y"):
             clip = replace(clip, vertices=to_metres_y_up(clip.vertices, convention.units, convention.up))
         converted.append(clip)
         conventions.append(convention)
     declared = declared_convention([_json_record(Path(directories[0]).parent.parent / "manifest.json", "body")])
-    convention = resolve_convention([rest], units, up, declared_units=declared[0], declared_up=declared[1])
+    convention = decide_convention([rest], units, up, declared)
     conventions.append(convention)
     return converted, to_metres_y_up(rest, convention.units, convention.up), conventions
 

@@ -27,11 +27,11 @@ def run_ingest(payload, reporter):
     --up auto`` decides them (the geometry, then what the metadata says) and recorded."""
     import numpy as np
 
-    from engine.mesh_io import MeshError, list_frames, read_mesh, resolve_convention, write_obj
+    from engine.mesh_io import MeshError, list_frames, read_mesh, write_obj
     from engine.mesh_io.dataset import write_capture_manifest
     from engine.surface import model_size
     from server.uploads import KINDS, FrameStats, sequence_meta
-    from server.units import declared_convention, with_ignored
+    from server.units import decide_convention, declared_convention
 
     params, staging = payload["params"], Path(payload["staging"])
     source = Path(payload["data_dir"]) / "datasets" / params["dataset"]
@@ -78,8 +78,7 @@ def run_ingest(payload, reporter):
         meta.setdefault("fps", 30.0)
         meta.setdefault("cyclic", False)
         declared = declared_convention([meta, uploaded_body])
-        convention = with_ignored(resolve_convention(samples, declared_units=declared[0], declared_up=declared[1]),
-                                  declared)
+        convention = decide_convention(samples, declared=declared)
         meta.update(units=convention.units, up=convention.up_label, input=convention.to_metadata())
         warnings += [f"sequence {seq}: {warning}" for warning in convention.warnings]
         reporter.log(f"sequence {seq} ({kind}, {stats.frames} frames): {convention.describe()}")
@@ -108,7 +107,7 @@ def run_ingest(payload, reporter):
         template = read_mesh(template_path)
     if template is not None:
         declared = declared_convention([uploaded_body])
-        convention = resolve_convention([template.vertices], declared_units=declared[0], declared_up=declared[1])
+        convention = decide_convention([template.vertices], declared=declared)
         body = {"vertices": int(len(template.vertices)), "faces": int(len(template.faces)),
                 "model_size": float(model_size(template.vertices)) / convention.per_metre,
                 "units": convention.units, "up": convention.up_label, "input": convention.to_metadata()}
