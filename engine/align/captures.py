@@ -48,28 +48,29 @@ class CaptureAlignment:
 
 
 COLOUR_WEIGHT = 1.0   # AlignmentOptions.colour_weight when colour cues are on and the options leave it 0
-FINE_EDGE = 0.014     # "auto" colour cues: root median edge length below this fraction of the model size
+FINE_EDGE = 0.016     # "auto" colour cues: root median edge length below this fraction of sqrt(surface area)
 
 
 def colours_carry_texture(vertices, faces):
     """Whether a mesh is sampled finely enough for its vertex colours to carry surface texture.
 
-    True when the median edge is shorter than ``FINE_EDGE`` (1.4%) of the model size: the studio
-    preset's 10,000-vertex frames have 1.28%, the demo preset's 3,000-vertex ones 1.50%, the tiny
-    preset's 1,000-vertex ones 2.4%. Coarser meshes sample a texture at a few vertices per stripe
-    or check, and colour cues then pull matches the wrong way (tiny preset: mean error 0.79% ->
-    1.22% of the model size with them); on the studio dance they cut it from 0.83% to 0.50%
-    (docs/evaluation.md).
+    True when the median edge is shorter than ``FINE_EDGE`` (1.6%) of the square root of the
+    surface area, which a pose does not change: the studio preset's 10,000-vertex frames have
+    1.14-1.17% in every pose, the demo preset's 3,000-vertex ones 1.9-2.2%, the tiny preset's
+    1,000-vertex ones 3.2%. (Against the model size, as before, a crouch or a flared skirt moved
+    the same studio body between 1.18% and 1.63%, so a crouching root lost its colour cues.)
+    Coarser meshes sample a texture at a few vertices per stripe or check, and colour cues then
+    pull matches the wrong way (tiny preset: mean error 0.79% -> 1.22% of the model size with
+    them); on the studio dance they cut it from 0.83% to 0.50% (docs/evaluation.md).
     """
-    from engine.surface import model_size
-
     V = np.asarray(vertices, dtype=np.float64)
     F = np.asarray(faces, dtype=np.int64)
     if len(F) == 0:
         return False
     edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     median = float(np.median(np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)))
-    return median < FINE_EDGE * model_size(V)
+    area = 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
+    return median < FINE_EDGE * np.sqrt(area)
 
 
 ROOT_CHOICES = ("apart", "central")
