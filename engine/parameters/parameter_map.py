@@ -12,6 +12,8 @@ import numpy as np
 from engine.jit import compiled
 from engine.parameters.layout import MEASURES, Layout
 
+FAR = 100.0  # requests further than this many ranges outside the domain are solved from that bound
+
 
 @dataclass
 class Solution:
@@ -52,6 +54,10 @@ class ParameterMap:
         # values would be another type to numba, compiled again at the first stream)
         self._values_array = np.array(self.values, dtype=np.float64, order="C")
         self._ranges_list = self.ranges.tolist()
+        # requests are solved from within FAR ranges of the domain: further out, squared distances
+        # lose the differences that tell the nearest reachable point (1e16 m/s became the slowest)
+        self._solve_bounds = [(lo - FAR * r, hi + FAR * r) for lo, hi, r in
+                              zip(flat.min(axis=0).tolist(), flat.max(axis=0).tolist(), self._ranges_list)]
         self._last = len(self.axes[0]) - 1
         self._dense_u, self._dense_p = self._dense()
 
@@ -214,8 +220,12 @@ class ParameterMap:
         for x in p_list:
             if not math.isfinite(x):
                 raise ValueError(f"parameters must be finite, got {p_list}")
+        for i, (x, (lo, hi)) in enumerate(zip(p_list, self._solve_bounds)):
+            if not lo <= x <= hi:  # far outside: solved from the bound along this parameter
+                p_list = list(p_list)
+                p_list[i] = min(max(x, lo), hi)
         if start is None:
-            nearest = _nearest_scaled(self._dense_p, p, self.ranges)  # argmin |(dense - p) / ranges|, compiled
+            nearest = _nearest_scaled(self._dense_p, np.array(p_list), self.ranges)  # argmin |(dense - p) / ranges|, compiled
             u_list = self._dense_u[nearest].astype(float).tolist()
         else:
             u_list = np.asarray(start, dtype=float).reshape(self.layout.dims).tolist()
@@ -224,7 +234,7 @@ class ParameterMap:
         u = np.array(u_list)
         realised = np.array(realised_list)
         clamped = False
-        for r, q, s in zip(realised_list, p_list, self._ranges_list):
+        for r, q, s in zip(realised_list, p.tolist(), self._ranges_list):
             if abs(r - q) > tolerance * s:
                 clamped = True
                 break

@@ -65,6 +65,16 @@ class FrameOutput:
         self.player.advance(dt)
         return True
 
+    def unsent_ticks(self, now):
+        """Ticks of the rate grid that fell due a whole period or more before loop time ``now`` and
+        were neither sent nor counted yet (a connection waiting for acks counts them at its next
+        frame): what closing now adds to ``dropped``."""
+        if self.player is None or self.paused or self.rate <= 0:
+            return 0
+        late = now - self.next_due
+        period = 1.0 / self.rate
+        return int(late / period) if late >= period else 0
+
     def _stalled(self, now):
         """A due frame cannot be written at loop time ``now``: start (or check) the stall clock;
         True when it ran out and the connection is being closed."""

@@ -170,7 +170,7 @@ class StreamSession(FrameOutput):
         finally:
             self.scheduler.remove(self)
             self.stats.connections -= 1
-            self.stats.dropped += self.dropped
+            self.stats.dropped += self.dropped + self.unsent_ticks(asyncio.get_running_loop().time())
 
     async def _receive_loop(self):
         try:

@@ -58,6 +58,21 @@ def test_unreachable_requests_are_clamped_and_flagged():
     assert solution.realised[0] == pytest.approx(pmap.domain()[0][1], abs=0.01)  # as high as it goes
     with pytest.raises(ValueError, match="finite"):
         pmap.solve([np.nan, 0.5])
+
+
+@pytest.mark.parametrize("far", [1e3, 1e12, 1e16, 1e300])
+def test_requests_however_far_out_clamp_to_the_nearest_end(far):
+    # squared distances from 1e16 away lose the differences between the reachable points: such a
+    # request once clamped to the lowest corner of the map instead of the highest
+    pmap, _ = _analytic_map()
+    (h_lo, h_hi), (d_lo, d_hi) = pmap.domain()
+    middle = (d_lo + d_hi) / 2
+    up = pmap.solve([far, middle])
+    assert up.clamped and up.realised[0] == pytest.approx(h_hi, abs=0.01)
+    down = pmap.solve([-far, middle])
+    assert down.clamped and down.realised[0] == pytest.approx(h_lo, abs=0.01)
+    assert pmap.solve([far, middle]).realised.tolist() == pmap.solve([10.0, middle]).realised.tolist()
+    np.testing.assert_array_equal(up.requested, [far, middle])  # what was asked is kept
     with pytest.raises(ValueError, match="expected 2 parameters"):
         pmap.solve([0.4])
 

@@ -139,3 +139,25 @@ def test_a_client_stalled_past_the_timeout_is_closed_with_1008(built_spaces, tmp
     frames, closed = results[3]
     assert closed is None and len(frames) >= 15 and frames[-1][1] < 0.5
     assert health["scheduler"]["transport_bytes_max"] <= HELD_LIMIT
+
+
+def test_ticks_skipped_waiting_for_acks_count_when_the_client_leaves_meanwhile(server):
+    # a client with a window that stops acknowledging and then closes: the ticks it missed
+    # are in the server's frames_dropped, as they would have been in its next frame's dropped
+    before = httpx.get(server.url + "/v1/health").json()["frames_dropped"]
+    client = RawClient(server.port, window=2, receive_buffer=1 << 20)
+    try:
+        received = []
+        while len(received) < 2:  # the topology, then the window's two frames, never acknowledged
+            message = client.receive()
+            if isinstance(message, dict) and message["type"] == "frame":
+                received.append(message)
+        time.sleep(2.0)
+    finally:
+        client.close()
+    deadline = time.monotonic() + 5.0
+    dropped = before
+    while time.monotonic() < deadline and dropped - before < 60:
+        time.sleep(0.1)
+        dropped = httpx.get(server.url + "/v1/health").json()["frames_dropped"]
+    assert dropped - before >= 0.6 * 60 * 2.0, (before, dropped)
