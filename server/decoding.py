@@ -88,8 +88,10 @@ def decode_client(data, max_bytes=None, limits=None):
     range bound naming a limit is read from ``limits``, a {name: number} map), a ``one_of``
     group without exactly one member.
     """
-    if max_bytes is not None and len(data) > max_bytes:
-        raise ProtocolError("too_large", f"message of {len(data)} bytes exceeds the limit of {max_bytes}")
+    if max_bytes is not None and 4 * len(data) > max_bytes:  # (a character is 1 to 4 bytes of UTF-8)
+        size = len(data) if isinstance(data, (bytes, bytearray, memoryview)) else len(data.encode("utf-8", "surrogatepass"))
+        if size > max_bytes:
+            raise ProtocolError("too_large", f"message of {size} bytes exceeds the limit of {max_bytes}")
     try:
         if isinstance(data, str):
             raw = json.loads(data)
@@ -101,7 +103,7 @@ def decode_client(data, max_bytes=None, limits=None):
         raise ProtocolError("malformed", "a message must be a map with a string 'type' field")
     kind = raw["type"]
     number = raw.get("id" if kind == "pull" else "seq")  # a pull's errors carry its id
-    seq = number if isinstance(number, int) and not isinstance(number, bool) else None
+    seq = number if isinstance(number, int) and not isinstance(number, bool) and abs(number) <= INT_LIMIT else None  # (echoed only in range)
     cls = CLIENT_MESSAGES.get(kind)
     if cls is None:
         raise ProtocolError("unknown_type", f"unknown message type {kind[:64]!r}; expected one of "

@@ -32,7 +32,7 @@ KINDS = {
     "int": "integer (-2^53 to 2^53)",
     "float": "number (finite)",
     "bool": "boolean",
-    "params": "map of parameter name -> number",
+    "params": "map of parameter name -> number (at most 64)",
     "numbers": "map of name -> number",
     "floats": "array of numbers",
     "strs": "array of strings",
@@ -159,7 +159,9 @@ class Resume:
 class Seek:
     """Jump to a phase of the cycle (or clip); the root stays where it is."""
     type = "seek"
-    phase: float = wire("float", "phase of the cycle or clip; the next frame shows exactly this phase", low=0.0, high=1.0)
+    phase: float = wire("float", "phase of the cycle or clip; the next frame shows exactly this phase (on a looping "
+                             "space 1 is the cycle's start and shows as 0; on a one-shot 1 is its last pose, "
+                             "`finished` from the frame after)", low=0.0, high=1.0)
     seq: int = wire("int", "client sequence number", default=0)
 
 
@@ -183,7 +185,8 @@ class Pull:
     """Ask for the frame at these parameters and this time (engines with their own clock).
 
     Answered by one Frame with ``pull_id`` set; the stream's own state is not changed. The root
-    transform is the path from the origin over ``time`` seconds at constant parameters.
+    transform is the path from the origin over ``time`` seconds at constant parameters (with
+    ``phase``, over the time that phase is into the cycle or clip: the frame's ``time``).
     """
     type = "pull"
     id: int = wire("int", "request id, echoed as the frame's pull_id")

@@ -44,7 +44,10 @@ def run(args):
     import uvicorn
 
     from server.app import create_app
+    from server.workers.supervisor import check_free, resolve
 
+    family, address = resolve(settings.host, settings.port)
+    check_free(family, address, settings.host)  # before the start-up work, as with --workers
     app = create_app(settings)
     print(f"morphspace: serving {settings.spaces_dir} on http://{settings.host}:{settings.port}/ "
           f"(browser client at /, API docs at /docs)", flush=True)

@@ -1,6 +1,7 @@
 """Wire messages: decoding is strict and never fails with anything but a ProtocolError; the
 codecs' error bound is what the topology reports; docs/protocol.md shows the code's messages."""
 
+import json
 import re
 from pathlib import Path
 
@@ -51,6 +52,28 @@ def test_the_size_limit_comes_first():
     with pytest.raises(P.ProtocolError, match="exceeds the limit") as info:
         decode_client(b"\x80" * 2000, max_bytes=1000)
     assert info.value.code == "too_large"
+
+
+def test_a_text_message_is_measured_in_utf8_bytes():
+    text = json.dumps({"type": "pause", "seq": 1, "pad": "\u20ac" * 400}, ensure_ascii=False)  # 3 bytes a euro
+    assert len(text) < 1000 < len(text.encode("utf-8"))
+    with pytest.raises(P.ProtocolError, match="message of 12.. bytes exceeds the limit of 1000") as info:
+        decode_client(text, max_bytes=1000)
+    assert info.value.code == "too_large"
+    with pytest.raises(P.ProtocolError) as info:  # within the limit: on to the field checks
+        decode_client(text, max_bytes=2000)
+    assert info.value.code == "invalid_field"
+
+
+@pytest.mark.parametrize("number", [2 ** 53 + 1, -(2 ** 53) - 1, 2 ** 64 - 1])
+def test_an_error_echoes_only_a_seq_in_range(number):
+    for raw in ({"type": "resume", "seq": number}, {"type": "pull", "id": number, "phase": 0.5}):
+        with pytest.raises(P.ProtocolError) as info:
+            decode_client(json.dumps(raw))
+        assert info.value.code == "invalid_field" and info.value.seq is None, raw
+    with pytest.raises(P.ProtocolError) as info:
+        decode_client(json.dumps({"type": "resume", "seq": 2 ** 53, "x": 1}))
+    assert info.value.seq == 2 ** 53
 
 
 @settings(max_examples=300, deadline=None)

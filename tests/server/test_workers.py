@@ -277,3 +277,10 @@ def test_a_second_server_on_the_same_port_is_refused(two_workers, tmp_path):
     assert process.returncode == 2, process.stderr[-2000:]
     assert f"127.0.0.1:{port} is already in use" in process.stderr
     assert health(two_workers)["status"] == "ok"  # the first server serves on
+    # a single-process server is refused the same way, before its start-up
+    process = subprocess.run(
+        [sys.executable, "-m", "server.cli", "serve", "--data-dir", str(tmp_path), "--port", port,
+         "--log-level", "critical"], capture_output=True, text=True, timeout=60, cwd=tmp_path)
+    assert process.returncode == 2, process.stderr[-2000:]
+    assert f"127.0.0.1:{port} is already in use" in process.stderr and "serving" not in process.stdout
+    assert health(two_workers)["status"] == "ok"
