@@ -325,6 +325,50 @@ def test_godot_client_reconnects_with_its_parameters(built_spaces, tmp_path):
     assert second[0]["seq"] < first[-1]["seq"]  # a new connection: frame numbers restarted
 
 
+def test_godot_client_leaves_a_server_that_went_silent(built_spaces, tmp_path):
+    """A server that stops sending without closing the connection (here: the process stopped
+    with SIGSTOP; a machine gone from the network looks the same) is left after the add-on's
+    silence_timeout, 5 s without a message while frames are due; the add-on then reconnects
+    to it once it is back, and streams on."""
+    import signal
+
+    data = data_dir_with_spaces(tmp_path / "server data", built_spaces, names=("speed",))
+    project = tmp_path / "project"
+    shutil.copytree(PROJECT, project)
+    shutil.copytree(ADDON, project / "addons")
+    out = tmp_path / "out"
+    out.mkdir()
+    with LiveServer(data) as live:
+        args = [str(GODOT), "--path", str(project), "res://reconnect.tscn", "--", f"--out={out}",
+                f"--url={live.ws_url}", "--space=speed", "--param=speed", f"--value={VALUES[1]}", "--frames=10",
+                "--timeout=90"]
+        godot = subprocess.Popen(args, cwd=tmp_path, env=_godot_env(tmp_path / "home"), stdout=subprocess.PIPE,
+                                 stderr=subprocess.STDOUT, text=True)
+        try:
+            deadline = time.monotonic() + 60
+            while not (out / "first.txt").exists():
+                assert godot.poll() is None and time.monotonic() < deadline, "no frames on the first connection"
+                time.sleep(0.1)
+            os.killpg(live.process.pid, signal.SIGSTOP)
+            try:
+                time.sleep(7.0)
+            finally:
+                os.killpg(live.process.pid, signal.SIGCONT)
+            output, _ = godot.communicate(timeout=90)
+        finally:
+            if godot.poll() is None:
+                godot.kill()
+                godot.wait()
+    error = out / "error.txt"
+    assert godot.returncode == 0 and not error.exists(), (error.read_text() if error.exists() else "") + output[-3000:]
+    summary = msgpack.unpackb((out / "summary.msgpack").read_bytes(), raw=False)
+    after = [d for d in summary["disconnects"] if d["after_topologies"] == 1]
+    assert summary["topologies"] == 2 and after, summary["disconnects"]
+    assert after[0]["reason"].startswith("no message from the server for 5."), after[0]
+    first, second = summary["frames"]
+    assert all(f["requested"] == pytest.approx([VALUES[1]]) for f in first + second)
+
+
 def test_gdscript_msgpack_and_codecs_against_python(tmp_path):
     """msgpack.gd decodes every family the protocol uses (and says what is wrong with broken
     bytes), its encoder gives them back; codecs.gd's q16 decoding (native and the plain loop)

@@ -53,6 +53,8 @@ var auto_reconnect = true
 var reconnect_min = 0.5       # seconds
 var reconnect_max = 10.0
 var connect_timeout = 10.0    # seconds for the WebSocket to open
+var silence_timeout = 5.0     # seconds without a message while frames are due: the connection is
+                              # taken as lost (a server that stopped without closing it); 0: off
 var input_buffer_kb = 8192    # WebSocket receive buffer (a 10k-vertex f32 frame is 120 KB)
 
 var state = State.IDLE
@@ -71,6 +73,8 @@ var _pending_pulls = {}
 var _wait = 0.0
 var _delay = 0.0
 var _close_reason = ""
+var _silence = 0.0            # seconds since the last message arrived
+var _paused = false           # the stream is paused (pause() until resume() or the next hello)
 
 
 func start():
@@ -109,7 +113,13 @@ func poll(delta):
 			_lost("no connection within %s s" % connect_timeout)
 		return
 	if state == State.OPEN and _socket == socket:
-		_read_packets(socket)
+		if _read_packets(socket) > 0:
+			_silence = 0.0
+		else:
+			_silence += delta  # (after reading: a long hitch in the game finds its frames waiting)
+		var due = topology != null and not _paused and rate > 0.0
+		if due and silence_timeout > 0.0 and _silence > max(silence_timeout, 3.0 / rate) and _socket == socket:
+			_lost("no message from the server for %.1f s" % _silence)
 
 
 # ------------------------------------------------------------------ requests
@@ -121,6 +131,8 @@ func hello(new_space = null):
 		space = new_space
 		graph = ""
 	topology = null
+	_paused = false  # (a hello starts the stream afresh, unpaused)
+	_silence = 0.0
 	graph_state.clear_frame()
 	var message = {"type": "hello", "codec": codec, "rate": float(rate), "mode": mode,
 			"smoothing": float(smoothing), "window": int(window), "heatmap": heatmap}
@@ -164,14 +176,18 @@ func set_mode(new_mode):
 
 func set_rate(new_rate):
 	rate = new_rate
+	_silence = 0.0
 	return _control({"type": "rate", "rate": float(new_rate)})
 
 
 func pause():
+	_paused = true
 	return _control({"type": "pause"})
 
 
 func resume():
+	_paused = false
+	_silence = 0.0
 	return _control({"type": "resume"})
 
 
@@ -276,6 +292,7 @@ func _drop_socket():
 
 func _on_open(_protocol):
 	_socket.get_peer(1).set_write_mode(WebSocketPeer.WRITE_MODE_BINARY)
+	_silence = 0.0
 	state = State.OPEN
 	emit_signal("connected")
 	hello()
@@ -309,10 +326,13 @@ func _lost(reason):
 # ------------------------------------------------------------------ receiving
 
 func _read_packets(socket):
+	# Reads what arrived; returns how many messages that was.
 	var newest = null
+	var count = 0
 	var peer = socket.get_peer(1)
 	while _socket == socket and peer.get_available_packet_count() > 0:
 		var packet = peer.get_packet()
+		count += 1
 		if peer.was_string_packet():
 			continue  # the server only sends binary messages
 		var started = OS.get_ticks_usec()
@@ -345,6 +365,7 @@ func _read_packets(socket):
 		_emit_frame(newest, "frame_received")
 		if window > 0 and state == State.OPEN:
 			_send({"type": "ack", "frame": newest["seq"]})
+	return count
 
 
 func _on_topology(message):
