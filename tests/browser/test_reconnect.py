@@ -30,3 +30,30 @@ def test_the_page_resumes_frames_after_the_server_restarts(restartable_server, o
     # only the expected noise: failed WebSocket/fetch attempts while the server was down
     unexpected = page.errors(ignore=("WebSocket connection", "ERR_CONNECTION_REFUSED", "Failed to load resource"))
     assert unexpected == []
+
+
+def test_the_page_leaves_a_server_that_went_silent(restartable_server, open_page):
+    """A server that stops sending without closing the socket (stopped with SIGSTOP: a machine gone
+    from the network looks the same) is left after connection.js's SILENCE_MS, 5 s without a
+    message while frames are due, and reconnected to once it answers again."""
+    import os
+    import signal
+    import time
+
+    server = restartable_server
+    page = open_page(server.url + "/app/?space=speed")
+    page.wait_frames(5)
+    os.killpg(server.process.pid, signal.SIGSTOP)
+    try:
+        stopped = time.monotonic()
+        page.wait_status(lambda s: s["connection"] == "reconnecting", timeout=15, what="the page to notice the silence")
+        noticed = time.monotonic() - stopped
+    finally:
+        os.killpg(server.process.pid, signal.SIGCONT)
+    assert 4.5 <= noticed <= 9.0, noticed
+    frames_before = page.status()["stats"]["framesTotal"]
+    status = page.wait_status(lambda s: s["connection"] == "open" and s["stats"]["framesTotal"] > frames_before + 5,
+                              timeout=20, what="frames from the server once it runs again")
+    assert status["reconnects"] >= 1 and status["space"] == "speed"
+    unexpected = page.errors(ignore=("WebSocket connection", "ERR_CONNECTION_REFUSED", "Failed to load resource"))
+    assert unexpected == []

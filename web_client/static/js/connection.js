@@ -4,6 +4,10 @@ import { clientMessage, serverMessage } from "./messages.js";
 import { CLIENT_MESSAGES } from "../protocol.js";
 
 const BACKOFF_MS = [250, 500, 1000, 2000];
+// A connection that brings no message for this long while frames are due (not paused, rate > 0;
+// at least three frame periods) is taken as lost: a server stopped without closing the socket,
+// or a network gone, may never close it in the browser.
+export const SILENCE_MS = 5000;
 
 /** A typed array over msgpack bin bytes, copied only when the offset is misaligned. */
 export function typedView(bytes, Ctor) {
@@ -32,6 +36,10 @@ export class StreamConnection {
     this.helloSeq = 0;
     this.ready = false;           // a topology arrived for the current hello
     this.window = 0;              // frames in flight the current hello allows (0: no acks)
+    this.paused = false;          // a pause was sent (until resume or the next hello)
+    this.rate = 60;               // frames per second the current hello or rate message asked for
+    this.lastMessage = 0;         // performance.now() when the last message arrived
+    this.watchdog = null;
   }
 
   start() {
@@ -58,12 +66,16 @@ export class StreamConnection {
     ws.onopen = () => {
       if (this.attempt > 0 || this.reconnects > 0) this.reconnects += 1;
       this.attempt = 0;
+      this.lastMessage = performance.now();
+      clearInterval(this.watchdog);
+      this.watchdog = setInterval(() => this._checkSilence(ws), 500);
       this._setState("open");
       this.sayHello();
     };
     ws.onmessage = (event) => this._receive(event.data);
     ws.onclose = () => {
       if (this.ws !== ws) return;
+      clearInterval(this.watchdog);
       this.ws = null;
       this.ready = false;
       this._schedule();
@@ -78,7 +90,21 @@ export class StreamConnection {
     this.timer = setTimeout(() => this._open(), delay);
   }
 
+  _checkSilence(ws) {
+    if (this.ws !== ws || !this.open || !this.ready || this.paused || !(this.rate > 0)) return;
+    const silent = performance.now() - this.lastMessage;
+    if (silent <= Math.max(SILENCE_MS, 3000 / this.rate)) return;
+    clearInterval(this.watchdog);
+    this.ws = null;
+    this.ready = false;
+    ws.onclose = null;
+    ws.close();
+    this.handlers.error?.({ code: "client", message: `no message from the server for ${(silent / 1000).toFixed(1)} s; reconnecting` });
+    this._schedule();
+  }
+
   _receive(data) {
+    this.lastMessage = performance.now();
     if (typeof data === "string") return;
     let message;
     try {
@@ -117,6 +143,11 @@ export class StreamConnection {
       seq = ++this.seq;
       body.seq = seq;
     }
+    if (type === "pause") this.paused = true;
+    else if (type === "resume") this.paused = false;
+    else if (type === "rate") this.rate = body.rate;
+    else if (type === "hello") [this.paused, this.rate] = [false, body.rate ?? 60];
+    if (type === "resume" || type === "rate" || type === "hello") this.lastMessage = performance.now();
     this.ws.send(clientMessage(type, body));  // throws MessageError for fields protocol.js lacks
     return seq;
   }
