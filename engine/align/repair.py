@@ -24,6 +24,9 @@ TAIL_RELATIVE = 0.0    # ... plus this share of the capture's floor; 0.25 halved
 RESIDUAL_SCALE = 0.01  # mean two-sided fit residual, as a fraction of the model size, at 1/e
 TRUSTED = 0.5          # frames at or above this confidence are trusted sources and left alone
 COLOUR_MARGIN = 0.1    # with colours, results whose colours agree within this share of the best compete
+TURN_COLOUR = 2.5      # a flagged frame is also aligned turned round when its colours disagree this many
+                       # times more than the trusted frames' do (median): a body facing the wrong way
+TURN_SAMPLE = 16       # trusted frames whose colours set that median (evenly spaced in the tree's order)
 
 
 def alignment_badness(residual, distortion_tail, model_size, reference=0.0):
@@ -84,9 +87,10 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     Notes
     -----
     Of the frame's own alignment and the new ones, the one of lowest badness (fit and distortion
-    tail) wins. With vertex colours, the frame is also aligned from its own alignment turned half
-    round about +Y (:func:`turned_round`; one more alignment of the budget, the last one planned),
-    and only results whose colours agree within ``COLOUR_MARGIN`` of the best agreement compete: a
+    tail) wins. With vertex colours, a frame whose colours disagree ``TURN_COLOUR`` times more than
+    the trusted frames' (median of up to ``TURN_SAMPLE``) is also aligned from its own alignment
+    turned half round about +Y (:func:`turned_round`; one more alignment of the budget, the last
+    one planned), and only results whose colours agree within ``COLOUR_MARGIN`` of the best agreement compete: a
     body turned the wrong way round can fit and tear no worse than the right one, but its front
     lands on its back (docs/evaluation.md, "Frames far apart").
     """
@@ -103,9 +107,18 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     flagged = [f for f in depth_order if confidence[f] < TRUSTED]
     limit = np.inf if budget is None else int(np.floor(float(budget) * len(confidence)))
     use_colours = aligner.colors is not None
+    current_colour = {}  # frame -> how well the colours of its alignment before the repair agree (NaN: no colours)
+    turn = set()         # flagged frames also aligned from their own alignment turned round
+    if use_colours and flagged:
+        current_colour = {f: _colour_now(aligner, meshes[f], aligned.vertices[f]) for f in flagged}
+        trusted = [f for f in depth_order if confidence[f] >= TRUSTED and f != root]
+        sample = [trusted[i] for i in np.unique(np.linspace(0, len(trusted) - 1, min(len(trusted), TURN_SAMPLE))
+                                                .astype(np.int64))] if trusted else []
+        usual = float(np.median([_colour_now(aligner, meshes[f], aligned.vertices[f]) for f in sample])) if sample else 0.0
+        turn = {f for f in flagged if not current_colour[f] <= TURN_COLOUR * usual}  # (NaN: turned too)
     if budget is not None:
         cost = {f: (1 if aligned.parent[f] != root else 0) + (max(0, int(candidates)) if dissimilarity is not None else 0)
-                + (1 if use_colours else 0) for f in flagged}
+                + (1 if f in turn else 0) for f in flagged}
         chosen, planned = set(), 0
         for f in sorted(flagged, key=lambda f: (confidence[f], f)):
             if planned + cost[f] <= limit:
@@ -113,7 +126,6 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
                 planned += cost[f]
         flagged = [f for f in flagged if f in chosen]
     versions = {}  # frame -> how often its pose was replaced: the runner's results name the pose they started from
-    current_colour = {}  # frame -> how well the colours of its alignment before the repair agree (NaN: no colours)
 
     def plan(frame, spent):
         """The sources the frame is aligned from now (the trusted set grows as frames are repaired);
@@ -125,7 +137,7 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             others = trusted[(trusted != root) & (trusted != parent)]
             others = others[np.argsort(np.asarray(dissimilarity)[frame, others], kind="stable")]
             sources += [int(s) for s in others[:max(0, int(candidates))]]
-        if use_colours:  # (a flagged frame is never a trusted source: the frame means this)
+        if frame in turn:  # (a flagged frame is never a trusted source: the frame means this)
             sources.append(int(frame))
         if spent + len(sources) > limit:
             sources = sources[:max(0, int(limit) - spent)]
@@ -229,6 +241,15 @@ def repair_task(shared, job):
     for result in results:
         result.colour_distance = aligner._colour_distance(result.V, target)
     return results, (float("nan") if current is None else aligner._colour_distance(current, target))
+
+
+def _colour_now(aligner, mesh, vertices):
+    """How well the colours of a frame's aligned ``vertices`` agree with the root's (median RGB
+    distance, :meth:`PairwiseAligner._colour_distance`)."""
+    from engine.align.propagation import mesh_arrays
+
+    V, F, C = mesh_arrays(mesh, True)
+    return aligner._colour_distance(vertices, TargetSurface(V, F, C))
 
 
 def _tree_order(parent, root):

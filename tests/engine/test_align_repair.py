@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from engine.align import alignment_confidence, align_tree, repair_alignment
+from engine.align.repair import turned_round
 from engine.align.similarity_tree import rooted_tree
 
 
@@ -94,6 +95,31 @@ def test_the_repair_budget_repairs_the_worst_frames_first_and_no_more(walk_align
     assert counting.calls == 2
     assert aligned.repaired[worst] and not aligned.repaired[5 - worst] and not aligned.repaired[[0, 1, 4]].any()
     assert aligned.confidence[5 - worst] < 0.5  # left flagged, not silently passed
+
+
+def test_only_a_frame_whose_colours_disagree_is_also_tried_turned_round(walk_aligner, five_frames):
+    # frame 3 is mirrored (its colours land on the wrong side); frame 2 keeps its alignment but
+    # is flagged for a tear it does not have: its colours agree as the trusted frames' do, so it
+    # is not worth an alignment turned round (TURN_COLOUR)
+    meshes = five_frames
+    aligned = _slipped(walk_aligner, meshes, [3])
+    aligned.distortion_tail[2] = 100.0
+    starts = []
+
+    class Recording(_Counting):
+        def align(self, pose, *args, **kwargs):
+            starts.append(np.asarray(pose).copy())
+            return super().align(pose, *args, **kwargs)
+
+    counting = Recording(walk_aligner)
+    poses = {f: aligned.poses[f].copy() for f in (2, 3)}
+    repair_alignment(counting, meshes, aligned)
+    # from the root for frames 2, 3 and 4 (4 hangs from the mirrored 3's first alignment: flagged
+    # too, its colours agreeing), and turned round for frame 3 only
+    assert counting.calls == 4
+    turned = [turned_round(poses[f]) for f in (2, 3)]
+    assert sum(np.array_equal(s, turned[1]) for s in starts) == 1
+    assert not any(np.array_equal(s, turned[0]) for s in starts)
 
 
 def test_a_zero_budget_repairs_nothing(walk_aligner, walk_capture):
