@@ -28,8 +28,8 @@ from pathlib import Path
 STAGES = {
     "build": [("read", 0.05), ("tetrahedralise", 0.25), ("time-warp", 0.05), ("decompose", 0.3), ("hybrid", 0.15),
               ("parameters", 0.17), ("write", 0.03)],
-    "align": [("read", 0.05), ("histograms", 0.15), ("dissimilarity", 0.05), ("root", 0.03), ("align", 0.62),
-              ("write", 0.1)],
+    "align": [("read", 0.05), ("histograms", 0.15), ("dissimilarity", 0.05), ("root", 0.03), ("align", 0.52),
+              ("repair", 0.12), ("write", 0.08)],
     "ingest": [("validate", 0.75), ("write", 0.25)],
     "export": [("play", 0.4), ("write", 0.6)],
     "graph": [("windows", 0.75), ("edges", 0.2), ("write", 0.05)],

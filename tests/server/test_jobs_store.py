@@ -64,3 +64,22 @@ def test_a_clean_stop_does_not_use_up_an_attempt_and_cancel_wins(tmp_path):
     queued = store.create("align", {})
     assert store.cancel_queued(queued["id"]) and store.get(queued["id"])["status"] == "cancelled"
     assert not store.cancel_queued(queued["id"])
+
+
+def test_every_stage_an_alignment_reports_moves_its_progress():
+    # the repair stage had no share of an align job's progress: it stood at 0.9 however long it ran
+    import math
+
+    from engine.align.captures import align_captures
+    from server.jobs.tasks import STAGES, Reporter
+
+    for kind, stages in STAGES.items():
+        assert math.isclose(sum(weight for _, weight in stages), 1.0), kind
+    documented = align_captures.__doc__.split('stages "', 1)[1].split("\n")[0]
+    for stage in [part.strip(' ",') for part in documented.split(",")]:
+        sent = []
+        reporter = Reporter("align", sent.append, interval=0.0)
+        reporter.progress(stage, 0, 4)
+        start = reporter.level
+        reporter.progress(stage, 2, 4)
+        assert reporter.level > start, stage
