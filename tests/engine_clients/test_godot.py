@@ -63,12 +63,18 @@ def _godot_env(home):
                 XDG_CACHE_HOME=str(home / "cache"), LC_ALL="C.UTF-8")
 
 
-def _run_godot(tmp_path, ws_url):
+def _project(tmp_path):
+    """(the test Godot project with the add-on, copied under tmp_path; an empty output folder)."""
     project = tmp_path / "project"
     shutil.copytree(PROJECT, project)
     shutil.copytree(ADDON, project / "addons")
     out = tmp_path / "out"
     out.mkdir()
+    return project, out
+
+
+def _run_godot(tmp_path, ws_url):
+    project, out = _project(tmp_path)
     env = _godot_env(tmp_path / "home")
     args = [str(GODOT), "--path", str(project), "--", f"--out={out}", f"--url={ws_url}", "--space=speed",
             "--param=speed", f"--values={VALUES[0]},{VALUES[1]}", f"--frames={FRAMES}",
@@ -163,11 +169,7 @@ def test_godot_client_plays_a_motion_graph_action(built_graph, tmp_path):
     add-on's node_changed signals, current_node / target_node / progress and the parameters
     named by each node follow the frames; frames outside a blend are that node's own blend."""
     data = data_dir_with_graph(tmp_path / "server data", built_graph)
-    project = tmp_path / "project"
-    shutil.copytree(PROJECT, project)
-    shutil.copytree(ADDON, project / "addons")
-    out = tmp_path / "out"
-    out.mkdir()
+    project, out = _project(tmp_path)
     with LiveServer(data) as live:
         args = [str(GODOT), "--path", str(project), "res://graph.tscn", "--", f"--out={out}", f"--url={live.ws_url}",
                 "--graph=tiny", "--node=walk", "--param=speed", "--value=1.2", "--steer=1.5", "--codec=q16", "--before=10",
@@ -285,11 +287,7 @@ def test_godot_client_reconnects_with_its_parameters(built_spaces, tmp_path):
     restart reconnects on its own, sending hello again with the parameters it last requested."""
     data = data_dir_with_spaces(tmp_path / "server data", built_spaces, names=("speed",))
     live = LiveServer(data)  # its port is chosen; nothing listens there yet
-    project = tmp_path / "project"
-    shutil.copytree(PROJECT, project)
-    shutil.copytree(ADDON, project / "addons")
-    out = tmp_path / "out"
-    out.mkdir()
+    project, out = _project(tmp_path)
     args = [str(GODOT), "--path", str(project), "res://reconnect.tscn", "--", f"--out={out}", f"--url={live.ws_url}",
             "--space=speed", "--param=speed", f"--value={VALUES[1]}", "--frames=10", "--timeout=90"]
     godot = subprocess.Popen(args, cwd=tmp_path, env=_godot_env(tmp_path / "home"), stdout=subprocess.PIPE,
@@ -333,11 +331,7 @@ def test_godot_client_leaves_a_server_that_went_silent(built_spaces, tmp_path):
     import signal
 
     data = data_dir_with_spaces(tmp_path / "server data", built_spaces, names=("speed",))
-    project = tmp_path / "project"
-    shutil.copytree(PROJECT, project)
-    shutil.copytree(ADDON, project / "addons")
-    out = tmp_path / "out"
-    out.mkdir()
+    project, out = _project(tmp_path)
     with LiveServer(data) as live:
         args = [str(GODOT), "--path", str(project), "res://reconnect.tscn", "--", f"--out={out}",
                 f"--url={live.ws_url}", "--space=speed", "--param=speed", f"--value={VALUES[1]}", "--frames=10",
