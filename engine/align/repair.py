@@ -107,7 +107,7 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     flagged = [f for f in depth_order if confidence[f] < TRUSTED]
     limit = np.inf if budget is None else int(np.floor(float(budget) * len(confidence)))
     use_colours = aligner.colors is not None
-    current_colour = {}  # frame -> how well the colours of its alignment before the repair agree (NaN: no colours)
+    current_colour = {}  # flagged frame -> how well the colours of its alignment before the repair agree
     turn = set()         # flagged frames also aligned from their own alignment turned round
     if use_colours and flagged:
         current_colour = {f: _colour_now(aligner, meshes[f], aligned.vertices[f]) for f in flagged}
@@ -146,7 +146,7 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     def job(frame, sources):
         starts = [(turned_round(aligned.poses[s]), None) if s == frame else
                   (aligned.poses[s], None if yaw is None else float(yaw[frame, s])) for s in sources]
-        return mesh_arrays(meshes[frame], use_colours), starts, aligned.vertices[frame] if use_colours else None
+        return mesh_arrays(meshes[frame], use_colours), starts
 
     def apply(frame, sources, results):
         entries = [(alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size, reference),
@@ -176,7 +176,7 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         for frame in flagged:
             sources = plan(frame, spent)
             spent += len(sources)
-            results, current_colour[frame] = repair_task(aligner, job(frame, sources))
+            results = repair_task(aligner, job(frame, sources))
             apply(frame, sources, results)
             done += 1
             if progress is not None:
@@ -196,9 +196,8 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
                     wanted[frame] = missing
             jobs = [job(f, sources) for f, sources in wanted.items()]
             outs = runner.map(repair_task, jobs, shared=shared, sizes=[len(j[1]) for j in jobs])
-            for (frame, sources), (results, colour) in zip(wanted.items(), outs, strict=True):
+            for (frame, sources), results in zip(wanted.items(), outs, strict=True):
                 found.update({(frame, s, versions.get(s, 0)): r for s, r in zip(sources, results, strict=True)})
-                current_colour[frame] = colour  # (a frame's own alignment stays as it is until its turn)
             # ... then the frames in order, as the serial pass does, while the sources it picks were aligned
             # (a frame repaired in this wave may change a later frame's sources: that one waits for the next)
             while done < len(flagged):
@@ -229,18 +228,17 @@ def turned_round(X):
 
 def repair_task(shared, job):
     """Runner task: one frame aligned from several sources. ``job`` is ((V, F, colors), [(pose,
-    yaw hint), ...], the frame's aligned vertices now or None); returns (a PairAlignment per
-    source, each with its ``colour_distance``, and the colour distance of the frame's vertices
-    now; NaN without colours)."""
+    yaw hint), ...]); returns a PairAlignment per source, each with its ``colour_distance``
+    (NaN without colours)."""
     from engine.tasks import shared_value
 
     aligner = shared_value(shared)
-    (V, F, C), starts, current = job
+    (V, F, C), starts = job
     target = TargetSurface(V, F, C)
     results = [aligner.align(pose, target, yaw=hint) for pose, hint in starts]
     for result in results:
         result.colour_distance = aligner._colour_distance(result.V, target)
-    return results, (float("nan") if current is None else aligner._colour_distance(current, target))
+    return results
 
 
 def _colour_now(aligner, mesh, vertices):

@@ -220,10 +220,8 @@ class ParameterMap:
         for x in p_list:
             if not math.isfinite(x):
                 raise ValueError(f"parameters must be finite, got {p_list}")
-        for i, (x, (lo, hi)) in enumerate(zip(p_list, self._solve_bounds)):
-            if not lo <= x <= hi:  # far outside: solved from the bound along this parameter
-                p_list = list(p_list)
-                p_list[i] = min(max(x, lo), hi)
+        # far outside the domain: solved from the bound along that parameter
+        p_list = [min(max(x, lo), hi) for x, (lo, hi) in zip(p_list, self._solve_bounds)]
         if start is None:
             nearest = _nearest_scaled(self._dense_p, np.array(p_list), self.ranges)  # argmin |(dense - p) / ranges|, compiled
             u_list = self._dense_u[nearest].astype(float).tolist()
