@@ -114,7 +114,8 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
                 "spaces": len(app.state.registry.names()), "connections": totals.get("connections", 0),
                 "frames_sent": totals.get("frames_sent", 0), "frames_dropped": totals.get("frames_dropped", 0),
                 "stream_errors": totals.get("stream_errors", 0), "scheduler": totals.get("scheduler", {}),
-                "worker": worker.index if worker is not None else 0, "restarts": restarts, "workers": workers}
+                "worker": worker.index if worker is not None else 0, "restarts": restarts, "workers": workers,
+                "jobs": app.state.jobs.executor_status()}
 
     @app.websocket("/v1/stream")
     async def stream(websocket: WebSocket):

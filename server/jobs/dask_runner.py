@@ -24,6 +24,7 @@ from engine.tasks import check_parents
 from server.jobs.tasks import JobError
 
 POLL = 0.25  # seconds between cancellation checks while waiting for sub-tasks
+RERUNS = 2  # times a stage is run again after a lost worker took what its tasks needed
 
 
 class DaskRunner:
@@ -32,39 +33,59 @@ class DaskRunner:
     Parameters
     ----------
     prefix : str                 task keys are ``<prefix>-<function>-<n>`` (one prefix per job
-                                 attempt, so the dashboard shows whose tasks they are)
+                                 run, so the dashboard shows whose tasks they are)
     check : callable() or None   raises to stop (e.g. ``Reporter.check``)
+    log : callable(str) or None  a line for the job's log (e.g. ``Reporter.log``)
+    reruns : int                 times a stage runs again after a lost worker took its inputs
     """
 
-    def __init__(self, prefix, check=None):
+    def __init__(self, prefix, check=None, log=None, reruns=RERUNS):
         self.prefix = prefix
         self.check = check or (lambda: None)
+        self.log = log or (lambda line: None)
+        self.reruns = reruns
         self.counter = itertools.count()
         self.tasks = 0
 
     def map(self, function, jobs, *, shared=None, sizes=None, progress=None):
-        from distributed import worker_client
+        jobs = list(jobs)
 
-        with worker_client() as client:
-            shared_future = self._scatter(client, shared)
-            job_futures = client.scatter(list(jobs), hash=False)
-            futures = [client.submit(function, shared_future, job, key=self._key(function), pure=False)
-                       for job in job_futures]
-            return self._gather(client, futures, sizes, progress)
+        def submit(client, shared_future):
+            return [client.submit(function, shared_future, job, key=self._key(function), pure=False)
+                    for job in client.scatter(jobs, hash=False)]
+
+        return self._run(submit, shared, sizes, progress)
 
     def tree(self, function, jobs, parents, *, shared=None, sizes=None, progress=None):
-        from distributed import worker_client
-
+        jobs = list(jobs)
         check_parents(parents)
-        with worker_client() as client:
-            shared_future = self._scatter(client, shared)
-            job_futures = client.scatter(list(jobs), hash=False)
+
+        def submit(client, shared_future):
             futures = []
-            for job, parent in zip(job_futures, parents, strict=True):
+            for job, parent in zip(client.scatter(jobs, hash=False), parents, strict=True):
                 futures.append(client.submit(function, shared_future, job,
                                              futures[parent] if parent >= 0 else None,
                                              key=self._key(function), pure=False))
-            return self._gather(client, futures, sizes, progress)
+            return futures
+
+        return self._run(submit, shared, sizes, progress)
+
+    def _run(self, submit, shared, sizes, progress):
+        """Scatter, submit, wait; when a worker is lost with what the tasks needed, all of it again
+        (up to ``reruns`` times: every task's result depends only on its inputs, so the stage's
+        results are the same)."""
+        from distributed import worker_client
+
+        for rerun in itertools.count(1):
+            with worker_client() as client:
+                futures = submit(client, self._scatter(client, shared))
+                try:
+                    return self._gather(client, futures, sizes, progress)
+                except WorkerGone as exc:
+                    if rerun > self.reruns:
+                        raise
+                    self.log(f"{exc.loss}; running the stage's {len(futures)} tasks again "
+                             f"({rerun} of at most {self.reruns})")
 
     def _key(self, function):
         self.tasks += 1
@@ -95,14 +116,21 @@ class DaskRunner:
         except BaseException as exc:
             client.cancel([f for f in futures if not f.done()])
             if _worker_lost(exc):
-                raise WorkerGone(f"a Dask worker was lost while this job's tasks ran, and with it what they needed "
-                                 f"({type(exc).__name__}: {str(exc)[:300]}); queue the job again") from None
+                loss = (f"a Dask worker was lost while this job's tasks ran, and with it what they needed "
+                        f"({type(exc).__name__}: {str(exc)[:300]})")
+                raise WorkerGone(f"{loss}; the stage ran {self.reruns + 1} times, and lost a worker each time",
+                                 loss) from None
             raise
 
 
 class WorkerGone(JobError):
     """A worker died under the job's tasks (killed, out of memory): their data went with it. The
-    job fails with this message (no traceback), as a local job whose worker process dies does."""
+    runner runs the stage again; when that keeps happening, the job fails with this message (no
+    traceback). ``loss`` says what happened this time."""
+
+    def __init__(self, message, loss):
+        super().__init__(message)
+        self.loss = loss
 
 
 def _worker_lost(exc):

@@ -1,7 +1,7 @@
 """Where jobs run: a local worker process per job (default), or a Dask cluster.
 
 An executor's ``run(job, payload, on_message)`` returns the task's result or raises
-``JobCancelled`` / ``JobError`` / ``WorkerLost``; ``on_message(dict)`` receives progress, log and
+``JobCancelled`` / ``JobError`` / ``WorkerLost`` / ``Interrupted``; ``on_message(dict)`` receives progress, log and
 worker messages as they come (server/jobs/tasks.py, ``Reporter``). ``cancel(job_id)`` stops a job:
 the local executor terminates the process (SIGTERM, then SIGKILL); the Dask executor cancels the
 future and the task notices its CANCEL file at its next progress report.
@@ -31,6 +31,11 @@ class WorkerLost(Exception):
     """The process (or Dask worker) running a job went away without an answer."""
 
 
+class Interrupted(Exception):
+    """What runs jobs went away under this one (the Dask scheduler): not the job's doing, so it
+    is queued again while it has attempts left, as after a server crash."""
+
+
 def describe_exit(returncode):
     if returncode is None:
         return "is still running"
@@ -56,6 +61,12 @@ class LocalExecutor:
 
     def capacity(self):
         return self.slots
+
+    def status(self):
+        return {"executor": self.name, "slots": self.slots}
+
+    async def refresh(self):
+        return None
 
     async def start(self):
         return None
@@ -137,9 +148,15 @@ class LocalExecutor:
 
 
 class DaskExecutor:
-    """Jobs as tasks on a Dask cluster (``settings.dask_scheduler``); progress via worker events."""
+    """Jobs as tasks on a Dask cluster (``settings.dask_scheduler``); progress via worker events.
+
+    ``refresh()`` (the dispatcher calls it before it claims jobs) asks the scheduler for its
+    workers: ``capacity()`` is their threads in all (every coordinator secedes while it waits, so
+    as many jobs as threads can run at once), and ``status()`` says so for /v1/health. While the
+    scheduler cannot be reached ``capacity()`` is 0: jobs wait in the queue."""
 
     name = "dask"
+    probe_timeout = 3.0  # seconds for the scheduler to answer a refresh
 
     def __init__(self, address, connect_timeout=10.0):
         self.address = address
@@ -147,33 +164,49 @@ class DaskExecutor:
         self.client = None
         self.futures = {}
         self.cancelling = set()
+        self.cluster = {"reachable": None, "workers": 0, "threads": 0, "error": None}
 
-    async def _client(self):
+    async def _client(self, timeout=None):
         if self.client is None or self.client.status not in ("running", "connecting"):
             from distributed import Client
 
+            if self.client is not None:
+                with contextlib.suppress(Exception):
+                    await self.client.close()
             try:
-                self.client = await Client(self.address, asynchronous=True, timeout=self.connect_timeout,
+                self.client = await Client(self.address, asynchronous=True, timeout=timeout or self.connect_timeout,
                                            set_as_default=False)
             except (OSError, asyncio.TimeoutError) as exc:
                 self.client = None
                 raise JobError(f"cannot reach the Dask scheduler at {self.address} ({exc})") from None
         return self.client
 
-    def capacity(self):
-        if self.client is None:
-            return 1
+    async def refresh(self):
+        """Ask the scheduler for its workers (``self.cluster``)."""
         try:
-            workers = self.client.scheduler_info().get("workers", {})
-        except Exception:  # noqa: BLE001 - a disconnected client has no info; one job at a time then
-            return 1
-        return max(1, sum(int(w.get("nthreads", 1)) for w in workers.values()))
+            client = await self._client(self.probe_timeout)
+            info = await asyncio.wait_for(client.scheduler.identity(n_workers=-1), self.probe_timeout)
+        except Exception as exc:  # noqa: BLE001 - whatever the reason, the scheduler is not there for us
+            message = str(exc) if isinstance(exc, JobError) else (
+                f"cannot reach the Dask scheduler at {self.address} ({type(exc).__name__}: {exc})")
+            if self.cluster["reachable"] is not False:
+                log.warning("%s; jobs wait in the queue until it answers", message)
+            self.cluster = {"reachable": False, "workers": 0, "threads": 0, "error": message}
+            return
+        workers = info.get("workers", {})
+        self.cluster = {"reachable": True, "workers": len(workers),
+                        "threads": sum(int(w.get("nthreads", 1)) for w in workers.values()), "error": None}
+
+    def capacity(self):
+        if not self.cluster["reachable"]:
+            return 0
+        return max(1, self.cluster["threads"])
+
+    def status(self):
+        return {"executor": self.name, "scheduler": self.address, **self.cluster}
 
     async def start(self):
-        try:
-            await self._client()
-        except JobError as exc:
-            log.warning("%s; jobs will try again when they start", exc)
+        await self.refresh()
 
     async def stop(self):
         for job_id in list(self.futures):
@@ -188,7 +221,8 @@ class DaskExecutor:
 
         client = await self._client()
         job_id = job["id"]
-        topic = f"morphspace-job-{job_id}-{job['attempts']}"
+        # a key per run: a task of an earlier run (which Dask cannot stop) may still hold its own
+        topic = f"morphspace-job-{job_id}-{payload['run']}"
         loop = asyncio.get_running_loop()
 
         def handler(event):
@@ -200,6 +234,9 @@ class DaskExecutor:
         future = client.submit(dask_entry, json.dumps(payload), topic, key=topic, pure=False, retries=0)
         self.futures[job_id] = future
         on_message({"t": "worker", "info": {"scheduler": self.address, "key": topic}})
+        if self.cluster["reachable"] and not self.cluster["workers"]:
+            on_message({"t": "log", "line": f"the Dask cluster at {self.address} has no workers: the job waits "
+                                            "for one to join"})
         try:
             answer = json.loads(await future)
         except asyncio.CancelledError:
@@ -211,6 +248,10 @@ class DaskExecutor:
         except Exception as exc:  # noqa: BLE001 - KilledWorker, lost scheduler, ...
             if job_id in self.cancelling:
                 raise JobCancelled("cancelled by request") from None
+            await self.refresh()
+            if not self.cluster["reachable"]:
+                raise Interrupted(f"the Dask scheduler at {self.address} went away while the job ran "
+                                  f"({type(exc).__name__})") from None
             raise WorkerLost(f"the Dask task failed: {type(exc).__name__}: {exc}") from None
         finally:
             self.futures.pop(job_id, None)

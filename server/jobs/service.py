@@ -2,7 +2,7 @@
 
 Life of a job: ``create`` validates the request and stores it as *queued*; the dispatcher
 (one asyncio task) claims queued jobs while the executor has room, runs each one with a
-staging directory ``work/jobs/<id>/attempt-<n>/``, streams its progress and log into the
+staging directory ``work/jobs/<id>/attempt-<n>-<run>/`` (one per run), streams its progress and log into the
 record, and on success renames the output into ``spaces/`` or ``datasets/`` before marking
 it *succeeded*. A failed or cancelled job's staging directory is deleted: nothing partial is
 ever visible.
@@ -32,7 +32,7 @@ import uuid
 
 from server import uploads
 from server.jobs import models
-from server.jobs.executors import DaskExecutor, LocalExecutor, WorkerLost
+from server.jobs.executors import DaskExecutor, Interrupted, LocalExecutor, WorkerLost
 from server.jobs.store import FINAL, JobStore
 from server.jobs.tasks import JobCancelled, JobError, _relative, check_build_sources, publish
 
@@ -90,6 +90,7 @@ class JobService:
         self._wake = None
         self._loop_task = None
         self._stopping = False
+        self._published_status, self._published_at = None, 0.0
 
     # --- lifecycle ------------------------------------------------------------------------------
     async def start(self):
@@ -104,6 +105,7 @@ class JobService:
         else:
             self.executor = LocalExecutor(settings.job_workers)
         await self.executor.start()
+        self._publish_executor()
         uploads.clean_stale(settings)
         self._recover_orphans()
         self._clean_work_dirs()
@@ -283,6 +285,8 @@ class JobService:
                 if self._check_cancels:
                     self._check_cancels = False
                     await self._honour_cancel_requests()
+                await self.executor.refresh()
+                self._publish_executor()
                 while len(self.running) < self.executor.capacity():
                     job = self.store.claim(self.owner, self.host, self.pid, self.executor.name)
                     if job is None:
@@ -297,6 +301,21 @@ class JobService:
             self._wake.clear()
             with contextlib.suppress(asyncio.TimeoutError):
                 await asyncio.wait_for(self._wake.wait(), HEARTBEAT)
+
+    def _publish_executor(self):
+        """What runs the jobs, as /v1/health shows it (in the store: every server process reads it)."""
+        status = self.executor.status()
+        if status != self._published_status or time.monotonic() - self._published_at >= HEARTBEAT:
+            self.store.set_meta("executor", {**status, "checked_at": time.time()})
+            self._published_status, self._published_at = status, time.monotonic()
+
+    def executor_status(self):
+        """/v1/health's ``jobs``: the executor (for Dask: whether the scheduler answers, its
+        workers and threads), when that was checked, and the jobs queued and running."""
+        status = dict(self.store.get_meta("executor") or {"executor": None})
+        checked = status.pop("checked_at", None)
+        status["checked_ago"] = round(max(time.time() - checked, 0.0), 3) if checked else None
+        return {**status, **self.store.counts(("queued", "running"))}
 
     async def _honour_cancel_requests(self):
         """Cancels asked of another server process for jobs this one runs (shared database)."""
@@ -371,10 +390,13 @@ class JobService:
         job = state.job
         job_id = job["id"]
         job_dir = self.jobs_dir / job_id
+        # a run of its own: an earlier run's task that Dask could not stop finds its staging
+        # directory gone (and stops), and never shares one with this run, nor a task key
         shutil.rmtree(job_dir, ignore_errors=True)
-        staging = job_dir / f"attempt-{job['attempts']}"
+        run = f"{job['attempts']}-{uuid.uuid4().hex[:8]}"
+        staging = job_dir / f"attempt-{run}"
         staging.mkdir(parents=True)
-        payload = {"id": job_id, "kind": job["kind"], "attempt": job["attempts"], "params": job["params"],
+        payload = {"id": job_id, "kind": job["kind"], "attempt": job["attempts"], "run": run, "params": job["params"],
                    "data_dir": str(self.settings.data_dir.resolve()), "staging": str(staging.resolve())}
         state.log.append(f"attempt {job['attempts']} started on {self.executor.name} executor (server pid {self.pid})")
         status, result, error = "failed", None, None
@@ -394,6 +416,9 @@ class JobService:
             error = str(exc)
         except WorkerLost as exc:
             error = str(exc)
+        except Interrupted as exc:
+            status = "interrupted"
+            error = str(exc)
         except asyncio.CancelledError:  # the server is stopping; stop() has queued the job again
             raise
         except Exception as exc:  # noqa: BLE001 - recorded on the job, the server goes on
@@ -405,6 +430,11 @@ class JobService:
             self.running.pop(job_id, None)
             shutil.rmtree(job_dir, ignore_errors=True)
             self._kick()
+        if status == "interrupted":  # queued again while it has attempts left, as after a server crash
+            if self.store is not None:
+                record = {**self.store.get(job_id), "log": list(state.log)}
+                log.warning("job %s: %s; now %s", job_id, error, self.store.recover(record, error))
+            return
         if error:
             state.log.append(f"{status}: {error}")
         if self.store is not None:

@@ -47,6 +47,11 @@ CREATE TABLE IF NOT EXISTS jobs (
     updated_at REAL NOT NULL
 );
 CREATE INDEX IF NOT EXISTS jobs_status ON jobs (status, created_at);
+CREATE TABLE IF NOT EXISTS meta (
+    key TEXT PRIMARY KEY,
+    value TEXT NOT NULL,
+    updated_at REAL NOT NULL
+);
 """
 
 
@@ -227,6 +232,23 @@ class JobStore:
              json.dumps([clip_line(x) for x in log[-LOG_LINES:]]), finished, now, status, 0 if consume else 1,
              job["id"], job["owner"]))
         return status if changed == 1 else None
+
+    # --- what the queue's process publishes for the others ----------------------------------------
+    def set_meta(self, key, value):
+        self._execute("INSERT INTO meta (key, value, updated_at) VALUES (?, ?, ?) "
+                      "ON CONFLICT(key) DO UPDATE SET value = excluded.value, updated_at = excluded.updated_at",
+                      (key, json.dumps(value), time.time()))
+
+    def get_meta(self, key):
+        with self._lock:
+            row = self._db.execute("SELECT value FROM meta WHERE key = ?", (key,)).fetchone()
+        return json.loads(row[0]) if row else None
+
+    def counts(self, statuses):
+        """``{status: jobs in it}`` for each of ``statuses``."""
+        with self._lock:
+            rows = dict(self._db.execute("SELECT status, COUNT(*) FROM jobs GROUP BY status").fetchall())
+        return {status: rows.get(status, 0) for status in statuses}
 
     def running(self):
         with self._lock:

@@ -4,13 +4,16 @@ The same functions run in a local worker process (server/jobs/worker.py) and on 
 (``dask_entry``). A payload is plain JSON::
 
     {"id": ..., "kind": "build", "attempt": 1, "params": {... the validated request ...},
-     "data_dir": "/srv/data", "staging": "/srv/data/work/jobs/<id>/attempt-1"}
+     "data_dir": "/srv/data", "staging": "/srv/data/work/jobs/<id>/attempt-1-<run>"}
 
 A task writes only inside ``staging`` and returns a result whose ``output`` names what the
 server then renames into ``spaces/`` or ``datasets/`` (``publish``): a cancelled or failed job
 never leaves a partial space or dataset. Progress goes through a ``Reporter``
 (``progress(stage, done, total)``, ``log(line)``), which also notices a cancellation (the file
-``staging/../CANCEL``, or that directory removed by the server) at the next progress call.
+``staging/../CANCEL``, or the staging directory removed by the server) at the next progress call.
+Every run of a job has its own staging directory (``<run>`` is new each time the server starts
+the job), so a run the server has left behind (a Dask task it could not stop) never writes into
+the directory of the run that replaced it, and stops when it finds its own directory gone.
 """
 
 from __future__ import annotations
@@ -51,8 +54,9 @@ class Reporter:
     ``interval`` seconds, and at every stage change) and ``{"t": "log", "line"}``.
     """
 
-    def __init__(self, kind, emit, cancel_file=None, interval=0.2):
-        self.emit, self.cancel_file, self.interval = emit, cancel_file, interval
+    def __init__(self, kind, emit, staging=None, interval=0.2):
+        self.emit, self.staging, self.interval = emit, staging, interval
+        self.cancel_file = os.path.join(staging, "..", "CANCEL") if staging is not None else None
         self.bases, base = {}, 0.0
         for stage, weight in STAGES[kind]:
             self.bases[stage] = (base, weight)
@@ -61,18 +65,18 @@ class Reporter:
         self.seen = set()
 
     def check(self):
-        """Raise JobCancelled when the job was cancelled: its cancel file exists, or its job
-        directory (the cancel file's) is gone. The server removes that directory as soon as the
-        job ends on its side, a cancel included, so on Dask, where the server cannot stop the
-        task itself, the cancel file may be gone before the task looks (it then went on to the
-        end of the build, its sub-tasks keeping the cluster busy)."""
+        """Raise JobCancelled when the job was cancelled: its cancel file exists, or its staging
+        directory is gone. The server removes that directory as soon as the run ends on its side
+        (a cancel, a clean stop, a new run of the job), so on Dask, where the server cannot stop
+        the task itself, the cancel file may be gone before the task looks (it then went on to
+        the end of the build, its sub-tasks keeping the cluster busy)."""
         now = time.monotonic()
         if self.cancel_file is not None and now - self.checked_at > 0.25:
             self.checked_at = now
             if os.path.exists(self.cancel_file):
                 raise JobCancelled("cancelled by request")
-            if not os.path.isdir(os.path.dirname(self.cancel_file)):
-                raise JobCancelled("cancelled: the server ended the job (its job directory is gone)")
+            if not os.path.isdir(self.staging):
+                raise JobCancelled("cancelled: the server ended this run of the job (its staging directory is gone)")
 
     def progress(self, stage, done=0, total=None):
         self.check()
@@ -107,8 +111,8 @@ def run_task(payload, reporter, runner=None):
     ``runner`` (``engine.tasks``; on Dask a ``server.jobs.dask_runner.DaskRunner``) runs the
     split stages of align and build as tasks; None runs them here. The result is the same."""
     kind = payload["kind"]
-    staging = Path(payload["staging"])
-    staging.mkdir(parents=True, exist_ok=True)
+    if not Path(payload["staging"]).is_dir():  # the server made it; gone means this run was ended
+        raise JobCancelled("cancelled: the server ended this run of the job (its staging directory is gone)")
     if kind == "ingest":
         from server.jobs.ingest import run_ingest as run
     elif kind == "export":
@@ -359,10 +363,10 @@ def dask_entry(payload_json, topic):
         except Exception:  # noqa: BLE001 - progress is best effort; the job goes on
             pass
 
-    reporter = Reporter(payload["kind"], emit, cancel_file=os.path.join(payload["staging"], "..", "CANCEL"))
+    reporter = Reporter(payload["kind"], emit, staging=payload["staging"])
     emit({"t": "worker", "info": {"address": worker.address, "pid": os.getpid()}})
     try:
-        runner = DaskRunner(topic, check=reporter.check)  # the split stages as tasks on this cluster
+        runner = DaskRunner(topic, check=reporter.check, log=reporter.log)  # the split stages as tasks on this cluster
         return json.dumps({"result": run_task(payload, reporter, runner)})
     except JobCancelled as exc:
         shutil.rmtree(payload["staging"], ignore_errors=True)

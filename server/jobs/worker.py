@@ -45,7 +45,7 @@ def main():
     threading.Thread(target=_watch_parent, daemon=True).start()
     from server.jobs.tasks import JobCancelled, JobError, Reporter, _relative, run_task
 
-    reporter = Reporter(payload["kind"], emit, cancel_file=os.path.join(payload["staging"], "..", "CANCEL"))
+    reporter = Reporter(payload["kind"], emit, staging=payload["staging"])
     emit({"t": "worker", "info": {"pid": os.getpid()}})
     try:
         emit({"t": "result", "result": run_task(payload, reporter)})

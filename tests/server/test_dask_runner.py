@@ -39,8 +39,9 @@ def data_dir(tmp_path_factory):
 
 
 def payload(data_dir, kind, params, where):
-    staging = data_dir / "work" / "jobs" / where / "attempt-1"
-    return {"id": where, "kind": kind, "attempt": 1, "params": params, "data_dir": str(data_dir),
+    staging = data_dir / "work" / "jobs" / where / "attempt-1-run"
+    staging.mkdir(parents=True)  # the server makes it before it starts the job
+    return {"id": where, "kind": kind, "attempt": 1, "run": "1-run", "params": params, "data_dir": str(data_dir),
             "staging": str(staging)}
 
 
@@ -106,32 +107,52 @@ def _sleep_task(shared, seconds):
     return seconds
 
 
-def _coordinator(prefix):
-    """A job's coordinator in miniature: two tasks through a DaskRunner; what became of them."""
+def _coordinator(prefix, reruns):
+    """A job's coordinator in miniature: two tasks through a DaskRunner; what became of them, and
+    the lines it logged."""
     from server.jobs.dask_runner import DaskRunner, WorkerGone
 
+    lines = []
     try:
-        DaskRunner(prefix).map(_sleep_task, [0.1, 30.0])
+        results = DaskRunner(prefix, log=lines.append, reruns=reruns).map(_sleep_task, [0.1, 3.0])
     except WorkerGone as exc:
-        return f"gone: {exc}"
-    return "finished"
+        return f"gone: {exc}", lines
+    return f"finished: {results}", lines
 
 
-def test_tasks_lost_with_their_worker_fail_the_job_with_a_clear_reason(cluster):
+def _lose_the_long_task(cluster, prefix, times):
+    """Cancel the running long task (its key ends in -1, -3, ... as the runner numbers them) for
+    every client, ``times`` times: what the scheduler does when a worker dies with its data."""
+    for n in range(times):
+        deadline, key = time.monotonic() + 30, None
+        while key is None and time.monotonic() < deadline:
+            keys = cluster.run_on_scheduler(lambda dask_scheduler: [str(k) for k, ts in dask_scheduler.tasks.items()
+                                                                     if ts.state == "processing"])
+            key = next((k for k in keys if k.startswith(prefix) and k.endswith(f"-{2 * n + 1}")), None)
+            time.sleep(0.05)
+        assert key is not None, f"the long task never started (loss {n + 1})"
+        cluster.cancel([distributed.Future(key, client=cluster)], force=True)
+
+
+def test_tasks_lost_with_their_worker_run_again(cluster):
     """When a worker dies, Dask forgets the tasks whose data went with it (the Dask trial saw
-    ``FuturesCancelledError ... already forgotten`` after killing a worker mid-decompose): the
-    runner stops waiting and says so in words, instead of a traceback. The loss is made here
-    by cancelling the running task for every client, which is what the scheduler does then."""
-    coordinator = cluster.submit(_coordinator, "morphspace-test-lost", pure=False)
-    deadline = time.monotonic() + 30
-    key = None
-    while key is None and time.monotonic() < deadline:
-        keys = cluster.run_on_scheduler(lambda dask_scheduler: [str(k) for k, ts in dask_scheduler.tasks.items()
-                                                                 if ts.state == "processing"])
-        key = next((k for k in keys if k.startswith("morphspace-test-lost-") and k.endswith("-1")), None)
-        time.sleep(0.05)
-    assert key is not None, "the long task never started"
-    cluster.cancel([distributed.Future(key, client=cluster)], force=True)
-    answer = coordinator.result(timeout=30)
+    ``FuturesCancelledError ... already forgotten`` after killing a worker mid-decompose, and the
+    job failed each time): the runner runs the stage again, says so in the job's log, and the
+    results are the stage's results."""
+    coordinator = cluster.submit(_coordinator, "morphspace-test-rerun", 2, pure=False)
+    _lose_the_long_task(cluster, "morphspace-test-rerun", 1)
+    answer, lines = coordinator.result(timeout=60)
+    assert answer == "finished: [0.1, 3.0]", answer
+    assert len(lines) == 1 and lines[0].startswith("a Dask worker was lost while this job's tasks ran"), lines
+    assert lines[0].endswith("running the stage's 2 tasks again (1 of at most 2)"), lines
+
+
+def test_tasks_lost_again_and_again_fail_the_job_with_a_clear_reason(cluster):
+    """A stage that loses a worker more often than it may run again fails the job in words, not
+    with a traceback."""
+    coordinator = cluster.submit(_coordinator, "morphspace-test-lost", 1, pure=False)
+    _lose_the_long_task(cluster, "morphspace-test-lost", 2)
+    answer, lines = coordinator.result(timeout=60)
     assert answer.startswith("gone: a Dask worker was lost while this job's tasks ran"), answer
-    assert "queue the job again" in answer
+    assert answer.endswith("the stage ran 2 times, and lost a worker each time"), answer
+    assert len(lines) == 1, lines

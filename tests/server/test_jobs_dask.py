@@ -128,3 +128,96 @@ def test_a_job_dask_starts_again_on_another_worker_says_so_in_its_log(tmp_path):
     assert list(state.log) == ["the Dask worker running the job (tcp://127.0.0.1:40001) was lost; Dask started "
                                "the job again on tcp://127.0.0.1:40002 (from its first stage, in the same attempt)"]
     assert state.worker["pid"] == 12 and state.worker["scheduler"] == "tcp://127.0.0.1:8786"
+
+
+def test_health_reports_the_cluster(live, client, cluster):
+    """/v1/health's ``jobs`` names the scheduler, says it answered, and counts its workers and
+    threads (the trial's operator could not tell a cluster without workers from a slow job)."""
+    from test_rest import DOC, _documented_keys
+
+    jobs = client.get("/v1/health").json()["jobs"]
+    assert set(jobs) == _documented_keys(DOC.read_text(), "Dask: `{")
+    assert jobs["executor"] == "dask" and jobs["scheduler"] == cluster.scheduler_address
+    assert jobs["reachable"] is True and jobs["error"] is None
+    assert (jobs["workers"], jobs["threads"]) == (1, 1) and jobs["checked_ago"] < 10
+
+
+def _capacity(address):
+    import asyncio
+
+    from server.jobs.executors import DaskExecutor
+
+    async def ask():
+        executor = DaskExecutor(address)
+        await executor.start()
+        try:
+            return executor.capacity(), executor.status()
+        finally:
+            await executor.stop()
+
+    return asyncio.run(ask())
+
+
+def test_as_many_jobs_run_as_the_cluster_has_threads():
+    """Three jobs on a 2-worker cluster ran one after another in the Dask trial: the executor asked
+    the asynchronous client for the workers it had not fetched, and fell back on one job. It now
+    asks the scheduler."""
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, protocol="tcp://",
+                                  dashboard_address=None, silence_logs=40) as local:
+        capacity, status = _capacity(local.scheduler_address)
+    assert capacity == 2 and (status["workers"], status["threads"]) == (2, 2), status
+
+
+def test_a_clean_stop_during_a_dask_job_loses_nothing(tmp_path, cluster):
+    """The Dask trial stopped the server (SIGTERM) while a build ran: the job was queued again in
+    the same attempt, whose task key the old task (which Dask cannot stop) still held, so the new
+    run got the old run's end and the job ended cancelled. Each run now has its own key and
+    staging directory: the server started again runs the job to its end, in the same attempt."""
+    env = {"MORPHSPACE_TOKEN": TOKEN, "MORPHSPACE_DASK_SCHEDULER": cluster.scheduler_address}
+    data = tmp_path / "data"
+    with LiveServer(data, env=env) as server, httpx.Client(base_url=server.url, timeout=30.0) as c:
+        c.post("/v1/datasets", params={"name": "gaits"}, content=capture_zip(),
+               headers={**AUTH, "Content-Type": "application/zip"}).raise_for_status()
+        job = c.post("/v1/jobs", json=build_request("restarted"), headers=AUTH).json()
+        first = wait_for(c, job["id"], lambda j: j["status"] == "running" and j["stage"] == "decompose", timeout=300)
+    with LiveServer(data, env=env) as server, httpx.Client(base_url=server.url, timeout=30.0) as c:
+        job = wait_for(c, job["id"], lambda j: j["status"] in FINAL, timeout=300)
+    assert job["status"] == "succeeded", job
+    assert job["attempts"] == 1 and job["worker"]["key"] != first["worker"]["key"], (job["worker"], first["worker"])
+    assert any("attempt 1 stopped: the server" in line and "queued again" in line for line in job["log"]), job["log"]
+    assert (data / "spaces" / "restarted.mspace").is_file()
+    assert list((data / "work" / "jobs").iterdir()) == []
+
+
+def test_jobs_wait_for_the_scheduler_and_one_it_lost_is_queued_again(tmp_path):
+    """A scheduler that cannot be reached keeps the jobs queued (health says why); when it is
+    there they run. One that goes away while a job runs (the cluster closed under a build) sends
+    the job back to the queue, its attempt counted, and it runs again when the scheduler is back
+    at its address."""
+    from live_server import free_port
+
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+
+    def cluster_at_port():
+        return distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, scheduler_port=port,
+                                        host="127.0.0.1", dashboard_address=None, silence_logs=50)
+
+    env = {"MORPHSPACE_TOKEN": TOKEN, "MORPHSPACE_DASK_SCHEDULER": address}
+    with LiveServer(tmp_path / "data", env=env) as server, httpx.Client(base_url=server.url, timeout=30.0) as c:
+        c.post("/v1/datasets", params={"name": "gaits"}, content=capture_zip(),
+               headers={**AUTH, "Content-Type": "application/zip"}).raise_for_status()
+        jobs = c.get("/v1/health").json()["jobs"]
+        assert jobs["reachable"] is False and "cannot reach the Dask scheduler" in jobs["error"], jobs
+        job = c.post("/v1/jobs", json=build_request("waited"), headers=AUTH).json()
+        time.sleep(3.0)  # two dispatcher rounds
+        assert c.get(f"/v1/jobs/{job['id']}").json()["status"] == "queued"
+        with cluster_at_port():
+            wait_for(c, job["id"], lambda j: j["status"] == "running" and j["stage"] == "decompose", timeout=300)
+        lost = wait_for(c, job["id"], lambda j: j["status"] != "running", timeout=60)
+        assert lost["status"] == "queued", lost
+        assert any("attempt 1 interrupted: the Dask scheduler" in line for line in lost["log"]), lost["log"]
+        with cluster_at_port():
+            job = wait_for(c, job["id"], lambda j: j["status"] in FINAL, timeout=300)
+            assert c.get("/v1/health").json()["jobs"]["reachable"] is True
+    assert job["status"] == "succeeded" and job["attempts"] == 2, job

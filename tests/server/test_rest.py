@@ -9,6 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import httpx
 from live_server import free_port
 
 from server.app import create_app
@@ -64,3 +65,21 @@ def test_serve_refuses_an_open_bind_without_a_token(tmp_path):
     assert run.returncode == 2, (run.returncode, run.stdout, run.stderr)
     assert "refusing to bind 0.0.0.0 without a token" in run.stderr
     assert "MORPHSPACE_TOKEN" in run.stderr
+
+
+def _documented_keys(text, after):
+    """The keys of the first `{"a", "b", ...}` list in docs/rest.md after ``after``."""
+    listing = re.search(r"`(\{[^`]*\})`", text[text.index(after):]).group(1)
+    return set(re.findall(r"(?<!: )\"(\w+)\"", listing))  # keys, not values ("executor": "local")
+
+
+def test_health_answers_what_rest_md_says(tmp_path):
+    """/v1/health's keys, and its ``jobs`` record's on the local executor, are the documented ones."""
+    from live_server import LiveServer
+
+    text = DOC.read_text()
+    with LiveServer(tmp_path / "data") as server:
+        health = httpx.get(server.url + "/v1/health", timeout=10).json()
+    assert set(health) == _documented_keys(text, "### `GET /v1/health`")
+    assert set(health["jobs"]) == _documented_keys(text, "- `jobs`: what runs the jobs")
+    assert health["jobs"]["executor"] == "local" and health["jobs"]["queued"] == 0
