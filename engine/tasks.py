@@ -21,11 +21,41 @@ A runner has two methods:
     parents are done may run at the same time.
 
 ``sizes`` weigh the tasks for ``progress(done, total)``, called as tasks finish.
+
+A long task calls :func:`checkpoint` between its steps (a frame aligned, a frame decomposed):
+a runner that can learn that the work is no longer wanted (the server's Dask runner, when its
+job has ended) sets a check with :func:`stop_when`, and the task then stops with
+:class:`Stopped` instead of running to its end. Elsewhere ``checkpoint`` does nothing.
 """
 
 from __future__ import annotations
 
+import contextlib
 import threading
+
+_STOP = threading.local()
+
+
+class Stopped(Exception):
+    """A task was told to stop: the work it belongs to has ended and its result is not wanted."""
+
+
+def checkpoint():
+    """Raise :class:`Stopped` when this thread's task was told to stop (see :func:`stop_when`)."""
+    check = getattr(_STOP, "check", None)
+    if check is not None and check():
+        raise Stopped("the work this task belongs to has ended")
+
+
+@contextlib.contextmanager
+def stop_when(check):
+    """Within the block, :func:`checkpoint` on this thread raises when ``check()`` is true."""
+    before = getattr(_STOP, "check", None)
+    _STOP.check = check
+    try:
+        yield
+    finally:
+        _STOP.check = before
 
 
 class SerialRunner:

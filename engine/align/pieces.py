@@ -15,6 +15,7 @@ import numpy as np
 
 from engine.align.matching import TargetSurface
 from engine.align.pairwise import PairAlignment, PairwiseAligner
+from engine.tasks import checkpoint
 
 
 _WORKER = {}
@@ -87,6 +88,7 @@ def align_piece(aligner, job, tick=None):
     out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "tail": [], "seconds": [],
            "cpu_seconds": [], "parent": [], "retried": [], "quality": [], "poses": {}}
     for i, node in enumerate(nodes):
+        checkpoint()  # a task stops here when its runner says the work has ended
         node = int(node)
         cpu_started = time.process_time()
         if parents[i] < 0:  # the root: its own mesh

@@ -235,7 +235,12 @@ def repair_task(shared, job):
     aligner = shared_value(shared)
     (V, F, C), starts = job
     target = TargetSurface(V, F, C)
-    results = [aligner.align(pose, target, yaw=hint) for pose, hint in starts]
+    from engine.tasks import checkpoint
+
+    results = []
+    for pose, hint in starts:
+        checkpoint()  # a task stops here when its runner says the work has ended
+        results.append(aligner.align(pose, target, yaw=hint))
     for result in results:
         result.colour_distance = aligner._colour_distance(result.V, target)
     return results

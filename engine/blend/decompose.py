@@ -180,11 +180,14 @@ def decompose_frames(decomposer, frames, progress=None, runner=None, chunk=None)
         chunks = [np.asarray(frames[i:i + chunk]) for i in range(0, m, chunk)]
         parts = runner.map(decompose_task, chunks, shared=shared, sizes=[len(c) for c in chunks], progress=progress)
         return tuple(np.concatenate([part[k] for part in parts]) for k in range(3))
+    from engine.tasks import checkpoint
+
     first = decomposer.decompose(frames[0])
     q = np.empty((m,) + first.quaternions.shape, dtype=np.float32)
     s = np.empty((m,) + first.stretch.shape, dtype=np.float32)
     d = np.empty((m,) + first.detail.shape, dtype=np.float32)
     for i in range(m):
+        checkpoint()  # a task stops here when its runner says the work has ended
         dec = first if i == 0 else decomposer.decompose(frames[i])
         q[i], s[i], d[i] = dec.quaternions, dec.stretch, dec.detail
         if progress is not None:

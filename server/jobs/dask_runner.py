@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import itertools
 
-from engine.tasks import check_parents
-from server.jobs.tasks import JobError
+from engine.tasks import Stopped, check_parents
+from server.jobs.tasks import JobCancelled, JobError
 
 POLL = 0.25  # seconds between cancellation checks while waiting for sub-tasks
 RERUNS = 2  # times a stage is run again after a lost worker took what its tasks needed
@@ -37,10 +37,13 @@ class DaskRunner:
     check : callable() or None   raises to stop (e.g. ``Reporter.check``)
     log : callable(str) or None  a line for the job's log (e.g. ``Reporter.log``)
     reruns : int                 times a stage runs again after a lost worker took its inputs
+    alive : str or None          a directory (the job run's staging directory): once it is gone,
+                                 the tasks stop at their next ``engine.tasks.checkpoint`` (a
+                                 running Dask task cannot be cancelled from outside)
     """
 
-    def __init__(self, prefix, check=None, log=None, reruns=RERUNS):
-        self.prefix = prefix
+    def __init__(self, prefix, check=None, log=None, reruns=RERUNS, alive=None):
+        self.prefix, self.alive = prefix, alive
         self.check = check or (lambda: None)
         self.log = log or (lambda line: None)
         self.reruns = reruns
@@ -51,7 +54,8 @@ class DaskRunner:
         jobs = list(jobs)
 
         def submit(client, shared_future):
-            return [client.submit(function, shared_future, job, key=self._key(function), pure=False)
+            return [client.submit(run_stoppable, function, self.alive, shared_future, job, key=self._key(function),
+                                  pure=False)
                     for job in client.scatter(jobs, hash=False)]
 
         return self._run(submit, shared, sizes, progress)
@@ -63,7 +67,7 @@ class DaskRunner:
         def submit(client, shared_future):
             futures = []
             for job, parent in zip(client.scatter(jobs, hash=False), parents, strict=True):
-                futures.append(client.submit(function, shared_future, job,
+                futures.append(client.submit(run_stoppable, function, self.alive, shared_future, job,
                                              futures[parent] if parent >= 0 else None,
                                              key=self._key(function), pure=False))
             return futures
@@ -115,12 +119,42 @@ class DaskRunner:
             return client.gather(futures)
         except BaseException as exc:
             client.cancel([f for f in futures if not f.done()])
+            if isinstance(exc, Stopped):  # a task found the run's staging directory gone
+                raise JobCancelled("cancelled: the server ended this run of the job (its staging directory is "
+                                   "gone)") from None
             if _worker_lost(exc):
                 loss = (f"a Dask worker was lost while this job's tasks ran, and with it what they needed "
-                        f"({type(exc).__name__}: {str(exc)[:300]})")
+                        f"({type(exc).__name__}: {_first_line(exc)})")
                 raise WorkerGone(f"{loss}; the stage ran {self.reruns + 1} times, and lost a worker each time",
                                  loss) from None
             raise
+
+
+ALIVE_EVERY = 0.25  # seconds between a task's looks at its job's staging directory
+
+
+def run_stoppable(function, alive, *args):
+    """``function(*args)`` on a worker; with ``alive`` (a directory), ``engine.tasks.checkpoint``
+    in it stops the task once that directory is gone (the server ended the job's run: cancelled,
+    stopped, or started again), so a tree piece or a chunk of decompositions does not hold a
+    worker's thread for minutes after its job ended."""
+    if alive is None:
+        return function(*args)
+    import os
+    import time
+
+    from engine.tasks import stop_when
+
+    looked = [0.0, False]
+
+    def gone():
+        now = time.monotonic()
+        if now - looked[0] >= ALIVE_EVERY:
+            looked[0], looked[1] = now, not os.path.isdir(alive)
+        return looked[1]
+
+    with stop_when(gone):
+        return function(*args)
 
 
 class WorkerGone(JobError):
@@ -131,6 +165,13 @@ class WorkerGone(JobError):
     def __init__(self, message, loss):
         super().__init__(message)
         self.loss = loss
+
+
+def _first_line(exc, limit=120):
+    """The first line of ``exc``'s message, at most ``limit`` characters (Dask's own messages run
+    over many lines, listing every future)."""
+    line = (str(exc).strip().splitlines() or [""])[0].rstrip(":")
+    return line if len(line) <= limit else line[:limit - 3] + "..."
 
 
 def _worker_lost(exc):

@@ -164,7 +164,7 @@ class DaskExecutor:
         self.client = None
         self.futures = {}
         self.cancelling = set()
-        self.cluster = {"reachable": None, "workers": 0, "threads": 0, "error": None}
+        self.cluster = {"reachable": None, "workers": None, "threads": None, "error": None}
 
     async def _client(self, timeout=None):
         if self.client is None or self.client.status not in ("running", "connecting"):
@@ -191,7 +191,7 @@ class DaskExecutor:
                 f"cannot reach the Dask scheduler at {self.address} ({type(exc).__name__}: {exc})")
             if self.cluster["reachable"] is not False:
                 log.warning("%s; jobs wait in the queue until it answers", message)
-            self.cluster = {"reachable": False, "workers": 0, "threads": 0, "error": message}
+            self.cluster = {"reachable": False, "workers": None, "threads": None, "error": message}
             return
         workers = info.get("workers", {})
         self.cluster = {"reachable": True, "workers": len(workers),

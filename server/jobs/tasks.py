@@ -174,6 +174,18 @@ def check_build_sources(dataset_dir, spec):
                            "frames (its frames are unstructured): run an align job on the dataset first")
         if not (base / "meta.json").is_file():
             raise JobError(f"sequence {source!r} of dataset {Path(dataset_dir).name!r} has no meta.json")
+    cyclic = {}
+    for source in spec["sources"]:
+        try:
+            cyclic[source] = bool(json.loads((Path(dataset_dir) / "sequences" / source / "meta.json").read_text())
+                                  .get("cyclic", False))
+        except (OSError, ValueError, AttributeError):
+            continue  # unreadable meta.json: the build says so when it reads it
+    if len(set(cyclic.values())) > 1:
+        loops = sorted(name for name, c in cyclic.items() if c)
+        once = sorted(name for name, c in cyclic.items() if not c)
+        raise JobError(f"sources must be all cyclic or all non-cyclic: {', '.join(loops)} cyclic, "
+                       f"{', '.join(once)} not")
 
 
 def run_build(payload, reporter, runner=None):
@@ -366,7 +378,8 @@ def dask_entry(payload_json, topic):
     reporter = Reporter(payload["kind"], emit, staging=payload["staging"])
     emit({"t": "worker", "info": {"address": worker.address, "pid": os.getpid()}})
     try:
-        runner = DaskRunner(topic, check=reporter.check, log=reporter.log)  # the split stages as tasks on this cluster
+        # the split stages as tasks on this cluster; they stop when this run's staging directory goes
+        runner = DaskRunner(topic, check=reporter.check, log=reporter.log, alive=payload["staging"])
         return json.dumps({"result": run_task(payload, reporter, runner)})
     except JobCancelled as exc:
         shutil.rmtree(payload["staging"], ignore_errors=True)

@@ -156,3 +156,36 @@ def test_tasks_lost_again_and_again_fail_the_job_with_a_clear_reason(cluster):
     assert answer.startswith("gone: a Dask worker was lost while this job's tasks ran"), answer
     assert answer.endswith("the stage ran 2 times, and lost a worker each time"), answer
     assert len(lines) == 1, lines
+
+
+def _checkpointed(shared, seconds):
+    """A long task that calls engine.tasks.checkpoint between its steps, as the tree pieces and
+    decompositions do."""
+    from engine.tasks import checkpoint
+
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline:
+        checkpoint()
+        time.sleep(0.02)
+    return "ran to its end"
+
+
+def test_a_running_task_stops_when_its_job_run_ends(cluster, tmp_path):
+    """Dask cannot stop a running task, so a tree piece of a stopped or cancelled job held its
+    worker's thread until it ended (about 100 s in the session 18 trial). The runner's tasks look
+    at the run's staging directory at their checkpoints and stop once it is gone."""
+    from engine.tasks import Stopped
+    from server.jobs.dask_runner import run_stoppable
+
+    staging = tmp_path / "attempt-1-run"
+    staging.mkdir()
+    future = cluster.submit(run_stoppable, _checkpointed, str(staging), None, 60.0, pure=False)
+    deadline = time.monotonic() + 30
+    while future.status == "pending" and not cluster.processing() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(0.5)
+    staging.rmdir()
+    with pytest.raises(Stopped):  # within 30 s: run to its end, it would take 60
+        future.result(timeout=30)
+    kept = cluster.submit(run_stoppable, _checkpointed, str(tmp_path), None, 0.3, pure=False)
+    assert kept.result(timeout=30) == "ran to its end"

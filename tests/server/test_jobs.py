@@ -10,6 +10,7 @@ import io
 import json
 import os
 import signal
+import shutil
 import tempfile
 import time
 import zipfile
@@ -339,3 +340,16 @@ def test_align_job_writes_a_buildable_dataset(client, live, dataset_zip):
     assert cli["alignment"]["options"] == job_manifest["alignment"]["options"]
     assert list(cli["alignment"]["options"]) == list(job_manifest["alignment"]["options"])  # same key order
     assert cli["fps"] == job_manifest["fps"] == 10
+
+
+def test_a_build_of_looping_and_one_shot_sources_is_refused_when_queued(client, live):
+    """A build mixing cyclic and non-cyclic sources used to be queued (202) and fail at run time,
+    in its read stage (the Dask trial, session 18): it is refused at once, naming the sources."""
+    mixed = live.data_dir / "datasets" / "mixed_gaits"
+    shutil.copytree(live.data_dir / "datasets" / "gaits", mixed)
+    meta = json.loads((mixed / "sequences" / "fast" / "meta.json").read_text())
+    (mixed / "sequences" / "fast" / "meta.json").write_text(json.dumps({**meta, "cyclic": not meta["cyclic"]}))
+    r = client.post("/v1/jobs", json=build_request("mixed", dataset="mixed_gaits"), headers=AUTH)
+    assert r.status_code == 422, r.text
+    assert "sources must be all cyclic or all non-cyclic" in r.json()["detail"], r.text
+    assert "fast" in r.json()["detail"] and "slow" in r.json()["detail"]

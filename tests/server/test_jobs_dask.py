@@ -155,7 +155,10 @@ def _capacity(address):
         finally:
             await executor.stop()
 
-    return asyncio.run(ask())
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1) as thread:  # a loop of its own (another test may have left one running here)
+        return thread.submit(asyncio.run, ask()).result(timeout=60)
 
 
 def test_as_many_jobs_run_as_the_cluster_has_threads():
