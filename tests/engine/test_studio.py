@@ -230,3 +230,12 @@ def test_a_frame_is_reconstructed_the_same_way_twice_and_differently_with_anothe
         np.testing.assert_array_equal(x, y)
     np.testing.assert_array_equal(a[0], strikes["unstructured"][2][0])  # as generate_studio_sequence made it
     assert len(c[0]) != len(a[0]) or not np.array_equal(c[0], a[0])
+
+
+def test_a_take_of_several_clips_at_a_low_frame_rate(tiny_body):
+    """The dance joins three clips with a 0.4 s cross-fade: at 2 fps that is one frame, and the
+    facing of the frame it starts from was read from an empty slice (``--fps 1.79`` crashed)."""
+    spec = next(s for s in get_preset("studio").sequences if s.name == "dance")
+    slow, usual = (studio_motion(tiny_body.skeleton, spec, fps=fps) for fps in (2.0, 25.0))
+    assert len(slow.rotations) == pytest.approx(len(usual.rotations) * 2.0 / 25.0, abs=3)
+    assert np.isfinite(slow.positions).all()

@@ -209,7 +209,7 @@ def concatenate(skeleton, motions, blend=0.4):
     out = motions[0]
     for nxt in motions[1:]:
         n = max(1, int(round(blend * out.fps)))
-        turn = _facing(out.rotations[-n:-n + 1, 0])[0] - _facing(nxt.rotations[:1, 0])[0]
+        turn = _facing(out.rotations[-n:][:1, 0])[0] - _facing(nxt.rotations[:1, 0])[0]  # ([-1:0] is empty)
         G = rot_y(turn)
         rotations = np.einsum("ab,fjbc->fjac", G, nxt.rotations)
         root = (nxt.positions[:, 0] - nxt.positions[0, 0]) @ G.T
