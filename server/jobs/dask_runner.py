@@ -10,8 +10,10 @@ tree's pieces are submitted together, each depending on its parent piece's futur
 starts on whichever worker is free as soon as its parent is done, without a round trip through
 the coordinator.
 
-Progress comes back as tasks finish (``progress(done, total)``, weighted by ``sizes``) and goes to
-the job record through the coordinator's reporter. ``check()`` is called while waiting; when it
+Progress comes back as tasks finish (``progress(done, total)``, weighted by ``sizes``), and from
+within the running tasks, which report the ``engine.tasks.checkpoint`` calls they have passed (a
+frame each, the units of ``sizes``) as events (``run_stoppable``); it goes to the job record
+through the coordinator's reporter. The same checkpoints stop a task whose job run has ended. ``check()`` is called while waiting; when it
 raises (the job was cancelled), the sub-tasks not yet finished are cancelled and the exception
 goes on.
 """
@@ -44,6 +46,7 @@ class DaskRunner:
 
     def __init__(self, prefix, check=None, log=None, reruns=RERUNS, alive=None):
         self.prefix, self.alive = prefix, alive
+        self.ticks = f"{prefix}-ticks"  # the event topic of the tasks' checkpoints (run_stoppable)
         self.check = check or (lambda: None)
         self.log = log or (lambda line: None)
         self.reruns = reruns
@@ -54,8 +57,8 @@ class DaskRunner:
         jobs = list(jobs)
 
         def submit(client, shared_future):
-            return [client.submit(run_stoppable, function, self.alive, shared_future, job, key=self._key(function),
-                                  pure=False)
+            return [client.submit(run_stoppable, function, self.alive, self.ticks, shared_future, job,
+                                  key=self._key(function), pure=False)
                     for job in client.scatter(jobs, hash=False)]
 
         return self._run(submit, shared, sizes, progress)
@@ -67,7 +70,7 @@ class DaskRunner:
         def submit(client, shared_future):
             futures = []
             for job, parent in zip(client.scatter(jobs, hash=False), parents, strict=True):
-                futures.append(client.submit(run_stoppable, function, self.alive, shared_future, job,
+                futures.append(client.submit(run_stoppable, function, self.alive, self.ticks, shared_future, job,
                                              futures[parent] if parent >= 0 else None,
                                              key=self._key(function), pure=False))
             return futures
@@ -103,19 +106,31 @@ class DaskRunner:
 
     def _gather(self, client, futures, sizes, progress):
         sizes = list(sizes) if sizes is not None else [1] * len(futures)
-        index = {future.key: i for i, future in enumerate(futures)}
+        index = {str(future.key): i for i, future in enumerate(futures)}
         total, done = int(sum(sizes)), 0
         pending = set(futures)
+        within = {}  # a running task's key -> checkpoints it has passed (its reports on self.ticks)
+
+        def heard(event):
+            message = event[1] if isinstance(event, (tuple, list)) and len(event) == 2 else event
+            if isinstance(message, dict) and message.get("key") in index:
+                within[message["key"]] = max(within.get(message["key"], 0), int(message.get("done", 0)))
+
+        listening = progress is not None and _listen(client, self.ticks, heard)
         try:
+            reported = 0.0
             while pending:
                 self.check()
                 finished, pending = _first_finished(pending)
                 for future in finished:
                     if future.status in ("error", "cancelled", "lost"):
                         future.result()  # raises the task's exception (or the loss) here
-                    done += sizes[index[future.key]]
-                if finished and progress is not None:
-                    progress(done, total)
+                    done += sizes[index[str(future.key)]]
+                if progress is not None:  # finished tasks, and the checkpoints of those still running
+                    partial = sum(min(within.get(str(f.key), 0), sizes[index[str(f.key)]] - 1) for f in pending)
+                    if done + partial > reported:
+                        reported = done + partial
+                        progress(reported, total)
             return client.gather(futures)
         except BaseException as exc:
             client.cancel([f for f in futures if not f.done()])
@@ -128,32 +143,53 @@ class DaskRunner:
                 raise WorkerGone(f"{loss}; the stage ran {self.reruns + 1} times, and lost a worker each time",
                                  loss) from None
             raise
+        finally:
+            if listening:
+                _listen(client, self.ticks, None)
 
 
 ALIVE_EVERY = 0.25  # seconds between a task's looks at its job's staging directory
+TICK_EVERY = 0.5    # seconds between a task's reports of the checkpoints it has passed
 
 
-def run_stoppable(function, alive, *args):
-    """``function(*args)`` on a worker; with ``alive`` (a directory), ``engine.tasks.checkpoint``
-    in it stops the task once that directory is gone (the server ended the job's run: cancelled,
-    stopped, or started again), so a tree piece or a chunk of decompositions does not hold a
-    worker's thread for minutes after its job ended."""
-    if alive is None:
-        return function(*args)
+def run_stoppable(function, alive, ticks, *args):
+    """``function(*args)`` on a worker, watched at its ``engine.tasks.checkpoint`` calls (one per
+    frame aligned or decomposed, or per start of a repair: the units of the task's size).
+
+    - ``alive`` (a directory, or None): the task stops once it is gone (the server ended the job's
+      run: cancelled, stopped, or started again), so a tree piece or a chunk of decompositions
+      does not hold a worker's thread for minutes after its job ended.
+    - ``ticks`` (a Dask event topic, or None): every ``TICK_EVERY`` seconds the task reports
+      ``{"key": its key, "done": checkpoints passed}`` there, so the job's progress moves within
+      a long task (a tree piece of hundreds of frames) and not only when it ends.
+    """
     import os
     import time
 
     from engine.tasks import stop_when
 
-    looked = [0.0, False]
+    worker = key = None
+    if ticks is not None:
+        from distributed import get_worker
 
-    def gone():
+        worker = get_worker()
+        key = str(worker.get_current_task())
+    state = {"looked": 0.0, "gone": False, "told": time.monotonic(), "passed": 0}
+
+    def check():
         now = time.monotonic()
-        if now - looked[0] >= ALIVE_EVERY:
-            looked[0], looked[1] = now, not os.path.isdir(alive)
-        return looked[1]
+        state["passed"] += 1
+        if alive is not None and now - state["looked"] >= ALIVE_EVERY:
+            state["looked"], state["gone"] = now, not os.path.isdir(alive)
+        if worker is not None and now - state["told"] >= TICK_EVERY:
+            state["told"] = now
+            try:
+                worker.log_event(ticks, {"key": key, "done": state["passed"] - 1})
+            except Exception:  # noqa: BLE001 - progress is best effort
+                pass
+        return state["gone"]
 
-    with stop_when(gone):
+    with stop_when(check):
         return function(*args)
 
 
@@ -165,6 +201,19 @@ class WorkerGone(JobError):
     def __init__(self, message, loss):
         super().__init__(message)
         self.loss = loss
+
+
+def _listen(client, topic, handler):
+    """Subscribe ``handler`` to Dask events on ``topic`` (None: unsubscribe); False when the
+    client cannot (progress then moves by whole tasks)."""
+    try:
+        if handler is None:
+            client.unsubscribe_topic(topic)
+        else:
+            client.subscribe_topic(topic, handler)
+    except Exception:  # noqa: BLE001 - progress is best effort
+        return False
+    return True
 
 
 def _first_line(exc, limit=120):

@@ -179,7 +179,7 @@ def test_a_running_task_stops_when_its_job_run_ends(cluster, tmp_path):
 
     staging = tmp_path / "attempt-1-run"
     staging.mkdir()
-    future = cluster.submit(run_stoppable, _checkpointed, str(staging), None, 60.0, pure=False)
+    future = cluster.submit(run_stoppable, _checkpointed, str(staging), None, None, 60.0, pure=False)
     deadline = time.monotonic() + 30
     while future.status == "pending" and not cluster.processing() and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -187,5 +187,34 @@ def test_a_running_task_stops_when_its_job_run_ends(cluster, tmp_path):
     staging.rmdir()
     with pytest.raises(Stopped):  # within 30 s: run to its end, it would take 60
         future.result(timeout=30)
-    kept = cluster.submit(run_stoppable, _checkpointed, str(tmp_path), None, 0.3, pure=False)
+    kept = cluster.submit(run_stoppable, _checkpointed, str(tmp_path), None, None, 0.3, pure=False)
     assert kept.result(timeout=30) == "ran to its end"
+
+
+def _steps(shared, steps):
+    """A task of ``steps`` checkpoints, 0.05 s apart (a tree piece's frames, in miniature)."""
+    from engine.tasks import checkpoint
+
+    for _ in range(steps):
+        checkpoint()
+        time.sleep(0.05)
+    return steps
+
+
+def _progress_of(prefix):
+    """A coordinator running two 40-step tasks through a DaskRunner; the progress it reported."""
+    from server.jobs.dask_runner import DaskRunner
+
+    seen = []
+    DaskRunner(prefix).map(_steps, [40, 40], sizes=[40, 40], progress=lambda done, total: seen.append((done, total)))
+    return seen
+
+
+def test_progress_moves_within_a_long_task(cluster):
+    """A tree piece of hundreds of frames held a Dask job's progress still until it ended (the
+    session 17 trial: 116 s at 0): the tasks report the checkpoints they pass, and the runner's
+    progress counts them, never past a running task's size, never backwards, and whole at the end."""
+    seen = cluster.submit(_progress_of, "morphspace-test-ticks", pure=False).result(timeout=60)
+    done = [d for d, _ in seen]
+    assert {t for _, t in seen} == {80} and done == sorted(done) and done[-1] == 80, seen
+    assert any(0 < d < 40 or 40 < d < 80 for d in done), seen  # between the tasks' ends
