@@ -15,7 +15,9 @@ heartbeat older than ``STALE_AFTER``. Such a job is queued again if it has attem
 in all), with the reason in its log, or marked failed with the reason. A local worker exits
 when its server dies (it watches its stdin), so an interrupted job is never still running
 when it is re-run. A worker that dies while its server lives (killed, out of memory) fails
-the job with the signal and stage in the error; the server goes on serving.
+the job with the signal and stage in the error; the server goes on serving. On Dask, a
+scheduler that goes away under a running job queues it again (``Interrupted``: an attempt
+counted), and while the scheduler does not answer nothing is claimed: jobs wait queued.
 """
 
 from __future__ import annotations
