@@ -37,7 +37,7 @@ from tqdm import tqdm
 
 from engine.align import AlignmentOptions, align_captures
 from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
-from engine.align.captures import ROOT_CHOICES
+from engine.align.captures import FINE_EDGE, ROOT_CHOICES
 from engine.align.repair import TRUSTED
 from engine.mesh_io import MESH_EXTENSIONS, read_frames, write_obj, write_sequence
 from engine.mesh_io.frames import left_out_frames
@@ -89,7 +89,8 @@ def add_arguments(parser):
     parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
                         help="vertex colours as local matching cues when every frame has them: auto (default) "
                              "when the meshes are fine enough for colours to carry texture (median edge "
-                             "under 1.4%% of the model size), on (--colors alone), off")
+                             f"under {FINE_EDGE * 100:.1f}%% of the square root of the root's surface area), on "
+                             "(--colors alone), off")
     parser.add_argument("--fps", type=float, default=None,
                         help="frame rate of inputs without meta.json (default 30, with a note that it was assumed)")
     add_units_arguments(parser)

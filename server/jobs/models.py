@@ -12,6 +12,7 @@ from typing import Annotated, Any, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, StringConstraints, field_validator, model_validator
 
+from engine.align.captures import FINE_EDGE
 from engine.parameters import MEASURES
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$"
@@ -101,7 +102,8 @@ class AlignJob(_Body):
                            "from the root with big steps penalised (shallower)")
     colors: Literal["auto", "on", "off"] = Field(
         "auto", description="vertex colours as local matching cues: auto when the meshes are fine enough "
-                            "for colours to carry texture (median edge under 1.4% of the model size)")
+                            f"for colours to carry texture (median edge under {FINE_EDGE:.1%} of the square root of the "
+                            "root's surface area)")
     window: int = Field(2, ge=0, le=10)
     patches: int = Field(30, ge=1, le=500)
     levels: int = Field(4, ge=1, le=8)
