@@ -142,6 +142,9 @@ class HybridBlender:
         return V if out is not None else V.copy()
 
 
+MAX_REFERENCES = 256  # new references at most: the spaces built so far need 18-201
+
+
 @dataclass
 class HybridReport:
     """What the bisection did."""
@@ -157,7 +160,8 @@ class HybridReport:
 
 
 def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon, keep_threshold=None,
-                 margin=0.9, level=None, max_depth=None, uniform_depth=None, test_weights=None, prune=True,
+                 margin=0.9, level=None, max_depth=None, max_references=MAX_REFERENCES, uniform_depth=None,
+                 test_weights=None, prune=True,
                  progress=None):
     """Reference weights and hierarchical sparse corrections by bisection of the weight simplex.
 
@@ -173,6 +177,11 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
     max_depth : int        bisection depth limit (default 8 + (N - 2): longest-edge bisection of
                            an (N-1)-simplex needs about N - 1 levels to halve a cell's diameter;
                            cells at the limit are kept even if they fail, and the report says so)
+    max_references : int   no cell is split once this many references have been added (cells are
+                           split breadth first, so the coarser ones come first); the rest are kept
+                           as they are, as at the depth limit. Sources that blend badly (unrelated
+                           motions over the whole simplex) otherwise bisect to the depth limit
+                           everywhere: hours for five sources
     uniform_depth : int or None
         Split every cell to this depth with nothing dropped, regardless of error (the paper's
         "hybrid with 1 / 3 references" rows are depths 1 and 2 for two sources).
@@ -264,7 +273,8 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         else:
             points = points_in(node)
             worst = max((hybrid_error(node, w) for w in points), default=0.0)
-            split = worst > margin * epsilon and depth < max_depth
+            split = (worst > margin * epsilon and depth < max_depth
+                     and len(tree.references) - n_sources < max_references)
         if split:
             cell = tree.cells[node]
             # With a layout's sheet: the longest edge its points straddle (references stay on the

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from engine.blend.hybrid import MAX_REFERENCES
 from engine.mesh_io import read_mesh, read_sequence, to_metres_y_up
 from engine.motion_space import SourceClip, build_motion_space
 from engine.parameters import MEASURES, Layout
@@ -246,6 +247,10 @@ def run(args):
           f"{hybrid['max_test_error'] * 1000:.2f} mm (epsilon {epsilon_mm:g} mm), corrections "
           f"{hybrid['correction_bytes'] / 1e6:.2f} MB = {100 * hybrid['correction_bytes'] / hybrid['source_bytes']:.1f}% "
           f"of the sources")
+    if hybrid["max_test_error"] * 1000 > epsilon_mm:
+        print(f"  the hybrid's bound is not met everywhere (its bisection stopped at its depth limit or at "
+              f"{MAX_REFERENCES} references): test error up to {hybrid['max_test_error'] * 1000:.2f} mm; "
+              "sources that blend badly over the whole simplex need a parameter layout or fewer sources")
     if report.get("parameters"):
         p = report["parameters"]
         domain = ", ".join(f"{n} {lo:.3g}..{hi:.3g} {u}" for n, (lo, hi), u in zip(p["names"], p["domain"], p["units"]))

@@ -244,3 +244,29 @@ def test_nonlinear_blend_of_a_rotation_is_the_half_rotation():
     error = np.linalg.norm(half - expected, axis=1).max()
     assert error < 2e-3 * model_size(V0)
     assert error < 0.02 * np.linalg.norm(0.5 * (V0 + V1) - expected, axis=1).max()  # linear cuts the corner
+
+
+def test_the_bisection_stops_at_its_budget_of_references():
+    """Sources that blend badly everywhere bisected the whole simplex to the depth limit: a
+    five-source build of unrelated takes was still at it after 19 minutes (session 18). The
+    bisection adds at most ``max_references`` references, coarser cells first, and the report's
+    test error says the bound is not met."""
+    rng = np.random.default_rng(3)
+    n_sources, n_phases, n_vertices = 4, 2, 40
+    sources = rng.normal(size=(n_phases, n_sources, n_vertices, 3))
+    bend = rng.normal(size=(n_phases, n_vertices, 3))
+
+    def linear(w):
+        w = np.asarray(w, float) / np.sum(w)
+        return np.einsum("i,pinc->pnc", w, sources)
+
+    def nonlinear(w):  # far from linear everywhere inside the simplex
+        w = np.asarray(w, float) / np.sum(w)
+        return linear(w) + (1 + np.sin(7 * w[0] + 5 * w[1])) * (w[0] * w[1] + w[1] * w[2] + w[2] * w[3]) * bend
+
+    args = (linear, nonlinear, n_sources, n_phases, n_vertices)
+    _, _, free = build_hybrid(*args, epsilon=1e-3, max_references=40)
+    tree, _, capped = build_hybrid(*args, epsilon=1e-3, max_references=12)
+    assert free.references > 12
+    assert capped.references == 12 == len(tree.references) - n_sources
+    assert capped.max_test_error > 1e-3 and capped.max_depth < free.max_depth
