@@ -19,6 +19,7 @@ split nodes on w's path down the tree of phi_m(w) delta_m with phi_m = 2 min(lam
 
 from __future__ import annotations
 
+import collections
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -143,6 +144,7 @@ class HybridBlender:
 
 
 MAX_REFERENCES = 256  # new references at most: the spaces built so far need 18-201
+CACHE_BYTES = 2e9     # non-linear blends kept for reuse by neighbouring cells
 
 
 @dataclass
@@ -207,7 +209,9 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
     Notes
     -----
     Test errors are measured with the corrections exactly as stored (thresholded, quantised,
-    pruned), so the bound holds for what the runtime computes. Non-linear blends are cached by weight.
+    pruned), so the bound holds for what the runtime computes. Non-linear blends are cached by weight,
+    up to ``CACHE_BYTES`` (the least recently used dropped: a five-source bisection of unrelated
+    takes held 24 GB of them).
     Cells are split conformingly (``SimplexTree.bisect_conforming``): a leaf beside a split edge is
     split on it too and its halves tested, so no leaf interpolates across a reference on its edge
     and the hybrid is continuous in the weights and within the bound at every reference.
@@ -218,13 +222,20 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
     if uniform_depth is not None:
         keep = 0.0
     level = level or (4 if n_sources <= 3 else 3)
-    cache = {}
+    cache = collections.OrderedDict()  # weight -> its non-linear blend, the least recently used dropped
+    room = max(64, int(CACHE_BYTES // (8 * 3 * n_phases * n_vertices)))
+    evaluations = [0]
 
     def exact(w):
         key = tuple(np.round(w, 12))
-        if key not in cache:
-            cache[key] = np.asarray(nonlinear(w), dtype=np.float64)
-        return cache[key]
+        if key in cache:
+            cache.move_to_end(key)
+            return cache[key]
+        evaluations[0] += 1
+        cache[key] = value = np.asarray(nonlinear(w), dtype=np.float64)
+        if len(cache) > room:
+            cache.popitem(last=False)
+        return value
 
     store = CorrectionBuilder(n_phases, n_vertices)
     nodal = {}  # reference -> (P, n, 3) represented D (sources: None = zero)
@@ -308,7 +319,7 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
     report = HybridReport(
         epsilon=epsilon, references=new, leaves=len(tree.leaves()), max_depth=int(tree.depth.max()),
         max_test_error=float(np.nanmax([e for _, e in leaf_errors])) if uniform_depth is None else float("nan"),
-        nonlinear_evaluations=len(cache),
+        nonlinear_evaluations=evaluations[0],
         stored_fraction=float(len(corrections.vertex)) / max(1, new * n_phases * n_vertices),
         leaf_errors=leaf_errors)
     return tree, corrections, report

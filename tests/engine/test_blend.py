@@ -270,3 +270,33 @@ def test_the_bisection_stops_at_its_budget_of_references():
     assert free.references > 12
     assert capped.references == 12 == len(tree.references) - n_sources
     assert capped.max_test_error > 1e-3 and capped.max_depth < free.max_depth
+
+
+def test_a_smaller_cache_of_nonlinear_blends_gives_the_same_hybrid(monkeypatch):
+    """The bisection's cache of non-linear blends is bounded (a five-source build of unrelated
+    takes held 24 GB of them and was killed): with room for only 64, the same tree and
+    corrections, from more evaluations."""
+    import engine.blend.hybrid as hybrid
+
+    rng = np.random.default_rng(5)
+    sources = rng.normal(size=(2, 3, 30, 3))
+    bend = rng.normal(size=(2, 30, 3))
+
+    def linear(w):
+        w = np.asarray(w, float) / np.sum(w)
+        return np.einsum("i,pinc->pnc", w, sources)
+
+    def nonlinear(w):
+        w = np.asarray(w, float) / np.sum(w)
+        return linear(w) + (w[0] * w[1] + 2 * w[1] * w[2]) * np.cos(4 * w[0]) * bend
+
+    args = (linear, nonlinear, 3, 2, 30)
+    tree, corrections, report = build_hybrid(*args, epsilon=2e-3)
+    monkeypatch.setattr(hybrid, "CACHE_BYTES", 0)
+    small_tree, small_corrections, small_report = build_hybrid(*args, epsilon=2e-3)
+    assert report.references > 3 and small_report.references == report.references
+    assert np.array_equal(small_tree.references, tree.references)
+    for name in ("pointer", "vertex", "value", "scale"):
+        assert np.array_equal(getattr(small_corrections, name), getattr(corrections, name)), name
+    assert small_report.max_test_error == report.max_test_error
+    assert small_report.nonlinear_evaluations > report.nonlinear_evaluations
