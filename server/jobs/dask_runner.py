@@ -106,7 +106,7 @@ class DaskRunner:
 
     def _gather(self, client, futures, sizes, progress):
         sizes = list(sizes) if sizes is not None else [1] * len(futures)
-        index = {str(future.key): i for i, future in enumerate(futures)}
+        index = {future.key: i for i, future in enumerate(futures)}
         total, done = int(sum(sizes)), 0
         pending = set(futures)
         within = {}  # a running task's key -> checkpoints it has passed (its reports on self.ticks)
@@ -125,9 +125,9 @@ class DaskRunner:
                 for future in finished:
                     if future.status in ("error", "cancelled", "lost"):
                         future.result()  # raises the task's exception (or the loss) here
-                    done += sizes[index[str(future.key)]]
+                    done += sizes[index[future.key]]
                 if progress is not None:  # finished tasks, and the checkpoints of those still running
-                    partial = sum(min(within.get(str(f.key), 0), sizes[index[str(f.key)]] - 1) for f in pending)
+                    partial = sum(min(within.get(f.key, 0), sizes[index[f.key]] - 1) for f in pending)
                     if done + partial > reported:
                         reported = done + partial
                         progress(reported, total)
@@ -173,7 +173,7 @@ def run_stoppable(function, alive, ticks, *args):
         from distributed import get_worker
 
         worker = get_worker()
-        key = str(worker.get_current_task())
+        key = worker.get_current_task()  # the key this runner gave the task (a str)
     state = {"looked": 0.0, "gone": False, "told": time.monotonic(), "passed": 0}
 
     def check():

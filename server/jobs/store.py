@@ -246,8 +246,10 @@ class JobStore:
 
     def counts(self, statuses):
         """``{status: jobs in it}`` for each of ``statuses``."""
-        with self._lock:
-            rows = dict(self._db.execute("SELECT status, COUNT(*) FROM jobs GROUP BY status").fetchall())
+        statuses = tuple(statuses)
+        with self._lock:  # (the status index: finished jobs are not scanned)
+            rows = dict(self._db.execute(f"SELECT status, COUNT(*) FROM jobs WHERE status IN "
+                                         f"({', '.join('?' * len(statuses))}) GROUP BY status", statuses).fetchall())
         return {status: rows.get(status, 0) for status in statuses}
 
     def running(self):

@@ -18,6 +18,7 @@ the directory of the run that replaced it, and stops when it finds its own direc
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import os
@@ -161,7 +162,9 @@ def spec_toml(spec, captures, name):
 
 
 def check_build_sources(dataset_dir, spec):
-    """Each source must be a sequence of the dataset with consistent frames (else align first)."""
+    """Each source must be a sequence of the dataset with consistent frames (else align first),
+    and the sources all cyclic or all one-shot."""
+    cyclic = {}
     for source in spec["sources"]:
         base = Path(dataset_dir) / "sequences" / source
         if not base.is_dir():
@@ -174,13 +177,8 @@ def check_build_sources(dataset_dir, spec):
                            "frames (its frames are unstructured): run an align job on the dataset first")
         if not (base / "meta.json").is_file():
             raise JobError(f"sequence {source!r} of dataset {Path(dataset_dir).name!r} has no meta.json")
-    cyclic = {}
-    for source in spec["sources"]:
-        try:
-            cyclic[source] = bool(json.loads((Path(dataset_dir) / "sequences" / source / "meta.json").read_text())
-                                  .get("cyclic", False))
-        except (OSError, ValueError, AttributeError):
-            continue  # unreadable meta.json: the build says so when it reads it
+        with contextlib.suppress(OSError, ValueError, AttributeError):  # unreadable: the build says so
+            cyclic[source] = bool(json.loads((base / "meta.json").read_text()).get("cyclic", False))
     if len(set(cyclic.values())) > 1:
         loops = sorted(name for name, c in cyclic.items() if c)
         once = sorted(name for name, c in cyclic.items() if not c)

@@ -180,10 +180,9 @@ def test_a_running_task_stops_when_its_job_run_ends(cluster, tmp_path):
     staging = tmp_path / "attempt-1-run"
     staging.mkdir()
     future = cluster.submit(run_stoppable, _checkpointed, str(staging), None, None, 60.0, pure=False)
-    deadline = time.monotonic() + 30
-    while future.status == "pending" and not cluster.processing() and time.monotonic() < deadline:
+    deadline = time.monotonic() + 30  # until a worker has it (processing() lists every worker, busy or not)
+    while not any(cluster.processing().values()) and time.monotonic() < deadline:
         time.sleep(0.05)
-    time.sleep(0.5)
     staging.rmdir()
     with pytest.raises(Stopped):  # within 30 s: run to its end, it would take 60
         future.result(timeout=30)
