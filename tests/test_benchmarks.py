@@ -199,6 +199,17 @@ def check_align_momentum(record, stdout):
     assert "momentum 0.5: mean" in stdout and non_negative(record["load_average"])
 
 
+def check_align_steps(record, stdout):
+    assert record["dataset"] == "tiny" and [row["pair"] for row in record["pairs"]] == [[0, 1], [3, 2]]
+    for row in record["pairs"]:
+        assert 0 < row["mean_pct"] < 100 and set(row["parts_pct"]) == {"all"}
+        assert row["parts_pct"]["all"] == pytest.approx(row["mean_pct"], abs=2e-3)
+        # aligning moves the true rigid placement closer to the truth, not further
+        assert 0 < row["oracle_rigid_pct"] < row["placement_alone_pct"]
+    assert record["mean_pct"] == pytest.approx(sum(r["mean_pct"] for r in record["pairs"]) / 2, abs=2e-3)
+    assert positive(record["cpu_seconds"]) and "2 single steps: mean" in stdout and "true rigid placement" in stdout
+
+
 def check_dask_align(records, stdout):
     (record,) = records
     assert record["frames"] == 4 and record["equal"] is True and record["local_equal"] is True
@@ -241,6 +252,7 @@ def check_stream_socket(result, stdout):
 CHECKS = {
     "align_breakdown.py": check_align_breakdown,
     "align_momentum.py": check_align_momentum,
+    "align_steps.py": check_align_steps,
     "align_speed.py": check_align_speed,
     "blend_scaling.py": check_blend_scaling,
     "dask_align.py": check_dask_align,

@@ -100,7 +100,7 @@ class FrameContainer:
             if mesh_file_type(self.path) is not None:
                 raise MeshSequenceError(
                     f"{self.path}: is a single mesh file; a sequence is a directory or a zip "
-                    f"archive of frames (use read_mesh for one file)"
+                    f"archive of frames"
                 )
             self.names = self._list_zip()
         else:

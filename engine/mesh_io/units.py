@@ -171,7 +171,8 @@ class Convention:
             units += f": the model is {self.size:.4g} {self.units} across"
         up = f"up {self.up_label} ({self.up_from}"
         if np.isfinite(self.up_ratio) and self.up_ratio > 0:
-            up += f": height / depth {max(self.up_ratio, 1 / self.up_ratio):.2g}"
+            ratio = max(self.up_ratio, 1 / self.up_ratio)
+            up += f": height / depth {ratio:.2g}" if ratio < 1e3 else ": the model is flat along one axis"
         return f"{units}), {up})"
 
     def to_metadata(self):

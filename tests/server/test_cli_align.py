@@ -4,6 +4,7 @@ import contextlib
 import io
 import json
 import shutil
+import types
 
 import numpy as np
 import pytest
@@ -87,7 +88,7 @@ def aligned_mm_run(dataset_mm_z_up, tmp_path_factory):
 
 def test_align_shows_progress_bars_up_to_every_frame(aligned_run):
     _, err = aligned_run
-    for stage in ("shape histograms", "dissimilarity", "align", "write"):
+    for stage in ("read frames", "shape histograms", "dissimilarity", "align", "write"):
         assert f"{stage}: 100%" in err, f"no finished {stage!r} bar in:\n{err[-2000:]}"
     assert "6/6" in err.split("align: 100%")[1].split("\n")[0]  # counted in frames
 
@@ -206,7 +207,7 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
     picks = _picked_frames([3, 3], 2, None)
     assert [p.tolist() for p in picks] == [[0, 2], [0, 2]]
     assert [p.tolist() for p in _picked_frames([7], 2, 3)] == [[0, 2, 4]]
-    parts, _ = _truth(dataset, [{"name": "walk"}, {"name": "jog"}], picks)
+    parts, _ = _truth(dataset, [{"name": "walk"}, {"name": "jog"}], picks, [3, 3])
     for part, name in zip(parts, ("walk", "jog")):
         np.testing.assert_array_equal(part, load_capture_truth(dataset, name)["template_positions"][[0, 2]])
     assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "eval"),
@@ -224,6 +225,7 @@ def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, cap
     assert main(["eval-align", str(dataset), "--aligned", str(aligned), "--out", str(tmp_path), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["aligned"]["mean_pct"] < 1.5
+    assert report["root"] == int(np.load(aligned / "alignment.npz")["root"]) and "every" not in report
     # the confidence the alignment recorded, and the tree depths it aligned along (alignment.npz)
     record = np.load(aligned / "alignment.npz")
     assert report["aligned"]["flagged_frames"] == int(np.sum(record["confidence"] < 0.5))
@@ -360,3 +362,41 @@ def test_metadata_units_that_are_not_units_are_named_and_not_used(dataset):
     _, convention = meshes_to_metres(meshes, declared=declared)
     assert (convention.units, convention.up) == ("m", "y")
     assert set(declared.ignored) <= set(convention.warnings)
+
+
+def test_eval_align_refuses_frames_that_do_not_match_their_ground_truth(dataset, tmp_path, capsys):
+    """A frame missing in the middle of a sequence would pair every later frame with the wrong truth:
+    eval-align names the truth file and both counts instead of scoring (found by a docs-only trial)."""
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    frames = sorted((copy / "sequences" / "walk" / "unstructured").iterdir())
+    frames[1].unlink()
+    assert main(["eval-align", str(copy), "--no-sequential", "--workers", "1", "--out", str(tmp_path / "e")]) == 2
+    err = capsys.readouterr().err
+    assert "sequences/walk/truth.npz: ground truth for 3 frames, the sequence has 2" in err
+    assert not (tmp_path / "e").exists()
+
+
+def test_aligned_metadata_drops_what_describes_the_input_frames():
+    """The aligned frames are neither the studio's reconstructions nor noisy: their statistics and
+    noise stay with the input (docs/file-formats.md, aligned datasets)."""
+    from server.commands.align import aligned_meta
+
+    meta = {"name": "walk", "cyclic": True, "frames_per_cycle": 24, "fps": 25.0, "units": "mm", "up": "+Z",
+            "noise_mm": 2.5, "studio": {"holes_per_frame": 6.1}, "unstructured_vertex_counts": [10000]}
+    out = aligned_meta(meta, "walk", 24, 25.0, 9000, 18000)
+    assert out["cyclic"] is True and out["frames_per_cycle"] == 24 and out["frames"] == 24
+    assert not {"studio", "noise_mm", "unstructured_vertex_counts"} & set(out)
+
+
+def test_the_summary_says_whether_colours_were_cues_and_why(aligned_run, dataset, tmp_path, capsys):
+    from server.commands.align import colour_cues_text
+
+    out = tmp_path / "o"
+    with contextlib.redirect_stderr(io.StringIO()):
+        assert main(["align", str(dataset), "--out", str(out), "--workers", "1", "--levels", "1"]) == 0
+    # the 1,000-vertex body is too coarse for its colours to carry a texture
+    assert "colour cues off (--colors auto: the root's median edge is not under 1.6% of" in capsys.readouterr().out
+    frames = [types.SimpleNamespace(colors=None)]
+    assert colour_cues_text("auto", False, frames) == "off (--colors auto: not every frame has vertex colours)"
+    assert colour_cues_text("on", True, frames) == "on (--colors on)"

@@ -25,6 +25,8 @@ def test_layout_manifest_and_declared_units(studio):
     assert manifest["body"]["units"] == "m" and manifest["body"]["up"] == "+Y"
     assert manifest["body"]["model_size"] == pytest.approx(1.666, abs=0.01)  # its height
     assert set(manifest["body"]["parts"]) == {"body", "skirt", "sleeve_l", "sleeve_r"}
+    # each sequence's truth is in that sequence's units and axes (strikes: mm, +Z): no global claim
+    assert not {"truth_units", "truth_up"} & set(manifest["studio"])
     template = read_mesh(studio / "template" / "body.obj")
     assert len(template.vertices) == manifest["body"]["vertices"]
     declared = {s["name"]: (s["units"], s["up"]) for s in manifest["sequences"]}

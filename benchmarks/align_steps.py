@@ -1,0 +1,164 @@
+"""Single alignment steps from a perfect start: what the pairwise aligner adds per step.
+
+A frame deep in the tree inherits its parent's error and adds its own step's. This measures the
+step alone: for every pair ``A>B`` the frame A is the root (so its alignment is exact) and B is
+aligned from it (``align_captures`` on the two frames, no repair), scored per part against the
+generator's truth (mean error over the root's vertices, % of the model size). With
+``--oracle-rigid`` each pair is also aligned from the true rigid placement (the rotation and
+translation that best carry A's vertices to their true positions in B, Kabsch) instead of the
+aligner's rigid start, and that placement alone is scored: if the oracle start is no better, the
+rigid start is not what fails.
+
+    .venv/bin/python benchmarks/align_steps.py /tmp/studio-dance --sequence dance \\
+        --pairs 259:260,258:257,245:246,250:251 [--every 40] [--oracle-rigid] [--option NAME=VALUE] \\
+        [--out result.json]
+    .venv/bin/python benchmarks/align_steps.py --tiny --out /tmp/align_steps.json
+
+``--every K`` adds the pairs ``a:a+1`` for a = 10, 10 + K, ... (single steps along the whole take).
+``--tiny`` (the test suite's smoke run) needs no dataset: two pairs of the generator's 1,000-vertex
+run at 15 fps, small alignment settings, one part, the oracle included; ``--out`` is required.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+from _tiny import parse_arguments
+from align_breakdown import parse_options, part_counts
+from align_speed import load_frames
+
+TINY = {"pairs": "0:1,3:2", "options": ["patches=8", "levels=2"], "oracle_rigid": True}
+
+
+def parse_pairs(text, every, frames):
+    """``"A:B,C:D"`` (and ``--every``) -> [(A, B), ...] within 0..frames-1."""
+    pairs = []
+    for item in filter(None, (text or "").split(",")):
+        a, sep, b = item.partition(":")
+        if not sep:
+            raise SystemExit(f"--pairs {item!r}: expected A:B (frame numbers)")
+        pairs.append((int(a), int(b)))
+    if every:
+        pairs += [(a, a + 1) for a in range(10, frames - 1, every)]
+    for a, b in pairs:
+        if not (0 <= a < frames and 0 <= b < frames) or a == b:
+            raise SystemExit(f"pair {a}:{b}: frames must differ and lie in 0..{frames - 1}")
+    return pairs
+
+
+def kabsch(X, Y):
+    """The rotation R and translation t minimising sum |R x + t - y|^2."""
+    import numpy as np
+
+    cx, cy = X.mean(axis=0), Y.mean(axis=0)
+    U, _, Vt = np.linalg.svd((X - cx).T @ (Y - cy))
+    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
+    R = Vt.T @ D @ U.T
+    return R, cy - R @ cx
+
+
+def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
+    """B aligned from A's true rigid placement: (aligned vertices, placement alone, A's vertices)."""
+    from dataclasses import replace
+
+    from engine.align.captures import COLOUR_WEIGHT
+    from engine.align.evaluation import surface_coordinates, true_positions
+    from engine.align.matching import TargetSurface
+    from engine.align.pairwise import PairwiseAligner
+    from engine.surface import main_components
+
+    V, F, kept = main_components(mesh_a.vertices, mesh_a.faces)
+    colours = None if mesh_a.colors is None else mesh_a.colors[kept]
+    if colours is not None and mesh_b.colors is not None and not options.colour_weight:
+        options = replace(options, colour_weight=COLOUR_WEIGHT)
+    aligner = PairwiseAligner(V, F, colours, options=options)
+    target = TargetSurface(mesh_b.vertices, mesh_b.faces, mesh_b.colors)
+    face, bary, _ = surface_coordinates(V, truth_ab[0], faces)
+    R, t = kabsch(V, true_positions(truth_ab[1:2], faces, face, bary)[0])
+    result = aligner._fit(aligner.V_tet @ R.T + t, target)
+    return result.V, V @ R.T + t, V
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("dataset", nargs="?", type=Path, help="a dataset with ground truth (morphspace synth)")
+    parser.add_argument("--sequence", default="dance")
+    parser.add_argument("--pairs", default="", help="A:B frame pairs, comma separated (B aligned from A)")
+    parser.add_argument("--every", type=int, default=0, help="also the pairs a:a+1 for a = 10, 10 + K, ...")
+    parser.add_argument("--oracle-rigid", action="store_true", help="also align each pair from its true rigid placement")
+    parser.add_argument("--option", dest="options", action="append", default=None, metavar="NAME=VALUE",
+                        help="an AlignmentOptions field (repeatable)")
+    parser.add_argument("--tiny", action="store_true", help="the test suite's smoke run (no dataset)")
+    parser.add_argument("--out", type=Path, help="write the JSON here too")
+    args = parse_arguments(parser, argv, TINY)
+    if not args.tiny and args.dataset is None:
+        parser.error("a dataset is needed (or --tiny)")
+    import numpy as np
+
+    from engine.align import align_captures, score_alignment
+    from engine.align.breakdown import part_labels
+
+    options, changes = parse_options(args.options)
+    if args.tiny:
+        frames, truth, faces, size = load_frames(None, "run", 0, 4, True)
+    else:
+        frames, truth, faces, size = load_frames(args.dataset, args.sequence, 0, 10 ** 6, False)
+    pairs = parse_pairs(args.pairs, args.every, len(frames))
+    if not pairs:
+        parser.error("no pairs: give --pairs or --every")
+    parts = None if args.tiny else part_counts(args.dataset, False)
+    names = list(parts) if parts else ["all"]
+    load_before = os.getloadavg()
+    cpu_started = time.process_time()
+    rows = []
+    for a, b in pairs:
+        two, truth_ab = [frames[a], frames[b]], truth[[a, b]]
+        run = align_captures(two, np.array([2]), method="tree", root=0, workers=1, options=options, repair=False)
+        errors, _ = score_alignment(run.aligned.vertices, 0, run.aligned.root_vertices, truth_ab, faces, size)
+        root_vertices = run.aligned.root_vertices
+        labels = (part_labels(root_vertices, truth_ab[0], faces, parts) if parts
+                  else np.zeros(len(root_vertices), dtype=np.int64))
+        pct = 100.0 * errors[1] / size
+        row = {"pair": [a, b], "mean_pct": round(float(pct.mean()), 3),
+               "parts_pct": {name: round(float(pct[labels == k].mean()), 3) for k, name in enumerate(names)
+                             if np.any(labels == k)}}
+        if args.oracle_rigid:
+            aligned, placed, V = oracle_step(frames[a], frames[b], truth_ab, faces, options)
+            from engine.align.evaluation import surface_coordinates, true_positions
+
+            face, bary, _ = surface_coordinates(V, truth_ab[0], faces)
+            true = true_positions(truth_ab[1:2], faces, face, bary)[0]
+            row["oracle_rigid_pct"] = round(float(100.0 * np.linalg.norm(aligned - true, axis=1).mean() / size), 3)
+            row["placement_alone_pct"] = round(float(100.0 * np.linalg.norm(placed - true, axis=1).mean() / size), 3)
+        rows.append(row)
+        extra = (f", from the true rigid placement {row['oracle_rigid_pct']:.2f}% (that placement alone "
+                 f"{row['placement_alone_pct']:.2f}%)" if args.oracle_rigid else "")
+        print(f"{a} -> {b}: {row['mean_pct']:.2f}%{extra}; " + ", ".join(f"{k} {v:.2f}%" for k, v in row["parts_pct"].items()),
+              flush=True)
+    cpu = time.process_time() - cpu_started
+    means = [row["mean_pct"] for row in rows]
+    record = {"dataset": "tiny" if args.tiny else str(args.dataset), "sequence": "run" if args.tiny else args.sequence,
+              "options": changes, "pairs": rows, "mean_pct": round(float(np.mean(means)), 3),
+              "median_pct": round(float(np.median(means)), 3), "cpu_seconds": round(cpu, 2),
+              "load_average_before": [round(x, 2) for x in load_before],
+              "load_average_after": [round(x, 2) for x in os.getloadavg()], "python": platform.python_version()}
+    if args.oracle_rigid:
+        record["oracle_rigid_mean_pct"] = round(float(np.mean([row["oracle_rigid_pct"] for row in rows])), 3)
+    print(f"{len(rows)} single steps: mean {record['mean_pct']:.2f}%, median {record['median_pct']:.2f}% of the "
+          f"model size" + (f"; from the true rigid placement: mean {record['oracle_rigid_mean_pct']:.2f}%"
+                           if args.oracle_rigid else "") + f"; {cpu:.1f} CPU s", flush=True)
+    text = json.dumps(record, indent=1)
+    print(text)
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
