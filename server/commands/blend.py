@@ -3,7 +3,8 @@
 The way to try morphspace's blending on your own meshes. Non-linear and hybrid blending
 tetrahedralise the first mesh (or --rest; holes are capped). The meshes' units and up axis are
 detected (or given with --units/--up), the blend is made in metres with +Y up, and the output is
-written back in the inputs' units and axes. Progress bars on stderr follow the stages: read,
+written back in the inputs' units and axes, with the inputs' vertex colours mixed by the weights
+when every input has colours. Progress bars on stderr follow the stages: read,
 tetrahedralise, decompose, solve, hybrid (hybrid mode or --compare), write. Example:
 
     morphspace blend walk.obj run.obj --weights 0.5 0.5 --mode nonlinear --out half.obj
@@ -142,7 +143,10 @@ def _blend(args, w, progress):
             result["hybrid"] = HybridBlender(sources, tree, corrections, cyclic=True).blend(w, 0.0)
             progress("hybrid", 1, 1)
     progress("write", 0, 1)
+    colours = None  # the inputs' vertex colours mixed by the weights, when every input has them
+    if all(m.colors is not None for m in meshes):
+        colours = np.clip(np.einsum("k,kic->ic", w / w.sum(), np.stack([m.colors for m in meshes])), 0.0, 1.0)
     write_mesh(args.out, from_metres_y_up(np.asarray(result[args.mode], dtype=np.float64), convention.units,
-                                          convention.up), faces)
+                                          convention.up), faces, colours)
     progress("write", 1, 1)
     return (meshes, convention), result, time.perf_counter() - started
