@@ -46,6 +46,7 @@ def parse_pairs(text, every, frames):
         pairs.append((int(a), int(b)))
     if every:
         pairs += [(a, a + 1) for a in range(10, frames - 1, every)]
+    pairs = list(dict.fromkeys(pairs))  # each pair once, in the order given
     for a, b in pairs:
         if not (0 <= a < frames and 0 <= b < frames) or a == b:
             raise SystemExit(f"pair {a}:{b}: frames must differ and lie in 0..{frames - 1}")
