@@ -133,7 +133,8 @@ class Mode:
 
 @dataclass(frozen=True)
 class Rate:
-    """Change the frame rate."""
+    """Change the frame rate. With ``rate`` 0 the streamed frames stop and none answers this
+    message: the next Pull's frame carries its ``seq`` as ``ack``."""
     type = "rate"
     rate: float = wire("float", "frames per second (0 = pull only: no streamed frames)", low=0.0, high="max_fps")
     seq: int = wire("int", "client sequence number", default=0)
@@ -186,7 +187,11 @@ class Pull:
 
     Answered by one Frame with ``pull_id`` set; the stream's own state is not changed. The root
     transform is the path from the origin over ``time`` seconds at constant parameters (with
-    ``phase``, over the time that phase is into the cycle or clip: the frame's ``time``).
+    ``phase``, over the time that phase is into the cycle or clip: the frame's ``time``; REST's
+    ``GET /v1/spaces/{name}/frame?phase=`` puts the root at the origin instead). Every pull is
+    answered, in order, none dropped or merged; an answer is written, as a streamed frame is,
+    only once the connection has taken every earlier byte, and the connection's later messages
+    wait for it (a client that reads nothing for the stall timeout is closed with 1008).
     """
     type = "pull"
     id: int = wire("int", "request id, echoed as the frame's pull_id")
@@ -217,7 +222,8 @@ class Action:
 
 @dataclass(frozen=True)
 class Ack:
-    """Acknowledge a frame (needed only when Hello asked for a window)."""
+    """Acknowledge a frame (needed only when Hello asked for a window; ignored without one). A
+    ``frame`` beyond the newest frame sent counts as the newest."""
     type = "ack"
     frame: int = wire("int", "seq of the newest frame received", low=0)
 

@@ -38,14 +38,14 @@ class FrameOutput:
             return False
         urgent = self.urgent
         streaming = not self.paused and self.rate > 0
-        if not urgent:
-            if not streaming:
-                return False
-            if self.window > 0 and self.seq - self.acked_frame >= self.window:
-                self.waiting_ack = True  # the next ack reschedules
-                if not self._stalled(now):  # or else, the stall timeout
-                    self.scheduler.schedule(self, self.stalled_since + self.settings.stream_stall_timeout)
-                return False
+        if not urgent and not streaming:
+            return False
+        # the window holds for every frame, urgent ones (answering a message) too: they wait for an ack
+        if self.window > 0 and self.seq - self.acked_frame >= self.window:
+            self.waiting_ack = True  # the next ack reschedules
+            if not self._stalled(now):  # or else, the stall timeout
+                self.scheduler.schedule(self, self.stalled_since + self.settings.stream_stall_timeout)
+            return False
         if self.gauge is not None and not self.gauge.ready():
             self._transport_full(now, streaming)
             return False
@@ -194,6 +194,10 @@ class FrameOutput:
             self._stalled(asyncio.get_running_loop().time())
             return
         self.stalled_since = None
+        self._note_held()
+
+    def _note_held(self):
+        """Raise the scheduler's ``transport_bytes_max`` to what this connection holds now."""
         if self.gauge is not None:
             held = self.gauge.held()
             if held > self.scheduler.transport_bytes_max:
@@ -227,7 +231,12 @@ class FrameOutput:
 
     async def send_pulled(self, *, time_, phase, mode, requested, realised, clamped, weights, root, heading,
                           vertices, pull_id, space):
-        """A pulled frame (streamed ones go through the scheduler: send_frame)."""
+        """A pulled frame (streamed ones go through the scheduler: send_frame). Written, like a
+        streamed one, only into a transport that has taken every earlier byte: until then the
+        connection's next messages wait, and a client that reads nothing for the stall timeout is
+        closed (so unread pull answers cannot pile up in the server)."""
+        if not await self._drained():
+            return
         error_um = error_max = error_seq = None
         if self.heatmap:
             error_um, error_max = self._heatmap(mode, weights, phase, vertices, space)
@@ -236,6 +245,26 @@ class FrameOutput:
             time_=time_, phase=phase, mode=mode, requested=requested, realised=realised, clamped=clamped,
             weights=weights, root=root, heading=heading, vertices=self._vertex_bytes(vertices), finished=False,
             pull_id=pull_id, error_um=error_um, error_max=error_max, error_seq=error_seq)))
+        self._note_held()
+
+    async def _drained(self):
+        """Wait until the transport has taken every byte written so far; False when the stall
+        timeout ran out first (the connection is then being closed) or it has closed."""
+        if self.gauge is None or self.gauge.ready():
+            return not self.closed
+        loop = asyncio.get_running_loop()
+        started = loop.time()
+        timeout = self.settings.stream_stall_timeout
+        while not self.gauge.ready():
+            if self.closed:
+                return False
+            if loop.time() - started >= timeout:
+                log.info("stream: closing a connection to %s that read no pulled frame for %.0f s",
+                         self.space_name, timeout)
+                self.shut(P.CLOSE_STALLED, f"stalled: no frame could be delivered for {timeout:g} s")
+                return False
+            await asyncio.sleep(RETRY)
+        return not self.closed
 
     def _heatmap(self, mode, weights, phase, vertices, space):
         """(error_um bytes, error_max) of ``vertices`` against the non-linear blend."""

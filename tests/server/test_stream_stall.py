@@ -161,3 +161,79 @@ def test_ticks_skipped_waiting_for_acks_count_when_the_client_leaves_meanwhile(s
         time.sleep(0.1)
         dropped = httpx.get(server.url + "/v1/health").json()["frames_dropped"]
     assert dropped - before >= 0.6 * 60 * 2.0, (before, dropped)
+
+
+def frame_messages(client, seconds):
+    """Frames read within ``seconds`` (a socket timeout ends the wait early, quietly)."""
+    out = []
+    deadline = time.monotonic() + seconds
+    client.sock.settimeout(0.2)
+    try:
+        while time.monotonic() < deadline:
+            try:
+                message = client.receive()
+            except TimeoutError:
+                continue
+            if isinstance(message, dict) and message["type"] == "frame":
+                out.append(message)
+    finally:
+        client.sock.settimeout(10.0)
+    return out
+
+
+def test_the_window_holds_for_frames_that_answer_messages(server):
+    """A docs-only client found that every params message got its frame however full the window
+    was (12 frames unacknowledged with window 2): now the answer waits for the ack that opens the
+    window, and carries the latest message's seq."""
+    client = RawClient(server.port, window=2, receive_buffer=1 << 20)
+    try:
+        first = frame_messages(client, 1.0)
+        assert [m["seq"] for m in first] == [1, 2]         # the window, then nothing without acks
+        for seq in range(2, 12):
+            client.send({"type": "params", "params": {"speed": 1.0 + 0.1 * seq}, "seq": seq})
+        assert frame_messages(client, 1.0) == []            # still 2 frames unacknowledged
+        client.send({"type": "ack", "frame": 2})
+        answers = frame_messages(client, 1.0)
+        assert 1 <= len(answers) <= 2 and answers[0]["seq"] == 3 and answers[0]["ack"] == 11
+    finally:
+        client.close()
+
+
+def test_a_second_hello_starts_the_acks_afresh(server):
+    """A second hello starts the stream afresh, as on a new connection: its frames' ack is the new
+    hello's seq, not the highest seq of the connection before it (found by a docs-only client)."""
+    client = RawClient(server.port, receive_buffer=1 << 20)
+    try:
+        client.send({"type": "params", "params": {"speed": 1.5}, "seq": 50})
+        assert any(m["ack"] == 50 for m in frame_messages(client, 0.5))
+        client.send({"type": "hello", "space": "speed", "rate": 60, "seq": 2})
+        frames = [m for m in frame_messages(client, 0.5) if m["seq"] <= 3 and m["ack"] <= 2]
+        assert frames and frames[0]["seq"] == 1 and frames[0]["ack"] == 2
+        client.send({"type": "params", "params": {"speed": 1.2}, "seq": 10})
+        assert any(m["ack"] == 10 for m in frame_messages(client, 0.5))
+    finally:
+        client.close()
+
+
+def test_unread_pull_answers_do_not_pile_up_in_the_server(built_spaces, tmp_path):
+    """A pull-only client sends 80 pulls and reads nothing: the answers wait for it to read (the
+    connection's later messages with them) instead of 80 x 12 KB gathering in the server's
+    buffers; when it reads, every pull is answered, in order."""
+    data = data_dir_with_spaces(tmp_path / "data", built_spaces, names=("speed",))
+    with LiveServer(data) as live:
+        client = RawClient(live.port, rate=0)
+        try:
+            for k in range(80):
+                client.send({"type": "pull", "id": k + 1, "time": 0.01 * k})
+            time.sleep(2.0)
+            held = httpx.get(live.url + "/v1/health").json()["scheduler"]["transport_bytes_max"]
+            answers = []
+            deadline = time.monotonic() + 20.0
+            while len(answers) < 80 and time.monotonic() < deadline:
+                message = client.receive()
+                if isinstance(message, dict) and message["type"] == "frame":
+                    answers.append(message["pull_id"])
+        finally:
+            client.close()
+    assert answers == list(range(1, 81))
+    assert held <= HELD_LIMIT, held
