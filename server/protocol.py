@@ -369,7 +369,8 @@ CLOSE_CODES = {
     CLOSE_STALLED: "the client took no due frame for `stall_timeout` seconds (reason `stalled: ...`)",
     CLOSE_TOO_BIG: "a message over max(1 MiB, 4 x `max_message`): refused by the WebSocket layer itself",
     CLOSE_INTERNAL: "the server failed to produce a frame (after an `internal` error; reason `internal error: ...`) "
-                    "or to send (reason `sending failed`)",
+                    "or to send (reason `sending failed`), or the client answered no keepalive ping (reason "
+                    "`keepalive ping timeout`)",
     CLOSE_BUSY: "the server has as many connections as it accepts (after a `server_busy` error; reason "
                 "`server busy: ...`)",
 }

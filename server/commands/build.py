@@ -228,10 +228,11 @@ def run(args):
 
     clips, faces = load_sources(directories, fps=args.fps, cyclic=args.cyclic)
     rest_path = args.rest or spec["rest"]
-    rest, _ = choose_rest(clips, faces, rest_path, Path(directories[0]).parent.parent / "template" / "body.obj")
+    rest, rest_note = choose_rest(clips, faces, rest_path, Path(directories[0]).parent.parent / "template" / "body.obj")
     clips, rest, conventions = sources_to_metres(clips, rest, directories, args.units, args.up)
-    say_conventions(conventions, [clip.name for clip in clips] + ["the rest shape"],
-                    lambda line: print(f"morphspace build: {line}", file=sys.stderr), what="source")
+    say = lambda line: print(f"morphspace build: {line}", file=sys.stderr)  # noqa: E731
+    say(f"rest shape: {rest_note}")
+    say_conventions(conventions, [clip.name for clip in clips] + ["the rest shape"], say, what="source")
     bars = StageBars()
     started = time.perf_counter()
     report = build_motion_space(out, clips, faces, name=name, n_phases=args.phases or spec["phases"],

@@ -316,7 +316,7 @@ def test_build_converts_sources_in_millimetres_z_up(aligned, tmp_path, capsys):
     err = capsys.readouterr().err
     # (no template next to these copies: the rest shape is the first frame, in the sources' units)
     assert "source walk, jog, the rest shape: units mm (detected" in err and "up +Z (detected" in err
-    assert "converted to metres" in err
+    assert "converted to metres" in err and "morphspace build: rest shape: resting on the first frame" in err
     from engine.motion_space import MotionSpace
 
     with MotionSpace.open(spaces["m"]) as metres, MotionSpace.open(spaces["mm"]) as millimetres:
