@@ -292,9 +292,10 @@ class Frame:
     error_max: float = wire("float", "with heatmap on: the largest of those distances (m)", optional=True)
     error_seq: int = wire("int", "with heatmap on: the seq of the frame error_um describes (computed off the event "
                                  "loop: an earlier frame, a few frames or, with dozens of heatmap viewers, a few "
-                                 "tenths of a second back; this one in nonlinear mode); nil until the first is ready (about a second "
+                                 "tenths of a second back; this one in nonlinear mode); nil until the first is ready (1-2 s "
                                  "after turning it on for a space no client has used it on yet: the helper "
-                                 "process first loads the space and factorises its non-linear solver)",
+                                 "process first loads the space and factorises its non-linear solver; that "
+                                 "first one describes a frame as old as the wait)",
                           optional=True)
     node: str = wire("str", "graph streams: the node shown (during a blend, the one being left); nil for a space",
                      optional=True)
