@@ -65,7 +65,8 @@ def kabsch(X, Y):
 
 
 def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
-    """B aligned from A's true rigid placement: (aligned vertices, placement alone, A's vertices)."""
+    """B aligned from A's true rigid placement: (aligned vertices, the placement alone, the true
+    positions in B of A's vertices)."""
     from dataclasses import replace
 
     from engine.align.captures import COLOUR_WEIGHT
@@ -81,9 +82,10 @@ def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
     aligner = PairwiseAligner(V, F, colours, options=options)
     target = TargetSurface(mesh_b.vertices, mesh_b.faces, mesh_b.colors)
     face, bary, _ = surface_coordinates(V, truth_ab[0], faces)
-    R, t = kabsch(V, true_positions(truth_ab[1:2], faces, face, bary)[0])
+    true = true_positions(truth_ab[1:2], faces, face, bary)[0]
+    R, t = kabsch(V, true)
     result = aligner._fit(aligner.V_tet @ R.T + t, target)
-    return result.V, V @ R.T + t, V
+    return result.V, V @ R.T + t, true
 
 
 def main(argv=None):
@@ -130,11 +132,7 @@ def main(argv=None):
                "parts_pct": {name: round(float(pct[labels == k].mean()), 3) for k, name in enumerate(names)
                              if np.any(labels == k)}}
         if args.oracle_rigid:
-            aligned, placed, V = oracle_step(frames[a], frames[b], truth_ab, faces, options)
-            from engine.align.evaluation import surface_coordinates, true_positions
-
-            face, bary, _ = surface_coordinates(V, truth_ab[0], faces)
-            true = true_positions(truth_ab[1:2], faces, face, bary)[0]
+            aligned, placed, true = oracle_step(frames[a], frames[b], truth_ab, faces, options)
             row["oracle_rigid_pct"] = round(float(100.0 * np.linalg.norm(aligned - true, axis=1).mean() / size), 3)
             row["placement_alone_pct"] = round(float(100.0 * np.linalg.norm(placed - true, axis=1).mean() / size), 3)
         rows.append(row)
