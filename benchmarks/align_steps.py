@@ -7,7 +7,11 @@ generator's truth (mean error over the root's vertices, % of the model size). Wi
 ``--oracle-rigid`` each pair is also aligned from the true rigid placement (the rotation and
 translation that best carry A's vertices to their true positions in B, Kabsch) instead of the
 aligner's rigid start, and that placement alone is scored: if the oracle start is no better, the
-rigid start is not what fails.
+rigid start is not what fails. It also deforms A's solid onto the true positions (the aligner's
+own as-rigid-as-possible solve with the truth as its goals) and aligns B from that true pose:
+what the fit gives from the answer itself says how much of a step's error the aligner's
+objective makes (it leads away from the truth) and how much its search does (it stops short of
+it).
 
     .venv/bin/python benchmarks/align_steps.py /tmp/studio-dance --sequence dance \\
         --pairs 259:260,258:257,245:246,250:251 [--every 40] [--oracle-rigid] [--option NAME=VALUE] \\
@@ -65,14 +69,18 @@ def kabsch(X, Y):
 
 
 def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
-    """B aligned from A's true rigid placement: (aligned vertices, the placement alone, the true
-    positions in B of A's vertices)."""
+    """B aligned from A's true rigid placement and from its true pose: (aligned from the placement,
+    the placement alone, aligned from the true pose, the true pose alone, the true positions in B
+    of A's vertices)."""
     from dataclasses import replace
+
+    import numpy as np
 
     from engine.align.captures import COLOUR_WEIGHT
     from engine.align.evaluation import surface_coordinates, true_positions
     from engine.align.matching import TargetSurface
     from engine.align.pairwise import PairwiseAligner
+    from engine.align.rigid import rotation_fit
     from engine.surface import main_components
 
     V, F, kept = main_components(mesh_a.vertices, mesh_a.faces)
@@ -84,8 +92,15 @@ def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
     face, bary, _ = surface_coordinates(V, truth_ab[0], faces)
     true = true_positions(truth_ab[1:2], faces, face, bary)[0]
     R, t = kabsch(V, true)
-    result = aligner._fit(aligner.V_tet @ R.T + t, target)
-    return result.V, V @ R.T + t, true
+    X = aligner.V_tet @ R.T + t
+    result = aligner._fit(X, target)
+    # the true pose: the root's solid pulled onto the true positions by the aligner's own solve
+    rotations = rotation_fit(aligner._gradients(X), aligner._eye, iterations=8)
+    solver = aligner._solvers[aligner.options.final_stiffness]
+    for _ in range(10):
+        X, rotations = aligner._deform(X, rotations, solver, true, np.ones(len(true)))
+    from_pose = aligner._fit(X, target)
+    return result.V, V @ R.T + t, from_pose.V, aligner.surface(X), true
 
 
 def main(argv=None):
@@ -94,7 +109,8 @@ def main(argv=None):
     parser.add_argument("--sequence", default="dance")
     parser.add_argument("--pairs", default="", help="A:B frame pairs, comma separated (B aligned from A)")
     parser.add_argument("--every", type=int, default=0, help="also the pairs a:a+1 for a = 10, 10 + K, ...")
-    parser.add_argument("--oracle-rigid", action="store_true", help="also align each pair from its true rigid placement")
+    parser.add_argument("--oracle-rigid", action="store_true",
+                        help="also align each pair from its true rigid placement and from its true pose")
     parser.add_argument("--option", dest="options", action="append", default=None, metavar="NAME=VALUE",
                         help="an AlignmentOptions field (repeatable)")
     parser.add_argument("--tiny", action="store_true", help="the test suite's smoke run (no dataset)")
@@ -132,12 +148,14 @@ def main(argv=None):
                "parts_pct": {name: round(float(pct[labels == k].mean()), 3) for k, name in enumerate(names)
                              if np.any(labels == k)}}
         if args.oracle_rigid:
-            aligned, placed, true = oracle_step(frames[a], frames[b], truth_ab, faces, options)
-            row["oracle_rigid_pct"] = round(float(100.0 * np.linalg.norm(aligned - true, axis=1).mean() / size), 3)
-            row["placement_alone_pct"] = round(float(100.0 * np.linalg.norm(placed - true, axis=1).mean() / size), 3)
+            aligned, placed, from_pose, pose, true = oracle_step(frames[a], frames[b], truth_ab, faces, options)
+            for key, W in (("oracle_rigid_pct", aligned), ("placement_alone_pct", placed),
+                           ("oracle_pose_pct", from_pose), ("true_pose_pct", pose)):
+                row[key] = round(float(100.0 * np.linalg.norm(W - true, axis=1).mean() / size), 3)
         rows.append(row)
         extra = (f", from the true rigid placement {row['oracle_rigid_pct']:.2f}% (that placement alone "
-                 f"{row['placement_alone_pct']:.2f}%)" if args.oracle_rigid else "")
+                 f"{row['placement_alone_pct']:.2f}%), from the true pose {row['oracle_pose_pct']:.2f}% (that "
+                 f"pose alone {row['true_pose_pct']:.2f}%)" if args.oracle_rigid else "")
         print(f"{a} -> {b}: {row['mean_pct']:.2f}%{extra}; " + ", ".join(f"{k} {v:.2f}%" for k, v in row["parts_pct"].items()),
               flush=True)
     cpu = time.process_time() - cpu_started
@@ -148,10 +166,11 @@ def main(argv=None):
               "load_average_before": [round(x, 2) for x in load_before],
               "load_average_after": [round(x, 2) for x in os.getloadavg()], "python": platform.python_version()}
     if args.oracle_rigid:
-        record["oracle_rigid_mean_pct"] = round(float(np.mean([row["oracle_rigid_pct"] for row in rows])), 3)
+        for key in ("oracle_rigid", "oracle_pose"):
+            record[f"{key}_mean_pct"] = round(float(np.mean([row[f"{key}_pct"] for row in rows])), 3)
     print(f"{len(rows)} single steps: mean {record['mean_pct']:.2f}%, median {record['median_pct']:.2f}% of the "
-          f"model size" + (f"; from the true rigid placement: mean {record['oracle_rigid_mean_pct']:.2f}%"
-                           if args.oracle_rigid else "") + f"; {cpu:.1f} CPU s", flush=True)
+          f"model size" + (f"; from the true rigid placement: mean {record['oracle_rigid_mean_pct']:.2f}%; from the "
+                           f"true pose: mean {record['oracle_pose_mean_pct']:.2f}%" if args.oracle_rigid else "") + f"; {cpu:.1f} CPU s", flush=True)
     text = json.dumps(record, indent=1)
     print(text)
     if args.out is not None:

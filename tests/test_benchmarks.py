@@ -204,10 +204,13 @@ def check_align_steps(record, stdout):
     for row in record["pairs"]:
         assert 0 < row["mean_pct"] < 100 and set(row["parts_pct"]) == {"all"}
         assert row["parts_pct"]["all"] == pytest.approx(row["mean_pct"], abs=2e-3)
-        # aligning moves the true rigid placement closer to the truth, not further
+        # aligning moves the true rigid placement closer to the truth, not further; the true pose
+        # (the solid pulled onto the truth) is closer still, and the fit from it stays near it
         assert 0 < row["oracle_rigid_pct"] < row["placement_alone_pct"]
+        assert 0 <= row["true_pose_pct"] < row["placement_alone_pct"] and 0 < row["oracle_pose_pct"] < 100
     assert record["mean_pct"] == pytest.approx(sum(r["mean_pct"] for r in record["pairs"]) / 2, abs=2e-3)
     assert positive(record["cpu_seconds"]) and "2 single steps: mean" in stdout and "true rigid placement" in stdout
+    assert 0 < record["oracle_pose_mean_pct"] < 100 and "from the true pose" in stdout
 
 
 def check_dask_align(records, stdout):
