@@ -57,17 +57,6 @@ def parse_pairs(text, every, frames):
     return pairs
 
 
-def kabsch(X, Y):
-    """The rotation R and translation t minimising sum |R x + t - y|^2."""
-    import numpy as np
-
-    cx, cy = X.mean(axis=0), Y.mean(axis=0)
-    U, _, Vt = np.linalg.svd((X - cx).T @ (Y - cy))
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
-    return R, cy - R @ cx
-
-
 def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
     """B aligned from A's true rigid placement and from its true pose: (aligned from the placement,
     the placement alone, aligned from the true pose, the true pose alone, the true positions in B
@@ -80,7 +69,7 @@ def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
     from engine.align.evaluation import surface_coordinates, true_positions
     from engine.align.matching import TargetSurface
     from engine.align.pairwise import PairwiseAligner
-    from engine.align.rigid import rotation_fit
+    from engine.align.rigid import kabsch, rotation_fit
     from engine.surface import main_components
 
     V, F, kept = main_components(mesh_a.vertices, mesh_a.faces)
@@ -91,7 +80,7 @@ def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
     target = TargetSurface(mesh_b.vertices, mesh_b.faces, mesh_b.colors)
     face, bary, _ = surface_coordinates(V, truth_ab[0], faces)
     true = true_positions(truth_ab[1:2], faces, face, bary)[0]
-    R, t = kabsch(V, true)
+    R, t = kabsch(V, true, np.ones(len(V)))
     X = aligner.V_tet @ R.T + t
     result = aligner._fit(X, target)
     # the true pose: the root's solid pulled onto the true positions by the aligner's own solve

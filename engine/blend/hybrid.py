@@ -224,14 +224,15 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
     level = level or (4 if n_sources <= 3 else 3)
     cache = collections.OrderedDict()  # weight -> its non-linear blend, the least recently used dropped
     room = max(64, int(CACHE_BYTES // (8 * 3 * n_phases * n_vertices)))
-    evaluations = [0]
+    evaluations = 0  # non-linear blends computed (a dropped one may be computed again)
 
     def exact(w):
+        nonlocal evaluations
         key = tuple(np.round(w, 12))
         if key in cache:
             cache.move_to_end(key)
             return cache[key]
-        evaluations[0] += 1
+        evaluations += 1
         cache[key] = value = np.asarray(nonlinear(w), dtype=np.float64)
         if len(cache) > room:
             cache.popitem(last=False)
@@ -319,7 +320,7 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
     report = HybridReport(
         epsilon=epsilon, references=new, leaves=len(tree.leaves()), max_depth=int(tree.depth.max()),
         max_test_error=float(np.nanmax([e for _, e in leaf_errors])) if uniform_depth is None else float("nan"),
-        nonlinear_evaluations=evaluations[0],
+        nonlinear_evaluations=evaluations,
         stored_fraction=float(len(corrections.vertex)) / max(1, new * n_phases * n_vertices),
         leaf_errors=leaf_errors)
     return tree, corrections, report

@@ -25,6 +25,7 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -224,10 +225,8 @@ def read_inputs(sequences, progress=None, *, say=None):
     meshes, lengths = [], []
     total = None
     if progress is not None:  # the bar's total: every sequence's frame files, listed first
-        try:
+        with contextlib.suppress(MeshFormatError, MeshSequenceError):  # read_frames below names the problem
             total = sum(len(list_frames(s["frames"])) for s in sequences)
-        except (MeshFormatError, MeshSequenceError):
-            total = None  # read_frames below names the problem
     for s in sequences:
         frames = read_frames(s["frames"], progress=(lambda d, t: progress("read", len(meshes) + d, total))
                              if progress else None)

@@ -80,12 +80,16 @@ class FrameOutput:
         True when it ran out and the connection is being closed."""
         if self.stalled_since is None:
             self.stalled_since = now
-        timeout = self.settings.stream_stall_timeout
-        if now - self.stalled_since < timeout:
+        if now - self.stalled_since < self.settings.stream_stall_timeout:
             return False
+        self._close_stalled()
+        return True
+
+    def _close_stalled(self):
+        """Close the connection with 1008: no frame could be delivered for the stall timeout."""
+        timeout = self.settings.stream_stall_timeout
         log.info("stream: closing a connection to %s that took no frame for %.0f s", self.space_name, timeout)
         self.shut(P.CLOSE_STALLED, f"stalled: no frame could be delivered for {timeout:g} s")
-        return True
 
     def _transport_full(self, now, streaming):
         """The transport still holds earlier bytes: skip this tick (counted in ``dropped``) and
@@ -254,14 +258,11 @@ class FrameOutput:
             return not self.closed
         loop = asyncio.get_running_loop()
         started = loop.time()
-        timeout = self.settings.stream_stall_timeout
         while not self.gauge.ready():
             if self.closed:
                 return False
-            if loop.time() - started >= timeout:
-                log.info("stream: closing a connection to %s that read no pulled frame for %.0f s",
-                         self.space_name, timeout)
-                self.shut(P.CLOSE_STALLED, f"stalled: no frame could be delivered for {timeout:g} s")
+            if loop.time() - started >= self.settings.stream_stall_timeout:
+                self._close_stalled()
                 return False
             await asyncio.sleep(RETRY)
         return not self.closed

@@ -44,10 +44,10 @@ def dataset(tmp_path_factory):
 @pytest.fixture(scope="module")
 def aligned_run(dataset, tmp_path_factory):
     out = tmp_path_factory.mktemp("aligned") / "out"
-    err = io.StringIO()
-    with contextlib.redirect_stderr(err):
+    err, summary = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(summary):
         assert main(["align", str(dataset), "--out", str(out), "--workers", "1", "--levels", "3"]) == 0
-    return out, err.getvalue()
+    return out, err.getvalue(), summary.getvalue()
 
 
 @pytest.fixture(scope="module")
@@ -87,7 +87,7 @@ def aligned_mm_run(dataset_mm_z_up, tmp_path_factory):
 
 
 def test_align_shows_progress_bars_up_to_every_frame(aligned_run):
-    _, err = aligned_run
+    _, err, _ = aligned_run
     for stage in ("read frames", "shape histograms", "dissimilarity", "align", "write"):
         assert f"{stage}: 100%" in err, f"no finished {stage!r} bar in:\n{err[-2000:]}"
     assert "6/6" in err.split("align: 100%")[1].split("\n")[0]  # counted in frames
@@ -389,14 +389,11 @@ def test_aligned_metadata_drops_what_describes_the_input_frames():
     assert not {"studio", "noise_mm", "unstructured_vertex_counts"} & set(out)
 
 
-def test_the_summary_says_whether_colours_were_cues_and_why(aligned_run, dataset, tmp_path, capsys):
+def test_the_summary_says_whether_colours_were_cues_and_why(aligned_run):
     from server.commands.align import colour_cues_text
 
-    out = tmp_path / "o"
-    with contextlib.redirect_stderr(io.StringIO()):
-        assert main(["align", str(dataset), "--out", str(out), "--workers", "1", "--levels", "1"]) == 0
     # the 1,000-vertex body is too coarse for its colours to carry a texture
-    assert "colour cues off (--colors auto: the root's median edge is not under 1.6% of" in capsys.readouterr().out
+    assert "colour cues off (--colors auto: the root's median edge is not under 1.6% of" in aligned_run[2]
     frames = [types.SimpleNamespace(colors=None)]
     assert colour_cues_text("auto", False, frames) == "off (--colors auto: not every frame has vertex colours)"
     assert colour_cues_text("on", True, frames) == "on (--colors on)"
