@@ -25,8 +25,8 @@ def test_interpolate_rows_is_numpys_take_multiply_add_and_cast():
 
 
 def _terms(rng, K, R, P):
-    counts = rng.integers(0, 7, K)
-    counts[0] = 1
+    counts = rng.integers(0, 9, K)
+    counts[:3] = 1, 6, 4  # and the shapes summed in one pass (a hybrid frame's three or two references)
     starts = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     T = int(starts[-1])
     return (rng.integers(0, R, T).astype(np.int64), rng.integers(0, P, T).astype(np.int64),
