@@ -172,7 +172,7 @@ class Player:
         self._target = solution.realised.copy()  # steer towards what can be reached
         if immediate:
             self._current = self._target.copy()
-            self._velocity[:] = 0.0
+            self._velocity = np.zeros_like(self._velocity)
             self._solution = self._solve(self._current)
             self._settled = True
         else:
@@ -183,7 +183,7 @@ class Player:
     def _solve(self, params):
         """The map's solution for ``params``, warm-started from the last one (parameters move
         continuously between steps); a cold start where the warm one does not reach."""
-        solution = self.map.solve(params, start=self._solution.u)
+        solution = self.map.solve_near(params, self._solution.u)
         if solution.clamped:
             solution = self.map.solve(params)
         return solution
@@ -268,9 +268,9 @@ class Player:
             track = self.track
             if self._settled:  # fixed weights: the whole cycle's rates, kept
                 step, turn, duration = self._track_at(w)
-            else:              # moving weights: only the two samples this step needs
-                wn = w / w.sum()
-                duration = float(wn @ track.durations)
+            else:              # moving weights: only the two samples this step needs (``dot``: the
+                wn = w / np.add.reduce(w)  # numbers of ``@``, with less overhead for these sizes)
+                duration = float(wn.dot(track.durations))
             d_phase = dt / duration
             if not self.space.cyclic and not self.loop:
                 d_phase = min(d_phase, 1.0 - self.phase)
@@ -280,8 +280,8 @@ class Player:
             if self._settled:
                 s0, s1, t0, t1 = step[p0], step[p1], turn[p0], turn[p1]
             else:
-                s0, s1 = (wn @ track.root_rate[p0]).tolist(), (wn @ track.root_rate[p1]).tolist()
-                t0, t1 = float(track.turn_rate[p0] @ wn), float(track.turn_rate[p1] @ wn)
+                s0, s1 = wn.dot(track.root_rate[p0]).tolist(), wn.dot(track.root_rate[p1]).tolist()
+                t0, t1 = float(track.turn_rate[p0].dot(wn)), float(track.turn_rate[p1].dot(wn))
             sx, sz = s0[0] + a * (s1[0] - s0[0]), s0[2] + a * (s1[2] - s0[2])
             t = t0 + a * (t1 - t0)
             heading_middle = self.heading + 0.5 * t * d_phase

@@ -227,7 +227,20 @@ class ParameterMap:
             u_list = self._dense_u[nearest].astype(float).tolist()
         else:
             u_list = np.asarray(start, dtype=float).reshape(self.layout.dims).tolist()
-            u_list = [min(max(x, 0.0), 1.0) for x in u_list]
+        return self._solved(p, p_list, u_list, tolerance)
+
+    def solve_near(self, requested, start):
+        """``solve(requested, start=start)`` for a caller stepping the parameters continuously
+        (the player, every frame), without the checks and conversions: ``requested`` (k,)
+        float64 array of finite numbers (kept as the Solution's ``requested``, not copied: do not
+        change it afterwards), ``start`` the previous Solution's ``u``."""
+        p_list = [min(max(x, lo), hi) for x, (lo, hi) in zip(requested.tolist(), self._solve_bounds)]
+        return self._solved(requested, p_list, start.tolist(), 0.005)
+
+    def _solved(self, p, p_list, u_list, tolerance):
+        """The Solution for request ``p`` (array; ``p_list`` its values clamped to the solve's
+        bounds) from sheet coordinates ``u_list``."""
+        u_list = [min(max(x, 0.0), 1.0) for x in u_list]
         u_list, realised_list = self._gauss_newton(p_list, u_list)
         u = np.array(u_list)
         realised = np.array(realised_list)
