@@ -11,6 +11,9 @@ numpy pass (and temporary) per operation.
   steps). Worked in blocks of a few thousand values, so the partial sums stay in the first-level
   cache; a frame of four or six terms (two or three references) sums all of them in one pass
   over a block (the same operations in the same order; 35-40% less time than a pass per term).
+- :func:`hybrid_terms`: the terms of K hybrid frames for ``combine_rows`` (the walk down the
+  simplex tree to each frame's leaf and its phase samples), the arithmetic of the Python it
+  replaced (engine/blend/many.py), so the same coefficients.
 - :func:`encode_q16`: one frame's q16 codes (the same float32 steps), for frames blended one at
   a time (motion graphs, the non-linear mode).
 
@@ -125,6 +128,64 @@ def combine_rows(stack, ref, phase, coef, starts, out, codes=None):
     return out
 
 
+@compiled
+def _hybrid_terms(lam, phases, children, split, cells, n_phases, cyclic, ref, sample, coef, starts):  # pragma: no cover
+    K, N = lam.shape
+    t = 0
+    for k in range(K):
+        g = lam[k]
+        node = 0
+        while children[node, 0] >= 0:  # down to w's leaf, g turned into its barycentric coordinates
+            i, j = split[node, 0], split[node, 1]
+            li, lj = g[i], g[j]
+            if li >= lj:
+                g[i], g[j] = li - lj, 2.0 * lj
+                node = children[node, 0]
+            else:
+                g[j], g[i] = lj - li, 2.0 * li
+                node = children[node, 1]
+        phase = phases[k]
+        if cyclic:  # engine.blend.phase.phase_samples
+            x = (phase % 1.0) * n_phases
+            p0 = int(x) % n_phases
+            p1, a = (p0 + 1) % n_phases, x - int(x)
+        else:
+            x = min(max(phase, 0.0), 1.0) * (n_phases - 1)
+            p0 = min(int(x), n_phases - 2)
+            p1, a = p0 + 1, x - p0
+        for c in range(N):
+            gc = g[c]
+            if gc <= 0.0:
+                continue
+            c0, c1 = gc * (1.0 - a), gc * a
+            if c0 != 0.0:
+                ref[t], sample[t], coef[t] = cells[node, c], p0, c0
+                t += 1
+            if c1 != 0.0:
+                ref[t], sample[t], coef[t] = cells[node, c], p1, c1
+                t += 1
+        starts[k + 1] = t
+
+
+def hybrid_terms(lam, phases, children, split, cells, n_phases, cyclic):
+    """The terms of K hybrid frames for :func:`combine_rows`: frame k is sum_j g_j ((1 - a)
+    H_j[p0] + a H_j[p1]) over the references j of its simplex leaf with g_j > 0 (terms of zero
+    coefficient left out), in the leaf's order, p0 before p1 (engine/blend/many.py).
+
+    lam : (K, N) float64 C-contiguous   normalised weights (overwritten with the barycentric
+                                        coordinates in each row's leaf)
+    phases : (K,) float64;  children, split, cells : (C, 2), (C, 2), (C, N) int64 (the tree's)
+    Returns (ref, sample, coef, starts): (T,) int64, (T,) int64, (T,) float32 (the float64
+    products rounded), (K + 1,) int64.
+    """
+    K, N = lam.shape
+    ref, sample = np.empty(2 * K * N, dtype=np.int64), np.empty(2 * K * N, dtype=np.int64)
+    coef, starts = np.empty(2 * K * N, dtype=np.float32), np.zeros(K + 1, dtype=np.int64)
+    _hybrid_terms(lam, phases, children, split, cells, n_phases, cyclic, ref, sample, coef, starts)
+    T = starts[K]
+    return ref[:T], sample[:T], coef[:T], starts
+
+
 # the output (and codes) ``_combine_rows`` is not given: fixed types, never read or written
 _NO_CODES, _NO_F32, _NO_U16 = np.empty(0, np.float32), np.empty((1, 1), np.float32), np.empty((1, 1), np.uint16)
 
@@ -169,6 +230,8 @@ def warm_up():
     codes = np.ones(4, dtype=np.float32), np.zeros(4, dtype=np.float32)
     combine_rows(stack, *terms, starts, np.empty((1, 4), dtype=np.uint16), codes)
     encode_q16(np.zeros(4, dtype=np.float32), *codes)
+    nodes = np.array([[-1, -1]], dtype=np.int64)
+    hybrid_terms(np.ones((1, 2)), np.zeros(1), nodes, nodes, np.zeros((1, 2), dtype=np.int64), 2, True)
 
 
-__all__ = ["combine_rows", "encode_q16", "interpolate_rows", "warm_up"]
+__all__ = ["combine_rows", "encode_q16", "hybrid_terms", "interpolate_rows", "warm_up"]

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.blend.compiled import combine_rows, encode_q16
+from engine.blend.compiled import combine_rows, encode_q16, hybrid_terms
 from engine.blend.hybrid import HybridBlender
 from engine.blend.linear import LinearBlender, blend_rows
 from engine.blend.phase import phase_of_sample, phase_samples
@@ -61,12 +61,12 @@ class ManyBlender:
         if self.hybrid:
             tree = blender.tree
             self._references = tree.references
-            self._cells = tree.cells.tolist()
-            self._children, self._split = blender._children, blender._split
+            self._tree = tree.children, tree.split, tree.cells  # (hybrid_terms' arrays)
             # (R, P, 3n) float32 hybrid blends per reference (untouched pages cost no memory: only
             # the references used fill theirs, on first use)
             self._stack = np.empty((len(self._references), self.n_phases, 3 * self.n_vertices), dtype=np.float32)
             self._made = [False] * len(self._references)  # a reference's rows are made on first use
+            self._unmade = len(self._references)
 
     def reference_rows(self, r):
         """(P, 3 n) float32: the hybrid blend at reference ``r`` at every phase sample."""
@@ -76,37 +76,8 @@ class ManyBlender:
             for p in range(P):
                 self.blender.blend(self._references[r], phase_of_sample(p, P, self.cyclic), out=rows[p].reshape(-1, 3))
             self._made[r] = True
+            self._unmade -= 1
         return rows
-
-    def _leaf(self, lam):
-        """w's leaf and its barycentric coordinates there (``lam`` normalised weights, a list,
-        turned into them)."""
-        node, children, split = 0, self._children, self._split
-        while children[node][0] >= 0:
-            i, j = split[node]
-            li, lj = lam[i], lam[j]
-            if li >= lj:
-                lam[i], lam[j] = li - lj, 2.0 * lj
-                node = children[node][0]
-            else:
-                lam[j], lam[i] = lj - li, 2.0 * li
-                node = children[node][1]
-        return node
-
-    def _hybrid_terms(self, lam, phase, refs, samples, coefs):
-        """Append a hybrid frame's terms (reference, phase sample, coefficient) to the lists."""
-        p0, p1, a = phase_samples(phase, self.n_phases, self.cyclic)
-        made = self._made
-        for g, r in zip(lam, self._cells[self._leaf(lam)]):
-            if g <= 0.0:
-                continue
-            if not made[r]:
-                self.reference_rows(r)
-            for p, c in ((p0, g * (1.0 - a)), (p1, g * a)):
-                if c != 0.0:
-                    refs.append(r)
-                    samples.append(p)
-                    coefs.append(c)
 
     def blend(self, weights, phases, codes=None):
         """(K, 3 n) float32 blends of ``weights`` (K, N) non-negative, not all zero per row, at
@@ -117,14 +88,14 @@ class ManyBlender:
         if W.ndim != 2 or len(W) != len(phases):
             raise ValueError(f"expected (K, N) weights and K phases, got {W.shape} and {len(phases)}")
         m = 3 * self.n_vertices
-        if self.hybrid:  # one compiled pass per row over its terms (engine/blend/compiled.py)
-            refs, samples, coefs, starts = [], [], [], [0]
-            for lam, phase in zip((W / W.sum(axis=1, keepdims=True)).tolist(), phases):
-                self._hybrid_terms(lam, phase, refs, samples, coefs)
-                starts.append(len(refs))
+        if self.hybrid:  # the terms, then one compiled pass per row over them (engine/blend/compiled.py)
+            terms = hybrid_terms(W / W.sum(axis=1, keepdims=True), np.array(phases, dtype=np.float64), *self._tree,
+                                 self.n_phases, self.cyclic)
+            if self._unmade:
+                for r in set(terms[0].tolist()):
+                    self.reference_rows(r)
             out = aligned_rows(len(W), m) if codes is None else np.empty((len(W), m), dtype="<u2")
-            return combine_rows(self._stack, np.array(refs, dtype=np.int64), np.array(samples, dtype=np.int64),
-                                np.array(coefs, dtype=np.float32), np.array(starts, dtype=np.int64), out, codes)
+            return combine_rows(self._stack, *terms, out, codes)
         out = aligned_rows(len(W), m)
         flat = self.blender._flat
         for w, phase, row in zip(W, phases, out):

@@ -147,7 +147,7 @@ def test_warm_up_compiles_every_signature_the_stream_uses():
     from engine.parameters import parameter_map
 
     warm_up()
-    kernels = (compiled._interpolate_rows, compiled._combine_rows, compiled._encode_q16,
+    kernels = (compiled._interpolate_rows, compiled._combine_rows, compiled._encode_q16, compiled._hybrid_terms,
                parameter_map._newton_square_compiled, parameter_map._nearest_scaled)
     before = [len(kernel.signatures) for kernel in kernels]
     assert all(before)
@@ -172,4 +172,11 @@ def test_warm_up_compiles_every_signature_the_stream_uses():
     pm.solve([0.3, 1.1])
     pm.solve([0.35, 1.0], start=[0.3, 0.5])
     compiled.encode_q16(stack[0, 0], stack[0, 1], stack[0, 2])
+    from engine.blend.simplex import SimplexTree  # ManyBlender's terms: a tree's arrays, a batch's weights and phases
+
+    tree = SimplexTree(3)
+    W = rng.random((4, 3))
+    for cyclic in (True, False):
+        compiled.hybrid_terms(W / W.sum(axis=1, keepdims=True), np.array([0.1, 0.5, 0.2, 0.9]), tree.children,
+                              tree.split, tree.cells, 6, cyclic)
     assert [len(kernel.signatures) for kernel in kernels] == before

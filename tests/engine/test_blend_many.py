@@ -112,3 +112,49 @@ def test_q16_codes_in_the_blend_are_the_quantisers_codes_of_its_rows(kind):
     for row, code in zip(rows, codes):
         assert code.tobytes() == quantiser.encode(row.reshape(-1, 3))
     assert (codes == 0).any() and (codes == 65535).any()
+
+
+def _terms_in_python(blender, W, phases):
+    """The Python that made a hybrid batch's terms before ``hybrid_terms`` (engine/blend/compiled.py),
+    kept as its reference."""
+    from engine.blend.phase import phase_samples
+
+    children, split, cells = blender._children, blender._split, blender.tree.cells.tolist()
+    refs, samples, coefs, starts = [], [], [], [0]
+    for lam, phase in zip((W / W.sum(axis=1, keepdims=True)).tolist(), phases):
+        node = 0
+        while children[node][0] >= 0:
+            i, j = split[node]
+            li, lj = lam[i], lam[j]
+            if li >= lj:
+                lam[i], lam[j] = li - lj, 2.0 * lj
+                node = children[node][0]
+            else:
+                lam[j], lam[i] = lj - li, 2.0 * li
+                node = children[node][1]
+        p0, p1, a = phase_samples(phase, blender.n_phases, blender.cyclic)
+        for g, r in zip(lam, cells[node]):
+            if g <= 0.0:
+                continue
+            for p, c in ((p0, g * (1.0 - a)), (p1, g * a)):
+                if c != 0.0:
+                    refs.append(r)
+                    samples.append(p)
+                    coefs.append(c)
+        starts.append(len(refs))
+    return (np.array(refs, dtype=np.int64), np.array(samples, dtype=np.int64), np.array(coefs, dtype=np.float32),
+            np.array(starts, dtype=np.int64))
+
+
+@pytest.mark.parametrize("cyclic", [True, False])
+def test_hybrid_terms_are_the_python_walks(cyclic):
+    """The compiled terms (leaf, barycentric coordinates, phase samples) are the Python's, bit for bit."""
+    from engine.blend.compiled import hybrid_terms
+
+    blender = _hybrid(cyclic)[0]
+    W, phases = _weights(4, 40, seed=16)
+    tree = blender.tree
+    terms = hybrid_terms(W / W.sum(axis=1, keepdims=True), np.array(phases), tree.children, tree.split, tree.cells,
+                         blender.n_phases, cyclic)
+    for got, expected in zip(terms, _terms_in_python(blender, W, phases)):
+        assert got.dtype == expected.dtype and got.tobytes() == expected.tobytes()
