@@ -14,7 +14,7 @@ import numpy as np
 
 from engine.align.pairwise import AlignmentOptions, PairwiseAligner
 from engine.align.propagation import AlignedFrames, align_tree
-from engine.align.repair import alignment_confidence, repair_alignment, tail_reference
+from engine.align.repair import alignment_confidence, colour_terms, repair_alignment, tail_reference
 from engine.align.root_choice import choose_root
 from engine.align.similarity import shape_dissimilarity
 from engine.align.similarity_tree import DEFAULT_TREE, chain_tree, similarity_tree
@@ -185,7 +185,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                          candidates=retries, budget=repair_budget, progress=(lambda d, t: progress("repair", d, t)) if progress else None,
                          runner=runner)
     else:
-        _confidence_only(aligned)
+        _confidence_only(aligned, colours=bool(cues))
     timings["repair"] = time.perf_counter() - started
     return CaptureAlignment(similarity=similarity, tree=tree, aligned=aligned, timings=timings, method=method,
                             tets=tets, colour_cues=bool(cues))
@@ -200,13 +200,15 @@ def _apart(meshes, progress):
     return choose
 
 
-def _confidence_only(aligned):
-    """Fill ``confidence`` (and an all-false ``repaired``) without aligning anything again."""
+def _confidence_only(aligned, colours=False):
+    """Fill ``confidence`` (and an all-false ``repaired``) without aligning anything again;
+    ``colours``: colour cues are on (the confidence reads the colours' disagreement too)."""
     from engine.surface import model_size
 
     reference = tail_reference(aligned.distortion_tail, aligned.parent, aligned.root)
+    colour, floor = colour_terms(aligned, colours)
     aligned.confidence = alignment_confidence(aligned.residual, aligned.distortion_tail,
-                                              model_size(aligned.root_vertices), reference)
+                                              model_size(aligned.root_vertices), reference, colour, floor)
     aligned.confidence[aligned.root] = 1.0
     aligned.repaired = np.zeros(len(aligned.confidence), dtype=bool)
     return aligned

@@ -111,6 +111,8 @@ class PairAlignment:
     colour_distance : float     median RGB distance between the root's vertex colours and the
                                 target's where they landed (NaN when either has no colours, or
                                 when only one orientation was aligned and nothing was compared)
+    colour_mean : float         mean of those distances (NaN without colours): what the frame's
+                                confidence reads (:mod:`engine.align.appearance`)
     orientations : int          rigid starts aligned from (2 when front and back were ambiguous)
     """
 
@@ -122,6 +124,7 @@ class PairAlignment:
     distortion_tail: float = 0.0
     seconds: float = 0.0
     colour_distance: float = float("nan")
+    colour_mean: float = float("nan")
     orientations: int = 1
 
     @property

@@ -29,6 +29,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
+from engine.align.appearance import colour_disagreement, colour_distance
 from engine.align.matching import (
     correspondence_weights,
     correspondences,
@@ -150,6 +151,7 @@ class PairwiseAligner:
             for result in results:
                 result.colour_distance = self._colour_distance(result.V, target)
         best = min(results, key=self._orientation_score)
+        best.colour_mean = self.colour_disagreement(best.V, target)
         best.seconds = time.perf_counter() - started
         best.orientations = len(starts)
         return best
@@ -188,11 +190,12 @@ class PairwiseAligner:
 
     def _colour_distance(self, V, target):
         """Median RGB distance between the root's colours and the target's where V lands (NaN without colours)."""
-        if self.colors is None or target.colors is None:
-            return float("nan")
-        _, _, face = target.closest(V)
-        there = target.colors[target.F[face]].mean(axis=1)
-        return float(np.median(np.linalg.norm(there - self.colors, axis=1)))
+        return colour_distance(V, self.colors, target)
+
+    def colour_disagreement(self, V, target):
+        """Mean RGB distance between the root's colours and the target's where V lands (NaN without
+        colours; :mod:`engine.align.appearance`)."""
+        return colour_disagreement(V, self.colors, target)
 
     def _orientation_score(self, result):
         """Which of the results from different orientations to keep (lower is better).

@@ -13,6 +13,7 @@ import time
 
 import numpy as np
 
+from engine.align.appearance import colour_floor
 from engine.align.matching import TargetSurface
 from engine.align.pairwise import PairAlignment, PairwiseAligner
 from engine.tasks import checkpoint
@@ -85,15 +86,16 @@ def align_piece(aligner, job, tick=None):
     if job["entry"] >= 0:
         aligned[column[job["entry"]]] = True
     qualities = list(job["history"])
-    out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "tail": [], "seconds": [],
-           "cpu_seconds": [], "parent": [], "retried": [], "quality": [], "poses": {}}
+    out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "tail": [], "colour": [],
+           "seconds": [], "cpu_seconds": [], "parent": [], "retried": [], "quality": [], "poses": {}}
     for i, node in enumerate(nodes):
         checkpoint()  # a task stops here when its runner says the work has ended
         node = int(node)
         cpu_started = time.process_time()
         if parents[i] < 0:  # the root: its own mesh
             poses[node] = aligner.V_tet.copy()
-            result = PairAlignment(V=aligner.V.copy(), X=poses[node], residual=0.0, residual_max=0.0)
+            result = PairAlignment(V=aligner.V.copy(), X=poses[node], residual=0.0, residual_max=0.0,
+                                   colour_mean=colour_floor(aligner.V, aligner.F, aligner.colors))
             p, retried = -1, False
         else:
             V, F, C = job["meshes"][i]
@@ -128,6 +130,7 @@ def align_piece(aligner, job, tick=None):
         out["residual_max"].append(result.residual_max)
         out["distortion"].append(result.distortion)
         out["tail"].append(result.distortion_tail)
+        out["colour"].append(result.colour_mean)
         out["seconds"].append(result.seconds)
         out["cpu_seconds"].append(time.process_time() - cpu_started)
         out["parent"].append(p)

@@ -41,6 +41,9 @@ class AlignedFrames:
                                        captured root without its floating fragments)
     root_kept : (n,) int array         index of each in the captured root mesh's vertices
     distortion_tail : (N,) float array see :class:`PairAlignment`
+    colour : (N,) float array          mean RGB distance between the root's colours and each frame's
+                                       where its vertices landed (the root's: against its own surface;
+                                       NaN without colours; :mod:`engine.align.appearance`)
     confidence : (N,) float array      0..1, see :func:`engine.align.repair.alignment_confidence`
     repaired : (N,) bool array         frames the repair pass aligned again from other sources
     poses : dict                       frame -> aligned tet vertices (k, 3) (not written out)
@@ -59,6 +62,7 @@ class AlignedFrames:
     root_vertices: np.ndarray = None
     root_kept: np.ndarray = None
     distortion_tail: np.ndarray = None
+    colour: np.ndarray = None
     confidence: np.ndarray = None
     repaired: np.ndarray = None
     poses: dict = None
@@ -181,6 +185,7 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
     vertices = np.zeros((N, n, 3))
     residual, residual_max = np.zeros(N), np.zeros(N)
     distortion, tail, seconds, cpu_seconds = np.zeros(N), np.zeros(N), np.zeros(N), np.zeros(N)
+    colour = np.full(N, np.nan)
     parent = tree_parent.copy()
     retried = np.zeros(N, dtype=bool)
     poses = {}
@@ -205,7 +210,7 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
         vertices[idx] = np.stack(out["V"])
         residual[idx], residual_max[idx] = out["residual"], out["residual_max"]
         distortion[idx], seconds[idx] = out["distortion"], out["seconds"]
-        tail[idx] = out["tail"]
+        tail[idx], colour[idx] = out["tail"], out["colour"]
         cpu_seconds[idx] = out["cpu_seconds"]
         parent[idx], retried[idx] = out["parent"], out["retried"]
         poses.update(out["poses"])
@@ -257,7 +262,8 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
     return AlignedFrames(vertices=vertices, faces=aligner.F.copy(), residual=residual, residual_max=residual_max,
                          distortion=distortion, seconds=seconds, parent=parent, retried=retried,
                          root=int(tree.root), cpu_seconds=cpu_seconds, root_vertices=aligner.V.copy(),
-                         root_kept=np.arange(len(aligner.V)), distortion_tail=tail, poses=poses)
+                         root_kept=np.arange(len(aligner.V)), distortion_tail=tail, colour=colour,
+                         poses=poses)
 
 
 def in_line_grandparents(parent, lengths):

@@ -6,7 +6,11 @@ of the root that carried the limb are torn where it slid (a hip, a shoulder). So
 gets a confidence from its fit *and* the tail of its distortion (the worst 5% of the solid,
 ``PairAlignment.distortion_tail``) beyond the capture's own floor: loose garments (a skirt, wide
 sleeves) deform that much in every frame, so the tail the frames aligned straight from the root
-show (:func:`tail_reference`) is subtracted first. Frames below a confidence of one half are aligned again,
+show (:func:`tail_reference`) is subtracted first. Where the frames' colours carry texture (colour
+cues on), the confidence also reads the colours where each frame's vertices landed against the
+root's (:mod:`engine.align.appearance`): anchored to the root, they show what a frame inherited
+along its path as well as its own step's slip, and the tail then counts only where the solid is
+torn far beyond the floor. Frames below a confidence of one half are aligned again,
 parents first, from other sources: the root itself (a frame aligned straight from the root
 cannot inherit a slip) and the most similar trusted frames; the best result by the same score
 is kept. A frame that no source aligns well stays flagged, with its confidence, never silent.
@@ -22,6 +26,9 @@ TAIL_SCALE = 4.0       # distortion tail (||F - R||^2 over the worst 5% of the s
 TAIL_RELATIVE = 0.0    # ... plus this share of the capture's floor; 0.25 halved the dance's false flags
                        # but missed 3 of 8 frames over 3% on studio-tiny (docs/alignment.md), so it is off
 RESIDUAL_SCALE = 0.01  # mean two-sided fit residual, as a fraction of the model size, at 1/e
+COLOUR_FREE = 1.3      # colour disagreement (in units of the root's own floor) that costs nothing ...
+COLOUR_SCALE = 0.58    # ... and the excess over it at confidence 1/e (1.7 times the floor: confidence 1/2)
+TAIL_WITH_COLOUR = 2.0 # with colours, the distortion tail (in its units) that costs nothing
 TRUSTED = 0.5          # frames at or above this confidence are trusted sources and left alone
 COLOUR_MARGIN = 0.1    # with colours, results whose colours agree within this share of the best compete
 TURN_COLOUR = 2.5      # a flagged frame is also aligned turned round when its colours disagree this many
@@ -29,18 +36,32 @@ TURN_COLOUR = 2.5      # a flagged frame is also aligned turned round when its c
 TURN_SAMPLE = 16       # trusted frames whose colours set that median (evenly spaced in the tree's order)
 
 
-def alignment_badness(residual, distortion_tail, model_size, reference=0.0):
+def alignment_badness(residual, distortion_tail, model_size, reference=0.0, colour=None, colour_floor=None):
     """Badness of aligned frames: fit residual and the distortion tail beyond ``reference``
     (:func:`tail_reference`), each in units of its scale (the tail's: ``TAIL_SCALE +
-    TAIL_RELATIVE * reference``)."""
+    TAIL_RELATIVE * reference``).
+
+    With ``colour`` (the frames' colour disagreement,
+    :func:`engine.align.appearance.colour_disagreement`) and the root's ``colour_floor``: plus how
+    far the disagreement exceeds ``COLOUR_FREE`` times the floor, in units of ``COLOUR_SCALE``
+    times the floor, and the tail counts only beyond ``TAIL_WITH_COLOUR`` of its units (a solid
+    torn that much, as a limb on its neighbour's place tears it, whatever the colours say; below
+    that the colours see a slip better than the tail). NaN colours add nothing.
+    """
     excess = np.maximum(np.asarray(distortion_tail, dtype=np.float64) - float(reference), 0.0)
     scale = TAIL_SCALE + TAIL_RELATIVE * max(float(reference), 0.0)
-    return excess / scale + np.asarray(residual) / (RESIDUAL_SCALE * float(model_size))
+    tail = excess / scale
+    residual = np.asarray(residual, dtype=np.float64) / (RESIDUAL_SCALE * float(model_size))
+    if colour is None or colour_floor is None or not np.isfinite(colour_floor) or colour_floor <= 0:
+        return tail + residual
+    ratio = np.asarray(colour, dtype=np.float64) / float(colour_floor)
+    seen = np.nan_to_num(np.maximum(ratio - COLOUR_FREE, 0.0) / COLOUR_SCALE)
+    return residual + seen + np.where(np.isfinite(ratio), np.maximum(tail - TAIL_WITH_COLOUR, 0.0), tail)
 
 
-def alignment_confidence(residual, distortion_tail, model_size, reference=0.0):
-    """Per-frame confidence in 0..1: ``exp(-badness)`` (1 for the root; 1/e at either scale)."""
-    return np.exp(-alignment_badness(residual, distortion_tail, model_size, reference))
+def alignment_confidence(residual, distortion_tail, model_size, reference=0.0, colour=None, colour_floor=None):
+    """Per-frame confidence in 0..1: ``exp(-badness)`` (1 for the root; 1/e at each scale)."""
+    return np.exp(-alignment_badness(residual, distortion_tail, model_size, reference, colour, colour_floor))
 
 
 def tail_reference(distortion_tail, parent, root):
@@ -100,7 +121,8 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     size = model_size(aligner.V)
     root = int(aligned.root)
     reference = tail_reference(aligned.distortion_tail, aligned.parent, root)
-    confidence = alignment_confidence(aligned.residual, aligned.distortion_tail, size, reference)
+    colour, floor = colour_terms(aligned, aligner.colors is not None and aligner.options.colour_weight > 0)
+    confidence = alignment_confidence(aligned.residual, aligned.distortion_tail, size, reference, colour, floor)
     confidence[root] = 1.0
     repaired = np.zeros(len(confidence), dtype=bool)
     depth_order = _tree_order(aligned.parent, root)
@@ -149,10 +171,12 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         return mesh_arrays(meshes[frame], use_colours), starts
 
     def apply(frame, sources, results):
-        entries = [(alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size, reference),
+        entries = [(alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size, reference,
+                                      None if colour is None else colour[frame], floor),
                     current_colour.get(frame, float("nan")), None, None)]
         for source, result in zip(sources, results, strict=True):
-            entries.append((alignment_badness(result.residual, result.distortion_tail, size, reference),
+            entries.append((alignment_badness(result.residual, result.distortion_tail, size, reference,
+                                              None if colour is None else result.colour_mean, floor),
                             result.colour_distance, source, result))
         colours = np.array([entry[1] for entry in entries])
         if np.all(np.isfinite(colours)):  # the appearance rules out a body turned the wrong way
@@ -162,6 +186,8 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             aligned.vertices[frame] = best.V
             aligned.residual[frame], aligned.residual_max[frame] = best.residual, best.residual_max
             aligned.distortion[frame], aligned.distortion_tail[frame] = best.distortion, best.distortion_tail
+            if aligned.colour is not None:
+                aligned.colour[frame] = best.colour_mean
             if best_source != frame:  # (its own alignment turned round keeps its parent)
                 aligned.parent[frame] = best_source
             aligned.poses[frame] = best.X
@@ -214,6 +240,15 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     aligned.confidence = confidence
     aligned.repaired = repaired
     return aligned
+
+
+def colour_terms(aligned, use):
+    """(per-frame colour disagreement, the root's floor) for the confidence when ``use`` (colour
+    cues on: the capture's colours carry texture) and the frames have them, else (None, None)."""
+    colour = getattr(aligned, "colour", None)
+    if not use or colour is None or not np.isfinite(colour[int(aligned.root)]):
+        return None, None
+    return colour, float(colour[int(aligned.root)])
 
 
 def turned_round(X):
@@ -270,5 +305,5 @@ def _tree_order(parent, root):
     return order
 
 
-__all__ = ["alignment_badness", "alignment_confidence", "repair_alignment", "repair_task", "tail_reference",
+__all__ = ["alignment_badness", "alignment_confidence", "colour_terms", "repair_alignment", "repair_task", "tail_reference",
            "turned_round"]

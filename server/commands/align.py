@@ -395,6 +395,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         tree_components=np.array(tree.components), parent=aligned.parent,
         residual=aligned.residual, residual_max=aligned.residual_max, distortion=aligned.distortion,
         retried=aligned.retried, distortion_tail=aligned.distortion_tail,
+        colour=np.full(len(aligned.parent), np.nan) if aligned.colour is None else aligned.colour,
         confidence=aligned.confidence, repaired=aligned.repaired,
         source_units=np.array([c.units for c in conventions]), source_up=np.array([c.up_label for c in conventions]),
     ))

@@ -207,8 +207,8 @@ def test_tree_pieces_through_a_runner_equal_the_plain_run(walk_capture, walk_ali
     # the stage shows at 0 before any piece has finished (a job's record names it at once), then
     # moves as the runner's pieces finish
     assert runner.calls == [("piece_task", 3)] and ticks == [0, 1, 2, 3]
-    for name in ("vertices", "residual", "residual_max", "distortion", "distortion_tail", "parent", "retried"):
-        assert np.array_equal(getattr(tasks, name), getattr(plain, name)), name
+    for name in ("vertices", "residual", "residual_max", "distortion", "distortion_tail", "colour", "parent", "retried"):
+        assert np.array_equal(getattr(tasks, name), getattr(plain, name), equal_nan=name == "colour"), name
     assert all(np.array_equal(tasks.poses[k], plain.poses[k]) for k in plain.poses)
 
 
@@ -234,8 +234,8 @@ def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner, m
     repair_alignment(walk_aligner, meshes, tasks, dissimilarity=D, candidates=2, runner=runner)
     assert serial.repaired[[2, 3]].all()
     assert runner.calls and all(name == "repair_task" for name, _ in runner.calls)
-    for name in ("vertices", "residual", "distortion_tail", "parent", "confidence", "repaired"):
-        assert np.array_equal(getattr(tasks, name), getattr(serial, name)), name
+    for name in ("vertices", "residual", "distortion_tail", "colour", "parent", "confidence", "repaired"):
+        assert np.array_equal(getattr(tasks, name), getattr(serial, name), equal_nan=name == "colour"), name
 
 
 def test_decomposition_through_a_runner_equals_the_plain_run(make_runner):

@@ -1,0 +1,71 @@
+"""The colours' disagreement an aligned frame shows (engine.align.appearance) and how the
+confidence reads it (engine.align.repair.alignment_badness)."""
+
+import numpy as np
+import pytest
+
+from engine.align import TargetSurface
+from engine.align.appearance import colour_disagreement, colour_distance, colour_floor
+from engine.align.repair import COLOUR_FREE, COLOUR_SCALE, TAIL_SCALE, TAIL_WITH_COLOUR, alignment_confidence
+
+
+def _checked_tube(along=60, around=48, radius=0.1, length=1.2):
+    """A closed-ring tube (open ends) with red and cream checks, 12 around and 10 along."""
+    s = np.linspace(0.0, length, along)
+    a = np.linspace(0.0, 2 * np.pi, around, endpoint=False)
+    S, A = np.meshgrid(s, a, indexing="ij")
+    V = np.stack([radius * np.cos(A), S, radius * np.sin(A)], axis=-1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(along - 1), np.arange(around), indexing="ij")
+    a0, a1 = i * around + j, i * around + (j + 1) % around
+    b0, b1 = a0 + around, a1 + around
+    F = np.concatenate([np.stack([a0, b0, a1], -1).reshape(-1, 3), np.stack([a1, b0, b1], -1).reshape(-1, 3)])
+    check = ((np.floor(A / (2 * np.pi) * 12) + np.floor(S / length * 10)) % 2).reshape(-1, 1)
+    colours = check * np.array([0.75, 0.15, 0.18]) + (1 - check) * np.array([0.95, 0.9, 0.8])
+    return V, F, colours
+
+
+def _turned(V, degrees):
+    t = np.radians(degrees)
+    c, s = np.cos(t), np.sin(t)
+    return V @ np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]).T
+
+
+def test_the_floor_is_the_root_on_itself_and_a_slid_alignment_shows_more():
+    V, F, C = _checked_tube()
+    target = TargetSurface(V, F, C)
+    floor = colour_floor(V, F, C)
+    assert floor == pytest.approx(colour_disagreement(V, C, target))
+    assert 0.0 < floor < 0.2  # within a face the checks' edges mix
+    # the same surface, every vertex turned half a check about the axis: on the surface, wrong colours
+    slid = colour_disagreement(_turned(V, 15.0), C, target)
+    assert slid > 3.0 * floor
+    a_little = colour_disagreement(_turned(V, 3.0), C, target)
+    assert floor < a_little < slid
+    assert np.isnan(colour_distance(V, None, target))  # NaN without colours
+    assert np.isnan(colour_disagreement(V, C, TargetSurface(V, F, None)))
+    assert np.isnan(colour_floor(V, F, None))
+
+
+def test_the_confidence_reads_the_colours_against_the_floor():
+    floor = 0.1
+    ratios = np.array([1.0, COLOUR_FREE, COLOUR_FREE + COLOUR_SCALE, COLOUR_FREE + np.log(2) * COLOUR_SCALE])
+    c = alignment_confidence(np.zeros(4), np.zeros(4), 1.7, colour=ratios * floor, colour_floor=floor)
+    assert c[0] == 1.0 and c[1] == 1.0  # up to COLOUR_FREE times the floor costs nothing
+    assert c[2] == pytest.approx(np.exp(-1.0))
+    assert c[3] == pytest.approx(0.5)
+
+
+def test_with_colours_only_a_large_tear_counts():
+    tails = np.array([TAIL_SCALE, TAIL_WITH_COLOUR * TAIL_SCALE, (TAIL_WITH_COLOUR + 1) * TAIL_SCALE])
+    without = alignment_confidence(np.zeros(3), tails, 1.7)
+    assert without == pytest.approx(np.exp(-np.array([1.0, TAIL_WITH_COLOUR, TAIL_WITH_COLOUR + 1])))
+    floor = 0.1
+    agreeing = np.full(3, floor)
+    with_colours = alignment_confidence(np.zeros(3), tails, 1.7, colour=agreeing, colour_floor=floor)
+    assert with_colours == pytest.approx([1.0, 1.0, np.exp(-1.0)])
+    # a frame without colours in a capture with them (NaN) keeps the tail as it is
+    mixed = alignment_confidence(np.zeros(3), tails, 1.7, colour=np.array([np.nan, floor, floor]), colour_floor=floor)
+    assert mixed[0] == pytest.approx(np.exp(-1.0))
+    # no usable floor: the colours are ignored
+    assert alignment_confidence(np.zeros(3), tails, 1.7, colour=agreeing, colour_floor=float("nan")) == \
+        pytest.approx(without)
