@@ -42,6 +42,9 @@ class _Counter:
     def held(self):
         return 0
 
+    def held_above(self, floor):
+        return None
+
     def write_message(self, parts):
         self.frames += 1
         for part in parts:

@@ -12,7 +12,10 @@ transport, and bounds what the kernel holds:
   in the connection's ASGI scope (``scope["extensions"][GAUGE]``).
 - ``TransportGauge.ready()`` is true when the transport has taken everything written so far;
   ``held()`` is what the server holds for the connection: the asyncio buffer plus the kernel's
-  send queue (sent and unacknowledged, or unsent: ``SIOCOUTQ``).
+  send queue (sent and unacknowledged, or unsent: ``SIOCOUTQ``); ``held_above(floor)`` is
+  ``held()`` where that may exceed ``floor``, without the system call where it cannot (the
+  kernel's queue grows only by what is written: it holds at most what it held when last asked
+  plus the bytes written since).
 - ``TransportGauge.write_message(parts)`` writes one binary WebSocket message straight to the
   transport: the frame header and the parts in one gathered write (``writelines``: one
   ``writev`` under uvloop, the parts not copied in Python), instead of through the ASGI send,
@@ -28,6 +31,7 @@ from __future__ import annotations
 
 import fcntl
 import logging
+import math
 import socket
 import termios
 
@@ -51,6 +55,10 @@ class TransportGauge:
         self._fd = sock.fileno() if sock is not None and _OUTQ is not None else -1
         self._word = bytearray(4)
         self.peak = 0   # the most ``held()`` has returned
+        # an upper bound of the kernel's send queue now: what it held when last asked plus the bytes
+        # written since (infinite: not known, e.g. after a message sent through the ASGI layers)
+        self._queued_at_most = math.inf
+        self._elsewhere = 0  # messages being sent through the ASGI layers
 
     def ready(self):
         """True when a frame written now would not wait behind earlier bytes in the transport."""
@@ -65,12 +73,30 @@ class TransportGauge:
         if self._fd >= 0:
             try:
                 fcntl.ioctl(self._fd, _OUTQ, self._word)
-                total += int.from_bytes(self._word, "little")
+                queued = int.from_bytes(self._word, "little")
+                total += queued
+                self._queued_at_most = queued
             except OSError:   # the socket has closed meanwhile
                 pass
         if total > self.peak:
             self.peak = total
         return total
+
+    def held_above(self, floor):
+        """``held()`` where it may exceed ``floor`` bytes, else None (the kernel not asked: what
+        its send queue held when last asked plus the bytes ``write_message`` has written since,
+        plus the transport's buffer, is at most ``floor``). A message written to the connection
+        another way (the ASGI send) goes between ``sending_elsewhere(True)`` and ``(False)``;
+        the protocol's own pings and pongs (a few bytes each) are not counted."""
+        if self._queued_at_most + self._transport.get_write_buffer_size() <= floor and not self._elsewhere:
+            return None
+        return self.held()
+
+    def sending_elsewhere(self, started):
+        """A message is being written to the transport outside ``write_message`` (``started``),
+        or has been: meanwhile ``held_above`` always asks the kernel, and next time after."""
+        self._elsewhere += 1 if started else -1
+        self._queued_at_most = math.inf
 
     def write_message(self, parts):
         """Write one binary WebSocket message whose payload is ``parts`` (buffers) joined; False
@@ -90,6 +116,7 @@ class TransportGauge:
             if len(_HEADERS) < 256:
                 _HEADERS[length] = header
         self._transport.writelines([header, *parts])
+        self._queued_at_most += len(header) + length
         return True
 
     def abort(self):

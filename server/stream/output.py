@@ -201,10 +201,11 @@ class FrameOutput:
         self._note_held()
 
     def _note_held(self):
-        """Raise the scheduler's ``transport_bytes_max`` to what this connection holds now."""
+        """Raise the scheduler's ``transport_bytes_max`` to what this connection holds now (the
+        kernel asked only when that may be more: ``TransportGauge.held_above``)."""
         if self.gauge is not None:
-            held = self.gauge.held()
-            if held > self.scheduler.transport_bytes_max:
+            held = self.gauge.held_above(self.scheduler.transport_bytes_max)
+            if held is not None and held > self.scheduler.transport_bytes_max:
                 self.scheduler.transport_bytes_max = held
 
     def after_frame(self):

@@ -111,10 +111,16 @@ class StreamSession(FrameOutput):
         """Send a message object, or wire bytes."""
         if self.closed:
             return
+        gauge = self.gauge
+        if gauge is not None:  # (what it holds is then read from the kernel: server/transport.py)
+            gauge.sending_elsewhere(True)
         try:
             await self.ws.send_bytes(message if isinstance(message, bytes) else P.to_wire(message))
         except (WebSocketDisconnect, OSError, RuntimeError):
             self.shut(P.CLOSE_INTERNAL, "sending failed")
+        finally:
+            if gauge is not None:
+                gauge.sending_elsewhere(False)
 
     def shut(self, code, reason):
         """End the connection from the server's side: a close frame with ``code``, and the TCP

@@ -34,6 +34,9 @@ class Recorder:
     def held(self):
         return 0
 
+    def held_above(self, floor):
+        return None
+
     def write_message(self, parts):
         self.messages.append(msgpack.unpackb(joined(parts)))
         return True
