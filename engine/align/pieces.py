@@ -20,6 +20,8 @@ from engine.tasks import checkpoint
 
 
 _WORKER = {}
+COLOUR_RETRY = 2.0  # colour disagreement (in units of the root's floor) beyond which a frame ...
+COLOUR_STEP = 0.5   # ... that disagrees this much more than its parent is aligned again from other frames
 
 
 def init_worker(state, ticks):
@@ -86,6 +88,8 @@ def align_piece(aligner, job, tick=None):
     if job["entry"] >= 0:
         aligned[column[job["entry"]]] = True
     qualities = list(job["history"])
+    floor = _floor(aligner)
+    colour_of = {}  # node -> its colour disagreement (this piece's frames)
     out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "tail": [], "colour": [],
            "seconds": [], "cpu_seconds": [], "parent": [], "retried": [], "quality": [], "poses": {}}
     for i, node in enumerate(nodes):
@@ -109,7 +113,8 @@ def align_piece(aligner, job, tick=None):
             spent = result.seconds
             limit = job["retry_factor"] * np.median(qualities) if len(qualities) >= 10 else np.inf
             retried = False
-            if job["similarity"] is not None and job["retries"] > 0 and result.quality > limit:
+            if job["similarity"] is not None and job["retries"] > 0 and (
+                    result.quality > limit or _colour_slipped(result, colour_of.get(p), floor)):
                 retried = True
                 row = job["similarity"][i]
                 usable = np.flatnonzero(aligned & (candidates != p))
@@ -117,13 +122,14 @@ def align_piece(aligner, job, tick=None):
                     source = int(candidates[j])
                     other = aligner.align(poses[source], target, yaw=float(job["yaw_rows"][i][j]))
                     spent += other.seconds
-                    if other.quality < result.quality:
+                    if _better(other, result, floor):
                         result, p = other, source
-                    if result.quality <= limit:
+                    if result.quality <= limit and not _colour_slipped(result, colour_of.get(p), floor):
                         break
             result.seconds = spent
             poses[node] = result.X
             qualities.append(result.quality)
+        colour_of[node] = result.colour_mean
         aligned[column[node]] = True
         out["V"].append(result.V.astype(np.float64))
         out["residual"].append(result.residual)
@@ -141,6 +147,36 @@ def align_piece(aligner, job, tick=None):
         if tick is not None:
             tick()
     return out
+
+
+def _floor(aligner):
+    """The root's colour floor when colour cues are on (:func:`colour_floor`), else NaN; kept on
+    the aligner."""
+    floor = getattr(aligner, "_colour_floor", None)
+    if floor is None:
+        use = aligner.colors is not None and aligner.options.colour_weight > 0
+        floor = aligner._colour_floor = colour_floor(aligner.V, aligner.F, aligner.colors) if use else float("nan")
+    return floor
+
+
+def _colour_slipped(result, parent_colour, floor):
+    """The step itself lost the root's appearance: the frame's colours disagree more than
+    ``COLOUR_RETRY`` times the floor, and more than its parent's by ``COLOUR_STEP`` times it
+    (a parent outside the piece: the first test alone). False without colours."""
+    if not np.isfinite(floor) or not np.isfinite(result.colour_mean):
+        return False
+    if result.colour_mean <= COLOUR_RETRY * floor:
+        return False
+    return parent_colour is None or not np.isfinite(parent_colour) or \
+        result.colour_mean - parent_colour > COLOUR_STEP * floor
+
+
+def _better(other, result, floor):
+    """Whether a retry's result replaces the one so far: with colours, the one whose colours agree
+    better (a body turned or slid can fit and tear no worse); else the lower quality score."""
+    if np.isfinite(floor) and np.isfinite(other.colour_mean) and np.isfinite(result.colour_mean):
+        return other.colour_mean < result.colour_mean
+    return other.quality < result.quality
 
 
 __all__ = ["align_piece", "init_worker", "piece_task", "portable_aligner", "run_piece"]

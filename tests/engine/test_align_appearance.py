@@ -69,3 +69,21 @@ def test_with_colours_only_a_large_tear_counts():
     # no usable floor: the colours are ignored
     assert alignment_confidence(np.zeros(3), tails, 1.7, colour=agreeing, colour_floor=float("nan")) == \
         pytest.approx(without)
+
+
+def test_a_step_that_loses_the_roots_colours_is_aligned_again_and_the_better_colours_win():
+    from engine.align.options import PairAlignment
+    from engine.align.pieces import COLOUR_RETRY, COLOUR_STEP, _better, _colour_slipped
+
+    def result(colour, quality=1.0):
+        return PairAlignment(V=None, X=None, residual=0.05 * quality, residual_max=0.0, colour_mean=colour)
+
+    floor = 0.1
+    high = (COLOUR_RETRY + 0.1) * floor
+    assert _colour_slipped(result(high), None, floor)  # a parent outside the piece: the level alone
+    assert _colour_slipped(result(high), high - (COLOUR_STEP + 0.1) * floor, floor)  # this step lost it
+    assert not _colour_slipped(result(high), high - 0.1 * floor, floor)  # inherited from the parent
+    assert not _colour_slipped(result(COLOUR_RETRY * floor), 0.0, floor)
+    assert not _colour_slipped(result(high), None, float("nan"))  # no colour cues
+    assert _better(result(0.2, quality=5.0), result(0.3, quality=1.0), floor)  # colours decide
+    assert not _better(result(0.2, quality=5.0), result(0.3, quality=1.0), float("nan"))  # else the quality
