@@ -22,6 +22,7 @@ from engine.tasks import checkpoint
 _WORKER = {}
 COLOUR_RETRY = 2.0  # colour disagreement (in units of the root's floor) beyond which a frame ...
 COLOUR_STEP = 0.5   # ... that disagrees this much more than its parent is aligned again from other frames
+RETRY_MARGIN = 0.1  # a retry's colours must agree better by this share to win on colours alone
 
 
 def init_worker(state, ticks):
@@ -172,10 +173,15 @@ def _colour_slipped(result, parent_colour, floor):
 
 
 def _better(other, result, floor):
-    """Whether a retry's result replaces the one so far: with colours, the one whose colours agree
-    better (a body turned or slid can fit and tear no worse); else the lower quality score."""
+    """Whether a retry's result replaces the one so far: with colours, one whose colours agree
+    better by more than ``RETRY_MARGIN`` (a body turned or slid can fit and tear no worse), and
+    not one that agrees worse by as much; between those (a periodic print agrees about as well
+    one period off), and without colours, the lower quality score."""
     if np.isfinite(floor) and np.isfinite(other.colour_mean) and np.isfinite(result.colour_mean):
-        return other.colour_mean < result.colour_mean
+        if other.colour_mean < (1.0 - RETRY_MARGIN) * result.colour_mean:
+            return True
+        if result.colour_mean < (1.0 - RETRY_MARGIN) * other.colour_mean:
+            return False
     return other.quality < result.quality
 
 

@@ -85,5 +85,8 @@ def test_a_step_that_loses_the_roots_colours_is_aligned_again_and_the_better_col
     assert not _colour_slipped(result(high), high - 0.1 * floor, floor)  # inherited from the parent
     assert not _colour_slipped(result(COLOUR_RETRY * floor), 0.0, floor)
     assert not _colour_slipped(result(high), None, float("nan"))  # no colour cues
-    assert _better(result(0.2, quality=5.0), result(0.3, quality=1.0), floor)  # colours decide
+    assert _better(result(0.2, quality=5.0), result(0.3, quality=1.0), floor)  # colours decide ...
+    assert not _better(result(0.3, quality=1.0), result(0.2, quality=5.0), floor)
+    assert not _better(result(0.29, quality=5.0), result(0.3, quality=1.0), floor)  # ... when clearly apart
+    assert _better(result(0.31, quality=1.0), result(0.3, quality=5.0), floor)
     assert not _better(result(0.2, quality=5.0), result(0.3, quality=1.0), float("nan"))  # else the quality
