@@ -139,6 +139,10 @@ def test_align_writes_a_dataset_that_build_and_read_sequence_accept(dataset, ali
         assert record["tree_edges"].shape == (n - 1, 2)
         assert record["residual"].shape == (n,) and record["residual"].max() < 0.01
         root = int(record["root"])
+        # the colours' disagreement per frame (docs/alignment.md); the root's, on its own surface, is
+        # the floor the others are read against
+        colour = record["colour"]
+        assert colour.shape == (n,) and np.all(colour > 0) and colour[root] <= np.median(colour)
     # the root frame is the template: its aligned copy is the root mesh itself
     names = [str(s) for s in np.load(aligned / "alignment.npz")["sequence_names"]]
     for picture in ("similarity.png", "tree.png", "aligned_pattern.png"):
