@@ -2,8 +2,9 @@
 
 A piece is a connected part of the tree (:func:`engine.align.propagation.partition_tree`). Its
 frames are aligned breadth first, each from its parent's aligned pose; a frame whose alignment
-scores poorly is aligned again from other already aligned frames of the piece, the most similar
-first, and the best result is kept. A worker process builds its aligner once
+scores poorly, or whose step lost the root's colours (:func:`_colour_slipped`), is aligned again
+from other already aligned frames of the piece, the most similar first, and the best result is
+kept (:func:`_better`). A worker process builds its aligner once
 (:func:`init_worker`) and then aligns pieces (:func:`run_piece`).
 """
 
@@ -89,7 +90,7 @@ def align_piece(aligner, job, tick=None):
     if job["entry"] >= 0:
         aligned[column[job["entry"]]] = True
     qualities = list(job["history"])
-    floor = _floor(aligner)
+    floor = _floor(aligner) if aligner.options.colour_weight > 0 else float("nan")  # retries read colours with cues on
     colour_of = {}  # node -> its colour disagreement (this piece's frames)
     out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "tail": [], "colour": [],
            "seconds": [], "cpu_seconds": [], "parent": [], "retried": [], "quality": [], "poses": {}}
@@ -100,7 +101,7 @@ def align_piece(aligner, job, tick=None):
         if parents[i] < 0:  # the root: its own mesh
             poses[node] = aligner.V_tet.copy()
             result = PairAlignment(V=aligner.V.copy(), X=poses[node], residual=0.0, residual_max=0.0,
-                                   colour_mean=colour_floor(aligner.V, aligner.F, aligner.colors))
+                                   colour_mean=_floor(aligner))
             p, retried = -1, False
         else:
             V, F, C = job["meshes"][i]
@@ -151,12 +152,10 @@ def align_piece(aligner, job, tick=None):
 
 
 def _floor(aligner):
-    """The root's colour floor when colour cues are on (:func:`colour_floor`), else NaN; kept on
-    the aligner."""
+    """The root's colour floor (:func:`colour_floor`; NaN without colours), kept on the aligner."""
     floor = getattr(aligner, "_colour_floor", None)
     if floor is None:
-        use = aligner.colors is not None and aligner.options.colour_weight > 0
-        floor = aligner._colour_floor = colour_floor(aligner.V, aligner.F, aligner.colors) if use else float("nan")
+        floor = aligner._colour_floor = colour_floor(aligner.V, aligner.F, aligner.colors)
     return floor
 
 
