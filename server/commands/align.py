@@ -83,7 +83,8 @@ def add_arguments(parser):
     parser.add_argument("--patches", type=int, default=30, help="patches at the coarsest level (default 30)")
     parser.add_argument("--levels", type=int, default=4, help="coarse-to-fine levels, patches doubling (default 4)")
     parser.add_argument("--retries", type=int, default=3,
-                        help="other parents tried for a frame whose alignment scores poorly (default 3)")
+                        help="other parents tried for a frame whose alignment scores poorly or, with colour cues, "
+                             "whose step lost the root's colours (default 3)")
     parser.add_argument("--repair-budget", type=float, default=0.5, metavar="B",
                         help="pairwise alignments per frame the repair of low-confidence frames may spend, "
                              "the worst frames first (default 0.5; 0 turns the repair off)")
