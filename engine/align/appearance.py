@@ -43,6 +43,14 @@ def colour_disagreement(V, colors, target):
     return float(np.mean(colour_gaps(V, colors, target)))
 
 
+def colour_measures(V, colors, target):
+    """(:func:`colour_distance`, :func:`colour_disagreement`) from one look-up of where ``V`` lands."""
+    if colors is None or target.colors is None:
+        return float("nan"), float("nan")
+    gaps = colour_gaps(V, colors, target)
+    return float(np.median(gaps)), float(np.mean(gaps))
+
+
 def colour_floor(V, F, colors):
     """:func:`colour_disagreement` of the root mesh against its own surface (NaN without colours):
     the texture's own variation within a face, the least an aligned frame can show."""
@@ -53,4 +61,4 @@ def colour_floor(V, F, colors):
     return colour_disagreement(V, colors, TargetSurface(V, F, colors))
 
 
-__all__ = ["colour_disagreement", "colour_distance", "colour_floor", "colour_gaps"]
+__all__ = ["colour_disagreement", "colour_distance", "colour_floor", "colour_gaps", "colour_measures"]

@@ -109,8 +109,7 @@ class PairAlignment:
                                 or shoulder where a limb slid onto another's place)
     seconds : float
     colour_distance : float     median RGB distance between the root's vertex colours and the
-                                target's where they landed (NaN when either has no colours, or
-                                when only one orientation was aligned and nothing was compared)
+                                target's where they landed (NaN when either has no colours)
     colour_mean : float         mean of those distances (NaN without colours): what the frame's
                                 confidence reads (:mod:`engine.align.appearance`)
     orientations : int          rigid starts aligned from (2 when front and back were ambiguous)

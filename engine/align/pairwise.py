@@ -29,7 +29,7 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from engine.align.appearance import colour_disagreement, colour_distance
+from engine.align.appearance import colour_distance, colour_floor, colour_measures
 from engine.align.matching import (
     correspondence_weights,
     correspondences,
@@ -147,11 +147,9 @@ class PairwiseAligner:
         started = time.perf_counter()
         starts = self._rigid_starts(np.asarray(X_source, dtype=np.float64), target, yaw)
         results = [self._fit(X, target) for X in starts]
-        if len(results) > 1:
-            for result in results:
-                result.colour_distance = self._colour_distance(result.V, target)
+        for result in results:
+            result.colour_distance, result.colour_mean = colour_measures(result.V, self.colors, target)
         best = min(results, key=self._orientation_score)
-        best.colour_mean = self.colour_disagreement(best.V, target)
         best.seconds = time.perf_counter() - started
         best.orientations = len(starts)
         return best
@@ -192,10 +190,10 @@ class PairwiseAligner:
         """Median RGB distance between the root's colours and the target's where V lands (NaN without colours)."""
         return colour_distance(V, self.colors, target)
 
-    def colour_disagreement(self, V, target):
-        """Mean RGB distance between the root's colours and the target's where V lands (NaN without
-        colours; :mod:`engine.align.appearance`)."""
-        return colour_disagreement(V, self.colors, target)
+    @functools.cached_property
+    def colour_floor(self):
+        """The root's colour floor (:func:`engine.align.appearance.colour_floor`; NaN without colours)."""
+        return colour_floor(self.V, self.F, self.colors)
 
     def _orientation_score(self, result):
         """Which of the results from different orientations to keep (lower is better).

@@ -14,7 +14,6 @@ import time
 
 import numpy as np
 
-from engine.align.appearance import colour_floor
 from engine.align.matching import TargetSurface
 from engine.align.pairwise import PairAlignment, PairwiseAligner
 from engine.tasks import checkpoint
@@ -90,7 +89,7 @@ def align_piece(aligner, job, tick=None):
     if job["entry"] >= 0:
         aligned[column[job["entry"]]] = True
     qualities = list(job["history"])
-    floor = _floor(aligner) if aligner.options.colour_weight > 0 else float("nan")  # retries read colours with cues on
+    floor = aligner.colour_floor if aligner.options.colour_weight > 0 else float("nan")  # retries read colours with cues on
     colour_of = {}  # node -> its colour disagreement (this piece's frames)
     out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "tail": [], "colour": [],
            "seconds": [], "cpu_seconds": [], "parent": [], "retried": [], "quality": [], "poses": {}}
@@ -101,7 +100,7 @@ def align_piece(aligner, job, tick=None):
         if parents[i] < 0:  # the root: its own mesh
             poses[node] = aligner.V_tet.copy()
             result = PairAlignment(V=aligner.V.copy(), X=poses[node], residual=0.0, residual_max=0.0,
-                                   colour_mean=_floor(aligner))
+                                   colour_mean=aligner.colour_floor)
             p, retried = -1, False
         else:
             V, F, C = job["meshes"][i]
@@ -149,14 +148,6 @@ def align_piece(aligner, job, tick=None):
         if tick is not None:
             tick()
     return out
-
-
-def _floor(aligner):
-    """The root's colour floor (:func:`colour_floor`; NaN without colours), kept on the aligner."""
-    floor = getattr(aligner, "_colour_floor", None)
-    if floor is None:
-        floor = aligner._colour_floor = colour_floor(aligner.V, aligner.F, aligner.colors)
-    return floor
 
 
 def _colour_slipped(result, parent_colour, floor):

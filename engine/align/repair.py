@@ -263,8 +263,8 @@ def turned_round(X):
 
 def repair_task(shared, job):
     """Runner task: one frame aligned from several sources. ``job`` is ((V, F, colors), [(pose,
-    yaw hint), ...]); returns a PairAlignment per source, each with its ``colour_distance``
-    (NaN without colours)."""
+    yaw hint), ...]); returns a PairAlignment per source (each with its ``colour_distance``:
+    NaN without colours)."""
     from engine.tasks import shared_value
 
     aligner = shared_value(shared)
@@ -276,8 +276,6 @@ def repair_task(shared, job):
     for pose, hint in starts:
         checkpoint()  # a task stops here when its runner says the work has ended
         results.append(aligner.align(pose, target, yaw=hint))
-    for result in results:
-        result.colour_distance = aligner._colour_distance(result.V, target)
     return results
 
 
