@@ -49,7 +49,7 @@ def sequence_dir(root, name):
 
 
 def write_capture_sequence(root, name, *, faces, vertices, colors, unstructured, truth, meta,
-                           consistent_format="obj", unstructured_format="ply", progress=None):
+                           consistent_format="obj", unstructured_format="ply", textured=False, progress=None):
     """Write one sequence: consistent frames, unstructured frames, truth.npz and meta.json.
 
     Parameters
@@ -60,10 +60,13 @@ def write_capture_sequence(root, name, *, faces, vertices, colors, unstructured,
     vertices : (frames, n, 3) float      consistent-topology frames
     colors : (n, 3) float or None        template vertex colours
     unstructured : list of (V, F, colors) or None
+    textured : bool                      unstructured frames with colours are written with their
+                                         colours as a texture atlas (``atlas.write_textured``)
     truth : dict of arrays               saved to truth.npz (no pickles)
     meta : dict                          saved to meta.json
     """
     from engine.mesh_io import write_obj, write_ply
+    from engine.mesh_io.atlas import write_textured
 
     writers = {"obj": lambda path, V, F, colors: write_obj(path, V, F, colors=colors, precision=6),
                "ply": write_ply}
@@ -80,7 +83,8 @@ def write_capture_sequence(root, name, *, faces, vertices, colors, unstructured,
         if progress is not None:
             progress(done, total)
     for k, (V, F, C) in enumerate(unstructured or ()):
-        writers[unstructured_format](base / "unstructured" / f"frame_{k:04d}.{unstructured_format}", V, F, colors=C)
+        write = write_textured if textured and C is not None else writers[unstructured_format]
+        write(base / "unstructured" / f"frame_{k:04d}.{unstructured_format}", V, F, colors=C)
         done += 1
         if progress is not None:
             progress(done, total)

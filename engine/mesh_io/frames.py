@@ -9,6 +9,7 @@ the total are capped (zip-bomb guard).
 from __future__ import annotations
 
 import os
+import posixpath
 import zipfile
 import zlib
 from pathlib import Path, PurePosixPath
@@ -137,7 +138,21 @@ class FrameContainer:
         """
         if self.archive is None:
             return read_mesh(self.path / name, name=self.source(name))
-        return read_mesh(self._read_member(name), name=self.source(name))
+        return read_mesh(self._read_member(name), name=self.source(name), resources=self._member_resources(name))
+
+    def _member_resources(self, name):
+        """Resource reader for a zip member: the files it refers to, relative to its folder."""
+        folder = posixpath.dirname(name)
+
+        def read(reference):
+            member = posixpath.normpath(posixpath.join(folder, reference))
+            try:
+                info = self.archive.getinfo(member)
+            except KeyError:
+                raise MeshFormatError(f"{self.source(name)}: refers to {reference!r}, which is not in the "
+                                      f"archive (looked for member {member!r})") from None
+            return self._read_info(info, f"{self.path}:{member}")
+        return read
 
     def _list_directory(self):
         try:
@@ -199,8 +214,9 @@ class FrameContainer:
         return list(self.members)
 
     def _read_member(self, name):
-        info = self.members[name]
-        source = self.source(name)
+        return self._read_info(self.members[name], self.source(name))
+
+    def _read_info(self, info, source):
         try:
             with self.archive.open(info) as member:
                 # Read at most one byte past the limit: the declared size may be a lie.

@@ -60,7 +60,7 @@ def read_glb(data, source):
         vertices.append(V)
         faces.append(F + offset)
         offset += len(V)
-        colors.append(_vertex_colors(geometry))
+        colors.append(_vertex_colors(geometry, source))
 
     if not vertices:
         return Mesh(np.empty((0, 3)), np.empty((0, 3), dtype=np.int64), None, source)
@@ -83,12 +83,41 @@ def _check_glb_header(data, source):
         )
 
 
-def _vertex_colors(geometry):
-    """(n, 3) float RGB in [0, 1] if the geometry has per-vertex colours, else None."""
+def _vertex_colors(geometry, source):
+    """(n, 3) float RGB in [0, 1] if the geometry has per-vertex colours or a base colour
+    texture (baked per vertex, times the base colour factor), else None."""
     visual = geometry.visual
+    if getattr(visual, "kind", None) == "texture":
+        return _texture_colors(geometry, source)
     if getattr(visual, "kind", None) != "vertex":
         return None
     rgba = np.asarray(visual.vertex_colors)
     if rgba.shape[0] != len(geometry.vertices):
         return None
     return rgba[:, :3].astype(np.float64) / 255.0
+
+
+def _texture_colors(geometry, source):
+    """A geometry's base colour texture baked per vertex (``texture.bake_vertex_colours``)."""
+    from .texture import MAX_TEXTURE_PIXELS, bake_vertex_colours
+
+    visual = geometry.visual
+    material = getattr(visual, "material", None)
+    image = getattr(material, "baseColorTexture", None)
+    if image is None:
+        image = getattr(material, "image", None)
+    uv = getattr(visual, "uv", None)
+    if image is None or uv is None or len(uv) != len(geometry.vertices):
+        return None
+    if image.size[0] * image.size[1] > MAX_TEXTURE_PIXELS:
+        raise MeshFormatError(f"{source}: the base colour texture is {image.size[0]} x {image.size[1]} pixels, over the "
+                              f"limit of {MAX_TEXTURE_PIXELS} pixels")
+    pixels = np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0
+    F = np.asarray(geometry.faces, dtype=np.int64)
+    colours = bake_vertex_colours(geometry.vertices, F, np.asarray(uv, dtype=np.float64)[F],
+                                  np.zeros(len(F), dtype=np.int64), [pixels])
+    factor = getattr(material, "baseColorFactor", None)
+    if factor is not None:
+        factor = np.asarray(factor, dtype=np.float64).ravel()[:3]
+        colours = colours * (factor / 255.0 if factor.max() > 1.0 else factor)
+    return np.clip(colours, 0.0, 1.0).astype(np.float64)

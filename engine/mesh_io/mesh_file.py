@@ -10,8 +10,10 @@ from .glb import read_glb
 from .obj import read_obj, write_obj
 from .off import read_off, write_off
 from .ply import read_ply, write_ply
+from .texture import directory_resources
 
 READERS = {"obj": read_obj, "ply": read_ply, "off": read_off, "glb": read_glb}
+TEXTURED_READERS = (read_obj, read_ply)   # take a resource reader for the files they refer to
 WRITERS = {"obj": write_obj, "ply": write_ply, "off": write_off}
 MESH_EXTENSIONS = tuple(f".{kind}" for kind in READERS)
 
@@ -31,7 +33,7 @@ def mesh_file_type(name):
     return suffix if suffix in READERS else None
 
 
-def read_mesh(path_or_file, *, name=None, file_type=None):
+def read_mesh(path_or_file, *, name=None, file_type=None, resources=None):
     """Read one mesh file: OBJ, PLY (ascii or binary), OFF/COFF or GLB.
 
     Parameters
@@ -44,6 +46,10 @@ def read_mesh(path_or_file, *, name=None, file_type=None):
         Required for bytes unless `file_type` is given.
     file_type : {"obj", "ply", "off", "glb"}, optional
         Overrides the extension (a leading dot and any case are accepted).
+    resources : callable(name) -> bytes, optional
+        Reads the files an OBJ or PLY refers to (material library, texture images), by name
+        relative to the mesh's directory. Default for a path: the files beside it; for bytes
+        and file objects: none (a texture is then not read, and the mesh has no colours).
 
     Returns
     -------
@@ -61,6 +67,8 @@ def read_mesh(path_or_file, *, name=None, file_type=None):
     if isinstance(path_or_file, (str, os.PathLike)):
         source = name if name is not None else os.fspath(path_or_file)
         reader = _reader(source, file_type)
+        if resources is None:
+            resources = directory_resources(path_or_file, str(source))
         try:
             data = Path(path_or_file).read_bytes()
         except OSError as err:
@@ -84,6 +92,8 @@ def read_mesh(path_or_file, *, name=None, file_type=None):
         )
     if len(data) == 0:  # whatever its type (a PLY reader would say "not a PLY file")
         raise MeshValidationError(f"{source}: the mesh is empty (the file has 0 bytes)")
+    if reader in TEXTURED_READERS:
+        return reader(data, str(source), resources)
     return reader(data, str(source))
 
 

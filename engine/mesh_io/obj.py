@@ -2,9 +2,10 @@
 
 Read: ``v x y z``, ``v x y z w`` (w ignored) and ``v x y z r g b`` (vertex colour, in [0, 1] or
 0-255); ``f`` corners in the forms ``a``, ``a/b``, ``a//c`` and ``a/b/c`` with 1-based or
-negative (relative) indices; polygons are fan-triangulated. Texture coordinates, normals,
-groups, objects, smoothing, materials, lines, comments (whole-line or trailing) and other
-statements are ignored.
+negative (relative) indices; polygons are fan-triangulated. Without vertex colours, the
+materials (``mtllib``, ``usemtl``) and texture coordinates (``vt``) give the colours: the
+texture baked per vertex (``obj_texture``). Normals, groups, objects, smoothing, lines,
+comments (whole-line or trailing) and other statements are ignored.
 A backslash at the end of a line continues it.
 """
 
@@ -15,6 +16,7 @@ import numpy as np
 from .atomic import atomic_write
 from .errors import MeshFormatError, MeshValidationError
 from .mesh import Mesh, check_colors, check_faces, check_vertices
+from .obj_texture import ObjTextureLines, texture_colours
 from .text_tokens import first_field_of_tokens, tokens_per_line
 from .triangulate import fan_triangulate
 
@@ -27,17 +29,21 @@ _IGNORED = {
 }
 
 
-def read_obj(data, source):
+def read_obj(data, source, resources=None):
     """Parse an OBJ file held in memory.
 
     Parameters
     ----------
     data : bytes   the whole file
     source : str   name used in the mesh and in error messages
+    resources : callable(name) -> bytes, optional
+        reads the files the OBJ refers to (material library, textures), by name relative to
+        the OBJ's directory (``texture.directory_resources``); without it materials are ignored
 
     Returns
     -------
-    mesh : Mesh   colours set only when every ``v`` line carries r g b
+    mesh : Mesh   colours set when every ``v`` line carries r g b, or else when every face has
+                  a texture or material colour (baked per vertex: ``obj_texture``)
     """
     if b"\x00" in data:
         raise MeshFormatError(f"{source}: contains binary data (NUL bytes); not a text OBJ file")
@@ -48,6 +54,7 @@ def read_obj(data, source):
 
     vertex_lines, face_lines = [], []
     vertex_line_numbers, face_line_numbers, vertices_before_face = [], [], []
+    texture = ObjTextureLines()
     unknown = None
     for number, line in enumerate(data.splitlines(), start=1):
         head = line[:2]
@@ -58,6 +65,10 @@ def read_obj(data, source):
             face_lines.append(line[1:])
             face_line_numbers.append(number)
             vertices_before_face.append(len(vertex_lines))
+            texture.uvs_before_face.append(len(texture.uv_lines))
+        elif head == b"vt" and line[2:3] in (b" ", b"\t"):
+            texture.uv_lines.append(line[3:])
+            texture.uv_line_numbers.append(number)
         else:
             stripped = line.strip()
             if not stripped or stripped.startswith(b"#"):
@@ -70,6 +81,14 @@ def read_obj(data, source):
                 face_lines.append(stripped[1:])
                 face_line_numbers.append(number)
                 vertices_before_face.append(len(vertex_lines))
+                texture.uvs_before_face.append(len(texture.uv_lines))
+            elif keyword == b"vt":
+                texture.uv_lines.append(stripped[2:].split(b"#", 1)[0])
+                texture.uv_line_numbers.append(number)
+            elif keyword == b"mtllib":
+                texture.libraries.append((number, stripped[6:].split(b"#", 1)[0]))
+            elif keyword == b"usemtl":
+                texture.materials.append((len(face_lines), stripped[6:].split(b"#", 1)[0]))
             elif keyword not in _IGNORED and unknown is None:
                 unknown = (number, keyword)
 
@@ -87,6 +106,9 @@ def read_obj(data, source):
             f"cloud, or a file cut short before its faces)"
         )
     F = _parse_faces(face_lines, face_line_numbers, vertices_before_face, len(V), source)
+    if colors is None and texture.libraries and resources is not None:
+        colors = texture_colours(V, F, _without_trailing_comments(face_lines), face_line_numbers, texture,
+                                 resources, source)
     return Mesh(V, F, colors, source)
 
 

@@ -3,7 +3,8 @@
 Read: vertex ``x y z`` of any numeric type, optional ``red green blue`` (integer types scaled by
 their maximum, so uchar / 255; float types taken as they are), and the face element's
 ``vertex_indices`` (or ``vertex_index``) list with any count and index types; polygons are
-fan-triangulated. Other elements and properties are skipped. The element rows are read in
+fan-triangulated. Without vertex colours, a texture named in the header is baked per vertex
+(``ply_texture``). Other elements and properties are skipped. The element rows are read in
 ``ply_rows``.
 """
 
@@ -17,6 +18,7 @@ from .atomic import atomic_write
 from .errors import MeshFormatError, MeshValidationError
 from .mesh import Mesh, check_colors, check_faces, check_vertices
 from .ply_rows import read_ascii_element, read_binary_element
+from .ply_texture import ply_texture_colours, texture_files
 from .triangulate import fan_triangulate, first_out_of_range
 
 _TYPES = {
@@ -43,19 +45,23 @@ class _Element:
     properties: tuple
 
 
-def read_ply(data, source):
+def read_ply(data, source, resources=None):
     """Parse a PLY file held in memory.
 
     Parameters
     ----------
     data : bytes   the whole file
     source : str   name used in the mesh and in error messages
+    resources : callable(name) -> bytes, optional
+        reads a texture the header names (``comment TextureFile``), by name relative to the
+        PLY's directory; without it a texture is ignored
 
     Returns
     -------
-    mesh : Mesh
+    mesh : Mesh   colours from ``red green blue``, or else baked from the texture
+                  (``ply_texture``)
     """
-    byte_order, elements, body = _parse_header(data, source)
+    byte_order, elements, body, textures = _parse_header(data, source)
     wanted = {"vertex", "face"}
     values = {}
     if byte_order is None:
@@ -74,11 +80,19 @@ def read_ply(data, source):
             if wanted <= values.keys():
                 break
             values[element.name], position = read_binary_element(data, position, element, source)
-    return _mesh_from_elements(values, elements, source)
+    mesh = _mesh_from_elements(values, elements, source)
+    if mesh.colors is None and textures and resources is not None and "face" in values:
+        face = values["face"]
+        counts = next((face[n][1] for n in _FACE_LISTS if isinstance(face.get(n), tuple)), None)
+        colors = None if counts is None else ply_texture_colours(
+            mesh.vertices, mesh.faces, values["vertex"], face, counts, textures, resources, source)
+        if colors is not None:
+            mesh = Mesh(mesh.vertices, mesh.faces, colors, source)
+    return mesh
 
 
 def _parse_header(data, source):
-    """Return (byte order or None for ascii, elements, offset of the first body byte)."""
+    """Return (byte order or None for ascii, elements, offset of the first body byte, texture names)."""
     if not data.startswith(b"ply"):
         raise MeshFormatError(f"{source}: not a PLY file (it does not start with 'ply')")
     end = data.find(b"end_header")
@@ -120,7 +134,7 @@ def _parse_header(data, source):
         raise MeshFormatError(f"{source}: PLY header has no 'format' line")
     if byte_order is not None:
         elements = [_with_byte_order(element, byte_order) for element in elements]
-    return byte_order, elements, body
+    return byte_order, elements, body, texture_files(header.splitlines()[1:])
 
 
 def _parse_property(words, number, line, source):

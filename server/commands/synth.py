@@ -48,6 +48,9 @@ def add_arguments(parser):
     parser.add_argument("--consistent-format", choices=("obj", "ply"),
                         help="consistent frames as obj (default) or ply (default for the studio presets)")
     parser.add_argument("--unstructured-format", choices=("obj", "ply"), default="ply")
+    parser.add_argument("--textured", action="store_true",
+                        help="write the re-meshed frames' colours as a texture atlas beside each frame (an image, "
+                             "and for OBJ a material library) instead of vertex colours, as studios deliver them")
     parser.add_argument("--no-previews", action="store_true", help="skip the preview pictures")
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                         help="worker processes (default: up to 2)")
@@ -85,7 +88,7 @@ def _generate(job):
         job["root"], spec.name, faces=body.F, vertices=data["vertices"], colors=body.colors,
         unstructured=data["unstructured"], truth=data["truth"], meta=data["meta"],
         consistent_format=job["consistent_format"], unstructured_format=job["unstructured_format"],
-        progress=lambda done, total: progress(offset + done, offset + total))
+        textured=job["textured"], progress=lambda done, total: progress(offset + done, offset + total))
     if job["previews"]:
         _write_preview(Path(job["root"]) / "previews" / f"{spec.name}.png", body, data)
     return data["meta"]
@@ -179,7 +182,7 @@ def run(args):
     jobs = [dict(spec=spec, vertices=vertices, height=height, fps=fps, noise_mm=noise_mm,
                  seed=args.seed * 1000 + i, unstructured=not args.no_unstructured, root=str(staging),
                  consistent_format=consistent_format, unstructured_format=args.unstructured_format,
-                 previews=not args.no_previews)
+                 textured=args.textured, previews=not args.no_previews)
             for i, spec in enumerate(specs)]
     metas = {}
     try:
@@ -196,6 +199,7 @@ def run(args):
         "skeleton": body.skeleton.to_dict(),
         "consistent_format": consistent_format,
         "unstructured_format": None if args.no_unstructured else args.unstructured_format,
+        "unstructured_textured": bool(args.textured and not args.no_unstructured),
         "sequences": [metas[s.name] for s in specs],
     }
     write_capture_manifest(staging, manifest)

@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.mesh_io import read_mesh, write_obj, write_ply
+from engine.mesh_io.atlas import write_textured
 from engine.mesh_io.atomic import atomic_write
 from engine.mesh_io.dataset import (
     sequence_dir,
@@ -90,8 +91,9 @@ def _reconstruct(job):
                                        progress=lambda done, total: report(label, done, total))
     base = sequence_dir(job["root"], spec.name) / "unstructured"
     fmt = job["unstructured_format"]
+    write = write_textured if job["textured"] else WRITERS[fmt]
     for k, (Vk, Fk, Ck) in zip(frames, meshes):
-        WRITERS[fmt](base / f"frame_{k:04d}.{fmt}", to_file(Vk, spec.units, spec.up), Fk, colors=Ck)
+        write(base / f"frame_{k:04d}.{fmt}", to_file(Vk, spec.units, spec.up), Fk, colors=Ck)
     return stats
 
 
@@ -151,7 +153,8 @@ def run_studio(args, preset):
     started = time.perf_counter()
     body = _body(preset.body_vertices, preset.garment_detail)
     common = dict(body=(preset.body_vertices, preset.garment_detail), fps=fps, camera=camera, root=str(staging),
-                  consistent_format=consistent_format, unstructured_format=unstructured_format)
+                  consistent_format=consistent_format, unstructured_format=unstructured_format,
+                  textured=bool(args.textured))
     jobs = [dict(common, spec=spec, seed=args.seed * 1000 + i) for i, spec in enumerate(specs)]
     try:
         write_capture_template(staging, body)
@@ -183,6 +186,7 @@ def run_studio(args, preset):
             "studio": {"camera": asdict(camera),
                        "motion": "CMU Graphics Lab Motion Capture Database (mocap.cs.cmu.edu)"},
             "consistent_format": consistent_format, "unstructured_format": unstructured_format,
+            "unstructured_textured": bool(args.textured and unstructured_format),
             "sequences": metas,
         }
         write_capture_manifest(staging, manifest)

@@ -1,6 +1,8 @@
 """From extracted files to a dataset: sequences planned from the paths, every frame read and
 checked with engine.mesh_io, meta.json files checked, the files moved into the capture-dataset
-layout and its manifest written (``assemble_dataset``)."""
+layout and its manifest written (``assemble_dataset``). The files a frame refers to (an OBJ's
+material library, texture images) move with it, at the same place relative to it; textures no
+frame refers to are not kept."""
 
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from engine.mesh_io import MeshError, natural_key, read_mesh
+from engine.mesh_io.texture import RESOURCE_SUFFIXES, directory_resources
 from engine.mesh_io.dataset import write_capture_manifest
 from engine.mesh_io.units import UNITS_PER_METRE, UP_AXES
 from server.uploads.rules import KINDS, META_MAX_BYTES, NAME, UploadError
@@ -49,6 +52,8 @@ def plan_dataset(extracted, dataset_name):
 
     for name, parts, path in _strip_wrapper(extracted.files):
         leaf = parts[-1]
+        if os.path.splitext(leaf)[1].lower() in RESOURCE_SUFFIXES:
+            continue  # read through the frames that refer to them
         is_meta = leaf == "meta.json"
         if parts == ["manifest.json"]:
             continue  # the server writes its own
@@ -123,6 +128,7 @@ class FrameStats:
     first_problem: str | None = None
     lo: np.ndarray | None = None
     hi: np.ndarray | None = None
+    resources: dict = field(default_factory=dict)   # frame path -> names it refers to
 
     def add(self, mesh, label):
         V = mesh.vertices
@@ -142,15 +148,40 @@ def validate_frames(frames, progress=None, done=0, total=None):
     """Read every frame with engine.mesh_io; stats of the group. 422 naming the first bad frame."""
     stats = FrameStats()
     for name, path in frames:
+        used = stats.resources.setdefault(path, [])
         try:
-            mesh = read_mesh(path, name=name)
+            mesh = read_mesh(path, name=name, resources=_recording(directory_resources(path, name), used))
         except MeshError as exc:
             raise UploadError(422, str(exc)) from None
+        for reference in used:
+            if reference.startswith("../"):
+                raise UploadError(422, f"{name}: refers to {reference!r}, outside the frame's folder; keep "
+                                       "textures beside the frames or in a folder below them")
         stats.add(mesh, name)
         done += 1
         if progress is not None:
             progress(done, total)
     return stats
+
+
+def _recording(read, names):
+    """A resource reader that also notes every name it read."""
+    def recording(name):
+        data = read(name)
+        names.append(name)
+        return data
+    return recording
+
+
+def move_frame(path, target, resources):
+    """Move a frame file into the folder ``target`` with the files it refers to (same relative place)."""
+    os.replace(path, target / path.name)
+    for reference in resources:
+        destination = target / reference
+        if destination.exists():   # shared by an earlier frame
+            continue
+        destination.parent.mkdir(parents=True, exist_ok=True)
+        os.replace(path.parent / reference, destination)
 
 
 def sequence_meta(name, meta, kind, stats):
@@ -183,7 +214,7 @@ def assemble_dataset(extracted, out, dataset_name, *, fps, cyclic, progress=None
             target = out / "sequences" / seq_name / kind
             target.mkdir(parents=True)
             for _, path in frames:
-                os.replace(path, target / path.name)
+                move_frame(path, target, stats.resources.get(path, ()))
             lo = stats.lo if lo is None else np.minimum(lo, stats.lo)
             hi = stats.hi if hi is None else np.maximum(hi, stats.hi)
         if len(kinds) > 1 and kinds["consistent"].frames != kinds["unstructured"].frames:
@@ -196,9 +227,9 @@ def assemble_dataset(extracted, out, dataset_name, *, fps, cyclic, progress=None
         (out / "sequences" / seq_name / "meta.json").write_text(json.dumps(record, indent=2) + "\n")
         metas.append(record)
     for name, path, leaf in templates:
-        validate_frames([(name, path)])
+        stats = validate_frames([(name, path)])
         (out / "template").mkdir(exist_ok=True)
-        os.replace(path, out / "template" / leaf)
+        move_frame(path, out / "template", stats.resources.get(path, ()))
     write_capture_manifest(out, {"uploaded": True, "created": time.time(), "fps": fps,
                                  "bounds": [lo.tolist(), hi.tolist()], "sequences": metas})
     return out

@@ -1,7 +1,7 @@
 """From an uploaded body to checked files on disk: zip archives and multipart/form-data.
 
 Every member's path is checked (``member_parts``: no absolute paths, ``..``, unusual characters,
-too deep) and its type (``file_role``: mesh frames and meta.json only) before anything is
+too deep) and its type (``file_role``: mesh frames, their textures and meta.json only) before anything is
 written; sizes, file counts and compression ratios are bounded by ``Limits`` while extracting.
 The files land under a staging root as ``Extracted`` (relative name, path parts, path on disk).
 """
@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 
 from engine.mesh_io import MESH_EXTENSIONS
+from engine.mesh_io.texture import RESOURCE_SUFFIXES
 from server.uploads.rules import (
     CHUNK,
     MAX_DEPTH,
@@ -55,16 +56,20 @@ def member_parts(name):
 
 
 def file_role(parts, name):
-    """'mesh' or 'json'; any other file type is refused (422)."""
+    """'mesh', 'json' or 'resource' (a frame's material library or texture); any other file type
+    is refused (422)."""
     suffix = PurePosixPath(parts[-1]).suffix.lower()
     if suffix in MESH_EXTENSIONS:
         return "mesh"
+    if suffix in RESOURCE_SUFFIXES:
+        return "resource"
     if suffix == ".json":
         if parts[-1] not in ("meta.json", "manifest.json"):
             raise UploadError(422, f"{name}: unexpected JSON file; only <sequence>/meta.json and manifest.json are read")
         return "json"
     raise UploadError(422, f"{name}: unsupported file type {suffix or '(none)'!r}; a dataset holds mesh frames "
-                           f"({', '.join(MESH_EXTENSIONS)}) and meta.json files")
+                           f"({', '.join(MESH_EXTENSIONS)}), their textures ({', '.join(RESOURCE_SUFFIXES)}) "
+                           "and meta.json files")
 
 
 @dataclass

@@ -62,3 +62,20 @@ def test_files_and_truth_share_the_declared_frame(studio, name, scale, up):
 def test_height_is_refused_for_the_studio(tmp_path, capsys):
     assert main(["synth", "--preset", "studio-tiny", "--out", str(tmp_path / "x"), "--height", "1.8"]) == 2
     assert "--height applies to the procedural presets" in capsys.readouterr().err
+
+
+def test_textured_frames_carry_the_same_colours_in_an_atlas(studio, tmp_path):
+    out = tmp_path / "textured"
+    assert main(["synth", "--preset", "studio-tiny", "--only", "walk", "--out", str(out), "--workers", "1",
+                 "--textured", "--unstructured-format", "obj", "--no-previews"]) == 0
+    assert read_capture_manifest(out)["unstructured_textured"] is True
+    folder = out / "sequences" / "walk" / "unstructured"
+    assert {p.suffix for p in folder.iterdir()} == {".obj", ".mtl", ".png"}
+    textured = read_frames(folder)
+    plain = read_frames(studio / "sequences" / "walk" / "unstructured")
+    assert len(textured) == len(plain)
+    for k in (0, len(plain) - 1):   # the same reconstruction (walk is first: the same seed), its colours through the texture
+        np.testing.assert_allclose(textured[k].vertices, plain[k].vertices, atol=1e-6)   # metres, 6 decimals
+        assert np.array_equal(textured[k].faces, plain[k].faces)
+        difference = np.abs(textured[k].colors - plain[k].colors).max(axis=1)
+        assert np.median(difference) < 0.05 and difference.mean() < 0.06

@@ -108,6 +108,55 @@ def test_the_dataset_reads_with_the_engine(live, client):
     assert sequence.vertices[2, 0, 0] == pytest.approx(0.10)  # natural order: frame_10 last
 
 
+def textured_tetra(name, colour=(40, 120, 200), folder=""):
+    """A tetrahedron OBJ with a material library and a uniform PNG texture (files by name)."""
+    from PIL import Image
+
+    png = io.BytesIO()
+    Image.new("RGB", (8, 8), colour).save(png, format="PNG")
+    obj = (f"mtllib {name}.mtl\n" + tetra_obj().replace("f 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n", "")
+           + "vt 0.5 0.5\nusemtl skin\nf 1/1 3/1 2/1\nf 1/1 2/1 4/1\nf 1/1 4/1 3/1\nf 2/1 3/1 4/1\n")
+    return {f"{name}.obj": obj, f"{name}.mtl": f"newmtl skin\nmap_Kd {folder}{name}.png\n",
+            f"{folder}{name}.png": png.getvalue()}
+
+
+def test_textured_frames_keep_their_textures(client, live):
+    from engine.mesh_io import read_frames
+
+    files = {}
+    for k in range(2):
+        files.update({f"take/{n}": d for n, d in textured_tetra(f"frame_{k}", folder="maps/").items()})
+    files["take/maps/unused.png"] = files["take/maps/frame_0.png"]
+    r = post_zip(client, "textured", zip_bytes(files))
+    assert r.status_code == 201, r.text
+    folder = live.data_dir / "datasets" / "textured" / "sequences" / "take" / "consistent"
+    kept = sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if p.is_file())
+    assert kept == ["frame_0.mtl", "frame_0.obj", "frame_1.mtl", "frame_1.obj", "maps/frame_0.png",
+                    "maps/frame_1.png"]   # what no frame refers to is not kept
+    frames = read_frames(folder)
+    assert frames[1].colors is not None
+    assert abs(frames[1].colors[0] - [40 / 255, 120 / 255, 200 / 255]).max() < 1e-6
+
+
+TEXTURE_REFUSED = {
+    "missing texture": ({k: v for k, v in textured_tetra("f").items() if not k.endswith(".png")},
+                        "walk/f.obj: refers to 'f.png', which cannot be read beside it"),
+    "outside the frame's folder": ({**{k: v for k, v in textured_tetra("f", folder="../").items()
+                                       if not k.endswith(".png")}, "f.png": textured_tetra("f")["f.png"]},
+                                   "walk/f.obj: refers to '../f.png', outside the frame's folder"),
+}
+
+
+@pytest.mark.parametrize("case", list(TEXTURE_REFUSED))
+def test_textured_frame_problems_are_named(client, live, case):
+    files, words = TEXTURE_REFUSED[case]
+    before = datasets_state(live)
+    r = post_zip(client, "badtexture", zip_bytes({(n if n == "f.png" else f"walk/{n}"): d for n, d in files.items()}))
+    assert r.status_code == 422, r.text
+    assert words in r.json()["detail"]
+    assert datasets_state(live) == before
+
+
 def test_multipart_upload_with_paths_and_unstructured_frames(client):
     files = [("files", ("run/f1.obj", tetra_obj(), "text/plain")),
              ("files", ("run/f2.obj", tetra_obj(0.1, "v 5 5 5\nf 1 2 5\n"), "text/plain")),  # a different mesh
