@@ -1,7 +1,7 @@
 """One task produces the frames of every streaming connection: ``FrameScheduler``.
 
 Connections wait in a heap keyed by the time their next frame is due. A tick takes every
-connection due within half a tick (``TICK``), advances its player, blends, encodes and hands the
+connection due within half a tick (``TICK``), steps its player, blends, encodes and hands the
 frame to its transport, then sleeps until the next one falls due (at least a tick later, unless a
 client message makes a frame urgent). Per tick:
 
@@ -39,6 +39,7 @@ import math
 import weakref
 
 from engine.blend.many import ManyBlender
+from engine.player_steps import advance_together
 
 log = logging.getLogger("morphspace.stream")
 TICK = 0.002      # seconds: ticks come at most this often (urgent frames excepted)
@@ -77,8 +78,9 @@ class FrameScheduler:
     session and ends when the last one leaves.
 
     A session (server.stream.StreamSession) provides ``version`` (int, bumped here), ``closed``,
-    ``player`` (its ``phase`` is read), ``payload`` (set here), ``advance(now)`` -> bool (step
-    its player; False: no frame now, and the session reschedules itself if it wants one),
+    ``player`` (its ``phase`` is read; stepped here), ``payload`` (set here), ``due_step(now)`` ->
+    seconds or None (how far its player is to step for a frame now; None: no frame now, and the
+    session reschedules itself if it wants one),
     ``frame_source()`` -> (table or None, codec), ``moving_source()`` -> (blender, weights,
     phase) or None (without a table: a linear or hybrid blend this scheduler may do with
     others'), ``codec`` and ``quantiser``, ``send_frame(payload)`` where payload is the encoded
@@ -185,6 +187,25 @@ class FrameScheduler:
         finally:
             self._heap.clear()
 
+    def _step_players(self, ready, steps):
+        """Step the players of ``ready`` by ``steps`` (seconds): steering players of a space in one
+        compiled call (engine/player_steps.py: the same numbers as one by one), the others one at
+        a time. Returns the sessions whose step did not fail."""
+        try:
+            alone = advance_together([session.player for session in ready], steps)
+        except Exception:  # noqa: BLE001 - the compiled step changes no player before it returns
+            log.exception("stream: stepping %d players together failed; they step one by one", len(ready))
+            alone = range(len(ready))
+        failed = None
+        for k in alone:
+            try:
+                ready[k].player.advance(steps[k])
+            except Exception as exc:  # noqa: BLE001 - one connection's failure stays its own
+                ready[k].fail(exc)
+                failed = [] if failed is None else failed
+                failed.append(ready[k])
+        return ready if failed is None else [session for session in ready if session not in failed]
+
     def _blend_together(self, blender, members):
         """The frames of ``members`` [(session, weights, phase)] at moving weights of one blender:
         one blend per codec (q16 clients' codes made in the same pass); sets each session's
@@ -204,13 +225,17 @@ class FrameScheduler:
         self.batched_frames += len(members)
 
     def _produce(self, batch, now):
-        ready = []
+        ready, steps = [], []
         for session in batch:
             try:
-                if session.advance(now):
-                    ready.append(session)
+                dt = session.due_step(now)
             except Exception as exc:  # noqa: BLE001 - one connection's failure stays its own
                 session.fail(exc)
+                continue
+            if dt is not None:
+                ready.append(session)
+                steps.append(dt)
+        ready = self._step_players(ready, steps)
         # clients at weights with a phase table: one gather per table; the others at linear or
         # hybrid weights: one blend per blender
         groups, moving = {}, {}

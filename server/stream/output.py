@@ -34,21 +34,30 @@ class FrameOutput:
 
     def advance(self, now):
         """Step the player for a frame at loop time ``now``; False when none is to be sent."""
-        if not self.ready or self.player is None or self.rate <= 0:
+        dt = self.due_step(now)
+        if dt is None:
             return False
+        self.player.advance(dt)
+        return True
+
+    def due_step(self, now):
+        """The seconds the player is to step for a frame at loop time ``now`` (the scheduler steps
+        it: steering players of a space together), or None when no frame is to be sent."""
+        if not self.ready or self.player is None or self.rate <= 0:
+            return None
         urgent = self.urgent
         streaming = not self.paused and self.rate > 0
         if not urgent and not streaming:
-            return False
+            return None
         # the window holds for every frame, urgent ones (answering a message) too: they wait for an ack
         if self.window > 0 and self.seq - self.acked_frame >= self.window:
             self.waiting_ack = True  # the next ack reschedules
             if not self._stalled(now):  # or else, the stall timeout
                 self.scheduler.schedule(self, self.stalled_since + self.settings.stream_stall_timeout)
-            return False
+            return None
         if self.gauge is not None and not self.gauge.ready():
             self._transport_full(now, streaming)
-            return False
+            return None
         self.urgent = False
         dt = 0.0
         if streaming:
@@ -62,8 +71,7 @@ class FrameOutput:
                 self.next_due += (missed + 1) * period
             dt = 0.0 if self.last_step is None else min(now - self.last_step, MAX_DT)
             self.last_step = now
-        self.player.advance(dt)
-        return True
+        return dt
 
     def unsent_ticks(self, now):
         """Ticks of the rate grid that fell due a whole period or more before loop time ``now`` and

@@ -1,0 +1,289 @@
+"""Steering players stepped together: ``advance_together(players, dts)``.
+
+A player whose parameters are on their way to a request (``Player.advance`` with the spring
+still moving) does, every frame, a spring step, a warm Newton solve on the parameter map's
+sheet, the weights at the solution and the blended duration and root rates at the two phase
+samples the step needs: a dozen numpy calls on arrays of two to four numbers, 15-20 us in all.
+Here the steps of every such player of one space are one compiled call (:func:`_step_moving`):
+the same operations in the same order, the Newton solve the same compiled function
+(``parameter_map._newton_square_compiled``), and the products of weights and rates through the
+very BLAS functions numpy's ``dot`` calls for them (``cblas_ddot`` and ``cblas_dgemv`` of the
+OpenBLAS numpy is built with, whose sums of four terms are fused multiply-adds in the kernel's
+own order): the same floats, so the same frames (``tests/engine/test_player_steps.py``).
+
+The players it does not take step one at a time (``Player.advance``): those whose parameters
+settle in this step, whose request lies outside the reachable domain (the cold solve), whose
+Newton step meets a singular Jacobian, that follow requests at once (``smoothing`` 0), on a
+one-dimensional sheet or with more than two parameters, and every player when numpy's BLAS is
+not the OpenBLAS of numpy's wheels (its functions cannot then be called from compiled code).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import glob
+import math
+import os
+
+import numpy as np
+
+from engine.jit import compiled
+from engine.parameters.parameter_map import Solution, _newton_square_compiled
+from engine.player import Player
+
+
+def _numpy_openblas():
+    """The path of the OpenBLAS numpy's wheels bundle (64-bit integers, ``scipy_`` symbols), or
+    None where numpy is built otherwise."""
+    folder = os.path.join(os.path.dirname(os.path.dirname(np.__file__)), "numpy.libs")
+    for path in sorted(glob.glob(os.path.join(folder, "libscipy_openblas64_*.so"))):
+        try:
+            library = ctypes.CDLL(path)
+            library.scipy_cblas_ddot64_, library.scipy_cblas_dgemv64_  # noqa: B018 - both present
+        except (OSError, AttributeError):
+            continue
+        return path
+    return None
+
+
+_OPENBLAS = _numpy_openblas()
+if _OPENBLAS is not None:
+    import llvmlite.binding
+    from numba import types
+
+    llvmlite.binding.load_library_permanently(_OPENBLAS)
+    _ddot = types.ExternalFunction("scipy_cblas_ddot64_", types.float64(
+        types.int64, types.voidptr, types.int64, types.voidptr, types.int64))
+    _dgemv = types.ExternalFunction("scipy_cblas_dgemv64_", types.void(
+        types.int32, types.int32, types.int64, types.int64, types.float64, types.voidptr, types.int64,
+        types.voidptr, types.int64, types.float64, types.voidptr, types.int64))
+    ROW_MAJOR, TRANS = 101, 112  # CBLAS enums
+
+    @compiled
+    def _dot(x, y):  # pragma: no cover (compiled)
+        """``float(x.dot(y))`` for contiguous (n,) float64 arrays: numpy's 0. + cblas_ddot."""
+        return 0.0 + _ddot(len(x), x.ctypes, 1, y.ctypes, 1)
+
+    @compiled
+    def _vector_matrix(x, A, out):  # pragma: no cover (compiled)
+        """``x.dot(A)`` into ``out`` for (n,) and C-contiguous (n, 3) float64: numpy's gemv."""
+        _dgemv(ROW_MAJOR, TRANS, A.shape[0], A.shape[1], 1.0, A.ctypes, A.shape[1], x.ctypes, 1, 0.0, out.ctypes, 1)
+
+    @compiled
+    def _pymax(a, b):  # pragma: no cover (compiled)
+        return b if b > a else a  # Python's max(a, b): the first of equals
+
+    @compiled
+    def _pymin(a, b):  # pragma: no cover (compiled)
+        return b if b < a else a
+
+    @compiled
+    def _phase_samples(phase, n, cyclic):  # pragma: no cover (compiled)
+        """engine.blend.phase.phase_samples."""
+        if cyclic:
+            x = (phase % 1.0) * n
+            p0 = int(x) % n
+            return p0, (p0 + 1) % n, x - int(x)
+        x = _pymin(_pymax(phase, 0.0), 1.0) * (n - 1)
+        p0 = min(int(x), n - 2)
+        return p0, p0 + 1, x - p0
+
+    @compiled
+    def _weights(u0, u1, kind, chain, left, right, corners, w):  # pragma: no cover (compiled)
+        """Layout.weights of a fan (kind 0) or a grid (kind 1) at (u0, u1), into zeroed ``w``."""
+        u0, u1 = _pymin(_pymax(u0, 0.0), 1.0), _pymin(_pymax(u1, 0.0), 1.0)
+        if kind == 1:
+            a, b = u0, u1
+            w[corners[0]] += (1 - a) * (1 - b)
+            w[corners[1]] += a * (1 - b)
+            w[corners[2]] += (1 - a) * b
+            w[corners[3]] += a * b
+            return
+        d = 2.0 * u1 - 1.0
+        share = 1.0 - abs(d)
+        L = len(chain)
+        if L == 1:
+            w[chain[0]] += share
+        else:
+            x = _pymin(_pymax(u0, 0.0), 1.0) * (L - 1)
+            i = min(int(x), L - 2)
+            a = x - i
+            w[chain[i]] += share * (1.0 - a)
+            w[chain[i + 1]] += share * a
+        w[left] += _pymax(d, 0.0)
+        w[right] += _pymax(-d, 0.0)
+
+    @compiled
+    def _step_moving(state, values, last, ranges, bounds, kind, chain, left, right, corners, durations, root_rate,
+                     turn_rate, cyclic, W, out, done):  # pragma: no cover (compiled)
+        """Player.advance of K players whose parameters move (see the module docstring).
+
+        state : (K, 17) float64   per player: current (2), velocity (2), target (2), the last
+            solution's u (2), phase, heading, root x, root z, time, dt, smoothing, finished, loop
+        out : (K, 15) float64     current, velocity, u, realised (2 each), phase, heading, x, z,
+                                  time, finished, (unused)
+        W : (K, N) float64 zeroed: the weights;  done : (K,) bool: False where the player must
+            step on its own (nothing of it is then to be used)
+        """
+        P = turn_rate.shape[0]
+        s0, s1 = root_rate.shape[1], root_rate.shape[2]
+        rates0, rates1 = np.empty(s1), np.empty(s1)
+        wn = np.empty(s0)
+        for k in range(state.shape[0]):
+            done[k] = False
+            row = state[k]
+            dt, tau = row[13], row[14]
+            if not (dt >= 0 and math.isfinite(dt)) or not tau > 0:
+                continue
+            # the spring (engine.player._critically_damped_lists)
+            ws = 1.0 / tau
+            decay = math.exp(-ws * dt)
+            settled = True
+            for i in range(2):
+                xi, vi, ti = row[i], row[2 + i], row[4 + i]
+                y = xi - ti
+                c = vi + ws * y
+                x_new = ti + (y + c * dt) * decay
+                v_new = (vi - ws * c * dt) * decay
+                out[k, i], out[k, 2 + i] = x_new, v_new
+                if not (abs(x_new - ti) <= 1e-6 * ranges[i] and abs(v_new) * dt <= 1e-6 * ranges[i]):
+                    settled = False
+            if settled:
+                continue
+            # ParameterMap.solve_near, warm from the last solution
+            q0 = _pymin(_pymax(out[k, 0], bounds[0, 0]), bounds[0, 1])
+            q1 = _pymin(_pymax(out[k, 1], bounds[1, 0]), bounds[1, 1])
+            u0 = _pymin(_pymax(row[6], 0.0), 1.0)
+            u1 = _pymin(_pymax(row[7], 0.0), 1.0)
+            ok, u0, u1, at0, at1 = _newton_square_compiled(values, last, ranges[0], ranges[1], q0, q1, u0, u1)
+            if not ok or abs(at0 - out[k, 0]) > 0.005 * ranges[0] or abs(at1 - out[k, 1]) > 0.005 * ranges[1]:
+                continue  # the general solver, or the cold solve of a clamped request
+            out[k, 4], out[k, 5], out[k, 6], out[k, 7] = u0, u1, at0, at1
+            w = W[k]
+            _weights(u0, u1, kind, chain, left, right, corners, w)
+            phase, heading, x, z, time = row[8], row[9], row[10], row[11], row[12]
+            finished, loop = row[15] != 0.0, row[16] != 0.0
+            if not finished and dt > 0:
+                total = 0.0
+                for i in range(len(w)):
+                    total += w[i]  # np.add.reduce of a few values: in order
+                for i in range(len(w)):
+                    wn[i] = w[i] / total
+                duration = _dot(wn, durations)
+                d_phase = dt / duration
+                if not cyclic and not loop:
+                    d_phase = _pymin(d_phase, 1.0 - phase)
+                middle = phase + 0.5 * d_phase
+                p0, p1, a = _phase_samples(middle % 1.0 if cyclic or loop else middle, P, cyclic)
+                _vector_matrix(wn, root_rate[p0], rates0)
+                _vector_matrix(wn, root_rate[p1], rates1)
+                t0, t1 = _dot(turn_rate[p0], wn), _dot(turn_rate[p1], wn)
+                sx, sz = rates0[0] + a * (rates1[0] - rates0[0]), rates0[2] + a * (rates1[2] - rates0[2])
+                t = t0 + a * (t1 - t0)
+                heading_middle = heading + 0.5 * t * d_phase
+                c, s = math.cos(heading_middle), math.sin(heading_middle)
+                x = x + (c * sx + s * sz) * d_phase
+                z = z + (c * sz - s * sx) * d_phase
+                heading += t * d_phase
+                phase += d_phase
+                if cyclic or loop:
+                    phase %= 1.0
+                elif phase >= 1.0 - 1e-12:
+                    phase, finished = 1.0, True
+            out[k, 8], out[k, 9], out[k, 10], out[k, 11] = phase, heading, x, z
+            out[k, 12], out[k, 13] = time + dt, 1.0 if finished else 0.0
+            done[k] = True
+
+
+def _takes(player):
+    """Whether ``player`` may step in a batch: an engine Player (not a subclass), steering (not
+    settled, smoothing > 0), two parameters on a two-dimensional fan or grid."""
+    if type(player) is not Player or player._settled or not player.smoothing > 0:
+        return False
+    layout = player.map.layout
+    return layout.kind in ("fan", "grid") and len(player.names) == 2
+
+
+def _space_arrays(player):
+    """The compiled step's arrays of ``player``'s space (kept on its parameter map)."""
+    cached = getattr(player.map, "_steps_arrays", None)
+    if cached is not None and cached[0] is player.track:
+        return cached[1]
+    pmap, layout, track = player.map, player.map.layout, player.track
+    arrays = (pmap._values_array, pmap._last, np.array(pmap._ranges_list), np.array(pmap._solve_bounds),
+              0 if layout.kind == "fan" else 1, np.array(layout.chain or (0,), dtype=np.int64), layout.left,
+              layout.right, np.array(layout.corners or (0, 0, 0, 0), dtype=np.int64),
+              # writable C-order copies (a space's mapped arrays would be another type to numba)
+              np.array(track.durations, dtype=np.float64), np.array(track.root_rate, dtype=np.float64, order="C"),
+              np.array(track.turn_rate, dtype=np.float64, order="C"), bool(track.cyclic))
+    pmap._steps_arrays = (track, arrays)
+    return arrays
+
+
+def advance_together(players, dts):
+    """``player.advance(dt)`` for the players of ``players`` (with their ``dts``, seconds) that
+    can step together: the steering ones of each space, in one compiled call per space. Returns
+    the indices of the others, for the caller to step one by one (``Player.advance``, which
+    raises where it must). Every compiled call is made before any player changes: if one
+    raises, no player has been stepped."""
+    if _OPENBLAS is None:
+        return list(range(len(players)))
+    rest, groups = [], {}
+    for index, player in enumerate(players):
+        if _takes(player):
+            groups.setdefault(id(player.map), []).append(index)
+        else:
+            rest.append(index)
+    stepped = [(members, _step_group([players[i] for i in members], [dts[i] for i in members]))
+               for members in groups.values()]
+    for members, results in stepped:
+        rest.extend(_commit([players[i] for i in members], members, *results))
+    return rest
+
+
+def _step_group(players, dts):
+    """The compiled step of one space's steering players: (W, out, done) (``_step_moving``)."""
+    state = np.array([(*p._current.tolist(), *p._velocity.tolist(), *p._target.tolist(), *p._solution.u.tolist(),
+                       p.phase, p.heading, p.position[0], p.position[2], p.time, dt, p.smoothing, p.finished,
+                       p.loop) for p, dt in zip(players, dts)], dtype=np.float64)
+    K = len(players)
+    W = np.zeros((K, players[0].map.layout.n_sources))
+    out = np.empty((K, 15))
+    done = np.empty(K, dtype=np.bool_)
+    _step_moving(state, *_space_arrays(players[0]), W, out, done)
+    return W, out, done
+
+
+def _commit(players, indices, W, out, done):
+    """Set the players' state from ``_step_moving``'s results; returns the indices of those it
+    did not step."""
+    current, velocity, u, realised = out[:, 0:2], out[:, 2:4], out[:, 4:6], out[:, 6:8]
+    rest = []
+    for k, (player, flag, values) in enumerate(zip(players, done.tolist(), out[:, 8:14].tolist())):
+        if not flag:
+            rest.append(indices[k])
+            continue
+        c = current[k]  # (the arrays are replaced, never changed in place: Player.state_key)
+        player._current, player._velocity = c, velocity[k]
+        player._solution = Solution(weights=W[k], u=u[k], requested=c, realised=realised[k], clamped=False)
+        player.phase, player.heading, x, z, player.time, finished = values
+        player.finished = finished != 0.0
+        position = player.position
+        position[0], position[2] = x, z
+    return rest
+
+
+def warm_up():
+    """Compile (or load from numba's cache) the step (a server does so before it serves)."""
+    if _OPENBLAS is None:
+        return
+    values = np.zeros((2, 2, 2))
+    values[1, :, 0] = 1.0
+    values[:, 1, 1] = 1.0
+    state = np.zeros((1, 17))
+    state[0, 4:6] = 0.5
+    state[0, 13:15] = 0.01, 0.25
+    one = np.zeros(1, dtype=np.int64)
+    _step_moving(state, values, 1, np.ones(2), np.array([[-1.0, 2.0], [-1.0, 2.0]]), 0, one, 0, 0,
+                 np.zeros(4, dtype=np.int64), np.ones(1), np.zeros((2, 1, 3)), np.zeros((2, 1)), True,
+                 np.zeros((1, 1)), np.empty((1, 15)), np.empty(1, dtype=np.bool_))

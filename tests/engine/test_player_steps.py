@@ -1,0 +1,128 @@
+"""Steering players stepped together (engine/player_steps.py): the numbers of Player.advance."""
+
+import random
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from engine import player_steps
+from engine.motion_space import MotionSpace, SourceClip, build_motion_space
+from engine.parameters import Layout, ParameterMap, RootTrack
+from engine.player import Player
+from engine.synthetic import animate, build_body, gait
+
+FPS = 15.0
+pytestmark = pytest.mark.skipif(player_steps._OPENBLAS is None, reason="numpy is not built with its wheels' OpenBLAS")
+
+
+@pytest.fixture(scope="module")
+def body():
+    return build_body(1000)
+
+
+@pytest.fixture(scope="module")
+def fan_space(body, tmp_path_factory):
+    """speed x turn_rate (cyclic): a speed chain and a left and a right turn."""
+    gaits = [(0.9, 0.0), (2.6, 0.0), (1.5, 40.0), (1.5, -40.0)]
+    clips = [SourceClip(f"g{k}", animate(body, gait(body.skeleton, v, turn_rate=r, cycles=1.0, fps=FPS)), FPS, True)
+             for k, (v, r) in enumerate(gaits)]
+    path = tmp_path_factory.mktemp("steps") / "fan.mspace"
+    build_motion_space(path, clips, body.F, name="fan", epsilon=0.008, rest=body.V,
+                       parameters={"layout": Layout("fan", 4, chain=(0, 1), left=2, right=3),
+                                   "names": ["speed", "turn_rate"]})
+    with MotionSpace.open(path) as space:
+        yield space
+
+
+@pytest.fixture(scope="module")
+def grid_space(fan_space):
+    """A one-shot space on a grid sheet (jump_height x jump_distance), from the fan's arrays: a
+    measured-looking parameter map (bilinear in u with a bend) and the fan's root motion, not
+    cyclic (building four real jumps takes a minute)."""
+    axis = np.linspace(0.0, 1.0, 11)
+    U0, U1 = np.meshgrid(axis, axis, indexing="ij")
+    values = np.stack([0.2 + 0.25 * U0 + 0.03 * U0 * U1, 0.3 + 0.7 * U1 - 0.05 * U0 * U1 ** 2], axis=-1)
+    grid = ParameterMap(layout=Layout("grid", 4, corners=(0, 2, 1, 3)), names=["jump_height", "jump_distance"],
+                        units=["m", "m"], axes=[axis, axis], values=values)
+    track = fan_space.root_track
+    return SimpleNamespace(name="grid", cyclic=False, parameter_map=grid,
+                           root_track=RootTrack(track.durations, track.root_rate, track.turn_rate, cyclic=False))
+
+
+def _state(player):
+    return (player.phase, player.heading, player.time, player.finished, player.position.tobytes(),
+            player._current.tobytes(), player._velocity.tobytes(), player.weights.tobytes(),
+            player.realised.tobytes(), player._solution.u.tobytes(), player._settled, player.clamped)
+
+
+def _run(space, seed, steps=240, loop=None):
+    """Two sets of players under the same requests and steps, one stepped together, one by one:
+    (steps taken together, steps in all); asserts every state equal bit for bit after each step."""
+    rng = random.Random(seed)
+    domain = space.parameter_map.domain()
+    smoothing = [0.25, 0.1, 0.6, 0.0, 0.25, 0.4]
+    together = [Player(space, smoothing=s, loop=loop) for s in smoothing * 3]
+    alone = [Player(space, smoothing=s, loop=loop) for s in smoothing * 3]
+    for a, b in zip(together, alone):
+        phase = rng.random()
+        a.seek(phase)
+        b.seek(phase)
+    taken = 0
+    for _ in range(steps):
+        for a, b in zip(together, alone):
+            if rng.random() < 0.05:  # inside the domain, or outside it (clamped: the cold solve)
+                margin = 0.0 if rng.random() < 0.7 else 0.5
+                request = [rng.uniform(lo - margin * (hi - lo), hi + margin * (hi - lo)) for lo, hi in domain]
+                a.set_params(request)
+                b.set_params(request)
+            if rng.random() < 0.01:
+                a.reset()
+                b.reset()
+        dts = [rng.choice([0.0, rng.uniform(0.0, 0.05)]) for _ in together]
+        rest = player_steps.advance_together(together, dts)
+        for k in rest:
+            together[k].advance(dts[k])
+        for b, dt in zip(alone, dts):
+            b.advance(dt)
+        taken += len(together) - len(rest)
+        for a, b in zip(together, alone):
+            assert _state(a) == _state(b)
+    return taken, steps * len(together)
+
+
+def test_steering_players_stepped_together_are_bit_for_bit_one_by_one(fan_space):
+    taken, total = _run(fan_space, seed=1)
+    assert taken > total / 3  # most steering steps were made together
+
+
+def test_one_shot_players_on_a_grid_too(grid_space):
+    for loop in (False, True):
+        taken, total = _run(grid_space, seed=2, loop=loop)
+        assert taken > total / 3
+
+
+def test_settled_and_unfit_players_are_left_to_step_alone(fan_space):
+    settled = Player(fan_space)
+    instant = Player(fan_space, smoothing=0.0)
+    steering = Player(fan_space)
+    instant.set_params([2.0, 10.0])
+    steering.set_params([2.0, 10.0])
+    before = steering.weights
+    assert player_steps.advance_together([settled, instant, steering], [0.02, 0.02, 0.02]) == [0, 1]
+    assert steering.weights is not before and not steering.settled
+    assert settled.time == instant.time == 0.0  # not stepped: the caller steps them
+    assert player_steps.advance_together([steering], [float("nan")]) == [0]  # Player.advance raises on it
+
+
+def test_the_products_are_numpys_own():
+    """The compiled dot and vector-matrix products give numpy's floats (its BLAS, its order)."""
+    rng = np.random.default_rng(0)
+    out = np.empty(3)
+    for _ in range(2000):
+        w = rng.random(4)
+        w = w / np.add.reduce(w)
+        R, d = rng.standard_normal((4, 3)), rng.uniform(0.5, 2.0, 4)
+        assert player_steps._dot(w, d) == float(w.dot(d))
+        player_steps._vector_matrix(w, R, out)
+        assert out.tobytes() == w.dot(R).tobytes()
