@@ -91,6 +91,25 @@ _PROGRESS_FLOAT = struct.Struct(f">{len(_PROGRESS)}s1sd").pack  # _PROGRESS, _F,
 _GRAPH_STILL = {}  # (node, target) -> StreamedFrame.graph's bytes without a transition's progress
 
 
+_MIDDLE = {}  # (mode, lengths, clamped) -> _middle_packer's
+
+
+def _array_header(n):
+    return bytes([0x90 | n]) if n <= 15 else b"\xdc" + n.to_bytes(2, "big")
+
+
+def _middle_packer(mode, n_requested, n_realised, clamped, n_weights):
+    """(struct pack, head, between, tail) of ``StreamedFrame.middle`` for these lengths: the
+    format interleaves the constant bytes with a ``0xcb`` byte and a big-endian float64 per
+    number."""
+    head = _KEYS["mode"] + _packb(mode) + _KEYS["requested"] + _array_header(n_requested)
+    between = _KEYS["realised"] + _array_header(n_realised)
+    tail = _KEYS["clamped"] + _packb(bool(clamped)) + _KEYS["weights"] + _array_header(n_weights)
+    fmt = (f">{len(head)}s" + "Bd" * n_requested + f"{len(between)}s" + "Bd" * n_realised + f"{len(tail)}s"
+           + "Bd" * n_weights)
+    return struct.Struct(fmt).pack, head, between, tail
+
+
 def _uint(n):
     return _UINT[n] if 0 <= n < 128 else _packb(n)
 
@@ -102,11 +121,27 @@ class StreamedFrame:
 
     @staticmethod
     def middle(mode, requested, realised, clamped, weights):
-        """The packed fields from ``mode`` to ``weights`` (a str, three lists of floats, a bool):
-        the caller keeps them while they stay the same."""
-        packed = _packb({"mode": mode, "requested": requested, "realised": realised, "clamped": clamped,
-                         "weights": weights})
-        return packed[1:]  # without the map's own header (one byte: five entries)
+        """The packed fields from ``mode`` to ``weights`` (a str, three lists of Python floats, a
+        bool): the caller keeps them while they stay the same (a steering client's change every
+        frame). One ``struct`` call around constant bytes per (mode, lengths, clamped): the
+        bytes of msgpack's packing of those five entries (every float a float64, ``0xcb``)."""
+        key = (mode, len(requested), len(realised), clamped, len(weights))
+        packer = _MIDDLE.get(key)
+        if packer is None:
+            packer = _middle_packer(*key)
+            if len(_MIDDLE) < 1024:
+                _MIDDLE[key] = packer
+        pack, head, between, tail = packer
+        args = [head]
+        for value in requested:
+            args += (0xCB, value)
+        args.append(between)
+        for value in realised:
+            args += (0xCB, value)
+        args.append(tail)
+        for value in weights:
+            args += (0xCB, value)
+        return pack(*args)
 
     @staticmethod
     def graph(node, target, progress):
