@@ -23,6 +23,7 @@ import dataclasses
 import struct
 
 import msgpack
+import numpy as np
 
 from server.protocol import Frame
 
@@ -61,6 +62,24 @@ def frame_parts(small, bulk):
     return parts
 
 
+def row_views(rows):
+    """The bytes of each row of ``rows`` (K, m) (each row C-contiguous, e.g. a tick's frames of
+    one table or blend) as memoryviews: slices of one view of the whole array, which costs one
+    buffer export instead of one per row (a frame's ``vertices`` for ``StreamedFrame.parts``)."""
+    K, width = len(rows), rows.shape[1] * rows.itemsize
+    if K == 0:
+        return []
+    step = rows.strides[0]
+    if rows.flags.c_contiguous:
+        whole = memoryview(rows).cast("B")
+    elif rows.strides[1] == rows.itemsize and step >= width:  # padded rows (ManyBlender's float32 ones)
+        whole = memoryview(np.lib.stride_tricks.as_strided(rows.view(np.uint8), shape=((K - 1) * step + width,),
+                                                           strides=(1,)))
+    else:
+        return [memoryview(row).cast("B") for row in rows]
+    return [whole[start:start + width] for start in range(0, K * step, step)]
+
+
 def joined(parts):
     """The body's bytes in one piece (for senders that take bytes)."""
     return b"".join(parts)
@@ -92,6 +111,7 @@ _GRAPH_STILL = {}  # (node, target) -> StreamedFrame.graph's bytes without a tra
 
 
 _MIDDLE = {}  # (mode, lengths, clamped) -> _middle_packer's
+_BIN_HEADERS = {}  # a vertices field's length -> its bin header
 
 
 def _array_header(n):
@@ -164,12 +184,19 @@ class StreamedFrame:
         """The frame's body as buffers (``frame_parts``' form: the small fields in one piece, then
         the vertices, not copied). ``seq``, ``ack``, ``dropped``: non-negative ints; ``time_``,
         ``phase``, ``heading``, ``sent_at``: floats; ``root``: three floats; ``finished``: bool;
-        ``middle``: from ``middle``; ``vertices``: bytes or a C-contiguous array; ``graph``: a
+        ``middle``: from ``middle``; ``vertices``: bytes, a C-contiguous array or a memoryview
+        of its bytes (``row_views``: written as it is); ``graph``: a
         motion graph's fields from ``graph`` (None: a space's frame, those fields nil)."""
         x, y, z = root
-        view = memoryview(vertices).cast("B")
+        view = vertices if vertices.__class__ is memoryview else memoryview(vertices).cast("B")
+        size = view.nbytes
+        header = _BIN_HEADERS.get(size)
+        if header is None:
+            header = _bin_header(size)
+            if len(_BIN_HEADERS) < 256:
+                _BIN_HEADERS[size] = header
         return [b"".join((_HEAD, _uint(seq), _ACK, _uint(ack), _TIME, _TIME_PHASE(time_, _PHASE, phase), middle,
                           _ROOT, _ROOT_HEADING(x, _F, y, _F, z, _HEADING, heading), _DROPPED, _uint(dropped),
                           _FINISHED[finished], _SENT_AT(sent_at), _NONES_VERTICES if graph is None else graph,
-                          _bin_header(view.nbytes))),
+                          header)),
                 view]

@@ -40,6 +40,7 @@ import weakref
 
 from engine.blend.many import ManyBlender
 from engine.player_steps import advance_together
+from server.frames import row_views
 
 log = logging.getLogger("morphspace.stream")
 TICK = 0.002      # seconds: ticks come at most this often (urgent frames excepted)
@@ -220,8 +221,8 @@ class FrameScheduler:
                               None if quantiser is None else quantiser.codes)
             if quantiser is None:
                 rows = rows.astype("<f4", copy=False)  # (no copy on little-endian machines)
-            for (session, _, _), row in zip(group, rows):
-                session.payload = row  # its bytes are the frame's vertices
+            for (session, _, _), view in zip(group, row_views(rows)):
+                session.payload = view  # the frame's vertices
         self.batched_frames += len(members)
 
     def _produce(self, batch, now):
@@ -264,8 +265,8 @@ class FrameScheduler:
             except Exception:  # noqa: BLE001 - its members blend one by one below
                 log.exception("stream: gathering %d frames from a phase table failed", len(members))
                 continue
-            for member, row in zip(members, rows):
-                member.payload = row  # its bytes are the frame's vertices (written without a copy here)
+            for member, view in zip(members, row_views(rows)):
+                member.payload = view  # the frame's vertices (written without a copy here)
             self.table_frames += len(members)
         for blender, members in moving.values():
             try:

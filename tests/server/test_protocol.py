@@ -245,6 +245,38 @@ def test_a_streamed_frame_is_the_bytes_frame_parts_gives(seq, ack, dropped, fini
         assert fast == msgpack.packb({**with_graph, "vertices": vertices.tobytes()})
 
 
+def test_middle_fields_are_msgpacks_bytes_for_any_floats():
+    from server.frames import StreamedFrame
+
+    rng = np.random.default_rng(5)
+    special = [0.0, -0.0, float("nan"), float("inf"), -float("inf"), 5e-324, 1e308]
+    for n_weights in (1, 4, 15, 16, 40):
+        values = rng.normal(size=2 + 2 + n_weights).tolist()
+        values[rng.integers(len(values))] = special[n_weights % len(special)]
+        requested, realised, weights = values[:2], values[2:4], values[4:]
+        for mode, clamped in (("hybrid", False), ("nonlinear", True)):
+            expected = msgpack.packb({"mode": mode, "requested": requested, "realised": realised, "clamped": clamped,
+                                      "weights": weights})[1:]
+            assert StreamedFrame.middle(mode, requested, realised, clamped, weights) == expected
+
+
+def test_row_views_are_the_bytes_of_each_row():
+    from engine.blend.many import aligned_rows
+    from server.frames import StreamedFrame, row_views
+
+    padded = aligned_rows(5, 9001)  # rows padded to 64-byte boundaries
+    padded[...] = np.random.default_rng(1).random(padded.shape)
+    for rows in (np.arange(24 * 9000, dtype="<u2").reshape(24, 9000), padded, np.ones((1, 3), "<u2"),
+                 np.empty((0, 3), np.float32)):
+        views = row_views(rows)
+        assert [bytes(view) for view in views] == [row.tobytes() for row in rows]
+    # a frame written from a row's view is the frame written from the row
+    middle = StreamedFrame.middle("linear", [1.0], [1.0], False, [0.5, 0.5])
+    assert [bytes(p) for p in StreamedFrame.parts(3, 0, 0.5, 0.25, middle, [0.0, 0.0, 1.0], 0.0, 0, False, 1.0,
+                                                  row_views(padded)[2])] == \
+        [bytes(p) for p in StreamedFrame.parts(3, 0, 0.5, 0.25, middle, [0.0, 0.0, 1.0], 0.0, 0, False, 1.0, padded[2])]
+
+
 @pytest.mark.parametrize("length", [0, 125, 126, 65535, 65536, 200000])
 def test_the_websocket_header_is_rfc_6455s(length):
     from websockets.frames import Frame, Opcode
