@@ -26,7 +26,7 @@ from collections import OrderedDict
 
 import numpy as np
 
-from engine.blend.compiled import interpolate_rows
+from engine.blend.compiled import interpolate_at, interpolate_rows
 from engine.blend.phase import phase_of_sample, phase_samples
 
 
@@ -83,12 +83,10 @@ class PhaseTable:
 
     def rows_cast(self, phases, dtype):
         """(K, n * 3) ``dtype`` rows at K phases: ``rows_at(phases).astype(dtype)``, the same
-        numbers, each row made in one compiled pass (engine/blend/compiled.py; a q16 table's rows
-        cast to "<u2" are the encoded frames)."""
-        samples = [phase_samples(t, self.n_phases, self.cyclic) for t in phases]
-        p0 = np.fromiter((s[0] for s in samples), dtype=np.int64, count=len(samples))
-        a = np.fromiter((s[2] for s in samples), dtype=np.float32, count=len(samples))
-        return interpolate_rows(self.rows, self.delta, p0, a, np.empty((len(samples), self.rows.shape[1]), dtype=dtype))
+        numbers, each row made in one compiled pass, its phase sample found there too
+        (engine/blend/compiled.py; a q16 table's rows cast to "<u2" are the encoded frames)."""
+        return interpolate_at(self.rows, self.delta, np.array(phases, dtype=np.float64), self.cyclic,
+                              np.empty((len(phases), self.rows.shape[1]), dtype=dtype))
 
     def scaled(self, scale, offset, lo=None, hi=None, key=None):
         """This table in the affine coordinates ``scale * B + offset`` (per axis), clipped to
@@ -112,6 +110,11 @@ class PhaseTable:
                 np.clip(rows, lo, hi, out=rows)
             table = self._scaled[key] = PhaseTable(rows, self.cyclic)
         return table
+
+
+def weights_key(weights):
+    """The bytes naming a weight vector (N,) among a PhaseTableBlender's tables."""
+    return np.asarray(weights, dtype=np.float64).tobytes()
 
 
 class PhaseTableBlender:
@@ -145,12 +148,14 @@ class PhaseTableBlender:
             self.blender.blend(weights, phase_of_sample(p, self.n_phases, self.cyclic), out=rows[p])
         return rows
 
-    def lookup(self, weights):
+    def lookup(self, weights, key=None):
         """The PhaseTable for ``weights``, or None while they have not recurred ``after`` times.
 
         Counts as a request: the table is built on the ``after``-th request at the same weights.
+        ``key``: ``weights_key(weights)``, for a caller that keeps it while the weights stay.
         """
-        key = np.asarray(weights, dtype=np.float64).tobytes()
+        if key is None:
+            key = weights_key(weights)
         now = self.clock()
         entry = self._tables.get(key)
         if entry is not None:

@@ -3,7 +3,8 @@ numpy pass (and temporary) per operation.
 
 - :func:`interpolate_rows`: K frames of a phase table, ``rows[p0] + a * delta[p0]`` each, cast
   to the output's type (float32, or uint16 codes from a table held in codec units): the same
-  float32 operations as the numpy formulation (``PhaseTable.rows_at``), so the same bytes.
+  float32 operations as the numpy formulation (``PhaseTable.rows_at``), so the same bytes;
+  :func:`interpolate_at` the same from the frames' phases (their samples found in the pass).
 - :func:`combine_rows`: K frames that are each a weighted sum of a few rows of a stack (a hybrid
   frame: its simplex leaf's reference blends at the two phase samples around its phase), summed
   in float32 in the order given, and optionally quantised in the same pass (``q = clip(v *
@@ -50,6 +51,39 @@ def interpolate_rows(rows, delta, p0, a, out):
     out : (K, m) float32 or uint16 (rows contiguous). Returns ``out``.
     """
     _interpolate_rows(rows, delta, p0, a, out)
+    return out
+
+
+@compiled
+def _interpolate_at(rows, delta, phases, cyclic, out):  # pragma: no cover (compiled; tested through interpolate_at)
+    P = rows.shape[0]
+    K, m = out.shape
+    for k in range(K):
+        phase = phases[k]
+        if cyclic:  # engine.blend.phase.phase_samples
+            x = (phase % 1.0) * P
+            p0 = int(x) % P
+            a = x - int(x)
+        else:
+            x = min(max(phase, 0.0), 1.0) * (P - 1)
+            p0 = min(int(x), P - 2)
+            a = x - p0
+        ak = np.float32(a)
+        r = rows[p0]
+        d = delta[p0]
+        o = out[k]
+        for i in range(m):
+            o[i] = d[i] * ak + r[i]
+
+
+def interpolate_at(rows, delta, phases, cyclic, out):
+    """:func:`interpolate_rows` at K phases: each frame's sample p0 and fraction a (rounded to
+    float32) as ``engine.blend.phase.phase_samples`` gives them, found in the same pass.
+
+    rows, delta : (P, m) float32 C-contiguous;  phases : (K,) float64;  cyclic : bool;
+    out : (K, m) float32 or uint16 (rows contiguous). Returns ``out``.
+    """
+    _interpolate_at(rows, delta, phases, cyclic, out)
     return out
 
 
@@ -220,6 +254,8 @@ def warm_up():
     p0, a = np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.float32)
     for dtype in ("<f4", "<u2"):
         interpolate_rows(rows, rows, p0, a, np.empty((1, 4), dtype=dtype))
+        for cyclic in (True, False):
+            interpolate_at(rows, rows, np.zeros(1), cyclic, np.empty((1, 4), dtype=dtype))
     stack = np.zeros((1, 2, 4), dtype=np.float32)
     terms = np.zeros(1, dtype=np.int64), np.zeros(1, dtype=np.int64), np.ones(1, dtype=np.float32)
     starts = np.array([0, 1], dtype=np.int64)
@@ -234,4 +270,4 @@ def warm_up():
     hybrid_terms(np.ones((1, 2)), np.zeros(1), nodes, nodes, np.zeros((1, 2), dtype=np.int64), 2, True)
 
 
-__all__ = ["combine_rows", "encode_q16", "hybrid_terms", "interpolate_rows", "warm_up"]
+__all__ = ["combine_rows", "encode_q16", "hybrid_terms", "interpolate_at", "interpolate_rows", "warm_up"]

@@ -18,6 +18,7 @@ import time
 import numpy as np
 from starlette.websockets import WebSocketDisconnect
 
+from engine.blend.cache import weights_key
 from server import protocol as P
 from server.frames import StreamedFrame, frame_parts, joined
 from server.scheduler import URGENT, send_now
@@ -126,7 +127,7 @@ class FrameOutput:
             source = self.graph.table_source()
             if source is None:
                 return None, self.codec
-            blender, weights = source
+            (blender, weights), key = source, None
         elif player.mode == "nonlinear":
             return None, self.codec
         else:
@@ -135,7 +136,11 @@ class FrameOutput:
                 blender = player.space.frame_blender(player.mode)
                 self.frame_blender = player.space, player.mode, blender
             weights = player.weights
-        table = blender.lookup(weights)
+            kept, key = self.weights_key
+            if kept is not weights:  # (a Player's weights are replaced, never changed in place)
+                key = weights_key(weights)
+                self.weights_key = weights, key
+        table = blender.lookup(weights, key)
         self.table_missed = table is None  # send_frame blends without asking again
         if table is not None and self.codec == "q16":
             source, scaled = self.scaled_table

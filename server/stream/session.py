@@ -91,6 +91,7 @@ class StreamSession(FrameOutput):
         self.payload = None     # encoded vertices the scheduler prepared for the next frame
         self.middle = (None, b"")  # (player.state_key, its packed fields): FrameOutput._streamed_parts
         self.frame_blender = (None, None, None)  # (space, mode, space.frame_blender(mode)): frame_source
+        self.weights_key = (None, None)  # (weights, their phase-table key): frame_source
         self.scaled_table = (None, None)  # (a phase table, it in this connection's q16 units)
         self.scaled_key = None             # the quantiser key of scaled_table
         self.table_missed = False  # frame_source found no phase table for this frame

@@ -77,8 +77,9 @@ def test_tables_in_use_are_not_replaced_so_many_viewers_never_thrash():
 @pytest.mark.parametrize("K", [1, 8, 9, 20])
 def test_rows_cast_is_rows_at_cast_exactly(K):
     rng = np.random.default_rng(K)
-    table = PhaseTable((rng.random((12, 50, 3)) * 60000).astype(np.float32), cyclic=True)
-    phases = rng.random(K).tolist()
-    for dtype in ("<u2", "<f4"):
-        cast = table.rows_cast(phases, dtype)
-        assert cast.dtype == np.dtype(dtype) and np.array_equal(cast, table.rows_at(phases).astype(dtype))
+    for cyclic in (True, False):
+        table = PhaseTable((rng.random((12, 50, 3)) * 60000).astype(np.float32), cyclic=cyclic)
+        phases = (rng.random(K) * 1.2 - 0.1).tolist() + [0.0, 1.0, 11 / 12, 1 - 1e-17]  # edges, and outside [0, 1]
+        for dtype in ("<u2", "<f4"):
+            cast = table.rows_cast(phases, dtype)
+            assert cast.dtype == np.dtype(dtype) and np.array_equal(cast, table.rows_at(phases).astype(dtype))

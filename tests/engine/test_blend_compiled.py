@@ -147,7 +147,7 @@ def test_warm_up_compiles_every_signature_the_stream_uses():
     from engine.parameters import parameter_map
 
     warm_up()
-    kernels = (compiled._interpolate_rows, compiled._combine_rows, compiled._encode_q16, compiled._hybrid_terms,
+    kernels = (compiled._interpolate_rows, compiled._interpolate_at, compiled._combine_rows, compiled._encode_q16, compiled._hybrid_terms,
                parameter_map._newton_square_compiled, parameter_map._nearest_scaled)
     before = [len(kernel.signatures) for kernel in kernels]
     assert all(before)
@@ -159,6 +159,8 @@ def test_warm_up_compiles_every_signature_the_stream_uses():
     combine_rows(stack, *terms, np.empty((5, 30), dtype=np.uint16), (np.ones(30, np.float32), np.zeros(30, np.float32)))
     for dtype in ("<f4", "<u2"):
         interpolate_rows(stack[0], stack[1], np.zeros(2, np.int64), np.zeros(2, np.float32), np.empty((2, 30), dtype))
+        for cyclic in (True, False):
+            compiled.interpolate_at(stack[0], stack[1], rng.random(2), cyclic, np.empty((2, 30), dtype))
     parameter_map._newton_square_compiled(rng.random((3, 3, 2)), 2, 1.0, 1.0, 0.2, 0.3, 0.1, 0.9)
     parameter_map._nearest_scaled(rng.random((5, 2)), rng.random(2), np.ones(2))
     # a space's parameter map holds mapped, read-only arrays: its solves compile nothing new either
