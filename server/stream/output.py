@@ -28,6 +28,16 @@ MAX_DT = 0.25  # a stalled connection does not jump the clock by more than this 
 RETRY = 0.01   # seconds between looks at a full transport holding back an urgent frame
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _floats(values):
+    """``values`` (an array or a sequence of numbers) as a list of Python floats."""
+    if values.__class__ is np.ndarray and values.dtype is _FLOAT64:
+        return values.tolist()
+    return np.asarray(values, dtype=float).tolist()
+
+
 class FrameOutput:
     """The frame side of a StreamSession (mixed into it; the state lives on the session)."""
 
@@ -308,9 +318,8 @@ class FrameOutput:
         state = player.state_key
         if key is None or key[0] is not state[0] or key[1] is not state[1] or key[2] is not state[2] \
                 or key[3] is not state[3]:
-            middle = StreamedFrame.middle(player.mode, np.asarray(player.requested, dtype=float).tolist(),
-                                          np.asarray(player.realised, dtype=float).tolist(), bool(player.clamped),
-                                          np.asarray(player.weights, dtype=float).tolist())
+            middle = StreamedFrame.middle(player.mode, _floats(player.requested), _floats(player.realised),
+                                          bool(player.clamped), _floats(player.weights))
             self.middle = state, middle
         return StreamedFrame.parts(self.seq, self.ack, float(player.time), float(player.phase), middle,
                                    player.position.tolist(), float(player.heading), self.dropped,
