@@ -5,6 +5,9 @@ connection due within half a tick (``TICK``), steps its player, blends, encodes 
 frame to its transport, then sleeps until the next one falls due (at least a tick later, unless a
 client message makes a frame urgent). Per tick:
 
+- the players of the tick's due connections step first: the steering ones (parameters on their
+  way to a request) of each space in one compiled call (engine/player_steps.py: spring, warm
+  solve, weights and root rates, the same floats as one by one), the others one at a time;
 - clients whose weights have a phase table (settled parameters, or many viewers at the same
   ones) are grouped by table; each group's rows are interpolated and cast in one call, one
   compiled pass a row (``PhaseTable.rows_cast``), q16 clients' straight from the table in codec

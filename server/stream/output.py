@@ -1,8 +1,9 @@
 """A connection's frames: ``FrameOutput``, the part of a StreamSession the scheduler drives.
 
-The FrameScheduler (server/scheduler.py) calls ``advance(now)`` (step the player for a frame on
-the connection's rate grid, or say none is to be sent: paused, the window full, the transport
-still holding earlier bytes), ``frame_source()`` (a phase table to gather the vertices from, or
+The FrameScheduler (server/scheduler.py) calls ``due_step(now)`` (how far the player steps for a
+frame on the connection's rate grid, or None when none is to be sent: paused, the window full,
+the transport still holding earlier bytes; the scheduler steps the players, steering ones of a
+space together), ``frame_source()`` (a phase table to gather the vertices from, or
 None), ``send_frame(payload)`` (write it), ``after_frame()`` (ask for the next one) and
 ``fail(exc)``. Ticks missed are counted in ``dropped``, never queued; a connection that takes no
 due frame for ``stream_stall_timeout`` seconds is closed (``protocol.CLOSE_STALLED``). Pulled
