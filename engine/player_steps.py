@@ -8,14 +8,16 @@ Here the steps of every such player of one space are one compiled call (:func:`_
 the same operations in the same order, the Newton solve the same compiled function
 (``parameter_map._newton_square_compiled``), and the products of weights and rates through the
 very BLAS functions numpy's ``dot`` calls for them (``cblas_ddot`` and ``cblas_dgemv`` of the
-OpenBLAS numpy is built with, whose sums of four terms are fused multiply-adds in the kernel's
-own order): the same floats, so the same frames (``tests/engine/test_player_steps.py``).
+OpenBLAS numpy's wheel bundles, whose sums of four terms come out in its kernels' own order and
+rounding, not a plain loop's): the same floats, so the same frames
+(``tests/engine/test_player_steps.py``).
 
 The players it does not take step one at a time (``Player.advance``): those whose parameters
 settle in this step, whose request lies outside the reachable domain (the cold solve), whose
 Newton step meets a singular Jacobian, that follow requests at once (``smoothing`` 0), on a
 one-dimensional sheet or with more than two parameters, and every player when numpy's BLAS is
-not the OpenBLAS of numpy's wheels (its functions cannot then be called from compiled code).
+not the OpenBLAS of numpy's wheels (its functions cannot then be called from compiled code) or
+its products there are not numpy's (checked once, :func:`_blas_agrees`).
 """
 
 from __future__ import annotations
@@ -195,6 +197,27 @@ if _OPENBLAS is not None:
             done[k] = True
 
 
+_AGREES = []  # [bool] once checked
+
+
+def _blas_agrees():
+    """Whether the compiled products give numpy's floats here (checked once, on a few hundred
+    random weights: a numpy whose ``dot`` sums in another order turns the batch off)."""
+    if _OPENBLAS is None:
+        return False
+    if not _AGREES:
+        rng = np.random.default_rng(0)
+        out, same = np.empty(3), True
+        for _ in range(256):
+            w = rng.random(4)
+            w = w / np.add.reduce(w)
+            A, d = rng.standard_normal((4, 3)), rng.uniform(0.5, 2.0, 4)
+            _vector_matrix(w, A, out)
+            same = same and _dot(w, d) == float(w.dot(d)) and out.tobytes() == w.dot(A).tobytes()
+        _AGREES.append(same)
+    return _AGREES[0]
+
+
 def _takes(player):
     """Whether ``player`` may step in a batch: an engine Player (not a subclass), steering (not
     settled, smoothing > 0), two parameters on a two-dimensional fan or grid."""
@@ -226,7 +249,7 @@ def advance_together(players, dts):
     the indices of the others, for the caller to step one by one (``Player.advance``, which
     raises where it must). Every compiled call is made before any player changes: if one
     raises, no player has been stepped."""
-    if _OPENBLAS is None:
+    if not _blas_agrees():
         return list(range(len(players)))
     rest, groups = [], {}
     for index, player in enumerate(players):
@@ -275,7 +298,7 @@ def _commit(players, indices, W, out, done):
 
 def warm_up():
     """Compile (or load from numba's cache) the step (a server does so before it serves)."""
-    if _OPENBLAS is None:
+    if not _blas_agrees():
         return
     values = np.zeros((2, 2, 2))
     values[1, :, 0] = 1.0

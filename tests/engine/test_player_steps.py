@@ -116,7 +116,9 @@ def test_settled_and_unfit_players_are_left_to_step_alone(fan_space):
 
 
 def test_the_products_are_numpys_own():
-    """The compiled dot and vector-matrix products give numpy's floats (its BLAS, its order)."""
+    """The compiled dot and vector-matrix products give numpy's floats (its BLAS, its order), as
+    the module's own check finds before it steps any player together."""
+    assert player_steps._blas_agrees()
     rng = np.random.default_rng(0)
     out = np.empty(3)
     for _ in range(2000):
