@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from engine.align.appearance import GAIN_RANGE
 from engine.align.compiled import closest_among_faces, colour_choice
 from engine.align.shape_histogram import shape_centre
 from engine.nearest import PointTree
@@ -109,7 +110,12 @@ def correspondences(x, n, target, options, colors=None, labels=None, count=1):
         # Pairs of weight 0 drive nothing (the rigid steps and the solves weigh them by w), so
         # only the others look for colours: the same result for less work.
         used = np.flatnonzero(w > 0)
-        flow, strength = colour_flow(y[used], m[used], face[used], bary[used], target, colors[used], o)
+        source = colors[used]
+        if o.colour_regions and len(used):   # the frame's exposure and white balance: the source as seen there
+            there = np.einsum("pk,pkc->pc", bary[used], target.colors[target.F[face[used]]])
+            gain = np.clip(there.sum(axis=0) / np.maximum(source.sum(axis=0), 1e-9), *GAIN_RANGE)
+            source = np.clip(source * gain, 0.0, 1.0)
+        flow, strength = colour_flow(y[used], m[used], face[used], bary[used], target, source, o)
         y[used] += flow
         tangential[used] += o.colour_weight * strength
     return y, m, w, tangential, d

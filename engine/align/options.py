@@ -31,6 +31,8 @@ class AlignmentOptions:
     final_stiffness : float     the same for the per-vertex rounds
     colour_sigma : float        RGB distance (0..1 per channel) at which colour cues fade
     colour_weight : float       tangential weight of colour cues (0 disables them)
+    colour_regions : bool       the colour measures take out each coarse patch's brightness
+                                (light and exposure: engine.align.appearance)
     tangential_damping : float  weight keeping patches from sliding along the surface
     outlier_factor : float      pairs farther than this times the median distance are outliers
     rigid_iterations : int      ICP iterations of the rigid start
@@ -76,6 +78,7 @@ class AlignmentOptions:
     final_stiffness: float = 100.0
     colour_sigma: float = 0.12
     colour_weight: float = 0.0
+    colour_regions: bool = True
     tangential_damping: float = 0.05
     outlier_factor: float = 3.0
     rigid_iterations: int = 15

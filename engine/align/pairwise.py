@@ -16,9 +16,8 @@ tet vertices ``X_source``) onto another frame's unstructured surface:
 3. per-vertex closest-point rounds, then the surface is projected onto the target.
 
 The pieces: :mod:`engine.align.matching` (correspondences), :mod:`engine.align.patches`
-(partitions, articulated search), :mod:`engine.align.rigid` (rigid steps);
-:mod:`engine.align.options` (its options and result);
-:mod:`engine.align.propagation` runs the aligner along the similarity tree.
+(partitions, articulated search), :mod:`engine.align.rigid` (rigid steps), :mod:`engine.align.options`
+(options, result); :mod:`engine.align.propagation` runs the aligner along the similarity tree.
 """
 
 from __future__ import annotations
@@ -147,8 +146,9 @@ class PairwiseAligner:
         started = time.perf_counter()
         starts = self._rigid_starts(np.asarray(X_source, dtype=np.float64), target, yaw)
         results = [self._fit(X, target) for X in starts]
+        regions = self.colour_regions
         for result in results:
-            result.colour_distance, result.colour_mean = colour_measures(result.V, self.colors, target)
+            result.colour_distance, result.colour_mean = colour_measures(result.V, self.colors, target, regions)
         best = min(results, key=self._orientation_score)
         best.seconds = time.perf_counter() - started
         best.orientations = len(starts)
@@ -188,12 +188,17 @@ class PairwiseAligner:
 
     def _colour_distance(self, V, target):
         """Median RGB distance between the root's colours and the target's where V lands (NaN without colours)."""
-        return colour_distance(V, self.colors, target)
+        return colour_distance(V, self.colors, target, self.colour_regions)
 
     @functools.cached_property
     def colour_floor(self):
         """The root's colour floor (:func:`engine.align.appearance.colour_floor`; NaN without colours)."""
-        return colour_floor(self.V, self.F, self.colors)
+        return colour_floor(self.V, self.F, self.colors, self.colour_regions)
+
+    @property
+    def colour_regions(self):
+        """Regions whose brightness the colour measures take out: the second level's patches."""
+        return self.patch_labels[min(1, len(self.patch_labels) - 1)] if self.options.colour_regions else None
 
     def _orientation_score(self, result):
         """Which of the results from different orientations to keep (lower is better).

@@ -90,3 +90,28 @@ def test_a_step_that_loses_the_roots_colours_is_aligned_again_and_the_better_col
     assert not _better(result(0.29, quality=5.0), result(0.3, quality=1.0), floor)  # ... when clearly apart
     assert _better(result(0.31, quality=1.0), result(0.3, quality=5.0), floor)
     assert not _better(result(0.2, quality=5.0), result(0.3, quality=1.0), float("nan"))  # else the quality
+
+
+def test_regions_take_out_light_and_exposure_but_not_a_slide():
+    from engine.align.appearance import region_gains
+
+    V, F, C = _checked_tube()
+    regions = (V[:, 1] > 0.6).astype(np.int64) * 2 + (V[:, 0] > 0).astype(np.int64)   # four quarters
+    # the same cloth photographed in another frame: one side brighter, the other darker, and the
+    # whole frame exposed 5% lower
+    light = np.where(V[:, 0] > 0, 1.2, 0.85) * 0.95
+    lit = np.clip(C * light[:, None], 0.0, 1.0)
+    target = TargetSurface(V, F, lit)
+    floor = colour_floor(V, F, C, regions)
+    assert floor == pytest.approx(colour_floor(V, F, C), rel=0.05)   # the root on itself: gains near 1
+    raw = colour_disagreement(V, C, target)
+    evened = colour_disagreement(V, C, target, regions)
+    assert raw > 1.5 * floor              # read raw, the light looks like a wrong alignment
+    assert evened < 1.3 * floor           # the regions' gains take it out
+    slid = colour_disagreement(_turned(V, 15.0), C, target, regions)
+    assert slid > 3.0 * floor             # a check off is still seen
+    gains = region_gains(lit, C, regions)
+    assert gains.shape == (4,) and np.all((gains > 0.7) & (gains < 1.2))
+    # a region without colour (black) keeps a gain of 1; gains stay within their range
+    np.testing.assert_array_equal(region_gains(np.ones((2, 3)), np.zeros((2, 3)), np.array([0, 1])), [1.0, 1.0])
+    assert region_gains(np.ones((1, 3)), np.full((1, 3), 0.01), np.array([0]))[0] == 2.0

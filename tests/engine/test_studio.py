@@ -239,3 +239,34 @@ def test_a_take_of_several_clips_at_a_low_frame_rate(tiny_body):
     slow, usual = (studio_motion(tiny_body.skeleton, spec, fps=fps) for fps in (2.0, 25.0))
     assert len(slow.rotations) == pytest.approx(len(usual.rotations) * 2.0 / 25.0, abs=3)
     assert np.isfinite(slow.positions).all()
+
+
+def test_the_studio_lights_shade_the_albedo_and_every_frame_exposes_differently(tiny_body, strikes):
+    from dataclasses import replace
+
+    from engine.synthetic.studio.lighting import StudioLight, lit_colours
+    from engine.synthetic.studio.sequences import head_marks, reconstruct_frames
+
+    light = StudioLight()
+    key = np.asarray(light.key[0]) / np.linalg.norm(light.key[0])
+    shading = light.shading(np.stack([key, -key]))
+    assert shading[0] > 1.2 and shading[1] < 0.95       # facing the key light, and turned away
+    directions = np.random.default_rng(0).normal(size=(200_000, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    assert light.shading(directions).mean() == pytest.approx(1.0, abs=0.005)   # the albedo on average
+    grey = np.full((4, 3), 0.5)
+    normals = np.tile([0.0, 1.0, 0.0], (4, 1))
+    first, again = (lit_colours(grey, normals, np.random.default_rng(1), light) for _ in range(2))
+    np.testing.assert_array_equal(first, again)
+    other = lit_colours(grey, normals, np.random.default_rng(2), light)
+    assert np.abs(first.mean(axis=0) - other.mean(axis=0)).max() > 1e-3   # another frame, another exposure
+    # the same frame reconstructed with and without the light: the same geometry, colours shaded
+    heads = head_marks(tiny_body, strikes["truth"])
+    camera = STUDIO_TINY.camera
+    (lit,), _ = reconstruct_frames(tiny_body, strikes["vertices"], heads, camera, seed=3, frames=[2])
+    (bare,), _ = reconstruct_frames(tiny_body, strikes["vertices"], heads, replace(camera, light=None), seed=3,
+                                    frames=[2])
+    np.testing.assert_array_equal(lit[0], bare[0])
+    np.testing.assert_array_equal(lit[1], bare[1])
+    ratio = (lit[2].sum(axis=1) + 1e-3) / (bare[2].sum(axis=1) + 1e-3)
+    assert np.percentile(ratio, 95) - np.percentile(ratio, 5) > 0.15

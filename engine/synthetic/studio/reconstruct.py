@@ -8,7 +8,8 @@ cubes, quadric decimation to the target vertex count. Vertices near a true surfa
 onto it (colours come from there); the ones that bridge a contact stay where the closing put
 them. Then the defects of real reconstructions: holes that change from frame to frame (soles on
 the ground, the top of the head, some contact bridges, random occlusions), a few small floating
-fragments, and noise along the normals.
+fragments, and noise along the normals. The colours are the albedo as the studio's lights and
+cameras show it in that frame (``lighting``).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from scipy.spatial import cKDTree
 from skimage.measure import marching_cubes
 
 from engine.surface import SurfaceQuery, enclosed_volume, vertex_normals
+from engine.synthetic.studio.lighting import StudioLight, lit_colours
 from engine.synthetic.studio.voxelize import grid_for, occupancy
 
 FRAGMENT_COLOUR = np.array([0.45, 0.45, 0.42])
@@ -39,6 +41,8 @@ class StudioCamera:
     noise : standard deviation of the displacement along the normals
     holes : mean number of random occlusion holes per frame
     fragments : mean number of floating fragments per frame
+    light : the studio's light and exposure in the colours (``lighting.StudioLight``), or None
+            for the bare albedo
     """
 
     spacing: float = 0.006
@@ -47,6 +51,7 @@ class StudioCamera:
     noise: float = 0.0025
     holes: float = 1.5
     fragments: float = 2.5
+    light: StudioLight | None = StudioLight()
 
 
 def _ball(radius):
@@ -217,6 +222,8 @@ def reconstruct_frame(V, F, colors, *, camera, seed, thin=None, contact=None, he
     snap = np.clip((2.0 * h - distance) / h, 0.0, 1.0)[:, None]
     Vr = Vr + snap * (points - Vr)
     C = np.einsum("qk,qkc->qc", bary, np.asarray(colors)[F[faces]])
+    N = np.einsum("qk,qkc->qc", bary, vertex_normals(V, F)[F[faces]])   # the true surface's, lit
+    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
     bridged = distance > 1.5 * h
     merged = bridged | (np.asarray(contact)[F[faces]].any(axis=1) if contact is not None else False)
     centroid, normal = _face_frames(Vr, Fr)
@@ -234,10 +241,10 @@ def reconstruct_frame(V, F, colors, *, camera, seed, thin=None, contact=None, he
     used = np.unique(Fr)
     remap = np.full(len(Vr), -1)
     remap[used] = np.arange(len(used))
-    Vr, Fr, C, bridged, merged = Vr[used], remap[Fr], C[used], bridged[used], merged[used]
+    Vr, Fr, C, N, bridged, merged = Vr[used], remap[Fr], C[used], N[used], bridged[used], merged[used]
     Vr = Vr + rng.normal(0.0, camera.noise, (len(Vr), 1)) * vertex_normals(Vr, Fr)
     lo, hi = V.min(axis=0), V.max(axis=0)
-    parts_V, parts_F, parts_C = [Vr], [Fr], [C]
+    parts_V, parts_F, parts_C, parts_N = [Vr], [Fr], [C], [N]
     count = len(Vr)
     fragments = rng.poisson(camera.fragments)
     for _ in range(fragments):
@@ -248,8 +255,11 @@ def reconstruct_frame(V, F, colors, *, camera, seed, thin=None, contact=None, he
         parts_V.append(Vf)
         parts_F.append(Ff + count)
         parts_C.append(np.tile(FRAGMENT_COLOUR, (len(Vf), 1)))
+        parts_N.append(vertex_normals(Vf, Ff))
         count += len(Vf)
     V_new, F_new, C_new = np.concatenate(parts_V), np.concatenate(parts_F), np.concatenate(parts_C)
+    if camera.light is not None:   # drawn last: the geometry is the same with or without light
+        C_new = lit_colours(C_new, np.concatenate(parts_N), rng, camera.light)
     stats = frame_statistics(F_new, len(V_new))
     stats.update(fragments=int(fragments), bridged=int(bridged.sum()), merged=int(merged.sum()),
                  noise_m=camera.noise)
