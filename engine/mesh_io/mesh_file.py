@@ -93,8 +93,22 @@ def read_mesh(path_or_file, *, name=None, file_type=None, resources=None):
     if len(data) == 0:  # whatever its type (a PLY reader would say "not a PLY file")
         raise MeshValidationError(f"{source}: the mesh is empty (the file has 0 bytes)")
     if reader in TEXTURED_READERS:
-        return reader(data, str(source), resources)
+        return reader(data, str(source), None if resources is None else _checked(resources, str(source)))
     return reader(data, str(source))
+
+
+def _checked(resources, source):
+    """A caller's resource reader whose failures (OSError, KeyError, None) become MeshFormatError."""
+    def read(name):
+        try:
+            data = resources(name)
+        except (OSError, KeyError) as err:
+            raise MeshFormatError(f"{source}: refers to {name!r}, which cannot be read ({type(err).__name__}: "
+                                  f"{err})") from None
+        if data is None:
+            raise MeshFormatError(f"{source}: refers to {name!r}, which cannot be read (no data)")
+        return bytes(data)
+    return read
 
 
 def _reader(source, file_type):

@@ -12,7 +12,8 @@ averaged down rather than aliased), the faces weighted by their area. A vertex o
 Files a mesh refers to (an OBJ's material library, the images) are found through a *resource
 reader* ``resources(name) -> bytes`` with ``name`` relative to the mesh file's directory (see
 :func:`directory_resources`; a zip archive of frames gives its own). It raises
-:class:`~engine.mesh_io.errors.MeshFormatError` naming the missing file.
+:class:`~engine.mesh_io.errors.MeshFormatError` naming the missing file (``read_mesh`` turns an
+``OSError`` or ``KeyError`` from a reader of the caller's, or a ``None``, into one).
 """
 
 from __future__ import annotations
@@ -74,8 +75,7 @@ def directory_resources(mesh_path, source):
             return path.read_bytes()
         except OSError as err:
             reason = err.strerror or type(err).__name__
-            raise MeshFormatError(f"{source}: refers to {name!r}, which cannot be read beside it "
-                                  f"({path}: {reason})") from None
+            raise MeshFormatError(f"{source}: refers to {name!r}, which cannot be read beside it ({reason})") from None
     return read
 
 
@@ -107,7 +107,7 @@ def load_texture(data, name):
     except MeshFormatError:
         raise
     except Exception as err:  # Pillow raises many types for a broken image
-        raise MeshFormatError(f"{name}: not a readable image ({type(err).__name__}: {err})") from None
+        raise MeshFormatError(f"{name}: not a readable image ({type(err).__name__})") from None
 
 
 def sample_texture(image, uv, *, clamp=False):

@@ -68,8 +68,8 @@ def file_role(parts, name):
             raise UploadError(422, f"{name}: unexpected JSON file; only <sequence>/meta.json and manifest.json are read")
         return "json"
     raise UploadError(422, f"{name}: unsupported file type {suffix or '(none)'!r}; a dataset holds mesh frames "
-                           f"({', '.join(MESH_EXTENSIONS)}), their textures ({', '.join(RESOURCE_SUFFIXES)}) "
-                           "and meta.json files")
+                           f"({', '.join(MESH_EXTENSIONS)}), their textures ({', '.join(RESOURCE_SUFFIXES)}), "
+                           "meta.json and manifest.json files")
 
 
 @dataclass

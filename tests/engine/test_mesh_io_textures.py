@@ -98,8 +98,19 @@ def test_missing_library_or_image_is_a_clear_error(tmp_path):
     with pytest.raises(MeshFormatError, match=r"refers to 'frame\.png'"):
         read_mesh(tmp_path / "m.obj")
     (tmp_path / "frame.png").write_bytes(b"\x89PNG\r\n\x1a\n broken")
-    with pytest.raises(MeshFormatError, match=r"m\.obj: frame\.png: not a readable image"):
+    with pytest.raises(MeshFormatError, match=r"m\.obj: frame\.png: not a readable image \(UnidentifiedImageError\)$"):
         read_mesh(tmp_path / "m.obj")
+
+
+def test_a_callers_resource_reader_may_fail_as_python_does(tmp_path):
+    data = ("mtllib m.mtl\n" + QUAD_V + QUAD_VT + "usemtl a\nf 1/1 2/2 3/3\n").encode()
+
+    def missing(name):
+        raise FileNotFoundError(name)
+
+    for reader, why in ((missing, "FileNotFoundError"), ({}.__getitem__, "KeyError"), (lambda name: None, "no data")):
+        with pytest.raises(MeshFormatError, match=rf"m\.obj: refers to 'm\.mtl', which cannot be read \({why}"):
+            read_mesh(data, name="m.obj", resources=reader)
 
 
 def test_out_of_range_texture_coordinate_is_named(tmp_path):

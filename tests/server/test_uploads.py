@@ -154,6 +154,7 @@ def test_textured_frame_problems_are_named(client, live, case):
     r = post_zip(client, "badtexture", zip_bytes({(n if n == "f.png" else f"walk/{n}"): d for n, d in files.items()}))
     assert r.status_code == 422, r.text
     assert words in r.json()["detail"]
+    assert ".upload-" not in r.json()["detail"] and str(live.data_dir) not in r.json()["detail"]  # no server paths
     assert datasets_state(live) == before
 
 
