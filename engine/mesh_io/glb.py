@@ -99,7 +99,7 @@ def _vertex_colors(geometry, source):
 
 def _texture_colors(geometry, source):
     """A geometry's base colour texture baked per vertex (``texture.bake_vertex_colours``)."""
-    from .texture import MAX_TEXTURE_PIXELS, bake_vertex_colours
+    from .texture import bake_vertex_colours, texture_array
 
     visual = geometry.visual
     material = getattr(visual, "material", None)
@@ -109,10 +109,7 @@ def _texture_colors(geometry, source):
     uv = getattr(visual, "uv", None)
     if image is None or uv is None or len(uv) != len(geometry.vertices):
         return None
-    if image.size[0] * image.size[1] > MAX_TEXTURE_PIXELS:
-        raise MeshFormatError(f"{source}: the base colour texture is {image.size[0]} x {image.size[1]} pixels, over the "
-                              f"limit of {MAX_TEXTURE_PIXELS} pixels")
-    pixels = np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0
+    pixels = texture_array(image, f"{source}: base colour texture")
     F = np.asarray(geometry.faces, dtype=np.int64)
     colours = bake_vertex_colours(geometry.vertices, F, np.asarray(uv, dtype=np.float64)[F],
                                   np.zeros(len(F), dtype=np.int64), [pixels])

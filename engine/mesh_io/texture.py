@@ -95,19 +95,24 @@ def load_texture(data, name):
 
     try:
         with Image.open(io.BytesIO(data)) as image:
-            width, height = image.size
-            if width * height > MAX_TEXTURE_PIXELS:
-                raise MeshFormatError(f"{name}: the texture is {width} x {height} pixels, over the limit of "
-                                      f"{MAX_TEXTURE_PIXELS} pixels")
-            if image.mode in ("I;16", "I;16B", "I;16L", "I"):
-                array = np.asarray(image, dtype=np.float32) / 65535.0
-                return np.ascontiguousarray(np.repeat(np.clip(array, 0, 1)[:, :, None], 3, axis=2))
-            rgb = image.convert("RGB")
-            return np.asarray(rgb, dtype=np.float32) / 255.0
+            return texture_array(image, name)
     except MeshFormatError:
         raise
     except Exception as err:  # Pillow raises many types for a broken image
         raise MeshFormatError(f"{name}: not a readable image ({type(err).__name__})") from None
+
+
+def texture_array(image, name):
+    """A Pillow image as (H, W, 3) float32 RGB in [0, 1] (row 0 its top row); one over
+    ``MAX_TEXTURE_PIXELS`` is refused before it is decoded (``name`` in the message)."""
+    width, height = image.size
+    if width * height > MAX_TEXTURE_PIXELS:
+        raise MeshFormatError(f"{name}: the texture is {width} x {height} pixels, over the limit of "
+                              f"{MAX_TEXTURE_PIXELS} pixels")
+    if image.mode in ("I;16", "I;16B", "I;16L", "I"):
+        array = np.asarray(image, dtype=np.float32) / 65535.0
+        return np.ascontiguousarray(np.repeat(np.clip(array, 0, 1)[:, :, None], 3, axis=2))
+    return np.asarray(image.convert("RGB"), dtype=np.float32) / 255.0
 
 
 def sample_texture(image, uv, *, clamp=False):
@@ -203,4 +208,4 @@ def bake_vertex_colours(V, F, corner_uv, face_texture, textures, face_colour=Non
 
 
 __all__ = ["MAX_TEXTURE_PIXELS", "RESOURCE_SUFFIXES", "bake_vertex_colours", "directory_resources", "load_texture", "resource_name",
-           "sample_texture"]
+           "sample_texture", "texture_array"]
