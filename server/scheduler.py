@@ -200,15 +200,14 @@ class FrameScheduler:
         except Exception:  # noqa: BLE001 - the compiled step changes no player before it returns
             log.exception("stream: stepping %d players together failed; they step one by one", len(ready))
             alone = range(len(ready))
-        failed = None
+        failed = set()
         for k in alone:
             try:
                 ready[k].player.advance(steps[k])
             except Exception as exc:  # noqa: BLE001 - one connection's failure stays its own
                 ready[k].fail(exc)
-                failed = [] if failed is None else failed
-                failed.append(ready[k])
-        return ready if failed is None else [session for session in ready if session not in failed]
+                failed.add(k)
+        return [session for k, session in enumerate(ready) if k not in failed] if failed else ready
 
     def _blend_together(self, blender, members):
         """The frames of ``members`` [(session, weights, phase)] at moving weights of one blender:
