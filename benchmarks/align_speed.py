@@ -38,8 +38,9 @@ TINY = {"start": 0, "frames": 6, "patches": 8, "levels": 2}
 UNIT_SCALE = {"m": 1.0, "cm": 100.0, "mm": 1000.0}
 
 
-def load_frames(dataset, sequence, start, count, tiny):
-    """(frames in metres +Y up, truth (T, m, 3) in metres, template faces, model size in metres)."""
+def load_frames(dataset, sequence, start, count, tiny, every=1):
+    """(frames in metres +Y up, truth (T, m, 3) in metres, template faces, model size in metres):
+    ``count`` frames from ``start``, every ``every``-th."""
     import numpy as np
 
     from engine.surface import model_size
@@ -51,8 +52,9 @@ def load_frames(dataset, sequence, start, count, tiny):
         body = build_body(TINY_VERTICES)
         data = generate_sequence_data(body, SequenceSpec("run", "gait", {"speed": 3.0, "cycles": 1.0}),
                                       fps=TINY_FPS, seed=1)
-        frames = [Mesh(V, F) for V, F, _ in data["unstructured"]][start:start + count]
-        truth = data["truth"]["template_positions"][start:start + count]
+        picked = slice(start, start + count * every, every)
+        frames = [Mesh(V, F) for V, F, _ in data["unstructured"]][picked]
+        truth = data["truth"]["template_positions"][picked]
         return frames, truth, body.F, model_size(body.V)
     from dataclasses import replace
 
@@ -61,10 +63,11 @@ def load_frames(dataset, sequence, start, count, tiny):
     from engine.mesh_io.units import resolve_convention, to_metres_y_up
 
     root = Path(dataset)
-    frames = read_frames(root / "sequences" / sequence / "unstructured")[start:start + count]
+    picked = slice(start, start + count * every, every)
+    frames = read_frames(root / "sequences" / sequence / "unstructured")[picked]
     convention = resolve_convention([f.vertices for f in frames])
     frames = [replace(f, vertices=to_metres_y_up(f.vertices, convention.units, convention.up)) for f in frames]
-    truth = to_metres_y_up(load_capture_truth(root, sequence)["template_positions"][start:start + count],
+    truth = to_metres_y_up(load_capture_truth(root, sequence)["template_positions"][picked],
                            convention.units, convention.up)
     template = read_mesh(root / "template" / "body.obj")
     units = json.loads((root / "manifest.json").read_text()).get("body", {}).get("units", "m")

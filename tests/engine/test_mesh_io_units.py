@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from engine.mesh_io.units import (
+    detect_floor,
     detect_units,
     detect_up,
     from_metres_y_up,
@@ -105,3 +106,54 @@ def test_given_units_and_up_are_used_but_doubted_aloud(walk):
         resolve_convention(V, "inch", "y")
     with pytest.raises(ValueError, match="up must be one of"):
         resolve_convention(V, "m", "x")
+
+
+def walking_animal(frames=20, step=0.09):
+    """(frames, n, 3) vertices of a box-built four-legged animal walking along +Z, +Y up: 1.6 m
+    long, 1 m tall, so longer than tall as a horse or a dog is; two legs swing while two stand."""
+    import trimesh
+
+    def box(extents, centre):
+        return trimesh.creation.box(extents=extents, transform=trimesh.transformations.translation_matrix(centre))
+
+    torso, head = box([0.35, 0.35, 1.2], [0, 0.62, 0]), box([0.2, 0.25, 0.4], [0, 0.85, 0.75])
+    legs = [box([0.1, 0.45, 0.1], [x, 0.225, z]) for x in (-0.12, 0.12) for z in (-0.5, 0.5)]
+    out = []
+    for f in range(frames):
+        parts = [torso.vertices, head.vertices]
+        for k, leg in enumerate(legs):
+            swing = 0.5 * np.sin(0.7 * f + np.pi * (k % 2)) if k in (0, 3) else 0.0
+            c, s = np.cos(swing), np.sin(swing)
+            hip = np.array([0.0, 0.45, leg.vertices[:, 2].mean()])
+            R = np.array([[1, 0, 0], [0, c, -s], [0, s, c]])  # about X, at the hip
+            parts.append((leg.vertices - hip) @ R.T + hip)
+        out.append(np.concatenate(parts) + [0.0, 0.0, step * f])
+    return np.asarray(out)
+
+
+@pytest.mark.parametrize("up", ["y", "z"])
+def test_an_animal_longer_than_tall_is_up_by_its_floor(up):
+    V = from_metres_y_up(walking_animal(), "m", up)
+    extents_up, ratio, confident = detect_up(np.ptp(V, axis=1))
+    assert extents_up != up and confident  # the extents alone would turn it on its back
+    convention = resolve_convention(V)
+    assert (convention.up, convention.up_from) == (up, "detected")
+    on, other = convention.floor if up == "y" else convention.floor[::-1]
+    assert on == 1.0 and other <= 0.2
+    assert any(f"using +{up.upper()}" in w and "floor" in w for w in convention.warnings)
+    assert "on a floor in 100% of the frames" in convention.describe()
+
+
+def test_a_floor_needs_frames_and_a_subject_that_travels(walk):
+    _, V = walk
+    standing = np.repeat(V[:1], 12, axis=0)  # in place: both axes keep their lowest level
+    assert detect_floor(np.stack([standing[:, :, 1].min(axis=1), standing[:, :, 2].min(axis=1)], axis=1),
+                        1.7)[0] is None
+    assert detect_floor([[0.0, 1.0]] * 7, 1.7)[0] is None  # too few frames to tell
+    lows = np.column_stack([np.zeros(20), np.linspace(0.0, 2.0, 20)])  # on one level along Y, travelling along Z
+    up, touches = detect_floor(lows, 1.7)
+    assert up == "y" and touches[0] == 1.0 and touches[1] <= 0.1
+    assert detect_floor(lows[:, ::-1], 1.7)[0] == "z"
+    airborne = lows.copy()
+    airborne[:12, 0] += 0.4  # off the floor in most frames: no floor either way
+    assert detect_floor(airborne, 1.7)[0] is None
