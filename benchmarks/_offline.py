@@ -84,11 +84,11 @@ async def _measure(space_path, clients, seconds, share, seed):
         session.ready = True
         sessions.append(session)
         steering.append(rng.random() < share)
-    try:  # what the server does before it serves (trees before it had no compiled loops)
-        from engine.blend.compiled import warm_up
-    except ImportError:
-        pass
-    else:
+    for module in ("engine.blend.compiled", "engine.player_steps"):  # what the server does before it serves
+        try:  # (trees before it had no compiled loops)
+            warm_up = __import__(module, fromlist=["warm_up"]).warm_up
+        except (ImportError, AttributeError):
+            continue
         warm_up()
     gc.freeze()
     period = 1.0 / 60.0

@@ -7,7 +7,8 @@ formulations pay a pass over memory, and a temporary, per operation; compiled, e
 
 from __future__ import annotations
 
-from numba import njit
+from numba import njit, types
+from numba.extending import intrinsic
 
 
 def compiled(function):
@@ -21,3 +22,16 @@ def compiled(function):
         return njit(cache=True, nogil=True)(function)
     except RuntimeError:
         return njit(nogil=True)(function)
+
+
+@intrinsic
+def float64_pointer(typingctx, address):  # pragma: no cover (compiled code only)
+    """In compiled code, an int64 ``address`` (an array's ``ctypes.data``) as a float64 pointer,
+    for ``numba.carray(float64_pointer(address), shape)``: many small arrays reached from one
+    array of their addresses (a tick's players' clocks: engine/player_steps.py), where passing
+    them as a list would cost a conversion each. The caller keeps the arrays alive."""
+    signature = types.CPointer(types.float64)(types.int64)
+
+    def codegen(context, builder, sig, args):
+        return builder.inttoptr(args[0], context.get_value_type(sig.return_type))
+    return signature, codegen

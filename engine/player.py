@@ -24,6 +24,11 @@ import numpy as np
 from engine.blend.phase import phase_samples
 
 MODES = ("linear", "hybrid", "nonlinear")
+# A player's clock in one float64 array (``Player.clock``), so that a server steps many players'
+# clocks in one compiled pass and frames their headers from them (engine/player_steps.py): the
+# time, phase, heading, the root (x, y, z), finished, loop and cyclic (1.0 or 0.0) at these indices
+TIME, PHASE, HEADING, ROOT, FINISHED, LOOP, CYCLIC = 0, 1, 2, 3, 6, 7, 8
+CLOCK_SIZE = 9
 
 
 @dataclass
@@ -90,7 +95,12 @@ class Player:
         if space.parameter_map is None:
             raise ValueError(f"{space.name}: the space has no parameter map (build it from a spec)")
         self.space = space
+        self.clock = np.zeros(CLOCK_SIZE)  # (the properties time, phase, ... read and write it)
+        self.clock_address = self.clock.ctypes.data  # (fixed while the player lives)
+        self._position = self.clock[ROOT:ROOT + 3]
+        self.clock[CYCLIC] = 1.0 if space.cyclic else 0.0
         self._track_cache = None
+        self._rates = None  # (weights, their rates as one float64 array): Player.settled_rates
         self.map = space.parameter_map
         self.track = space.root_track
         self.names = list(self.map.names)
@@ -109,6 +119,58 @@ class Player:
         self.reset()
         if params is not None:
             self.set_params(params, immediate=True)
+
+    # the clock's fields (``clock``): Python floats and bools in, Python floats and bools out
+
+    @property
+    def time(self):
+        """Seconds played."""
+        return self.clock.item(TIME)
+
+    @time.setter
+    def time(self, value):
+        self.clock[TIME] = value
+
+    @property
+    def phase(self):
+        """The phase in [0, 1]."""
+        return self.clock.item(PHASE)
+
+    @phase.setter
+    def phase(self, value):
+        self.clock[PHASE] = value
+
+    @property
+    def heading(self):
+        """The root's heading (rad about +Y)."""
+        return self.clock.item(HEADING)
+
+    @heading.setter
+    def heading(self, value):
+        self.clock[HEADING] = value
+
+    @property
+    def position(self):
+        """(3,) float64 the root's position (a view of ``clock``: changed in place as it moves)."""
+        return self._position
+
+    @property
+    def finished(self):
+        """A one-shot clip has reached its end."""
+        return self.clock.item(FINISHED) != 0.0
+
+    @finished.setter
+    def finished(self, value):
+        self.clock[FINISHED] = 1.0 if value else 0.0
+
+    @property
+    def loop(self):
+        """A one-shot space restarts at its end."""
+        return self.clock.item(LOOP) != 0.0
+
+    @loop.setter
+    def loop(self, value):
+        self.clock[LOOP] = 1.0 if value else 0.0
 
     @property
     def requested(self):
@@ -129,7 +191,7 @@ class Player:
         """Back to phase 0 at the origin, facing +Z."""
         self.time = 0.0
         self.phase = 0.0
-        self.position = np.zeros(3)
+        self._position[:] = 0.0
         self.heading = 0.0
         self.finished = False
         self._solution = self.map.solve(self._current)
@@ -210,6 +272,23 @@ class Player:
         self._track_cache = cache
         return cache[1:4]
 
+    def settled_rates(self):
+        """The address of one float64 array, kept while the weights are, holding what a settled
+        step reads (engine/player_steps.py): the phase samples P, the blend's duration, then per
+        sample the root's step (x, y, z) and turn per unit phase (``_track_at``'s numbers); 0
+        where the duration is 0 (``advance`` raises there)."""
+        w = self._solution.weights
+        kept = self._rates
+        if kept is not None and kept[0] is w:
+            return kept[2]
+        step, turn, duration = self._track_at(w)
+        rates = np.empty(2 + 4 * len(turn))
+        rates[0], rates[1] = len(turn), duration
+        table = rates[2:].reshape(-1, 4)
+        table[:, :3], table[:, 3] = step, turn
+        self._rates = (w, rates, rates.ctypes.data if duration != 0.0 else 0)
+        return self._rates[2]
+
     @property
     def weights(self):
         """(N,) the blend weights now (read-only view; do not modify)."""
@@ -264,19 +343,21 @@ class Player:
                 self._current, self._velocity = np.array(xs), np.array(vs)
             self._solution = self._solve(self._current)
         w = self._solution.weights
-        if not self.finished and dt > 0:
+        clock = self.clock
+        time_, phase, heading, x, _, z, finished, loop, cyclic = clock.tolist()
+        if finished == 0.0 and dt > 0:
             track = self.track
             if self._settled:  # fixed weights: the whole cycle's rates, kept
                 step, turn, duration = self._track_at(w)
             else:              # moving weights: only the two samples this step needs (``dot``: the
                 wn = w / np.add.reduce(w)  # numbers of ``@``, with less overhead for these sizes)
                 duration = float(wn.dot(track.durations))
+            cyclic, wraps = cyclic != 0.0, cyclic != 0.0 or loop != 0.0
             d_phase = dt / duration
-            if not self.space.cyclic and not self.loop:
-                d_phase = min(d_phase, 1.0 - self.phase)
-            middle = self.phase + 0.5 * d_phase
-            p0, p1, a = phase_samples(middle % 1.0 if self.space.cyclic or self.loop else middle,
-                                      len(track.turn_rate), self.space.cyclic)
+            if not wraps:
+                d_phase = min(d_phase, 1.0 - phase)
+            middle = phase + 0.5 * d_phase
+            p0, p1, a = phase_samples(middle % 1.0 if wraps else middle, len(track.turn_rate), cyclic)
             if self._settled:
                 s0, s1, t0, t1 = step[p0], step[p1], turn[p0], turn[p1]
             else:
@@ -284,19 +365,18 @@ class Player:
                 t0, t1 = float(track.turn_rate[p0].dot(wn)), float(track.turn_rate[p1].dot(wn))
             sx, sz = s0[0] + a * (s1[0] - s0[0]), s0[2] + a * (s1[2] - s0[2])
             t = t0 + a * (t1 - t0)
-            heading_middle = self.heading + 0.5 * t * d_phase
+            heading_middle = heading + 0.5 * t * d_phase
             c, s = math.cos(heading_middle), math.sin(heading_middle)  # rot_y(heading_middle) @ step
-            position = self.position
-            x, _, z = position.tolist()  # (float64 sums: the same numbers as adding in place)
-            position[0] = x + (c * sx + s * sz) * d_phase
-            position[2] = z + (c * sz - s * sx) * d_phase
-            self.heading += t * d_phase
-            self.phase += d_phase
-            if self.space.cyclic or self.loop:
-                self.phase %= 1.0
-            elif self.phase >= 1.0 - 1e-12:
-                self.phase, self.finished = 1.0, True
-        self.time += dt
+            clock[ROOT] = x + (c * sx + s * sz) * d_phase
+            clock[ROOT + 2] = z + (c * sz - s * sx) * d_phase
+            clock[HEADING] = heading + t * d_phase
+            phase += d_phase
+            if wraps:
+                phase %= 1.0
+            elif phase >= 1.0 - 1e-12:
+                phase, clock[FINISHED] = 1.0, 1.0
+            clock[PHASE] = phase
+        clock[TIME] = time_ + dt
 
     def frame(self, out=None, local=False):
         """The frame at the current state (nothing advances).

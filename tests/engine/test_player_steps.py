@@ -102,17 +102,60 @@ def test_one_shot_players_on_a_grid_too(grid_space):
         assert taken > total / 3
 
 
-def test_settled_and_unfit_players_are_left_to_step_alone(fan_space):
+def test_unfit_players_are_left_to_step_alone(fan_space):
     settled = Player(fan_space)
     instant = Player(fan_space, smoothing=0.0)
     steering = Player(fan_space)
     instant.set_params([2.0, 10.0])
     steering.set_params([2.0, 10.0])
     before = steering.weights
-    assert player_steps.advance_together([settled, instant, steering], [0.02, 0.02, 0.02]) == [0, 1]
+    assert player_steps.advance_together([settled, instant, steering], [0.02, 0.02, 0.02]) == [1]
     assert steering.weights is not before and not steering.settled
-    assert settled.time == instant.time == 0.0  # not stepped: the caller steps them
+    assert settled.time == 0.02 and instant.time == 0.0  # the instant one not stepped: the caller steps it
     assert player_steps.advance_together([steering], [float("nan")]) == [0]  # Player.advance raises on it
+    assert player_steps.advance_together([settled], [-1.0]) == [0]
+
+
+@pytest.mark.parametrize("space", ["fan_space", "grid_space"])
+def test_settled_players_stepped_together_are_bit_for_bit_one_by_one(space, request):
+    """Settled players (fixed weights) step on their clocks in one compiled pass: the numbers of
+    Player.advance, looping or not, to a one-shot clip's end and after it."""
+    space = request.getfixturevalue(space)
+    rng = random.Random(3)
+    domain = space.parameter_map.domain()
+    together, alone = [], []
+    for k in range(12):
+        request = [rng.uniform(lo, hi) for lo, hi in domain]
+        for players in (together, alone):
+            player = Player(space, loop=bool(k % 2), params=request)
+            player.seek(0.1 * k)
+            players.append(player)
+    for _ in range(150):
+        dts = [rng.choice([0.0, rng.uniform(0.0, 0.05)]) for _ in together]
+        assert player_steps.advance_together(together, dts) == []
+        for b, dt in zip(alone, dts):
+            b.advance(dt)
+        for a, b in zip(together, alone):
+            assert _state(a) == _state(b)
+    assert any(player.finished for player in alone) == (not space.cyclic)
+
+
+def test_a_players_clock_is_its_fields(fan_space):
+    """Player.clock holds time, phase, heading, the root, finished and loop: the properties read
+    and write it, Python floats and bools in and out, the root a view of it."""
+    from engine.player import CLOCK_SIZE, FINISHED, HEADING, LOOP, PHASE, ROOT, TIME
+
+    player = Player(fan_space, loop=False)
+    player.seek(0.25)
+    player.heading, player.time, player.finished = 1.5, 2.0, True
+    player.position[2] = 3.0
+    clock = player.clock
+    assert clock.shape == (CLOCK_SIZE,) and player.clock_address == clock.ctypes.data
+    assert (clock[TIME], clock[PHASE], clock[HEADING], clock[FINISHED]) == (2.0, 0.25, 1.5, 1.0)
+    assert clock[ROOT + 2] == 3.0 and clock[LOOP] == 0.0
+    assert type(player.phase) is float and type(player.finished) is bool and player.loop is False
+    player.reset()
+    assert clock.tolist()[:LOOP] == [0.0] * LOOP and player.position.tolist() == [0.0, 0.0, 0.0]
 
 
 def test_the_products_are_numpys_own():
