@@ -84,7 +84,7 @@ async def _measure(space_path, clients, seconds, share, seed):
         session.ready = True
         sessions.append(session)
         steering.append(rng.random() < share)
-    for module in ("engine.blend.compiled", "engine.player_steps"):  # what the server does before it serves
+    for module in ("engine.blend.compiled", "engine.player_steps", "server.frames"):  # as the server before it serves
         try:  # (trees before it had no compiled loops)
             warm_up = __import__(module, fromlist=["warm_up"]).warm_up
         except (ImportError, AttributeError):

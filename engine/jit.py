@@ -8,6 +8,7 @@ formulations pay a pass over memory, and a temporary, per operation; compiled, e
 from __future__ import annotations
 
 from numba import njit, types
+from numba.core import cgutils
 from numba.extending import intrinsic
 
 
@@ -34,4 +35,19 @@ def float64_pointer(typingctx, address):  # pragma: no cover (compiled code only
 
     def codegen(context, builder, sig, args):
         return builder.inttoptr(args[0], context.get_value_type(sig.return_type))
+    return signature, codegen
+
+
+@intrinsic
+def copy_bytes(typingctx, out, at, source, start, n):  # pragma: no cover (compiled code only)
+    """In compiled code, ``out[at:at + n] = source[start:start + n]`` for contiguous uint8 arrays
+    as one ``memcpy`` (a slice assignment there is a loop of one byte a step). No bounds checks:
+    the caller's."""
+    signature = types.none(out, at, source, start, n)
+
+    def codegen(context, builder, sig, args):
+        destination = context.make_array(sig.args[0])(context, builder, args[0])
+        origin = context.make_array(sig.args[2])(context, builder, args[2])
+        cgutils.memcpy(builder, builder.gep(destination.data, [args[1]]), builder.gep(origin.data, [args[3]]), args[4])
+        return context.get_dummy_value()
     return signature, codegen

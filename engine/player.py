@@ -311,6 +311,12 @@ class Player:
         caller deriving something from those every frame can keep it while they do."""
         return self._current, self._solution, self._last_request, self.mode
 
+    def reported(self):
+        """(mode, requested, realised, clamped, weights): the parameters' fields a frame reports,
+        the arrays themselves (replaced, never changed in place: do not modify them)."""
+        solution = self._solution
+        return self.mode, self._current, solution.realised, bool(self._last_request.clamped), solution.weights
+
     @property
     def settled(self):
         """The parameters have reached their target (the weights stay fixed until a new request)."""

@@ -332,10 +332,13 @@ def advance_together(players, dts):
 
 def _step_group(players, dts):
     """The compiled step of one space's steering players: (clocks, W, out, done) (``_step_moving``)."""
-    state = np.array([(*p._current.tolist(), *p._velocity.tolist(), *p._target.tolist(), *p._solution.u.tolist(),
-                       dt, p.smoothing) for p, dt in zip(players, dts)], dtype=np.float64)
-    clocks = np.array([p.clock_address for p in players], dtype=np.int64)
     K = len(players)
+    state = np.empty((K, 10))
+    state[:, :8] = np.concatenate([a for p in players for a in (p._current, p._velocity, p._target,
+                                                                  p._solution.u)]).reshape(K, 8)
+    state[:, 8] = dts
+    state[:, 9] = [p.smoothing for p in players]
+    clocks = np.array([p.clock_address for p in players], dtype=np.int64)
     W = np.zeros((K, players[0].map.layout.n_sources))
     out = np.empty((K, 15))
     done = np.empty(K, dtype=np.bool_)
@@ -358,15 +361,15 @@ def _commit(players, indices, clocks, W, out, done):
     """Set the players' state from ``_step_moving``'s results; returns the indices of those it
     did not step."""
     _set_clocks(clocks, out, done)
-    current, velocity, u, realised = out[:, 0:2], out[:, 2:4], out[:, 4:6], out[:, 6:8]
     rest = []
-    for k, (player, flag) in enumerate(zip(players, done.tolist())):
+    # (rows of the results: the arrays are replaced, never changed in place: Player.state_key)
+    for k, player, flag, c, v, u, realised, w in zip(range(len(players)), players, done.tolist(), list(out[:, 0:2]),
+                                                     list(out[:, 2:4]), list(out[:, 4:6]), list(out[:, 6:8]), list(W)):
         if not flag:
             rest.append(indices[k])
             continue
-        c = current[k]  # (the arrays are replaced, never changed in place: Player.state_key)
-        player._current, player._velocity = c, velocity[k]
-        player._solution = Solution(weights=W[k], u=u[k], requested=c, realised=realised[k], clamped=False)
+        player._current, player._velocity = c, v
+        player._solution = Solution(weights=w, u=u, requested=c, realised=realised, clamped=False)
     return rest
 
 

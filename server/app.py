@@ -25,6 +25,7 @@ from engine.graph.compiled import warm_up as warm_up_graphs
 from engine.player_steps import warm_up as warm_up_steps
 from server import __version__
 from server.api import datasets, exports, graphs, jobs, spaces
+from server.frames import warm_up as warm_up_heads
 from server.jobs import JobService
 from server.graphs import GraphRegistry
 from server.registry import SpaceRegistry
@@ -39,10 +40,12 @@ WEB_CLIENT = Path(__file__).resolve().parent.parent / "web_client" / "static"
 
 def warm_up_stream():
     """Compile (or load from numba's cache) every compiled loop a stream runs: the blends, casts
-    and solves (engine/blend/compiled.py), steering players' steps (engine/player_steps.py), a
-    motion graph's held feet and its transition search's played candidates (engine/graph/compiled.py)."""
+    and solves (engine/blend/compiled.py), players' steps (engine/player_steps.py), frames' heads
+    (server/frames.py), a motion graph's held feet and its transition search's played candidates
+    (engine/graph/compiled.py)."""
     warm_up_blends()
     warm_up_steps()
+    warm_up_heads()
     warm_up_graphs()
 
 

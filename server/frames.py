@@ -24,7 +24,10 @@ import struct
 
 import msgpack
 import numpy as np
+from numba import carray
 
+from engine.jit import compiled, copy_bytes, float64_pointer
+from engine.player import CLOCK_SIZE, FINISHED, HEADING, PHASE, ROOT, TIME
 from server.protocol import Frame
 
 _KEYS = {f.name: msgpack.packb(f.name) for f in dataclasses.fields(Frame)}
@@ -200,3 +203,130 @@ class StreamedFrame:
                           _FINISHED[finished], _SENT_AT(sent_at), _NONES_VERTICES if graph is None else graph,
                           header)),
                 view]
+
+
+# ``StreamedFrame.heads``: the constant pieces of a streamed frame's head in one array, in the
+# order they are written (``_PIECES``: their starts and ends)
+_PIECES = [_HEAD, _ACK, _TIME, _PHASE, _ROOT, _F, _HEADING, _DROPPED, _FINISHED[False], _FINISHED[True],
+           _NONES_VERTICES]
+_CONSTANTS = np.frombuffer(b"".join(_PIECES), dtype=np.uint8)
+_BOUNDS = np.cumsum([0] + [len(piece) for piece in _PIECES]).astype(np.int64)
+_HEAD_MAX = len(_CONSTANTS) + 3 * 9 + 8 * 8 + 5  # a head's bytes beyond its middle, at most
+
+
+@compiled
+def _put(source, start, end, out, at):  # pragma: no cover (compiled)
+    copy_bytes(out, at, source, start, end - start)
+    return at + end - start
+
+
+@compiled
+def _put_uint(n, out, at):  # pragma: no cover (compiled)
+    """msgpack's bytes of a non-negative int (``_uint``): a fixint below 128, else the smallest
+    of uint 8, 16, 32 or 64 (0xcc-0xcf), big-endian."""
+    if n < 128:
+        out[at] = n
+        return at + 1
+    if n < 1 << 8:
+        out[at], size = 0xCC, 1
+    elif n < 1 << 16:
+        out[at], size = 0xCD, 2
+    elif n < 1 << 32:
+        out[at], size = 0xCE, 4
+    else:
+        out[at], size = 0xCF, 8
+    for i in range(size):
+        out[at + size - i] = (n >> (8 * i)) & 0xFF
+    return at + 1 + size
+
+
+@compiled
+def _put_double(x, scratch, bits, out, at):  # pragma: no cover (compiled)
+    """The big-endian bytes of float64 ``x`` (struct's ">d"; ``scratch``: one float64, ``bits``
+    its uint64 view)."""
+    scratch[0] = x
+    b = bits[0]
+    for i in range(8):
+        out[at + 7 - i] = (b >> np.uint64(8 * i)) & np.uint64(0xFF)
+    return at + 8
+
+
+@compiled
+def _streamed_heads(fields, clocks, middles, sent_at, constants, bounds, out, ends):  # pragma: no cover (compiled)
+    """The heads of K streamed frames into ``out``, one after another; ``ends`` (K + 1,) their
+    bounds. fields (K, 5) int64: seq, ack, dropped, the middle's length, the vertices' bytes;
+    clocks (K,) int64: the players' ``clock_address``; middles: their middles one after another."""
+    scratch = np.empty(1, dtype=np.float64)
+    bits = scratch.view(np.uint64)
+    at = m = 0
+    for k in range(len(clocks)):
+        ends[k] = at
+        clock = carray(float64_pointer(clocks[k]), (CLOCK_SIZE,))
+        at = _put(constants, bounds[0], bounds[1], out, at)            # map, type, seq key
+        at = _put_uint(fields[k, 0], out, at)
+        at = _put(constants, bounds[1], bounds[2], out, at)            # ack
+        at = _put_uint(fields[k, 1], out, at)
+        at = _put(constants, bounds[2], bounds[3], out, at)            # time
+        at = _put_double(clock[TIME], scratch, bits, out, at)
+        at = _put(constants, bounds[3], bounds[4], out, at)            # phase
+        at = _put_double(clock[PHASE], scratch, bits, out, at)
+        at = _put(middles, m, m + fields[k, 3], out, at)               # mode ... weights
+        m += fields[k, 3]
+        at = _put(constants, bounds[4], bounds[5], out, at)            # root
+        at = _put_double(clock[ROOT], scratch, bits, out, at)
+        at = _put(constants, bounds[5], bounds[6], out, at)
+        at = _put_double(clock[ROOT + 1], scratch, bits, out, at)
+        at = _put(constants, bounds[5], bounds[6], out, at)
+        at = _put_double(clock[ROOT + 2], scratch, bits, out, at)
+        at = _put(constants, bounds[6], bounds[7], out, at)            # heading
+        at = _put_double(clock[HEADING], scratch, bits, out, at)
+        at = _put(constants, bounds[7], bounds[8], out, at)            # dropped
+        at = _put_uint(fields[k, 2], out, at)
+        finished = 1 if clock[FINISHED] != 0.0 else 0                  # finished, sent_at
+        at = _put(constants, bounds[8 + finished], bounds[9 + finished], out, at)
+        at = _put_double(sent_at, scratch, bits, out, at)
+        at = _put(constants, bounds[10], bounds[11], out, at)          # nils, the vertices' key
+        size = fields[k, 4]                                            # their bin header
+        if size < 1 << 8:
+            out[at], out[at + 1] = 0xC4, size
+            at += 2
+        elif size < 1 << 16:
+            out[at], out[at + 1], out[at + 2] = 0xC5, size >> 8, size & 0xFF
+            at += 3
+        else:
+            out[at] = 0xC6
+            for i in range(4):
+                out[at + 4 - i] = (size >> (8 * i)) & 0xFF
+            at += 5
+    ends[len(clocks)] = at
+
+
+def streamed_heads(fields, clocks, middles, sent_at):
+    """The heads of a tick's streamed frames of players (``engine.player.Player``), made in one
+    compiled pass from their clocks: the first part of ``StreamedFrame.parts`` for each (the
+    same bytes), as memoryviews of one new buffer.
+
+    Parameters
+    ----------
+    fields : list of int     per frame five: seq, ack, dropped, len(middle), the vertices' bytes
+    clocks : list of int     the players' ``clock_address`` (time, phase, root, heading, finished)
+    middles : list of bytes  each frame's ``StreamedFrame.middle``
+    sent_at : float          the frames' ``sent_at``
+    """
+    K = len(clocks)
+    if K == 0:
+        return []
+    joined_middles = b"".join(middles)
+    out = np.empty(K * _HEAD_MAX + len(joined_middles), dtype=np.uint8)
+    ends = np.empty(K + 1, dtype=np.int64)
+    _streamed_heads(np.array(fields, dtype=np.int64).reshape(K, 5), np.array(clocks, dtype=np.int64),
+                    np.frombuffer(joined_middles, dtype=np.uint8), float(sent_at), _CONSTANTS, _BOUNDS, out, ends)
+    whole = memoryview(out)
+    bounds = ends.tolist()
+    return [whole[bounds[k]:bounds[k + 1]] for k in range(K)]
+
+
+def warm_up():
+    """Compile (or load from numba's cache) the heads' pass (a server does so before it serves)."""
+    clock = np.zeros(CLOCK_SIZE)
+    streamed_heads([1, 0, 0, 1, 4], [clock.ctypes.data], [b"\xc0"], 0.0)

@@ -39,11 +39,12 @@ import heapq
 import itertools
 import logging
 import math
+import time
 import weakref
 
 from engine.blend.many import ManyBlender
 from engine.player_steps import advance_together
-from server.frames import row_views
+from server.frames import row_views, streamed_heads
 
 log = logging.getLogger("morphspace.stream")
 TICK = 0.002      # seconds: ticks come at most this often (urgent frames excepted)
@@ -275,15 +276,43 @@ class FrameScheduler:
                 self._blend_together(blender, members)
             except Exception:  # noqa: BLE001 - its members blend one by one below
                 log.exception("stream: blending %d moving frames together failed", len(members))
+        self._send(ready)
+
+    def _send(self, ready):
+        """Write the frames of ``ready``: the heads of the plain streamed ones (a space's player,
+        no heatmap) made in one compiled pass from their players' clocks
+        (``server.frames.streamed_heads``), the others by ``send_frame``; then each session asks
+        for its next frame."""
+        heads, fields, clocks, middles = [], [], [], []
+        for session in ready:
+            payload = session.payload
+            if session.closed or payload.__class__ is not memoryview:
+                continue
+            try:
+                if session.streamed_head(payload, fields, clocks, middles):
+                    heads.append(session)
+            except Exception as exc:  # noqa: BLE001
+                session.fail(exc)
+        if heads:
+            try:
+                made = streamed_heads(fields, clocks, middles, time.time())
+            except Exception:  # noqa: BLE001 - (a bug) send_frame writes them: their seq skips one
+                log.exception("stream: making %d frames' heads together failed", len(heads))
+                made = ()
+            for session, head in zip(heads, made):
+                session.payload = [head, session.payload]  # the frame's parts
         for session in ready:
             if session.closed:
                 continue
+            payload = session.payload
             try:
-                session.send_frame(session.payload)
+                if payload.__class__ is list:
+                    session.write_frame(payload)
+                else:
+                    session.send_frame(payload)
             except Exception as exc:  # noqa: BLE001
                 session.fail(exc)
                 continue
             self.frames += 1
             session.payload = None
             session.after_frame()
-

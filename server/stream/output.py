@@ -20,6 +20,7 @@ import numpy as np
 from starlette.websockets import WebSocketDisconnect
 
 from engine.blend.cache import weights_key
+from engine.player import Player
 from server import protocol as P
 from server.frames import StreamedFrame, frame_parts, joined
 from server.scheduler import URGENT, send_now
@@ -206,6 +207,34 @@ class FrameOutput:
             graph = self.graph
             parts = self._streamed_parts(player, payload, None if graph is None else
                                          StreamedFrame.graph(graph.node, graph.target, graph.progress))
+        self.write_frame(parts)
+
+    def streamed_head(self, payload, fields, clocks, middles):
+        """Count this frame and append the numbers of its head for ``server.frames.streamed_heads``
+        (the scheduler makes a tick's heads in one pass, then ``write_frame``): seq, ack, dropped,
+        the middle's length and the bytes of ``payload`` to ``fields``, the player's clock address
+        to ``clocks``, the middle to ``middles``. False (nothing appended or counted) where
+        ``send_frame`` is to write it: the heatmap, a motion graph, a player without a clock."""
+        player = self.player
+        if self.heatmap or self.graph is not None or player.__class__ is not Player:
+            return False
+        self.table_missed = False
+        self.seq += 1
+        self.stats.frames += 1
+        key, middle = self.middle
+        state = player.state_key
+        if key is None or key[0] is not state[0] or key[1] is not state[1] or key[2] is not state[2] \
+                or key[3] is not state[3]:
+            mode, requested, realised, clamped, weights = player.reported()
+            middle = StreamedFrame.middle(mode, _floats(requested), _floats(realised), clamped, _floats(weights))
+            self.middle = state, middle
+        fields += (self.seq, self.ack, self.dropped, len(middle), payload.nbytes)
+        clocks.append(player.clock_address)
+        middles.append(middle)
+        return True
+
+    def write_frame(self, parts):
+        """Write a frame's body ``parts`` (buffers) to the connection, or drop it (latest-wins)."""
         try:
             if self.gauge is not None:  # straight to the transport, one copy (server/transport.py)
                 sent = self.gauge.write_message(parts)

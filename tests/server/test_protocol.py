@@ -285,3 +285,34 @@ def test_the_websocket_header_is_rfc_6455s(length):
 
     payload = b"x" * length
     assert websocket_header(length) + payload == Frame(Opcode.BINARY, payload).serialize(mask=False)
+
+
+def test_streamed_heads_are_the_heads_streamed_frame_parts_gives():
+    """A tick's heads made in one compiled pass from the players' clocks: the bytes of
+    StreamedFrame.parts' first part for each frame (ints of every msgpack size, signed zeros and
+    NaN, finished or not, middles of any length, vertices of every bin header's size)."""
+    from engine.player import CLOCK_SIZE
+    from server.frames import StreamedFrame, streamed_heads
+
+    rng = np.random.default_rng(9)
+    clocks, fields, middles, expected = [], [], [], []
+    for k in range(120):
+        clock = np.zeros(CLOCK_SIZE)
+        clock[:6] = rng.uniform(-1e4, 1e4, 6)
+        clock[6] = k % 2
+        if k % 7 == 0:
+            clock[3], clock[1] = -0.0, float("nan")
+        clocks.append(clock)
+        seq = int(rng.choice([0, 5, 127, 128, 255, 256, 65535, 65536, 2**32 - 1, 2**32, 2**40]))
+        ack, dropped = int(rng.integers(300)), int(rng.choice([0, 130, 70000]))
+        middle = StreamedFrame.middle(["linear", "hybrid"][k % 2], rng.random(2).tolist(), rng.random(2).tolist(),
+                                      bool(k % 3), rng.random(1 + k % 20).tolist())
+        size = int(rng.choice([0, 100, 255, 256, 18000, 65535, 65536, 100000]))
+        fields += (seq, ack, dropped, len(middle), size)
+        middles.append(middle)
+        time_, phase, heading, x, y, z, finished = clock[:7].tolist()
+        expected.append(StreamedFrame.parts(seq, ack, time_, phase, middle, [x, y, z], heading, dropped,
+                                            bool(finished), 1.7e9 + 0.123, np.zeros(size, np.uint8))[0])
+    heads = streamed_heads(fields, [clock.ctypes.data for clock in clocks], middles, 1.7e9 + 0.123)
+    assert [bytes(head) for head in heads] == expected
+    assert streamed_heads([], [], [], 0.0) == []
