@@ -11,6 +11,9 @@ import scipy.sparse as sp
 
 from engine.nearest import PointTree
 
+FLAT_PIECE = 0.01   # orient_outward: a piece enclosing less than this times area^1.5 is a sheet
+FEW_FACES = 0.001   # orient_outward: this share of faces or fewer to turn leaves the mesh as it is
+
 
 def model_size(V):
     """Largest extent of the axis-aligned bounding box (DESIGN.md: "model size").
@@ -270,3 +273,89 @@ def main_components(V, F, *, min_fraction=0.05):
     index[kept] = np.arange(len(kept))
     return V[kept], index[F[keep_face]], kept
 
+
+
+def orient_outward(V, F):
+    """Faces wound consistently, every connected piece facing outward.
+
+    Parameters
+    ----------
+    V : (n, 3) float array
+    F : (m, 3) int array
+
+    Returns
+    -------
+    F : (m, 3) int64 array   the faces, some with their winding reversed (the same array's
+                             values when nothing needed turning)
+    turned : int             how many faces were reversed
+
+    Notes
+    -----
+    Reconstructions do not always wind their faces the way this engine reads them (outward,
+    counter-clockwise seen from outside): an exporter with the other handedness reverses every
+    face, and a mesh stitched from pieces can mix both. The alignment's matching compares
+    normals, so a frame facing inward has no compatible pairs at all (a studio strikes pair:
+    0.65% of the model size as wound, 5.4% with the target's faces reversed). Two faces that
+    share an edge are consistent when they run along it in opposite directions; the faces of
+    each piece (faces joined through edges that exactly two faces share) are made consistent
+    with its first face by a breadth-first walk, then the piece is reversed as a whole when
+    the volume it encloses is negative (for an open piece, its volume with the holes closed
+    by the fan from its centroid, which the holes' rims leave the same sign on a body). A
+    piece that encloses next to nothing for its area (a sheet: a fin of doubled faces where a
+    reconstruction pinched two surfaces together, volume under 1% of ``area^1.5``; a sphere's
+    is 9.4%) has no inside to face away from and keeps its winding. A non-orientable piece
+    keeps what the walk gives it; faces joined only through a non-manifold edge count as
+    separate pieces. When no more than 0.1% of the faces would turn (the doubled faces of such
+    a fin, whose two windings no walk can reconcile), the faces are returned as they are.
+    """
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    m = len(F)
+    if m == 0:
+        return F, 0
+    half = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])  # directed edges, face f at f, m + f, 2m + f
+    face = np.tile(np.arange(m), 3)
+    key = np.minimum(half[:, 0], half[:, 1]) * (len(V) + 1) + np.maximum(half[:, 0], half[:, 1])
+    order = np.argsort(key, kind="stable")
+    key_sorted = key[order]
+    starts = np.flatnonzero(np.r_[True, key_sorted[1:] != key_sorted[:-1]])
+    counts = np.diff(np.r_[starts, len(key_sorted)])
+    pair = starts[counts == 2]  # manifold edges: exactly two half-edges
+    a, b = order[pair], order[pair + 1]
+    same = half[a, 0] == half[b, 0]  # both faces run the edge the same way: one must turn
+    fa, fb = face[a], face[b]
+    graph = sp.coo_matrix((np.ones(len(fa)), (fa, fb)), shape=(m, m)).tocsr()
+    graph = graph + graph.T
+    parity = sp.coo_matrix((same.astype(np.int8) + 1, (fa, fb)), shape=(m, m)).tocsr()
+    parity = parity + parity.T  # 1: consistent, 2: one must turn
+    pieces, piece = connected_components(graph, directed=False)
+    flip = np.zeros(m, dtype=bool)
+    firsts = np.flatnonzero(np.r_[True, np.diff(np.sort(piece)) != 0])
+    for first in np.argsort(piece, kind="stable")[firsts]:
+        visit, pred = breadth_first_order(graph, int(first), directed=False, return_predecessors=True)
+        if len(visit) < 2:
+            continue
+        child, parent = visit[1:], pred[visit[1:]]
+        turn = (np.asarray(parity[child, parent]).ravel() == 2).tolist()
+        state = flip.tolist()
+        for f, up, t in zip(child.tolist(), parent.tolist(), turn):
+            state[f] = state[up] ^ t
+        flip = np.array(state, dtype=bool)
+    G = np.where(flip[:, None], F[:, ::-1], F)
+    tri = V[G]
+    centre = np.zeros((pieces, 3))
+    np.add.at(centre, piece, tri.mean(axis=1))
+    centre /= np.bincount(piece, minlength=pieces)[:, None]
+    rel = tri - centre[piece][:, None, :]
+    volume = np.bincount(piece, weights=np.einsum("fi,fi->f", rel[:, 0], np.cross(rel[:, 1], rel[:, 2])),
+                         minlength=pieces)
+    face_area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    area = np.bincount(piece, weights=face_area, minlength=pieces)
+    inward = (volume < 0) & (np.abs(volume) / 6.0 >= FLAT_PIECE * area ** 1.5)
+    flip ^= inward[piece]
+    turned = int(flip.sum())
+    if turned <= FEW_FACES * m:
+        return F, 0
+    return np.where(flip[:, None], F[:, ::-1], F), turned

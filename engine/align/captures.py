@@ -8,7 +8,7 @@ along the tree. The CLI (``morphspace align``, ``eval-align``) and the align job
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, is_dataclass, replace
 
 import numpy as np
 
@@ -18,7 +18,7 @@ from engine.align.repair import alignment_confidence, colour_terms, repair_align
 from engine.align.root_choice import choose_root
 from engine.align.similarity import shape_dissimilarity
 from engine.align.similarity_tree import DEFAULT_TREE, chain_tree, similarity_tree
-from engine.surface import main_components
+from engine.surface import main_components, orient_outward
 
 
 @dataclass
@@ -36,6 +36,8 @@ class CaptureAlignment:
     method : str     "tree" or "sequential"
     tets : (V_tet, T)   the root's tet mesh (reusable for another run with the same root)
     colour_cues : bool  whether vertex colours were used as local matching cues
+    turned : dict       frame index -> faces whose winding was reversed so that the frame faces
+                        outward (:func:`engine.surface.orient_outward`); frames as read are absent
     """
 
     similarity: object
@@ -45,6 +47,7 @@ class CaptureAlignment:
     method: str
     tets: tuple
     colour_cues: bool = False
+    turned: dict = field(default_factory=dict)
 
 
 COLOUR_WEIGHT = 1.0   # AlignmentOptions.colour_weight when colour cues are on and the options leave it 0
@@ -137,6 +140,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     if use_colors not in (True, False, "auto"):
         raise ValueError(f"use_colors must be True, False or 'auto', got {use_colors!r}")
     lengths = np.asarray(lengths, dtype=np.int64)
+    meshes, turned = _outward(meshes)
     timings = {}
     started = time.perf_counter()
     if similarity is None:
@@ -188,7 +192,28 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
         _confidence_only(aligned, colours=bool(cues))
     timings["repair"] = time.perf_counter() - started
     return CaptureAlignment(similarity=similarity, tree=tree, aligned=aligned, timings=timings, method=method,
-                            tets=tets, colour_cues=bool(cues))
+                            tets=tets, colour_cues=bool(cues), turned=turned)
+
+
+def _outward(meshes):
+    """The frames with their faces wound outward, and {frame: faces turned} for those that were not."""
+    out, turned = [], {}
+    for i, mesh in enumerate(meshes):
+        faces, count = orient_outward(mesh.vertices, mesh.faces)
+        if count:
+            turned[i] = count
+            mesh = replace(mesh, faces=faces) if is_dataclass(mesh) else _with_faces(mesh, faces)
+        out.append(mesh)
+    return out, turned
+
+
+def _with_faces(mesh, faces):
+    """A shallow copy of a Mesh-like object with other faces."""
+    from copy import copy
+
+    other = copy(mesh)
+    other.faces = faces
+    return other
 
 
 

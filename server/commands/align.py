@@ -494,6 +494,10 @@ def run(args):
           f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "
           f"{int(aligned.retried.sum())} frames re-aligned from other parents")
     print(f"  colour cues {colour_cues_text(args.colors, result.colour_cues, meshes)}")
+    if result.turned:
+        shown = [frame_label(i, sequences, lengths) for i in sorted(result.turned)]
+        print(f"  faces wound inward (or mixed) turned outward in {len(shown)} frames: {', '.join(shown[:6])}"
+              + (", ..." if len(shown) > 6 else ""))
     confidence = confidence_summary(aligned, sequences, lengths)
     print(f"  confidence: {confidence['repaired_frames']} frames repaired (aligned again from the root or trusted "
           f"frames), {confidence['flagged_frames']} of {frames} still below {TRUSTED} (listed per sequence in "

@@ -10,6 +10,7 @@ from engine.surface import (
     enclosed_volume,
     lumped_mass,
     model_size,
+    orient_outward,
     volume_centroid,
 )
 
@@ -101,3 +102,39 @@ def test_main_components_welds_an_unwelded_surface():
                                   np.sort(body.vertices[body.faces].reshape(len(body.faces), -1), axis=0))
     for first in kept:  # the first of its twins
         assert not np.any(np.all(soup_V[:first] == soup_V[first], axis=1))
+
+
+def test_faces_wound_inward_or_mixed_are_turned_outward(sphere):
+    V, F = sphere
+    G, turned = orient_outward(V, F)
+    assert turned == 0 and np.array_equal(G, F)  # already outward: as it was
+    G, turned = orient_outward(V, F[:, ::-1])
+    assert turned == len(F) and np.array_equal(G, F)
+    mixed = np.where((np.random.default_rng(0).random(len(F)) < 0.3)[:, None], F[:, ::-1], F)
+    G, turned = orient_outward(V, mixed)
+    assert turned == int(np.sum(np.any(mixed != F, axis=1))) and np.array_equal(G, F)
+
+
+def test_each_piece_and_open_surfaces_face_outward(sphere):
+    V, F = sphere
+    # two pieces, the second reversed and with a hole (an open piece still faces out)
+    V2 = np.concatenate([V, V + [2.0, 0.0, 0.0]])
+    top = np.flatnonzero(V[F].mean(axis=1)[:, 1] > 0.4)
+    second = np.delete(F, top, axis=0) + len(V)
+    G, turned = orient_outward(V2, np.concatenate([F, second[:, ::-1]]))
+    assert turned == len(second)
+    np.testing.assert_array_equal(G, np.concatenate([F, second]))
+    assert enclosed_volume(V2, G[:len(F)]) > 0
+
+
+def test_a_sheet_and_a_few_faces_keep_their_winding():
+    sheet = trimesh.creation.box(extents=(1.0, 1.0, 1e-4))  # encloses next to nothing for its area
+    V, F = np.asarray(sheet.vertices), np.asarray(sheet.faces)[:, ::-1]
+    G, turned = orient_outward(V, F)
+    assert turned == 0 and np.array_equal(G, F)
+    ball = trimesh.creation.icosphere(subdivisions=5)  # 20,480 faces: one reversed face is under 0.1%
+    V, F = np.asarray(ball.vertices), np.asarray(ball.faces).copy()
+    F[7] = F[7, ::-1]
+    G, turned = orient_outward(V, F)
+    assert turned == 0 and np.array_equal(G, F)
+    assert orient_outward(V, F[:0])[1] == 0

@@ -401,3 +401,22 @@ def test_the_summary_says_whether_colours_were_cues_and_why(aligned_run):
     frames = [types.SimpleNamespace(colors=None)]
     assert colour_cues_text("auto", False, frames) == "off (--colors auto: not every frame has vertex colours)"
     assert colour_cues_text("on", True, frames) == "on (--colors on)"
+
+
+def test_a_frame_wound_inward_is_turned_outward_and_aligns_as_the_others(dataset, aligned, tmp_path, capsys):
+    """A frame written with every face reversed (an exporter of the other handedness) faces into
+    the body; it is wound outward again first, so the alignment is the same, bit for bit, and the
+    summary names it."""
+    copy = tmp_path / "inward"
+    shutil.copytree(dataset, copy)
+    path = sorted((copy / "sequences" / "jog" / "unstructured").iterdir())[2]
+    mesh = read_mesh(path)
+    write_ply(path, mesh.vertices, mesh.faces[:, ::-1], colors=mesh.colors, dtype=np.float64)
+    out = tmp_path / "out"
+    assert main(["align", str(copy), "--out", str(out), "--workers", "1", "--levels", "3"]) == 0
+    assert "turned outward in 1 frames: jog:2" in capsys.readouterr().out
+    for name in ("walk", "jog"):
+        ours = read_sequence(out / "sequences" / name / "consistent")
+        theirs = read_sequence(aligned / "sequences" / name / "consistent")
+        np.testing.assert_array_equal(ours.vertices, theirs.vertices)
+        np.testing.assert_array_equal(ours.faces, theirs.faces)
