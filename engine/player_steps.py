@@ -362,14 +362,14 @@ def _commit(players, indices, clocks, W, out, done):
     did not step."""
     _set_clocks(clocks, out, done)
     rest = []
-    # (rows of the results: the arrays are replaced, never changed in place: Player.state_key)
-    for k, player, flag, c, v, u, realised, w in zip(range(len(players)), players, done.tolist(), list(out[:, 0:2]),
-                                                     list(out[:, 2:4]), list(out[:, 4:6]), list(out[:, 6:8]), list(W)):
+    for k, (player, flag) in enumerate(zip(players, done.tolist())):
         if not flag:
             rest.append(indices[k])
             continue
-        player._current, player._velocity = c, v
-        player._solution = Solution(weights=w, u=u, requested=c, realised=realised, clamped=False)
+        row = out[k]  # (views of the results: replaced, never changed in place: Player.state_key)
+        c = row[0:2]
+        player._current, player._velocity = c, row[2:4]
+        player._solution = Solution(W[k], row[4:6], c, row[6:8], False)
     return rest
 
 

@@ -300,14 +300,14 @@ class FrameScheduler:
                 log.exception("stream: making %d frames' heads together failed", len(heads))
                 made = ()
             for session, head in zip(heads, made):
-                session.payload = [head, session.payload]  # the frame's parts
+                session.payload = (head, session.payload)  # the frame's head and vertices
         for session in ready:
             if session.closed:
                 continue
             payload = session.payload
             try:
-                if payload.__class__ is list:
-                    session.write_frame(payload)
+                if payload.__class__ is tuple:
+                    session.write_frame(*payload)
                 else:
                     session.send_frame(payload)
             except Exception as exc:  # noqa: BLE001

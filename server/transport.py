@@ -21,7 +21,8 @@ transport, and bounds what the kernel holds:
   ``writev`` under uvloop, the parts not copied in Python), instead of through the ASGI send,
   Starlette and the websockets library (three copies and most of a frame's CPU).
   Frames go out uncompressed even where permessage-deflate was negotiated (RFC 7692 lets a
-  sender leave any message uncompressed: RSV1 clear).
+  sender leave any message uncompressed: RSV1 clear). ``write_frame(head, vertices, floor)``
+  is the same for a streamed frame's two parts, with ``held_above(floor)`` in the same call.
 
 Under another ASGI server there is no gauge; the stream then relies on the send itself: a send
 that would wait for a full transport is abandoned (the frame is dropped, never queued).
@@ -118,6 +119,26 @@ class TransportGauge:
         self._transport.writelines([header, *parts])
         self._queued_at_most += len(header) + length
         return True
+
+    def write_frame(self, head, vertices, floor):
+        """``write_message([head, vertices])`` for two memoryviews (a streamed frame's parts),
+        then ``held_above(floor)`` in the same call: None when the connection is no longer open
+        (nothing written), else the bytes held where they may exceed ``floor``, 0 where not."""
+        protocol = self._protocol
+        if protocol.close_sent or protocol.disconnected or protocol.conn.state is not State.OPEN:
+            return None
+        length = head.nbytes + vertices.nbytes
+        header = _HEADERS.get(length)
+        if header is None:
+            header = websocket_header(length)
+            if len(_HEADERS) < 256:
+                _HEADERS[length] = header
+        transport = self._transport
+        transport.writelines((header, head, vertices))  # (as write_message: one writev, no copy)
+        self._queued_at_most += len(header) + length
+        if self._queued_at_most + transport.get_write_buffer_size() <= floor and not self._elsewhere:
+            return 0
+        return self.held()
 
     def abort(self):
         """Drop the TCP connection at once, unsent bytes and all (a client that reads nothing)."""

@@ -207,7 +207,7 @@ class FrameOutput:
             graph = self.graph
             parts = self._streamed_parts(player, payload, None if graph is None else
                                          StreamedFrame.graph(graph.node, graph.target, graph.progress))
-        self.write_frame(parts)
+        self.write_parts(parts)
 
     def streamed_head(self, payload, fields, clocks, middles):
         """Count this frame and append the numbers of its head for ``server.frames.streamed_heads``
@@ -233,7 +233,27 @@ class FrameOutput:
         middles.append(middle)
         return True
 
-    def write_frame(self, parts):
+    def write_frame(self, head, vertices):
+        """Write a streamed frame from its head and vertices (memoryviews: ``streamed_head``'s),
+        or drop it (latest-wins)."""
+        write = self.gauge_write
+        if write is None:
+            self.write_parts([head, vertices])
+            return
+        scheduler = self.scheduler  # TransportGauge.write_frame: write, and look at what it holds
+        try:
+            held = write(head, vertices, scheduler.transport_bytes_max)
+        except (WebSocketDisconnect, OSError, RuntimeError):
+            self.shut(P.CLOSE_INTERNAL, "sending failed")
+            return
+        if held is None:  # the connection is closing
+            self.closed = True
+            return
+        self.stalled_since = None
+        if held > scheduler.transport_bytes_max:
+            scheduler.transport_bytes_max = held
+
+    def write_parts(self, parts):
         """Write a frame's body ``parts`` (buffers) to the connection, or drop it (latest-wins)."""
         try:
             if self.gauge is not None:  # straight to the transport, one copy (server/transport.py)

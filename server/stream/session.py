@@ -99,6 +99,7 @@ class StreamSession(FrameOutput):
         self.heatmap_last = None  # and the newest finished: (error_um, error_max, error_seq)
         self.quantiser = None
         self.gauge = (websocket.scope.get("extensions") or {}).get(GAUGE)  # None under other servers
+        self.gauge_write = getattr(self.gauge, "write_frame", None)  # (TransportGauge.write_frame)
         self.limits = {"max_message": settings.stream_max_message, "max_rate": settings.stream_max_rate,
                        "burst": settings.stream_burst, "max_fps": settings.stream_max_fps,
                        "stall_timeout": settings.stream_stall_timeout}  # topology.limits, P.LIMITS order
