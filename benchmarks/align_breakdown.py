@@ -30,7 +30,7 @@ from pathlib import Path
 from _tiny import parse_arguments
 from align_speed import load_frames
 
-TINY = {"start": 0, "frames": 6, "options": ["patches=8", "levels=2"]}
+TINY = {"start": 0, "frames": 6, "every": 2, "options": ["patches=8", "levels=2"]}
 
 
 def parse_options(pairs):

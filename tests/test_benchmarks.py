@@ -176,7 +176,7 @@ def check_align_speed(record, stdout):
 
 
 def check_align_breakdown(record, stdout):
-    assert record["dataset"] == "tiny" and record["frames"] == 6 and record["method"] == "tree"
+    assert record["dataset"] == "tiny" and record["frames"] == 6 and record["every"] == 2 and record["method"] == "tree"
     assert record["options"]["patches"] == 8 and positive(record["cpu_seconds_per_frame"])
     assert 0 < record["mean_pct"] <= record["p95_pct"] < 100
     (part,) = record["per_part"].values()  # no studio parts: one, all of the vertices and all of the tail
