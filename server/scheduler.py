@@ -301,18 +301,27 @@ class FrameScheduler:
                 made = ()
             for session, head in zip(heads, made):
                 session.payload = (head, session.payload)  # the frame's head and vertices
+        heap, order, push, earliest, written = self._heap, self._order, heapq.heappush, math.inf, 0
         for session in ready:
             if session.closed:
                 continue
             payload = session.payload
+            session.payload = None
             try:
                 if payload.__class__ is tuple:
                     session.write_frame(*payload)
                 else:
                     session.send_frame(payload)
+                due = session.next_frame_due()
             except Exception as exc:  # noqa: BLE001
                 session.fail(exc)
                 continue
-            self.frames += 1
-            session.payload = None
-            session.after_frame()
+            written += 1
+            if due is not None:  # (schedule(), inline)
+                session.version = version = session.version + 1
+                push(heap, (due, next(order), version, session))
+                if due < earliest:
+                    earliest = due
+        self.frames += written
+        if earliest < self._planned and self._wakeup is not None:
+            self._wakeup.set()

@@ -56,35 +56,42 @@ class FrameOutput:
     def due_step(self, now):
         """The seconds the player is to step for a frame at loop time ``now`` (the scheduler steps
         it: steering players of a space together), or None when no frame is to be sent."""
-        if not self.ready or self.player is None or self.rate <= 0:
+        rate = self.rate
+        if not self.ready or rate <= 0 or self.player is None:
             return None
         urgent = self.urgent
-        streaming = not self.paused and self.rate > 0
+        streaming = not self.paused  # (and rate > 0)
         if not urgent and not streaming:
             return None
         # the window holds for every frame, urgent ones (answering a message) too: they wait for an ack
-        if self.window > 0 and self.seq - self.acked_frame >= self.window:
+        window = self.window
+        if window > 0 and self.seq - self.acked_frame >= window:
             self.waiting_ack = True  # the next ack reschedules
             if not self._stalled(now):  # or else, the stall timeout
                 self.scheduler.schedule(self, self.stalled_since + self.settings.stream_stall_timeout)
             return None
-        if self.gauge is not None and not self.gauge.ready():
+        gauge = self.gauge
+        if gauge is not None and not gauge.ready():
             self._transport_full(now, streaming)
             return None
-        self.urgent = False
-        dt = 0.0
-        if streaming:
-            period = 1.0 / self.rate
-            if urgent:  # an extra frame now; the grid restarts from it
-                self.next_due = now + period
-            else:       # stay on the grid; ticks missed by a whole period are dropped, not caught up
-                late = now - self.next_due
-                missed = int(late / period) if late >= period else 0
+        if not streaming:
+            self.urgent = False
+            return 0.0
+        period = 1.0 / rate
+        if urgent:  # an extra frame now; the grid restarts from it
+            self.urgent = False
+            self.next_due = now + period
+        else:       # stay on the grid; ticks missed by a whole period are dropped, not caught up
+            late = now - self.next_due
+            if late >= period:
+                missed = int(late / period)
                 self.dropped += missed
                 self.next_due += (missed + 1) * period
-            dt = 0.0 if self.last_step is None else min(now - self.last_step, MAX_DT)
-            self.last_step = now
-        return dt
+            else:
+                self.next_due += period
+        last = self.last_step
+        self.last_step = now
+        return 0.0 if last is None else min(now - last, MAX_DT)
 
     def unsent_ticks(self, now):
         """Ticks of the rate grid that fell due a whole period or more before loop time ``now`` and
@@ -150,7 +157,8 @@ class FrameOutput:
             weights = player.weights
             kept, key = self.weights_key
             if kept is not weights:  # (a Player's weights are replaced, never changed in place)
-                key = weights_key(weights)
+                key = weights.tobytes() if weights.__class__ is np.ndarray and weights.dtype is _FLOAT64 \
+                    else weights_key(weights)  # (the same bytes)
                 self.weights_key = weights, key
         table = blender.lookup(weights, key)
         self.table_missed = table is None  # send_frame blends without asking again
@@ -283,12 +291,20 @@ class FrameOutput:
 
     def after_frame(self):
         """Ask the scheduler for the next frame (now if one is urgent)."""
+        due = self.next_frame_due()
+        if due is not None:
+            self.scheduler.schedule(self, due)
+
+    def next_frame_due(self):
+        """When the next frame is due after one was written (loop time; ``URGENT``: now), or None
+        (none is to come unasked): what ``after_frame`` asks the scheduler for."""
         if self.closed or not self.ready:
-            return
+            return None
         if self.urgent:
-            self.scheduler.schedule(self, URGENT)
-        elif not self.paused and self.rate > 0:
-            self.scheduler.schedule(self, self.next_due)
+            return URGENT
+        if not self.paused and self.rate > 0:
+            return self.next_due
+        return None
 
     def fail(self, exc):
         """The scheduler failed on this connection: report, close it, keep everyone else."""
