@@ -310,7 +310,9 @@ def advance_together(players, dts):
             if player._settled:
                 dt = dts[index]
                 if 0.0 <= dt < math.inf:  # (Player.advance raises on the others)
-                    address = player.settled_rates()
+                    kept = player._rates  # (settled_rates(), its usual case inline)
+                    address = kept[2] if kept is not None and kept[0] is player._solution.weights \
+                        else player.settled_rates()
                     if address:
                         clocks.append(player.clock_address)
                         rates.append(address)

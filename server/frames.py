@@ -167,6 +167,19 @@ class StreamedFrame:
         return pack(*args)
 
     @staticmethod
+    def middle_pieces(mode, n_requested, n_realised, clamped, n_weights):
+        """The constant bytes of ``middle`` for these lengths: (before the requested values,
+        before the realised ones, before the weights); each value follows as 0xcb and a
+        big-endian float64 (``streamed_heads`` writes them)."""
+        key = (mode, n_requested, n_realised, clamped, n_weights)
+        packer = _MIDDLE.get(key)
+        if packer is None:
+            packer = _middle_packer(*key)
+            if len(_MIDDLE) < 1024:
+                _MIDDLE[key] = packer
+        return packer[1:]
+
+    @staticmethod
     def graph(node, target, progress):
         """The packed ``node``, ``target`` (str or None) and ``progress`` (float or None) fields
         of a motion graph's frame, for ``parts`` (outside a transition, packed once per node and
@@ -252,13 +265,15 @@ def _put_double(x, scratch, bits, out, at):  # pragma: no cover (compiled)
 
 
 @compiled
-def _streamed_heads(fields, clocks, middles, sent_at, constants, bounds, out, ends):  # pragma: no cover (compiled)
+def _streamed_heads(fields, clocks, middles, values, sent_at, constants, bounds, out, ends):  # pragma: no cover
     """The heads of K streamed frames into ``out``, one after another; ``ends`` (K + 1,) their
-    bounds. fields (K, 5) int64: seq, ack, dropped, the middle's length, the vertices' bytes;
-    clocks (K,) int64: the players' ``clock_address``; middles: their middles one after another."""
+    bounds (``streamed_heads``). fields (K, 10) int64: seq, ack, dropped, the vertices' bytes,
+    then the middle: three pieces of ``middles`` (in order), each followed by that many numbers of
+    ``values`` (each written as msgpack's float64: 0xcb, big-endian); clocks (K,) int64: the
+    players' ``clock_address``."""
     scratch = np.empty(1, dtype=np.float64)
     bits = scratch.view(np.uint64)
-    at = m = 0
+    at = m = v = 0
     for k in range(len(clocks)):
         ends[k] = at
         clock = carray(float64_pointer(clocks[k]), (CLOCK_SIZE,))
@@ -270,8 +285,14 @@ def _streamed_heads(fields, clocks, middles, sent_at, constants, bounds, out, en
         at = _put_double(clock[TIME], scratch, bits, out, at)
         at = _put(constants, bounds[3], bounds[4], out, at)            # phase
         at = _put_double(clock[PHASE], scratch, bits, out, at)
-        at = _put(middles, m, m + fields[k, 3], out, at)               # mode ... weights
-        m += fields[k, 3]
+        for j in range(3):                                             # mode ... weights
+            length = fields[k, 4 + 2 * j]
+            at = _put(middles, m, m + length, out, at)
+            m += length
+            for i in range(fields[k, 5 + 2 * j]):
+                out[at] = 0xCB
+                at = _put_double(values[v], scratch, bits, out, at + 1)
+                v += 1
         at = _put(constants, bounds[4], bounds[5], out, at)            # root
         at = _put_double(clock[ROOT], scratch, bits, out, at)
         at = _put(constants, bounds[5], bounds[6], out, at)
@@ -286,7 +307,7 @@ def _streamed_heads(fields, clocks, middles, sent_at, constants, bounds, out, en
         at = _put(constants, bounds[8 + finished], bounds[9 + finished], out, at)
         at = _put_double(sent_at, scratch, bits, out, at)
         at = _put(constants, bounds[10], bounds[11], out, at)          # nils, the vertices' key
-        size = fields[k, 4]                                            # their bin header
+        size = fields[k, 3]                                            # their bin header
         if size < 1 << 8:
             out[at], out[at + 1] = 0xC4, size
             at += 2
@@ -301,26 +322,33 @@ def _streamed_heads(fields, clocks, middles, sent_at, constants, bounds, out, en
     ends[len(clocks)] = at
 
 
-def streamed_heads(fields, clocks, middles, sent_at):
+def streamed_heads(fields, clocks, middles, values, sent_at):
     """The heads of a tick's streamed frames of players (``engine.player.Player``), made in one
     compiled pass from their clocks: the first part of ``StreamedFrame.parts`` for each (the
     same bytes), as memoryviews of one new buffer.
 
     Parameters
     ----------
-    fields : list of int     per frame five: seq, ack, dropped, len(middle), the vertices' bytes
+    fields : list of int     per frame ten: seq, ack, dropped, the vertices' bytes, then its
+                             middle (the fields from ``mode`` to ``weights``) as three (bytes of
+                             ``middles``, numbers of ``values``) pairs: a packed
+                             ``StreamedFrame.middle`` is (its length, 0, 0, 0, 0, 0), one made
+                             here from its numbers is ``StreamedFrame.middle_pieces`` each
+                             followed by the requested, realised and weights values
     clocks : list of int     the players' ``clock_address`` (time, phase, root, heading, finished)
-    middles : list of bytes  each frame's ``StreamedFrame.middle``
+    middles : list of bytes  the middles' pieces, in order
+    values : list of float   the middles' numbers, in order
     sent_at : float          the frames' ``sent_at``
     """
     K = len(clocks)
     if K == 0:
         return []
     joined_middles = b"".join(middles)
-    out = np.empty(K * _HEAD_MAX + len(joined_middles), dtype=np.uint8)
+    out = np.empty(K * _HEAD_MAX + len(joined_middles) + 9 * len(values), dtype=np.uint8)
     ends = np.empty(K + 1, dtype=np.int64)
-    _streamed_heads(np.array(fields, dtype=np.int64).reshape(K, 5), np.array(clocks, dtype=np.int64),
-                    np.frombuffer(joined_middles, dtype=np.uint8), float(sent_at), _CONSTANTS, _BOUNDS, out, ends)
+    _streamed_heads(np.array(fields, dtype=np.int64).reshape(K, 10), np.array(clocks, dtype=np.int64),
+                    np.frombuffer(joined_middles, dtype=np.uint8), np.array(values, dtype=np.float64),
+                    float(sent_at), _CONSTANTS, _BOUNDS, out, ends)
     whole = memoryview(out)
     bounds = ends.tolist()
     return [whole[bounds[k]:bounds[k + 1]] for k in range(K)]
@@ -329,4 +357,4 @@ def streamed_heads(fields, clocks, middles, sent_at):
 def warm_up():
     """Compile (or load from numba's cache) the heads' pass (a server does so before it serves)."""
     clock = np.zeros(CLOCK_SIZE)
-    streamed_heads([1, 0, 0, 1, 4], [clock.ctypes.data], [b"\xc0"], 0.0)
+    streamed_heads([1, 0, 0, 4, 1, 1, 0, 0, 0, 0], [clock.ctypes.data], [b"\xc0"], [0.5], 0.0)

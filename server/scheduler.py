@@ -283,19 +283,19 @@ class FrameScheduler:
         no heatmap) made in one compiled pass from their players' clocks
         (``server.frames.streamed_heads``), the others by ``send_frame``; then each session asks
         for its next frame."""
-        heads, fields, clocks, middles = [], [], [], []
+        heads, fields, clocks, middles, values = [], [], [], [], []
         for session in ready:
             payload = session.payload
             if session.closed or payload.__class__ is not memoryview:
                 continue
             try:
-                if session.streamed_head(payload, fields, clocks, middles):
+                if session.streamed_head(payload, fields, clocks, middles, values):
                     heads.append(session)
             except Exception as exc:  # noqa: BLE001
                 session.fail(exc)
         if heads:
             try:
-                made = streamed_heads(fields, clocks, middles, time.time())
+                made = streamed_heads(fields, clocks, middles, values, time.time())
             except Exception:  # noqa: BLE001 - (a bug) send_frame writes them: their seq skips one
                 log.exception("stream: making %d frames' heads together failed", len(heads))
                 made = ()

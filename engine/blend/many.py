@@ -89,7 +89,8 @@ class ManyBlender:
             raise ValueError(f"expected (K, N) weights and K phases, got {W.shape} and {len(phases)}")
         m = 3 * self.n_vertices
         if self.hybrid:  # the terms, then one compiled pass per row over them (engine/blend/compiled.py)
-            terms = hybrid_terms(W / W.sum(axis=1, keepdims=True), np.array(phases, dtype=np.float64), *self._tree,
+            lam = W / np.add.reduce(W, axis=1, keepdims=True)  # (W.sum's numbers)
+            terms = hybrid_terms(lam, np.array(phases, dtype=np.float64), *self._tree,
                                  self.n_phases, self.cyclic)
             if self._unmade:
                 for r in set(terms[0].tolist()):

@@ -217,12 +217,14 @@ class FrameOutput:
                                          StreamedFrame.graph(graph.node, graph.target, graph.progress))
         self.write_parts(parts)
 
-    def streamed_head(self, payload, fields, clocks, middles):
-        """Count this frame and append the numbers of its head for ``server.frames.streamed_heads``
-        (the scheduler makes a tick's heads in one pass, then ``write_frame``): seq, ack, dropped,
-        the middle's length and the bytes of ``payload`` to ``fields``, the player's clock address
-        to ``clocks``, the middle to ``middles``. False (nothing appended or counted) where
-        ``send_frame`` is to write it: the heatmap, a motion graph, a player without a clock."""
+    def streamed_head(self, payload, fields, clocks, middles, values):
+        """Count this frame and append what its head is made of to the lists of
+        ``server.frames.streamed_heads`` (the scheduler makes a tick's heads in one pass, then
+        ``write_frame``): the player's clock address to ``clocks``; its fields and middle to
+        ``fields``, ``middles`` and ``values``: parameters that changed since the last frame (a
+        steering player's, every frame) as their numbers, else the middle packed once. False
+        (nothing appended or counted) where ``send_frame`` is to write it: the heatmap, a motion
+        graph, a player without a clock."""
         player = self.player
         if self.heatmap or self.graph is not None or player.__class__ is not Player:
             return False
@@ -232,13 +234,26 @@ class FrameOutput:
         key, middle = self.middle
         state = player.state_key
         if key is None or key[0] is not state[0] or key[1] is not state[1] or key[2] is not state[2] \
-                or key[3] is not state[3]:
+                or key[3] is not state[3]:  # changed: its numbers (packed when they stay the same)
             mode, requested, realised, clamped, weights = player.reported()
-            middle = StreamedFrame.middle(mode, _floats(requested), _floats(realised), clamped, _floats(weights))
-            self.middle = state, middle
-        fields += (self.seq, self.ack, self.dropped, len(middle), payload.nbytes)
+            requested, realised, weights = _floats(requested), _floats(realised), _floats(weights)
+            head, between, tail = StreamedFrame.middle_pieces(mode, len(requested), len(realised), clamped,
+                                                              len(weights))
+            self.middle = state, None
+            fields += (self.seq, self.ack, self.dropped, payload.nbytes, len(head), len(requested), len(between),
+                       len(realised), len(tail), len(weights))
+            middles += (head, between, tail)
+            values += requested
+            values += realised
+            values += weights
+        else:
+            if middle is None:
+                mode, requested, realised, clamped, weights = player.reported()
+                middle = StreamedFrame.middle(mode, _floats(requested), _floats(realised), clamped, _floats(weights))
+                self.middle = state, middle
+            fields += (self.seq, self.ack, self.dropped, payload.nbytes, len(middle), 0, 0, 0, 0, 0)
+            middles.append(middle)
         clocks.append(player.clock_address)
-        middles.append(middle)
         return True
 
     def write_frame(self, head, vertices):
@@ -382,8 +397,8 @@ class FrameOutput:
         self.stats.frames += 1
         key, middle = self.middle
         state = player.state_key
-        if key is None or key[0] is not state[0] or key[1] is not state[1] or key[2] is not state[2] \
-                or key[3] is not state[3]:
+        if middle is None or key is None or key[0] is not state[0] or key[1] is not state[1] \
+                or key[2] is not state[2] or key[3] is not state[3]:
             middle = StreamedFrame.middle(player.mode, _floats(player.requested), _floats(player.realised),
                                           bool(player.clamped), _floats(player.weights))
             self.middle = state, middle

@@ -290,13 +290,15 @@ def test_the_websocket_header_is_rfc_6455s(length):
 def test_streamed_heads_are_the_heads_streamed_frame_parts_gives():
     """A tick's heads made in one compiled pass from the players' clocks: the bytes of
     StreamedFrame.parts' first part for each frame (ints of every msgpack size, signed zeros and
-    NaN, finished or not, middles of any length, vertices of every bin header's size)."""
+    NaN, finished or not, vertices of every bin header's size), middles packed or made from their
+    numbers there (any lengths, special floats)."""
     from engine.player import CLOCK_SIZE
     from server.frames import StreamedFrame, streamed_heads
 
     rng = np.random.default_rng(9)
-    clocks, fields, middles, expected = [], [], [], []
-    for k in range(120):
+    special = [0.0, -0.0, float("nan"), float("inf"), -float("inf"), 5e-324, 1e308]
+    clocks, fields, middles, values, expected = [], [], [], [], []
+    for k in range(160):
         clock = np.zeros(CLOCK_SIZE)
         clock[:6] = rng.uniform(-1e4, 1e4, 6)
         clock[6] = k % 2
@@ -305,14 +307,25 @@ def test_streamed_heads_are_the_heads_streamed_frame_parts_gives():
         clocks.append(clock)
         seq = int(rng.choice([0, 5, 127, 128, 255, 256, 65535, 65536, 2**32 - 1, 2**32, 2**40]))
         ack, dropped = int(rng.integers(300)), int(rng.choice([0, 130, 70000]))
-        middle = StreamedFrame.middle(["linear", "hybrid"][k % 2], rng.random(2).tolist(), rng.random(2).tolist(),
-                                      bool(k % 3), rng.random(1 + k % 20).tolist())
         size = int(rng.choice([0, 100, 255, 256, 18000, 65535, 65536, 100000]))
-        fields += (seq, ack, dropped, len(middle), size)
-        middles.append(middle)
+        mode, clamped = ["linear", "hybrid", "nonlinear"][k % 3], bool(k % 5)
+        requested, realised, weights = (rng.normal(size=1 + k % 2).tolist(), rng.normal(size=2).tolist(),
+                                        rng.random(1 + k % 20).tolist())
+        weights[0] = special[k % len(special)]
+        middle = StreamedFrame.middle(mode, requested, realised, clamped, weights)
+        if k % 2:  # packed
+            fields += (seq, ack, dropped, size, len(middle), 0, 0, 0, 0, 0)
+            middles.append(middle)
+        else:      # from its numbers
+            head, between, tail = StreamedFrame.middle_pieces(mode, len(requested), len(realised), clamped,
+                                                              len(weights))
+            fields += (seq, ack, dropped, size, len(head), len(requested), len(between), len(realised), len(tail),
+                       len(weights))
+            middles += (head, between, tail)
+            values += requested + realised + weights
         time_, phase, heading, x, y, z, finished = clock[:7].tolist()
         expected.append(StreamedFrame.parts(seq, ack, time_, phase, middle, [x, y, z], heading, dropped,
                                             bool(finished), 1.7e9 + 0.123, np.zeros(size, np.uint8))[0])
-    heads = streamed_heads(fields, [clock.ctypes.data for clock in clocks], middles, 1.7e9 + 0.123)
+    heads = streamed_heads(fields, [clock.ctypes.data for clock in clocks], middles, values, 1.7e9 + 0.123)
     assert [bytes(head) for head in heads] == expected
-    assert streamed_heads([], [], [], 0.0) == []
+    assert streamed_heads([], [], [], [], 0.0) == []
