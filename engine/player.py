@@ -95,10 +95,10 @@ class Player:
         if space.parameter_map is None:
             raise ValueError(f"{space.name}: the space has no parameter map (build it from a spec)")
         self.space = space
-        self.clock = np.zeros(CLOCK_SIZE)  # (the properties time, phase, ... read and write it)
-        self.clock_address = self.clock.ctypes.data  # (fixed while the player lives)
-        self._position = self.clock[ROOT:ROOT + 3]
-        self.clock[CYCLIC] = 1.0 if space.cyclic else 0.0
+        self._clock = np.zeros(CLOCK_SIZE)  # (the properties time, phase, ... read and write it)
+        self.clock_address = self._clock.ctypes.data  # (fixed while the player lives: the array is never replaced)
+        self._position = self._clock[ROOT:ROOT + 3]
+        self._clock[CYCLIC] = 1.0 if space.cyclic else 0.0
         self._track_cache = None
         self._rates = None  # (weights, their rates as one float64 array): Player.settled_rates
         self.map = space.parameter_map
@@ -120,34 +120,40 @@ class Player:
         if params is not None:
             self.set_params(params, immediate=True)
 
-    # the clock's fields (``clock``): Python floats and bools in, Python floats and bools out
+    @property
+    def clock(self):
+        """(CLOCK_SIZE,) float64: the clock's state (``TIME``, ``PHASE``, ... index it), stepped in
+        place; compiled code reaches it at ``clock_address``."""
+        return self._clock
+
+    # the clock's fields: Python floats and bools in, Python floats and bools out
 
     @property
     def time(self):
         """Seconds played."""
-        return self.clock.item(TIME)
+        return self._clock.item(TIME)
 
     @time.setter
     def time(self, value):
-        self.clock[TIME] = value
+        self._clock[TIME] = value
 
     @property
     def phase(self):
         """The phase in [0, 1]."""
-        return self.clock.item(PHASE)
+        return self._clock.item(PHASE)
 
     @phase.setter
     def phase(self, value):
-        self.clock[PHASE] = value
+        self._clock[PHASE] = value
 
     @property
     def heading(self):
         """The root's heading (rad about +Y)."""
-        return self.clock.item(HEADING)
+        return self._clock.item(HEADING)
 
     @heading.setter
     def heading(self, value):
-        self.clock[HEADING] = value
+        self._clock[HEADING] = value
 
     @property
     def position(self):
@@ -157,20 +163,20 @@ class Player:
     @property
     def finished(self):
         """A one-shot clip has reached its end."""
-        return self.clock.item(FINISHED) != 0.0
+        return self._clock.item(FINISHED) != 0.0
 
     @finished.setter
     def finished(self, value):
-        self.clock[FINISHED] = 1.0 if value else 0.0
+        self._clock[FINISHED] = 1.0 if value else 0.0
 
     @property
     def loop(self):
         """A one-shot space restarts at its end."""
-        return self.clock.item(LOOP) != 0.0
+        return self._clock.item(LOOP) != 0.0
 
     @loop.setter
     def loop(self, value):
-        self.clock[LOOP] = 1.0 if value else 0.0
+        self._clock[LOOP] = 1.0 if value else 0.0
 
     @property
     def requested(self):
@@ -349,7 +355,7 @@ class Player:
                 self._current, self._velocity = np.array(xs), np.array(vs)
             self._solution = self._solve(self._current)
         w = self._solution.weights
-        clock = self.clock
+        clock = self._clock
         time_, phase, heading, x, _, z, finished, loop, cyclic = clock.tolist()
         if finished == 0.0 and dt > 0:
             track = self.track

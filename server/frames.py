@@ -15,6 +15,12 @@ player's parameters (mode, requested, realised, clamped, weights) packed once pe
 (``StreamedFrame.middle``) and a motion graph's node, target and progress packed apart
 (``StreamedFrame.graph``); its bytes are those of ``frame_parts`` for the same values (a test
 checks).
+
+A tick's streamed frames of players have their heads (every field but the vertices) made in one
+compiled pass (``streamed_heads``): the numbers read from each player's clock
+(``engine.player.Player.clock``, by address), the counters and middles handed over in flat lists,
+the constant pieces copied by ``memcpy``, into one buffer sliced per frame: the bytes of
+``StreamedFrame.parts``' first part (a test checks), about 0.1 us a frame instead of 1.8.
 """
 
 from __future__ import annotations

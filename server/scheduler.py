@@ -5,9 +5,10 @@ connection due within half a tick (``TICK``), steps its player, blends, encodes 
 frame to its transport, then sleeps until the next one falls due (at least a tick later, unless a
 client message makes a frame urgent). Per tick:
 
-- the players of the tick's due connections step first: the steering ones (parameters on their
-  way to a request) of each space in one compiled call (engine/player_steps.py: spring, warm
-  solve, weights and root rates, the same floats as one by one), the others one at a time;
+- the players of the tick's due connections step first (engine/player_steps.py, the same floats
+  as one by one): the settled ones in one compiled pass on their clocks (``Player.clock``), the
+  steering ones (parameters on their way to a request) of each space in one compiled call
+  (spring, warm solve, weights and root rates), the others one at a time;
 - clients whose weights have a phase table (settled parameters, or many viewers at the same
   ones) are grouped by table; each group's rows are interpolated and cast in one call, one
   compiled pass a row (``PhaseTable.rows_cast``), q16 clients' straight from the table in codec
@@ -21,8 +22,12 @@ client message makes a frame urgent). Per tick:
   node's phase table like a space's client (``GraphPlayer.table_source``); the non-linear mode
   and the rest of a graph's frames (transitions, held feet: blended by its player) are made one
   client at a time;
+- the heads of the tick's streamed frames of a space (every field but the vertices) are made in
+  one compiled pass from the players' clocks and the sessions' counters
+  (``server.frames.streamed_heads``; a heatmap's or a motion graph's frame is packed by its
+  session, ``send_frame``);
 - frames are written without a task switch, straight to the transport (server/transport.py: the
-  message assembled with one copy), and only into a transport that has taken everything before
+  head and the vertices in one gathered write), and only into a transport that has taken everything before
   it (the session checks before it blends; a connection whose transport still holds bytes skips
   the tick, counted in its ``dropped``: latest-wins, never queued). Under an ASGI server
   without that access the ASGI send is run by hand and completes in the call; a send that
@@ -88,9 +93,12 @@ class FrameScheduler:
     session reschedules itself if it wants one),
     ``frame_source()`` -> (table or None, codec), ``moving_source()`` -> (blender, weights,
     phase) or None (without a table: a linear or hybrid blend this scheduler may do with
-    others'), ``codec`` and ``quantiser``, ``send_frame(payload)`` where payload is the encoded
-    vertices or None (blend this one alone), ``after_frame()`` (schedule the next one) and
-    ``fail(exc)``. Sessions count ``transport_full`` and raise ``transport_bytes_max`` here.
+    others'), ``codec`` and ``quantiser``, ``streamed_head(vertices, fields, clocks, middles,
+    values)`` (appends what its frame's head is made of, for ``server.frames.streamed_heads``;
+    False: ``send_frame`` writes this one) and ``write_frame(head, vertices)``,
+    ``send_frame(payload)`` where payload is the encoded vertices or None (blend this one alone),
+    ``next_frame_due()`` (when its next frame is due, or None; pushed here) and ``fail(exc)``.
+    Sessions count ``transport_full`` and raise ``transport_bytes_max`` here.
     """
 
     def __init__(self):
