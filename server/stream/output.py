@@ -6,9 +6,10 @@ the transport still holding earlier bytes; the scheduler steps the players, stee
 space together), ``frame_source()`` (a phase table to gather the vertices from, or
 None), ``streamed_head(...)`` and ``write_frame(head, vertices)`` (a tick's heads are made
 together: server/frames.py) or ``send_frame(payload)`` (packed and written here),
-``next_frame_due()`` (when to ask for the next one) and ``fail(exc)``. Ticks missed are counted in ``dropped``, never queued; a connection that takes no
-due frame for ``stream_stall_timeout`` seconds is closed (``protocol.CLOSE_STALLED``). Pulled
-frames (``send_pulled``) are written here too.
+``next_frame_due()`` (when to ask for the next one) and ``fail(exc)``. Ticks missed are
+counted in ``dropped``, never queued; a connection that takes no due frame for
+``stream_stall_timeout`` seconds is closed (``protocol.CLOSE_STALLED``). Pulled frames
+(``send_pulled``) are written here too.
 """
 
 from __future__ import annotations
