@@ -93,7 +93,10 @@ class FrameOutput:
                 self.next_due += period
         last = self.last_step
         self.last_step = now
-        return 0.0 if last is None else min(now - last, MAX_DT)
+        if last is None:
+            return 0.0
+        dt = now - last
+        return dt if dt <= MAX_DT else MAX_DT  # (min(dt, MAX_DT))
 
     def unsent_ticks(self, now):
         """Ticks of the rate grid that fell due a whole period or more before loop time ``now`` and
