@@ -60,12 +60,14 @@ class TransportGauge:
         # written since (infinite: not known, e.g. after a message sent through the ASGI layers)
         self._queued_at_most = math.inf
         self._elsewhere = 0  # messages being sent through the ASGI layers
+        # ready()'s three questions, asked every due frame (the protocol's Event lives as long as it)
+        self._buffered = self._transport.get_write_buffer_size
+        self._writable = protocol.writable.is_set
+        self._closing = self._transport.is_closing
 
     def ready(self):
         """True when a frame written now would not wait behind earlier bytes in the transport."""
-        transport = self._transport
-        return (transport.get_write_buffer_size() == 0 and self._protocol.writable.is_set()
-                and not transport.is_closing())
+        return self._buffered() == 0 and self._writable() and not self._closing()
 
     def held(self):
         """Bytes the server holds for this connection: the transport's buffer plus the kernel's

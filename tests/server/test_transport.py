@@ -1,5 +1,6 @@
 """server/transport.py: a streamed frame written in one call is the message write_message writes."""
 
+import asyncio
 import math
 from types import SimpleNamespace
 
@@ -13,7 +14,7 @@ class Transport:
     """Keeps what is written; ``buffered`` bytes wait in it."""
 
     def __init__(self, buffered=0):
-        self.writes, self.buffered = [], buffered
+        self.writes, self.buffered, self.closing = [], buffered, False
 
     def get_extra_info(self, name):
         return None
@@ -21,13 +22,17 @@ class Transport:
     def get_write_buffer_size(self):
         return self.buffered
 
+    def is_closing(self):
+        return self.closing
+
     def writelines(self, parts):
         self.writes.append(b"".join(bytes(part) for part in parts))
 
 
 def gauge(buffered=0, state=State.OPEN):
     protocol = SimpleNamespace(transport=Transport(buffered), close_sent=False, disconnected=False,
-                               conn=SimpleNamespace(state=state))
+                               conn=SimpleNamespace(state=state), writable=asyncio.Event())
+    protocol.writable.set()
     return TransportGauge(protocol)
 
 
@@ -43,3 +48,16 @@ def test_write_frame_writes_write_messages_bytes_and_says_what_may_be_held():
         # the kernel not asked (no socket here): what the transport holds, where it may exceed the floor
         assert gauge(buffered=5000).write_frame(head, vertices, 0) == 5000
     assert gauge(state=State.CLOSING).write_frame(head, head, 0) is None
+
+
+def test_ready_when_the_transport_holds_nothing_takes_writes_and_is_open():
+    one = gauge()
+    assert one.ready()
+    one._transport.buffered = 1
+    assert not one.ready()
+    one._transport.buffered = 0
+    one._protocol.writable.clear()  # (the protocol paused writing)
+    assert not one.ready()
+    one._protocol.writable.set()
+    one._transport.closing = True
+    assert not one.ready()
