@@ -156,7 +156,7 @@ def main(argv=None):
               "colour_cues": bool(run.colour_cues), **breakdown,
               "load_average_before": [round(x, 2) for x in load_before],
               "load_average_after": [round(x, 2) for x in os.getloadavg()], "python": platform.python_version()}
-    spacing = f", every {args.every}th" if args.every > 1 else ""
+    spacing = f", one in {args.every}" if args.every > 1 else ""
     print(f"{n} frames of {record['sequence']} from {args.start}{spacing}, {args.method}, root {root} (depth mean "
           f"{record['depth_mean']}, max {record['depth_max']}), options {changes or 'default'}: mean "
           f"{breakdown['mean_pct']:.2f}%, p95 {breakdown['p95_pct']:.2f}% of the model size; "

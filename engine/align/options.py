@@ -41,6 +41,9 @@ class AlignmentOptions:
                                 (rotations about the joint with the best-fitting neighbour,
                                 the neighbours' motions) and keep the best fitting one
     search_rounds : int         rounds per such level that search
+    swing_limbs : bool          in those rounds, also swing limbs onto the parts of the target
+                                nothing covers (:mod:`engine.align.coverage`): an arm thrown
+                                into a punch, which patch matching leaves by the hip it fits
     search_angles : tuple       rotation angles tried about each axis (degrees, both signs)
     search_samples : int        vertices per patch used to score hypotheses
     search_cap : float          distance (m) at which a sample counts as unmatched
@@ -85,6 +88,7 @@ class AlignmentOptions:
     rotation_prior: float = 0.0
     search_levels: int = 1
     search_rounds: int = 3
+    swing_limbs: bool = False
     search_angles: tuple = (30.0, 60.0, 90.0)
     search_samples: int = 24
     search_cap: float = 0.05

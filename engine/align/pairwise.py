@@ -29,6 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from engine.align.appearance import colour_distance, colour_floor, colour_measures
+from engine.align.coverage import cover_uncovered, limbs_of
 from engine.align.matching import (
     correspondence_weights,
     correspondences,
@@ -37,7 +38,7 @@ from engine.align.matching import (
     reverse_correspondences,
 )
 from engine.align.options import AlignmentOptions, PairAlignment
-from engine.align.patches import farthest_point_patches, patch_adjacency, patch_samples, search_patches
+from engine.align.patches import border_points, farthest_point_patches, patch_adjacency, patch_samples, search_patches
 from engine.align.rigid import (
     patch_rigid_steps,
     point_to_plane_step,
@@ -105,6 +106,7 @@ class PairwiseAligner:
         self.patch_samples = [patch_samples(labels, count, o.search_samples, rng)
                               for labels, count in zip(self.patch_labels, counts)]
         self._search_rotations = rotation_set(o.search_angles)
+        self._limbs = {}  # level -> engine.align.coverage.limbs_of, made when first needed
         self._match_subset = _subset(n, o.match_samples, seed)
         self._fine_subset = _subset(n, o.fine_match_samples, seed)
         self._tet_volume = np.abs(tet_volumes(self.V_tet, self.T))
@@ -330,14 +332,18 @@ class PairwiseAligner:
             L = np.concatenate([picked_labels, labels[src]])
             coupling = None
             if graph is not None and o.patch_coupling > 0:
-                coupling = _border_points(x, graph) + (o.patch_coupling,)
+                coupling = border_points(x, graph) + (o.patch_coupling,)
             omega, shift, centres = patch_rigid_steps(P, Y, M, W, Tw, L, count, coupling=coupling)
             Rp = rodrigues(omega)
             x = np.einsum("pij,pj->pi", Rp[labels], x - centres[labels]) + centres[labels] + shift[labels]
             n = np.einsum("pij,pj->pi", Rp[labels], n)
         if level is not None:
-            x, n = search_patches(x, n, target, labels, count, self.patch_samples[level],
-                                  self.patch_graph[level], self._search_rotations, o)
+            args = (target, labels, count, self.patch_samples[level], self.patch_graph[level])
+            if o.swing_limbs:
+                if level not in self._limbs:
+                    self._limbs[level] = limbs_of(self.V, self.patch_graph[level], labels, count)
+                x, n = cover_uncovered(x, n, *args, self._limbs[level], o)
+            x, n = search_patches(x, n, *args, self._search_rotations, o)
         xs, ns = (x, n) if pick is None else (x[pick], n[pick])
         w = correspondence_weights(xs, ns, target, o, picked_labels, count)
         picked_size = size if pick is None else np.bincount(picked_labels, minlength=count).astype(float)
@@ -368,20 +374,6 @@ class PairwiseAligner:
             current = self.B @ X
             X = solver.solve(stack_rotations(R), c * goal + (1.0 - c) * current)
         return X, R
-
-
-def _border_points(x, graph):
-    """(pairs, border point, spread) of adjacent patches: the mean of their shared border
-    vertices at positions ``x`` and those vertices' rms distance from it (at least 1 mm)."""
-    pairs, border = graph
-    e = len(pairs)
-    vertex, pair = border[:, 0], border[:, 2]
-    counts = np.maximum(np.bincount(pair, minlength=e), 1).astype(float)
-    points = np.stack([np.bincount(pair, weights=x[vertex, a], minlength=e) for a in range(3)], axis=1)
-    points /= counts[:, None]
-    d2 = np.sum((x[vertex] - points[pair]) ** 2, axis=1)
-    spread = np.sqrt(np.maximum(np.bincount(pair, weights=d2, minlength=e) / counts, 1e-6))
-    return pairs, points, spread
 
 
 @functools.lru_cache(maxsize=16)

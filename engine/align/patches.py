@@ -138,27 +138,13 @@ def search_patches(x, n, target, labels, count, sampled, adjacency, rotations, o
     hyp_R = np.concatenate(hyp_R)
     hyp_c = np.concatenate(hyp_c)
     H = len(hyp_patch)
-    # sample points of each hypothesis
-    order = np.argsort(sample_patch, kind="stable")
-    starts = np.searchsorted(sample_patch[order], np.arange(count + 1))
-    members = [samples[order[starts[p]:starts[p + 1]]] for p in range(count)]
+    members = patch_members(sampled, count)  # sample points of each hypothesis
     idx = np.concatenate([members[p] for p in hyp_patch])
     owner = np.repeat(np.arange(H), [len(members[p]) for p in hyp_patch])
     P = np.einsum("pij,pj->pi", hyp_R[owner], x[idx] - hyp_c[owner]) + hyp_c[owner]
     N = np.einsum("pij,pj->pi", hyp_R[owner], n[idx])
-    R_total, t_total = hyp_R.copy(), hyp_c - np.einsum("hij,hj->hi", hyp_R, hyp_c)
-    for _ in range(3):
-        q, m, d, ok = nearest_compatible(P, N, target, o)
-        w = (ok & (d < 2 * o.search_cap)).astype(float)
-        omega, shift, centres = patch_rigid_steps(P, q, m, w, np.full(len(P), o.tangential_damping), owner, H)
-        Rs = rodrigues(omega)
-        P = np.einsum("pij,pj->pi", Rs[owner], P - centres[owner]) + centres[owner] + shift[owner]
-        N = np.einsum("pij,pj->pi", Rs[owner], N)
-        # compose: x -> Rs (R x + t - c) + c + s
-        t_total = np.einsum("hij,hj->hi", Rs, t_total - centres) + centres + shift
-        R_total = Rs @ R_total
-    score = np.bincount(owner, weights=sample_cost(P, N, target, o), minlength=H)
-    score /= np.maximum(np.bincount(owner, minlength=H), 1)
+    R_total, t_total, score = refine_hypotheses(P, N, owner, H, hyp_R.copy(),
+                                                hyp_c - np.einsum("hij,hj->hi", hyp_R, hyp_c), target, o)
     tear = np.linalg.norm(np.einsum("hij,hj->hi", R_total, hyp_c) + t_total - hyp_c, axis=1)
     score += (tear / o.search_cap) ** 2 * 0.25
     x, n = x.copy(), n.copy()
@@ -173,4 +159,48 @@ def search_patches(x, n, target, labels, count, sampled, adjacency, rotations, o
     return x, n
 
 
-__all__ = ["farthest_point_patches", "patch_adjacency", "patch_samples", "search_patches"]
+def border_points(x, graph):
+    """(pairs, border point, spread) of adjacent patches: the mean of their shared border
+    vertices at positions ``x`` and those vertices' rms distance from it (at least 1 mm)."""
+    pairs, border = graph
+    e = len(pairs)
+    vertex, pair = border[:, 0], border[:, 2]
+    counts = np.maximum(np.bincount(pair, minlength=e), 1).astype(float)
+    points = np.stack([np.bincount(pair, weights=x[vertex, a], minlength=e) for a in range(3)], axis=1)
+    points /= counts[:, None]
+    d2 = np.sum((x[vertex] - points[pair]) ** 2, axis=1)
+    spread = np.sqrt(np.maximum(np.bincount(pair, weights=d2, minlength=e) / counts, 1e-6))
+    return pairs, points, spread
+
+
+def refine_hypotheses(P, N, owner, H, R_total, t_total, target, o):
+    """Three point-to-plane ICP steps of ``H`` rigid hypotheses at once, each moving the sample
+    points ``P``, ``N`` it ``owner``s; their steps composed onto ``R_total``, ``t_total``.
+
+    Returns (R_total, t_total, score): the refined transforms and each hypothesis's mean fit
+    cost (:func:`engine.align.matching.sample_cost`) at its refined pose.
+    """
+    for _ in range(3):
+        q, m, d, ok = nearest_compatible(P, N, target, o)
+        w = (ok & (d < 2 * o.search_cap)).astype(float)
+        omega, shift, centres = patch_rigid_steps(P, q, m, w, np.full(len(P), o.tangential_damping), owner, H)
+        Rs = rodrigues(omega)
+        P = np.einsum("pij,pj->pi", Rs[owner], P - centres[owner]) + centres[owner] + shift[owner]
+        N = np.einsum("pij,pj->pi", Rs[owner], N)
+        # compose: x -> Rs (R x + t - c) + c + s
+        t_total = np.einsum("hij,hj->hi", Rs, t_total - centres) + centres + shift
+        R_total = Rs @ R_total
+    score = np.bincount(owner, weights=sample_cost(P, N, target, o), minlength=H)
+    return R_total, t_total, score / np.maximum(np.bincount(owner, minlength=H), 1)
+
+
+def patch_members(sampled, count):
+    """Each patch's sample vertices (a list of index arrays), from :func:`patch_samples`."""
+    samples, sample_patch = sampled
+    order = np.argsort(sample_patch, kind="stable")
+    starts = np.searchsorted(sample_patch[order], np.arange(count + 1))
+    return [samples[order[starts[p]:starts[p + 1]]] for p in range(count)]
+
+
+__all__ = ["border_points", "farthest_point_patches", "patch_adjacency", "patch_members", "patch_samples",
+           "refine_hypotheses", "search_patches"]

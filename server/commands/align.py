@@ -88,6 +88,10 @@ def add_arguments(parser):
     parser.add_argument("--repair-budget", type=float, default=0.5, metavar="B",
                         help="pairwise alignments per frame the repair of low-confidence frames may spend, "
                              "the worst frames first (default 0.5; 0 turns the repair off)")
+    parser.add_argument("--swing-limbs", action="store_true",
+                        help="swing limbs onto the parts of a frame nothing covers in the coarse matching (an arm "
+                             "thrown into a punch): better on tight-fitting clothes, not on loose garments "
+                             "(docs/alignment.md)")
     parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
                         help="vertex colours as local matching cues when every frame has them: auto (default) "
                              "when the meshes are fine enough for colours to carry texture (median edge "
@@ -267,7 +271,8 @@ def convert_inputs(meshes, sequences, lengths, units="auto", up="auto", *, say=N
     return converted, conventions
 
 
-OPTION_NAMES = ("patches", "levels", "window", "retries", "repair_budget", "tree", "root_choice", "colors")
+OPTION_NAMES = ("patches", "levels", "window", "retries", "repair_budget", "tree", "root_choice", "colors",
+                "swing_limbs")
 
 
 def colour_cues_text(mode, used, meshes):
@@ -451,7 +456,7 @@ def run(args):
             say(f"note: {', '.join(unlabelled)}: no meta.json gives the frame rate; written as {DEFAULT_FPS:g} "
                 f"frames/s (say --fps)")
         root = parse_root(args.root, sequences, lengths)
-        options = AlignmentOptions(patches=args.patches, levels=args.levels)
+        options = AlignmentOptions(patches=args.patches, levels=args.levels, swing_limbs=args.swing_limbs)
         result = align_captures(meshes, lengths, method="sequential" if args.sequential else "tree", tree_kind=args.tree,
                                 root=root, root_choice=args.root_choice, options=options, window=args.window,
                                 workers=args.workers, retries=args.retries,

@@ -64,6 +64,8 @@ def add_arguments(parser):
                         help="without --root: apart (default) or central (see `morphspace align --help`)")
     parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
                         help="vertex colours as local matching cues (see `morphspace align --help`; default auto)")
+    parser.add_argument("--swing-limbs", action="store_true",
+                        help="swing limbs onto what nothing covers (see `morphspace align --help`)")
     parser.add_argument("--out", type=Path, help="directory for results.json and the pictures "
                         "(default: <dataset>-align-eval next to the dataset)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
@@ -286,7 +288,7 @@ def run(args):
             truth = _truth_in_metres(parts, conventions)  # in the same units and axes as the frames
             size = _model_size(manifest, conventions, truth)
             root = parse_root(args.root, sequences, lengths)
-            options = AlignmentOptions()
+            options = AlignmentOptions(swing_limbs=args.swing_limbs)
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, every=args.every,
                           **_units_report(names, conventions))
             tree_run = align_captures(meshes, lengths, method="tree", tree_kind=args.tree, root=root,
@@ -298,7 +300,7 @@ def run(args):
             report["colour_cues"] = bool(tree_run.colour_cues)
             report["similarity_seconds"] = round(tree_run.timings["similarity"], 3)
             report["tree_seconds"] = round(tree_run.timings["tree"], 4)
-            report["tree"] = {"kind": args.tree, "repair_budget": args.repair_budget,
+            report["tree"] = {"kind": args.tree, "repair_budget": args.repair_budget, "swing_limbs": args.swing_limbs,
                               "depth_max": int(tree_run.tree.depth.max()),
                               "depth_mean": round(float(tree_run.tree.depth.mean()), 2),
                               "components_reconnected": int(tree_run.tree.components)}

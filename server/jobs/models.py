@@ -110,13 +110,15 @@ class AlignJob(_Body):
     retries: int = Field(3, ge=0, le=10)
     repair_budget: float = Field(0.5, ge=0, le=10, description="pairwise alignments per frame that repairing "
                                                                "low-confidence frames may spend (0: no repair)")
+    swing_limbs: bool = Field(False, description="swing limbs onto the parts of a frame nothing covers in the "
+                                                 "coarse matching (an arm thrown into a punch)")
     seed: int = Field(0, ge=0, le=2**31 - 1)
     units: Literal["auto", "m", "cm", "mm"] = Field(
         "auto", description="length unit of the input meshes; auto: from the model's size (a person is "
                             "0.5-2.5 m across), else the dataset's metadata")
     up: Literal["auto", "y", "z"] = Field(
-        "auto", description="up axis of the input meshes; auto: the longer of the body's Y and Z extents, "
-                            "else the dataset's metadata")
+        "auto", description="up axis of the input meshes; auto: the axis along which the subject keeps to a "
+                            "floor, else the longer of the body's Y and Z extents, else the dataset's metadata")
     replace: bool = False
 
 

@@ -291,7 +291,8 @@ def run_align(payload, reporter, runner=None):
     reporter.log(f"read {int(lengths.sum())} frames of {len(sequences)} sequences")
     meshes, conventions = convert_inputs(meshes, sequences, lengths, params["units"], params["up"], say=reporter.log)
     root = parse_root(params.get("root"), sequences, lengths)
-    options = AlignmentOptions(patches=params["patches"], levels=params["levels"])
+    options = AlignmentOptions(patches=params["patches"], levels=params["levels"],
+                               swing_limbs=params.get("swing_limbs", False))
     result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree",
                             tree_kind=params["tree"], root=root, root_choice=params["root_choice"],
                             options=options, window=params["window"], workers=1, retries=params["retries"],

@@ -104,3 +104,25 @@ def test_a_dense_capture_is_matched_on_a_subset_at_the_fine_levels(walk_capture)
     size = np.ptp(V[0], axis=0).max()
     assert errors.mean() < 0.01 * size and np.percentile(errors, 95) < 0.03 * size
     assert result.residual < 0.003
+
+
+def test_a_limb_thrown_forward_is_swung_onto_the_surface_nothing_covers():
+    """The right hand reaches forward at shoulder height from a hanging arm: matched patch by
+    patch, the arm's patches stay by the hip they fit, and the target's arm is left uncovered;
+    a swing about the shoulder (``AlignmentOptions.swing_limbs``, engine.align.coverage) puts it there."""
+    from engine.align import AlignmentOptions, PairwiseAligner
+    from engine.synthetic import animate, build_body
+    from engine.synthetic.reaches import reach
+    from engine.tetmesh import tetrahedralize
+
+    body = build_body(1000)
+    motion = reach(body.skeleton, 1.4, fps=15)
+    frames = animate(body, motion)
+    V0, V1 = frames[0], frames[motion.events["peak_frame"]]
+    tets, target = tetrahedralize(V0, body.F, resolution=48), TargetSurface(V1, body.F)
+    error = {}
+    for swing in (False, True):
+        aligner = PairwiseAligner(V0, body.F, tets=tets, options=AlignmentOptions(patches=16, swing_limbs=swing))
+        error[swing] = np.linalg.norm(aligner.align(aligner.V_tet, target).V - V1, axis=1) / body.size
+    assert error[False].mean() > 0.015 and error[False].max() > 0.3  # the arm left by the hip
+    assert error[True].mean() < 0.5 * error[False].mean() and error[True].max() < 0.5 * error[False].max()

@@ -220,6 +220,11 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
     assert report["every"] == 2 and report["frames"] == 4 and report["tree"]["frames"] == 4
     assert report["tree"]["mean_pct"] < 2.0
     assert report["tree"]["repair_budget"] == 0 and report["tree"]["repaired_frames"] == 0
+    assert report["tree"]["swing_limbs"] is False
+    assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "swing"),
+                 "--json", "--workers", "1", "--repair-budget", "0", "--swing-limbs"]) == 0
+    swung = json.loads(capsys.readouterr().out)["tree"]
+    assert swung["swing_limbs"] is True and swung["frames"] == 4 and swung["mean_pct"] < 2.0
     assert main(["eval-align", str(dataset), "--every", "0"]) == 2
     assert main(["eval-align", str(dataset), "--repair-budget", "-1"]) == 2
     assert "--repair-budget must be >= 0, got -1" in capsys.readouterr().err
