@@ -170,9 +170,9 @@ class FrameScheduler:
             while self._sessions:
                 now = loop.time()
                 batch = []
-                heap = self._heap
-                while heap and heap[0][0] <= now + 0.5 * TICK and len(batch) < MAX_BATCH:
-                    _, _, version, session = heapq.heappop(heap)
+                heap, pop, limit = self._heap, heapq.heappop, now + 0.5 * TICK
+                while heap and heap[0][0] <= limit and len(batch) < MAX_BATCH:
+                    _, _, version, session = pop(heap)
                     if version == session.version and not session.closed:
                         batch.append(session)
                 if batch:
