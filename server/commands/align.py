@@ -290,9 +290,11 @@ def colour_cues_text(mode, used, meshes):
 def options_record(options, colour_cues):
     """The manifest's ``alignment.options``: ``options`` (a mapping with ``OPTION_NAMES``, ``seed``,
     ``units`` and ``up``: the command line's or an align job's) and whether colour cues were used,
-    in one order, so `morphspace align` and the align job write the same manifest."""
-    return {**{name: options[name] for name in OPTION_NAMES}, "colour_cues": colour_cues, "seed": options["seed"],
-            "units": options["units"], "up": options["up"]}
+    in one order, so `morphspace align` and the align job write the same manifest. An option added
+    later (``swing_limbs``) may be missing from a job queued before it: it was off then."""
+    later = {"swing_limbs": False}
+    return {**{name: options.get(name, later[name]) if name in later else options[name] for name in OPTION_NAMES},
+            "colour_cues": colour_cues, "seed": options["seed"], "units": options["units"], "up": options["up"]}
 
 
 # what describes the input's frames and not the aligned ones (their count, mesh structure and axes)
