@@ -331,18 +331,16 @@ def orient_outward(V, F):
     parity = sp.coo_matrix((same.astype(np.int8) + 1, (fa, fb)), shape=(m, m)).tocsr()
     parity = parity + parity.T  # 1: consistent, 2: one must turn
     pieces, piece = connected_components(graph, directed=False)
-    flip = np.zeros(m, dtype=bool)
-    firsts = np.flatnonzero(np.r_[True, np.diff(np.sort(piece)) != 0])
-    for first in np.argsort(piece, kind="stable")[firsts]:
+    state = [False] * m
+    for first in np.unique(piece, return_index=True)[1]:  # each piece's first face
         visit, pred = breadth_first_order(graph, int(first), directed=False, return_predecessors=True)
         if len(visit) < 2:
             continue
         child, parent = visit[1:], pred[visit[1:]]
         turn = (np.asarray(parity[child, parent]).ravel() == 2).tolist()
-        state = flip.tolist()
         for f, up, t in zip(child.tolist(), parent.tolist(), turn):
             state[f] = state[up] ^ t
-        flip = np.array(state, dtype=bool)
+    flip = np.array(state, dtype=bool)
     G = np.where(flip[:, None], F[:, ::-1], F)
     tri = V[G]
     centre = np.zeros((pieces, 3))

@@ -25,7 +25,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, shortest_path
 
 from engine.align.matching import sample_cost
-from engine.align.patches import patch_members, refine_hypotheses
+from engine.align.patches import border_points, patch_members, refine_hypotheses
 from engine.align.rigid import rodrigues
 from engine.nearest import PointTree
 
@@ -48,18 +48,19 @@ def _limbs(pairs, count, sizes, centres, reach):
     another way round.) A limb holds at most ``LIMB_SHARE`` of the vertices; else it is ``p``
     alone.
 
-    Returns a list of (p, q, patches) for both directions of every adjacent pair.
+    Returns a list of (p, q, pair, patches) for both directions of every adjacent pair
+    (``pair``: its row in ``pairs``).
     """
     graph = sp.coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(count, count))
     hops = shortest_path(graph, directed=False, unweighted=True)
     out = []
     total = float(sizes.sum())
-    for p, q in np.concatenate([pairs, pairs[:, ::-1]]):
+    for pair, (p, q) in zip(np.tile(np.arange(len(pairs)), 2), np.concatenate([pairs, pairs[:, ::-1]])):
         c = 0.5 * (centres[p] + centres[q])
         limb = np.flatnonzero((hops[p] < hops[q]) & (np.linalg.norm(centres - c, axis=1) <= reach))
         if p not in limb or sizes[limb].sum() > LIMB_SHARE * total:
             limb = np.array([p])
-        out.append((int(p), int(q), limb))
+        out.append((int(p), int(q), int(pair), limb))
     return out
 
 
@@ -107,7 +108,7 @@ def cover_uncovered(x, n, target, labels, count, sampled, adjacency, limbs, opti
     labels, count : the patch of every vertex at this level, and the number of patches
     sampled : (indices, patch)       :func:`engine.align.patches.patch_samples` of this level
     adjacency : (pairs, border)      :func:`engine.align.patches.patch_adjacency` of this level
-    limbs : list of (p, q, patches)  :func:`limbs_of` this level
+    limbs : list of (p, q, pair, patches)   :func:`limbs_of` this level
     options : AlignmentOptions
     samples : int                    about this many target vertices (every m-th) are measured
 
@@ -116,7 +117,6 @@ def cover_uncovered(x, n, target, labels, count, sampled, adjacency, limbs, opti
     x, n : (n, 3) float arrays   with the swung limbs moved
     """
     o = options
-    pairs, border = adjacency
     far = UNCOVERED * o.search_cap
     target_samples = target.V[::max(1, len(target.V) // samples)]
     k = 16
@@ -127,18 +127,20 @@ def cover_uncovered(x, n, target, labels, count, sampled, adjacency, limbs, opti
     if not regions or not limbs:
         return x, n
     members = patch_members(sampled, count)
-    on_border = np.maximum(np.bincount(border[:, 2], minlength=len(pairs)), 1)
-    joint = np.stack([np.bincount(border[:, 2], weights=x[border[:, 0], a], minlength=len(pairs))
-                      for a in range(3)], axis=1) / on_border[:, None]
-    pair_index = {(int(a), int(b)): i for i, (a, b) in enumerate(pairs)}
-    covered_by = labels[idx] * (d <= far) - (d > far)  # each sample's near source patches (-1: too far)
+    _, joint, _ = border_points(x, adjacency)
+    near = d <= far
+    covered_by = np.where(near, labels[idx], -1)  # each sample's near source patches (-1: too far)
+    samples_of = np.concatenate(members)
+    fit_now = np.bincount(np.repeat(np.arange(count), [len(m) for m in members]),
+                          weights=sample_cost(x[samples_of], n[samples_of], target, o), minlength=count)
+    fit_now /= np.maximum([len(m) for m in members], 1)  # each patch's fit cost where it is
     x, n = x.copy(), n.copy()
     for region in regions[:REGIONS]:
         U = target_samples[uncovered[region]]
         centre = U.mean(axis=0)
         hyp, R0, t0, pts, nrm, owner = [], [], [], [], [], []
-        for p, q, limb in limbs:
-            c = joint[pair_index[(min(p, q), max(p, q))]]
+        for p, q, pair, limb in limbs:
+            c = joint[pair]
             own = np.concatenate([members[m] for m in limb])
             if len(own) < 3:
                 continue
@@ -156,17 +158,16 @@ def cover_uncovered(x, n, target, labels, count, sampled, adjacency, limbs, opti
             continue
         H = len(hyp)
         owner = np.concatenate(owner)
-        R_h, t_h, fit_h = refine_hypotheses(np.concatenate(pts), np.concatenate(nrm), owner, H, np.array(R0),
-                                  np.array(t0), target, o)
+        R_h, t_h, _ = refine_hypotheses(np.concatenate(pts), np.concatenate(nrm), owner, H, np.array(R0),
+                                        np.array(t0), target, o)
         best, best_gain = None, 0.0
         for h, limb in enumerate(hyp):
             # a patch of the limb that fitted where it was and does not where the swing takes it
             # (a skirt panel beside the hanging arm) stays
             stays = []
             for m in limb:
-                before = sample_cost(x[members[m]], n[members[m]], target, o).mean()
                 after = sample_cost(x[members[m]] @ R_h[h].T + t_h[h], n[members[m]] @ R_h[h].T, target, o).mean()
-                stays.append(after > max(before + STAY_MARGIN, KEEP_FIT))
+                stays.append(after > max(fit_now[m] + STAY_MARGIN, KEEP_FIT))
             limb = hyp[h] = limb[~np.array(stays, dtype=bool)]
             if len(limb) == 0:
                 continue
@@ -178,7 +179,6 @@ def cover_uncovered(x, n, target, labels, count, sampled, adjacency, limbs, opti
             if gained < KEEP_COVER:
                 continue
             # samples the limb alone covered now, which it leaves
-            near = covered_by >= 0
             in_limb = np.isin(covered_by, limb) & near
             alone = np.any(in_limb, axis=1) & ~np.any(near & ~in_limb, axis=1)
             lost = 0.0
