@@ -9,6 +9,14 @@ ticks of the scheduler's batch size and produced by ``FrameScheduler._produce``;
 each frame's message. It reports the process CPU (``time.process_time``) of the ticks per frame.
 The parameter requests themselves (a cold solve each) are not timed.
 
+With ``--offline-grid`` the ticks are the online scheduler's instead: each session's grid starts
+at its own point of the first period (spread evenly, as connections arriving at random times
+are), and the simulated ticks follow the tree's ``server.scheduler`` rule (a tick half a tick
+(``TICK``) before the next frame falls due, at least a tick after the last; every frame due
+within half a tick of it, in batches of ``MAX_BATCH``). The frames per tick are then what the
+tree's tick length gives 200 clients online, and their per-tick cost counts as it does there;
+the loop's sleeps and wake-ups between ticks are still not in the figure.
+
 Run as a script in a tree (``python _offline.py --json ...`` with that tree first on the path),
 so ``--baseline DIR`` measures DIR's scheduler the same way, in alternating rounds.
 """
@@ -62,13 +70,13 @@ class _Socket:
         self.scope = {"extensions": {"morphspace.transport": counter}}
 
 
-async def _measure(space_path, clients, seconds, share, seed):
+async def _measure(space_path, clients, seconds, share, seed, grid=False):
     import numpy as np
 
     from engine.player import Player
     from server import protocol as P
     from server.registry import SpaceRegistry
-    from server.scheduler import MAX_BATCH, FrameScheduler
+    from server.scheduler import MAX_BATCH, TICK, FrameScheduler
     from server.settings import Settings
     from server.stream.session import StreamSession, StreamStats
 
@@ -98,6 +106,13 @@ async def _measure(space_path, clients, seconds, share, seed):
     gc.freeze()
     period = 1.0 / 60.0
     next_request = [rng.uniform(0.0, 0.5) if s else float("inf") for s in steering]
+    if grid:
+        cpu, ticks = _grid_ticks(scheduler, sessions, seconds, period, next_request, rng, domain, TICK, MAX_BATCH)
+        frames = sum(s.gauge.frames for s in sessions)
+        return {"clients": clients, "steering": sum(steering), "simulated_seconds": seconds, "frames": frames,
+                "cpu_s": cpu, "us_per_frame": 1e6 * cpu / max(frames, 1), "table_frames": scheduler.table_frames,
+                "batched_frames": getattr(scheduler, "batched_frames", 0), "ticks": ticks,
+                "tick_seconds": TICK, "max_batch": MAX_BATCH}
     cpu = 0.0
     for step in range(1, int(round(seconds * 60)) + 1):
         now = 1000.0 + step * period
@@ -120,16 +135,43 @@ async def _measure(space_path, clients, seconds, share, seed):
             "batched_frames": getattr(scheduler, "batched_frames", 0)}
 
 
-def measure(space_path, clients, seconds, share, seed=1):
+def _grid_ticks(scheduler, sessions, seconds, period, next_request, rng, domain, tick, max_batch):
+    """``--offline-grid``'s ticks (see the module docstring): returns (process CPU, ticks)."""
+    start_at = 1000.0 + period
+    due = [start_at + k * period / len(sessions) for k in range(len(sessions))]  # each grid's next frame
+    end, now, cpu, ticks = start_at + seconds, start_at - 0.5 * tick, 0.0, 0
+    while now < end:
+        taken = sorted((d, k) for k, d in enumerate(due) if d <= now + 0.5 * tick)
+        for _, k in taken:  # requests that fell due by this frame (not timed, as above)
+            if now - 1000.0 >= next_request[k]:
+                name_k = rng.randrange(len(domain))
+                sessions[k].player.set_params({sessions[k].player.names[name_k]: rng.uniform(*domain[name_k])})
+                next_request[k] += 0.5
+        start = time.process_time()
+        for first in range(0, len(taken), max_batch):
+            batch = [sessions[k] for _, k in taken[first:first + max_batch]]
+            for session in batch:
+                session.next_due = now
+            scheduler._produce(batch, now)
+        cpu += time.process_time() - start
+        scheduler._heap.clear()  # (the frames the sessions asked for next: kept in ``due`` here)
+        ticks += 1 if taken else 0
+        for _, k in taken:
+            due[k] += period
+        now = max(min(due) - 0.5 * tick, now + tick)
+    return cpu, ticks
+
+
+def measure(space_path, clients, seconds, share, seed=1, grid=False):
     """One offline round in this process (this tree's server code); returns its record."""
-    return asyncio.run(_measure(Path(space_path), clients, seconds, share, seed))
+    return asyncio.run(_measure(Path(space_path), clients, seconds, share, seed, grid))
 
 
-def measure_in(tree, space_path, clients, seconds, share, seed=1):
+def measure_in(tree, space_path, clients, seconds, share, seed=1, grid=False):
     """One offline round in a fresh interpreter running ``tree``'s server code."""
     env = dict(os.environ, PYTHONPATH=str(tree))
     command = [sys.executable, str(HERE / "_offline.py"), "--json", str(space_path), str(clients), str(seconds),
-               str(share), str(seed)]
+               str(share), str(seed)] + (["--grid"] if grid else [])
     done = subprocess.run(command, env=env, cwd=str(tree), capture_output=True, text=True, timeout=1800)
     if done.returncode != 0:
         raise RuntimeError(f"offline round in {tree} failed:\n{done.stderr[-2000:]}")
@@ -142,17 +184,21 @@ def offline_rounds(args, space_path, root):
                                                                 "this tree": root}
     rounds = {label: [] for label in trees}
     print(f"offline: {args.clients} sessions, {100 * args.update_share:.0f}% steering, {args.seconds:g} s of "
-          f"frames at 60 fps per round, sockets replaced by a counter (process CPU of the scheduler's ticks)")
+          f"frames at 60 fps per round, sockets replaced by a counter (process CPU of the scheduler's ticks"
+          f"{': the online ticks of each tree' if args.offline_grid else ''})")
     for k in range(args.repeat):
         for label in (list(trees) if k % 2 == 0 else list(trees)[::-1]):
-            record = measure_in(trees[label], space_path, args.clients, args.seconds, args.update_share)
+            record = measure_in(trees[label], space_path, args.clients, args.seconds, args.update_share,
+                                grid=args.offline_grid)
             rounds[label].append(record)
-            print(f"  {label}, round {k + 1}: {record['us_per_frame']:.1f} us per frame ({record['frames']} frames, "
+            ticks = f", {record['frames'] / record['ticks']:.1f} a tick" if record.get("ticks") else ""
+            print(f"  {label}, round {k + 1}: {record['us_per_frame']:.1f} us per frame ({record['frames']} frames{ticks}, "
                   f"{record['steering']} steering, {record['table_frames']} from phase tables, "
                   f"{record['batched_frames']} blended together)")
     summary = {label: statistics.median(r["us_per_frame"] for r in rounds[label]) for label in trees}
     result = {"clients": args.clients, "update_share": args.update_share, "seconds": args.seconds,
-              "rounds": rounds, "us_per_frame_median": summary, "load_average": os.getloadavg()}
+              "grid": args.offline_grid, "rounds": rounds, "us_per_frame_median": summary,
+              "load_average": os.getloadavg()}
     line = ", ".join(f"{label} median {value:.1f} us" for label, value in summary.items())
     if args.baseline is not None:
         result["ratio"] = summary["this tree"] / summary["baseline"]
@@ -169,5 +215,6 @@ if __name__ == "__main__":
     parser.add_argument("seconds", type=float)
     parser.add_argument("share", type=float)
     parser.add_argument("seed", type=int)
+    parser.add_argument("--grid", action="store_true", help="the online scheduler's ticks (--offline-grid)")
     a = parser.parse_args()
-    print(json.dumps(measure(a.space, a.clients, a.seconds, a.share, a.seed)))
+    print(json.dumps(measure(a.space, a.clients, a.seconds, a.share, a.seed, a.grid)))

@@ -224,6 +224,9 @@ def main(argv=None):
                              "the project), --repeat rounds each, alternating")
     parser.add_argument("--offline", action="store_true",
                         help="the scheduler's CPU per frame without sockets or a server (benchmarks/_offline.py)")
+    parser.add_argument("--offline-grid", action="store_true",
+                        help="with --offline: the sessions' grids spread over a period and served in the tree's "
+                             "own ticks (server.scheduler.TICK), as online, instead of full batches")
     parser.add_argument("--soak", type=float, default=0.0, help="seconds of connect/leave soak (0: none)")
     parser.add_argument("--soak-clients", type=int, default=50)
     parser.add_argument("--tiny", action="store_true",

@@ -190,11 +190,14 @@ class FrameScheduler:
                             session.after_frame()
                 if not self._sessions:
                     break
-                if heap and heap[0][0] <= loop.time() + 0.5 * TICK:
-                    await asyncio.sleep(0)  # behind: let the loop read sockets, then go on
+                # the next tick: half a tick before the next frame falls due, at least a tick after this
+                # one began; at once for what is due already (a batch cut at MAX_BATCH, an urgent frame)
+                # or when this tick's work took longer than a tick (behind)
+                planned = max(heap[0][0] - 0.5 * TICK, now + TICK) if heap else math.inf
+                if heap and (heap[0][0] <= limit or planned <= loop.time()):
+                    await asyncio.sleep(0)  # let the loop read sockets, then go on
                     continue
-                # sleep until the next frame falls due, at least a tick from now
-                self._planned = max(heap[0][0] - 0.5 * TICK, now + TICK) if heap else math.inf
+                self._planned = planned
                 handle = loop.call_at(self._planned, self._wakeup.set) if heap else None
                 await self._wakeup.wait()
                 self._wakeup.clear()
