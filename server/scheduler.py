@@ -3,11 +3,7 @@
 Connections wait in a heap keyed by the time their next frame is due. A tick takes every
 connection due within half a tick (``TICK``), steps its player, blends, encodes and hands the
 frame to its transport, then sleeps until the next one falls due (at least a tick later, unless a
-client message makes a frame urgent). A tick's work has a fixed part (a compiled call per phase
-table, blender and space, each with its arrays to make, and the loop's wake-up: about 75 us
-offline), so ticks 4 ms apart, about 48 frames each at 200 clients x 60 frames/s, cost less per
-frame than 2 ms apart (about 24 each); a frame leaves up to half a tick (2 ms) early or a little
-late (docs/protocol.md). Per tick:
+client message makes a frame urgent). Per tick:
 
 - the players of the tick's due connections step first (engine/player_steps.py, the same floats
   as one by one): the settled ones in one compiled pass on their clocks (``Player.clock``), the
@@ -56,8 +52,8 @@ from engine.player_steps import advance_together
 from server.frames import row_views, streamed_heads
 
 log = logging.getLogger("morphspace.stream")
-TICK = 0.004      # seconds: ticks come at most this often (urgent frames excepted)
-MAX_BATCH = 64    # frames per tick at most; then the loop reads sockets before the next tick
+TICK = 0.002      # seconds: ticks come at most this often (urgent frames excepted)
+MAX_BATCH = 32    # frames per tick at most; then the loop reads sockets before the next tick
 URGENT = -math.inf
 
 
@@ -190,14 +186,11 @@ class FrameScheduler:
                             session.after_frame()
                 if not self._sessions:
                     break
-                # the next tick: half a tick before the next frame falls due, at least a tick after this
-                # one began; at once for what is due already (a batch cut at MAX_BATCH, an urgent frame)
-                # or when this tick's work took longer than a tick (behind)
-                planned = max(heap[0][0] - 0.5 * TICK, now + TICK) if heap else math.inf
-                if heap and (heap[0][0] <= limit or planned <= loop.time()):
-                    await asyncio.sleep(0)  # let the loop read sockets, then go on
+                if heap and heap[0][0] <= loop.time() + 0.5 * TICK:
+                    await asyncio.sleep(0)  # behind: let the loop read sockets, then go on
                     continue
-                self._planned = planned
+                # sleep until the next frame falls due, at least a tick from now
+                self._planned = max(heap[0][0] - 0.5 * TICK, now + TICK) if heap else math.inf
                 handle = loop.call_at(self._planned, self._wakeup.set) if heap else None
                 await self._wakeup.wait()
                 self._wakeup.clear()
