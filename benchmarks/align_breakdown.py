@@ -102,6 +102,8 @@ def main(argv=None):
     parser.add_argument("--every", type=int, default=1, help="take every N-th frame from --start (default 1: "
                         "a dense slice; 14 on a 25 fps take puts the frames 0.56 s apart)")
     parser.add_argument("--method", choices=("tree", "sequential"), default="tree")
+    parser.add_argument("--root", type=int, default=None,
+                        help="the root, a frame of the slice counted from 0 (default: the tree's choice)")
     parser.add_argument("--option", dest="options", action="append", default=None, metavar="NAME=VALUE",
                         help="an AlignmentOptions field (repeatable), e.g. patch_coupling=1.0")
     parser.add_argument("--picture", type=Path, help="draw the per-frame, per-part errors here (PNG)")
@@ -136,7 +138,8 @@ def main(argv=None):
     parts = part_counts(args.dataset, args.tiny)
     load_before = os.getloadavg()
     cpu_started = time.process_time()
-    run = align_captures(frames, np.array([len(frames)]), method=args.method, workers=1, options=options)
+    run = align_captures(frames, np.array([len(frames)]), method=args.method, workers=1, options=options,
+                         root=args.root)
     cpu = time.process_time() - cpu_started
     aligned = run.aligned
     root = int(aligned.root)
@@ -150,7 +153,7 @@ def main(argv=None):
     n = len(frames)
     record = {"dataset": "tiny" if args.tiny else str(args.dataset), "sequence": "run" if args.tiny else args.sequence,
               "start": args.start, "every": args.every, "frames": n, "method": args.method, "options": changes,
-              "root": root,
+              "root": root, "root_trial": run.root_trial,
               "depth_mean": round(float(run.tree.depth.mean()), 2), "depth_max": int(run.tree.depth.max()),
               "cpu_seconds_per_frame": round(cpu / n, 3), "repaired": int(np.sum(aligned.repaired)),
               "colour_cues": bool(run.colour_cues), **breakdown,

@@ -12,13 +12,14 @@ from dataclasses import dataclass, field, is_dataclass, replace
 
 import numpy as np
 
-from engine.align.pairwise import AlignmentOptions, PairwiseAligner
+from engine.align.pairwise import AlignmentOptions
 from engine.align.propagation import AlignedFrames, align_tree
 from engine.align.repair import alignment_confidence, colour_terms, repair_alignment, tail_reference
-from engine.align.root_choice import choose_root
+from engine.align.root_choice import ROOT_SLACK, choose_root
+from engine.align.root_trial import TRIAL_MIN_FRAMES, root_setup, trial_candidates, trial_probes, try_roots
 from engine.align.similarity import shape_dissimilarity
 from engine.align.similarity_tree import DEFAULT_TREE, chain_tree, similarity_tree
-from engine.surface import main_components, orient_outward
+from engine.surface import orient_outward
 
 
 @dataclass
@@ -31,13 +32,16 @@ class CaptureAlignment:
     tree : engine.align.similarity_tree.SimilarityTree   the tree the frames were aligned along
                                                     (a chain for ``method="sequential"``)
     aligned : AlignedFrames
-    timings : dict   seconds for "similarity", "tree" (with choosing the root), "tetrahedralize", "align",
-                     "repair"
+    timings : dict   seconds for "similarity", "tree" (with choosing the root), "trial" (when the root
+                     was tried), "tetrahedralize", "align", "repair"
     method : str     "tree" or "sequential"
     tets : (V_tet, T)   the root's tet mesh (reusable for another run with the same root)
     colour_cues : bool  whether vertex colours were used as local matching cues
     turned : dict       frame index -> faces whose winding was reversed so that the frame faces
                         outward (:func:`engine.surface.orient_outward`); frames as read are absent
+    root_trial : dict or None   with ``root_choice="trial"``: the candidate roots tried, the probe
+                        frames, each candidate's badness per probe and mean, and the spread's
+                        choice (:func:`engine.align.root_trial.try_roots`); None when no trial ran
     """
 
     similarity: object
@@ -48,6 +52,7 @@ class CaptureAlignment:
     tets: tuple
     colour_cues: bool = False
     turned: dict = field(default_factory=dict)
+    root_trial: dict = None
 
 
 COLOUR_WEIGHT = 1.0   # AlignmentOptions.colour_weight when colour cues are on and the options leave it 0
@@ -76,10 +81,10 @@ def colours_carry_texture(vertices, faces):
     return median < FINE_EDGE * np.sqrt(area)
 
 
-ROOT_CHOICES = ("apart", "central")
+ROOT_CHOICES = ("trial", "apart", "central")
 
 
-def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, root_choice="apart",
+def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, root_choice="trial",
                    options=None, window=2,
                    workers=1, retries=3, tets=None, use_colors="auto", seed=0, similarity=None, repair=True,
                    repair_budget=0.5, progress=None, runner=None):
@@ -97,12 +102,16 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                 the paper's minimum spanning tree, or cheapest paths from the
                                 root with big steps penalised
     root : int or None          root frame (default: chosen by ``root_choice``)
-    root_choice : {"apart", "central"}
+    root_choice : {"trial", "apart", "central"}
                                 without ``root``: "central" is the paper's, the minimum spanning
-                                tree's most central frame; "apart" (default) a frame nearly as
-                                central whose limbs are apart, so no merged contact (a hand on a
-                                hip, a sleeve against a skirt) is tied into every aligned frame
-                                (:func:`engine.align.root_choice.choose_root`)
+                                tree's most central frame; "apart" a frame nearly as central whose
+                                limbs are apart, so no merged contact (a hand on a hip, a sleeve
+                                against a skirt) is tied into every aligned frame
+                                (:func:`engine.align.root_choice.choose_root`); "trial" (default)
+                                the apart choice and a few other central frames each align a few
+                                probe frames, and the one that aligns them best is the root
+                                (:mod:`engine.align.root_trial`; captures of fewer than
+                                ``TRIAL_MIN_FRAMES`` frames, or with ``tets`` given: "apart")
     options : AlignmentOptions
     window : int                temporal filter half-width
     workers : int               processes for the dissimilarity matrix and for aligning
@@ -122,7 +131,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     repair_budget : float or None   pairwise alignments per frame the repair may spend (the
                                 worst frames first; None: every flagged frame is repaired)
     progress : callable(stage, done, total) or None
-        stages "histograms", "dissimilarity", "root", "align", "repair"
+        stages "histograms", "dissimilarity", "root", "trial", "align", "repair"
     runner : task runner or None   runs the histogram chunks, matrix blocks, tree pieces and repairs as
                                 tasks (:mod:`engine.tasks`, e.g. on a Dask cluster) instead of
                                 ``workers``; the result is the same
@@ -131,8 +140,6 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     -------
     CaptureAlignment
     """
-    from engine.tetmesh import tetrahedralize
-
     if method not in ("tree", "sequential"):
         raise ValueError(f"method must be 'tree' or 'sequential', got {method!r}")
     if root_choice not in ROOT_CHOICES:
@@ -148,34 +155,35 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                          runner=runner)
     timings["similarity"] = time.perf_counter() - started
     started = time.perf_counter()
-    tree = similarity_tree(similarity.dissimilarity, root=root, kind=tree_kind,
-                           choose_root=_apart(meshes, progress) if root is None and root_choice == "apart" else None)
-    if method == "sequential":
-        tree = chain_tree(lengths, tree.root)
+    chooser = _apart(meshes, progress) if root is None and root_choice in ("apart", "trial") else None
+    tree = similarity_tree(similarity.dissimilarity, root=root, kind=tree_kind, choose_root=chooser)
     timings["tree"] = time.perf_counter() - started
-    base = meshes[tree.root]
     # colours, when every frame has them, always settle front-back ambiguities (PairwiseAligner
     # ._orientation_score); ``use_colors`` adds them as local matching cues (options.colour_weight)
     colours = all(getattr(m, "colors", None) is not None for m in meshes)
-    # the root's floating fragments would become part of every aligned frame: leave them out
-    V_root, F_root, kept = main_components(base.vertices, base.faces)
-    cues = colours and (use_colors is True or (use_colors == "auto" and colours_carry_texture(V_root, F_root)))
     options = options or AlignmentOptions()
-    if cues and not options.colour_weight:
-        options = replace(options, colour_weight=COLOUR_WEIGHT)
-    elif not cues and options.colour_weight:
-        options = replace(options, colour_weight=0.0)
-    C_root = np.asarray(base.colors)[kept] if colours else None
+    trial = None
+    if chooser is not None and root_choice == "trial" and len(meshes) >= TRIAL_MIN_FRAMES and tets is None:
+        started = time.perf_counter()
+        candidates = trial_candidates(similarity.dissimilarity, chooser.centrality, tree.root, slack=ROOT_SLACK)
+        if len(candidates) > 1:
+            probes = trial_probes(len(meshes), candidates)
+            chosen, trial, tets = try_roots(meshes, candidates, probes, similarity.yaw, options=options,
+                                            use_colors=use_colors, colours=colours, seed=seed, runner=runner,
+                                            workers=workers,
+                                            progress=(lambda d, t: progress("trial", d, t)) if progress else None)
+            trial["spread_choice"] = int(tree.root)
+            if chosen != tree.root:
+                tree = similarity_tree(similarity.dissimilarity, root=chosen, kind=tree_kind)
+        timings["trial"] = time.perf_counter() - started
+    if method == "sequential":
+        tree = chain_tree(lengths, tree.root)
+    base = meshes[tree.root]
     started = time.perf_counter()
-    if tets is None:
-        try:
-            tets = tetrahedralize(V_root, F_root, resolution=options.tet_resolution)
-        except ValueError as exc:
-            label = getattr(base, "source", None) or f"frame {tree.root}"
-            raise ValueError(f"{label}: the root frame cannot be filled with tetrahedra: {exc}; align from "
-                             "another root (morphspace align --root SEQUENCE:FRAME)") from None
+    aligner, options, cues, kept = root_setup(base, options, use_colors, colours, seed, tets=tets,
+                                              label=getattr(base, "source", None) or f"frame {tree.root}")
+    tets = (aligner.V_tet, aligner.T)
     timings["tetrahedralize"] = time.perf_counter() - started
-    aligner = PairwiseAligner(V_root, F_root, C_root, tets=tets, options=options, seed=seed)
     started = time.perf_counter()
     aligned = align_tree(aligner, meshes, tree, yaw=similarity.yaw,
                          dissimilarity=similarity.dissimilarity if method == "tree" else None,
@@ -192,7 +200,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
         _confidence_only(aligned, colours=bool(cues))
     timings["repair"] = time.perf_counter() - started
     return CaptureAlignment(similarity=similarity, tree=tree, aligned=aligned, timings=timings, method=method,
-                            tets=tets, colour_cues=bool(cues), turned=turned)
+                            tets=tets, colour_cues=bool(cues), turned=turned, root_trial=trial)
 
 
 def _outward(meshes):
@@ -219,8 +227,10 @@ def _with_faces(mesh, faces):
 
 
 def _apart(meshes, progress):
-    """``choose_root`` for :func:`similarity_tree`: central, with the limbs apart."""
+    """``choose_root`` for :func:`similarity_tree`: central, with the limbs apart (the
+    centrality it was given kept as ``.centrality``, for the root trial)."""
     def choose(centrality):
+        choose.centrality = np.asarray(centrality)
         return choose_root(meshes, centrality, progress=(lambda d, t: progress("root", d, t)) if progress else None)[0]
     return choose
 

@@ -70,10 +70,12 @@ def add_arguments(parser):
     parser.add_argument("--only", nargs="+", metavar="NAME", help="with a capture dataset: only these sequences")
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global frame index "
                         "(default: chosen by --root-choice)")
-    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="apart",
-                        help="without --root: apart (default) takes a frame nearly as central as the most central "
-                             "one whose limbs are apart (no merged contact tied into every frame); central is "
-                             "the paper's most central frame of the tree")
+    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="trial",
+                        help="without --root: trial (default) lets the apart choice and up to 3 other central frames "
+                             "each align 6 probe frames and takes the one that aligns them best (captures of 24 "
+                             "frames or more); apart takes a frame nearly as central as the most central one whose "
+                             "limbs are apart (no merged contact tied into every frame); central is the paper's "
+                             "most central frame of the tree")
     parser.add_argument("--sequential", action="store_true",
                         help="frame-to-frame tracking from the root instead of the tree (the baseline)")
     parser.add_argument("--tree", choices=TREE_KINDS, default=DEFAULT_TREE,
@@ -111,7 +113,7 @@ class Progress:
     """tqdm bars on stderr, one per stage."""
 
     LABELS = {"read": "read frames", "histograms": "shape histograms", "dissimilarity": "dissimilarity",
-              "root": "choose root", "align": "align", "align sequential": "align (sequential)", "repair": "repair",
+              "root": "choose root", "trial": "try roots", "align": "align", "align sequential": "align (sequential)", "repair": "repair",
               "write": "write"}
 
     def __init__(self):
@@ -135,6 +137,16 @@ class Progress:
         for bar in self.bars.values():
             bar.close()
         self.bars.clear()
+
+
+def root_trial_text(trial, sequences, lengths):
+    """One line on the root trial: the candidates' mean badness and the one taken."""
+    tried = ", ".join(f"{frame_label(c, sequences, lengths)} {m:.2f}" for c, m in zip(trial["candidates"], trial["mean"]))
+    chosen = trial["candidates"][int(np.argmin(trial["mean"]))]
+    change = ("kept" if chosen == trial["spread_choice"]
+              else f"taken instead of {frame_label(trial['spread_choice'], sequences, lengths)}")
+    return (f"root tried: {len(trial['candidates'])} candidates aligned {len(trial['probes'])} probe frames each "
+            f"(mean badness, lower is better: {tried}); {frame_label(chosen, sequences, lengths)} {change}")
 
 
 def resolve_inputs(inputs, only=None):
@@ -501,6 +513,8 @@ def run(args):
           f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "
           f"{int(aligned.retried.sum())} frames re-aligned from other parents")
     print(f"  colour cues {colour_cues_text(args.colors, result.colour_cues, meshes)}")
+    if result.root_trial:
+        print(f"  {root_trial_text(result.root_trial, sequences, lengths)}")
     if result.turned:
         shown = [frame_label(i, sequences, lengths) for i in sorted(result.turned)]
         print(f"  faces wound inward (or mixed) turned outward in {len(shown)} frames: {', '.join(shown[:6])}"

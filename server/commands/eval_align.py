@@ -60,8 +60,8 @@ def add_arguments(parser):
                         help=f"the similarity tree: paths or mst (see `morphspace align --help`; default {DEFAULT_TREE})")
     parser.add_argument("--no-sequential", action="store_true", help="skip the frame-to-frame baseline")
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global index (default: the tree's)")
-    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="apart",
-                        help="without --root: apart (default) or central (see `morphspace align --help`)")
+    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="trial",
+                        help="without --root: trial (default), apart or central (see `morphspace align --help`)")
     parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
                         help="vertex colours as local matching cues (see `morphspace align --help`; default auto)")
     parser.add_argument("--swing-limbs", action="store_true",
@@ -297,6 +297,7 @@ def run(args):
                                       repair_budget=args.repair_budget, progress=progress)
             root = tree_run.aligned.root
             report["root"] = int(root)
+            report["root_trial"] = tree_run.root_trial
             report["colour_cues"] = bool(tree_run.colour_cues)
             report["similarity_seconds"] = round(tree_run.timings["similarity"], 3)
             report["tree_seconds"] = round(tree_run.timings["tree"], 4)

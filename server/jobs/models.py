@@ -92,10 +92,12 @@ class AlignJob(_Body):
     output: Name = Field(description="name of the aligned dataset to write")
     only: list[Name] | None = Field(None, max_length=256, description="only these sequences")
     root: str | None = Field(None, max_length=200, description="root frame as SEQUENCE:FRAME or a global index")
-    root_choice: Literal["apart", "central"] = Field(
-        "apart", description="without root: apart, a frame nearly as central as the most central one whose limbs "
-                             "are apart (no merged contact tied into every frame); central, the paper's most "
-                             "central frame of the tree")
+    root_choice: Literal["trial", "apart", "central"] = Field(
+        "trial", description="without root: trial, the apart choice and up to 3 other central frames each align 6 "
+                             "probe frames and the one that aligns them best is the root (24 frames or more); "
+                             "apart, a frame nearly as central as the most central one whose limbs are apart (no "
+                             "merged contact tied into every frame); central, the paper's most central frame of "
+                             "the tree")
     sequential: bool = Field(False, description="frame-to-frame tracking instead of the tree")
     tree: Literal["mst", "paths"] = Field(
         "mst", description="mst: the paper's minimum spanning tree; paths: every frame's cheapest path "

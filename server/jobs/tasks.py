@@ -32,8 +32,8 @@ from pathlib import Path
 STAGES = {
     "build": [("read", 0.05), ("tetrahedralise", 0.25), ("time-warp", 0.05), ("decompose", 0.3), ("hybrid", 0.15),
               ("parameters", 0.17), ("write", 0.03)],
-    "align": [("read", 0.05), ("histograms", 0.15), ("dissimilarity", 0.05), ("root", 0.03), ("align", 0.52),
-              ("repair", 0.12), ("write", 0.08)],
+    "align": [("read", 0.05), ("histograms", 0.13), ("dissimilarity", 0.05), ("root", 0.02), ("trial", 0.08),
+              ("align", 0.47), ("repair", 0.12), ("write", 0.08)],
     "ingest": [("validate", 0.75), ("write", 0.25)],
     "export": [("play", 0.4), ("write", 0.6)],
     "graph": [("windows", 0.75), ("edges", 0.2), ("write", 0.05)],
@@ -263,7 +263,7 @@ def run_graph(payload, reporter):
 
 # --- align ----------------------------------------------------------------------------------------
 # what a job record made before these parameters existed runs with (the AlignJob model's defaults)
-ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "apart", "colors": "auto", "repair_budget": 0.5, "units": "auto",
+ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "trial", "colors": "auto", "repair_budget": 0.5, "units": "auto",
                   "up": "auto"}
 
 
@@ -271,7 +271,8 @@ def run_align(payload, reporter, runner=None):
     from engine.align import AlignmentOptions, align_captures
     from engine.surface import model_size
     from server.commands.align import (COLOUR_MODES, DEFAULT_FPS, TRUSTED, confidence_summary, convert_inputs,
-                                       options_record, parse_root, read_inputs, resolve_inputs, write_alignment)
+                                       options_record, parse_root, read_inputs, resolve_inputs, root_trial_text,
+                                       write_alignment)
     from server.units import common_convention, display_unit
 
     params, staging = {**ALIGN_DEFAULTS, **payload["params"]}, Path(payload["staging"])
@@ -308,6 +309,8 @@ def run_align(payload, reporter, runner=None):
     aligned = result.aligned
     size = model_size(aligned.root_vertices)
     reporter.log(f"aligned {int(lengths.sum())} frames in {time.perf_counter() - started:.1f} s")
+    if result.root_trial:
+        reporter.log(root_trial_text(result.root_trial, sequences, lengths))
     confidence = confidence_summary(aligned, sequences, lengths)
     reporter.log(f"confidence: {confidence['repaired_frames']} frames repaired, {confidence['flagged_frames']} of "
                  f"{int(lengths.sum())} still below {TRUSTED} (the summary's flagged lists them per sequence)")
@@ -320,6 +323,7 @@ def run_align(payload, reporter, runner=None):
                         "residual_max_pct": float(100 * aligned.residual_max.max() / size),
                         "input": {s["name"]: c.to_metadata() for s, c in zip(sequences, conventions)},
                         "display_unit": display_unit(common_convention(conventions)), **confidence,
+                        "root_trial": result.root_trial,
                         "seconds": round(time.perf_counter() - started, 2)}}
 
 

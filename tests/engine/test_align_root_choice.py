@@ -4,7 +4,9 @@ import numpy as np
 import pytest
 from skimage.measure import marching_cubes
 
+from engine.align.options import AlignmentOptions
 from engine.align.root_choice import choose_root, geodesic_spread
+from engine.align.root_trial import trial_candidates, trial_probes, try_roots
 from engine.align.similarity_tree import similarity_tree, tree_centrality, tree_root
 from engine.mesh_io import Mesh
 
@@ -81,3 +83,39 @@ def test_tree_centrality_is_what_the_median_root_minimises_and_choose_root_overr
     assert chosen.root == 5 and np.allclose(seen[0], total)
     with pytest.raises(ValueError, match="choose_root gave 99"):
         similarity_tree(D, choose_root=lambda c: 99)
+
+
+def test_trial_candidates_start_from_the_spread_choice_and_skip_near_poses():
+    # frames 0-2 are one rest pose (as a take's first and last frames), 3-5 others
+    P = np.array([[0.0], [0.01], [0.02], [1.0], [2.0], [3.0]])
+    D = np.abs(P - P.T)
+    centrality = np.array([1.0, 1.01, 1.02, 1.1, 1.2, 2.0])  # frame 5 is beyond the slack
+    assert trial_candidates(D, centrality, 1, slack=0.35, count=4) == [1, 3, 4]
+    assert trial_candidates(D, centrality, 1, slack=0.35, count=2) == [1, 3]
+    # with nothing kept apart, the most central frames in order
+    assert trial_candidates(D, centrality, 1, slack=0.35, count=3, apart=0.0) == [1, 0, 2]
+
+
+def test_trial_probes_are_spread_evenly_and_never_a_candidate():
+    assert trial_probes(60, [0, 30], count=6) == [5, 15, 25, 35, 45, 55]
+    probes = trial_probes(12, [1, 3, 5], count=6)
+    assert len(set(probes)) == 6 and not set(probes) & {1, 3, 5}
+    assert probes == [0, 2, 4, 7, 9, 11]  # the middles 1, 3 and 5 are candidates: their left neighbours
+    assert len(trial_probes(5, [0, 1], count=6)) == 3  # no more probes than frames left
+
+
+def test_the_trial_takes_the_candidate_whose_probes_align_best():
+    """A root whose hand is merged with its hip tears where the probes' arms swing out; the
+    root with the arm apart only bends, and the trial takes it over the merged one."""
+    frames = [_body(0.0), _body(0.05), _body(0.05, bend=0.08), _body(0.05, bend=0.12), _body(0.05, bend=0.04)]
+    options = AlignmentOptions(levels=3)
+    root, report, tets = try_roots(frames, [0, 1], [2, 3, 4], None, options=options, use_colors=False,
+                                   colours=False)
+    assert root == 1 and report["candidates"] == [0, 1] and report["probes"] == [2, 3, 4]
+    badness = np.array(report["badness"])
+    assert badness.shape == (2, 3) and np.all(np.isfinite(badness))
+    assert report["mean"][1] < 0.7 * report["mean"][0], report
+    # the chosen root's tet mesh comes back for the alignment, and a second trial is the same
+    assert tets[0].shape[1] == 3 and tets[1].shape[1] == 4
+    again = try_roots(frames, [0, 1], [2, 3, 4], None, options=options, use_colors=False, colours=False)
+    assert again[1] == report and np.array_equal(again[2][1], tets[1])

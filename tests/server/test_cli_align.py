@@ -3,6 +3,7 @@
 import contextlib
 import io
 import json
+import re
 import shutil
 import types
 
@@ -425,3 +426,35 @@ def test_a_frame_wound_inward_is_turned_outward_and_aligns_as_the_others(dataset
         theirs = read_sequence(aligned / "sequences" / name / "consistent")
         np.testing.assert_array_equal(ours.vertices, theirs.vertices)
         np.testing.assert_array_equal(ours.faces, theirs.faces)
+
+
+@pytest.fixture(scope="module")
+def longer_dataset(tmp_path_factory):
+    """One gait sequence of 30 frames or more: long enough for the root to be tried."""
+    root = tmp_path_factory.mktemp("captures") / "longer"
+    body = build_body(1000)
+    write_capture_template(root, body)
+    data = generate_sequence_data(body, SequenceSpec("walk", "gait", {"speed": 1.2, "cycles": 1.5}), fps=20, seed=3)
+    assert len(data["unstructured"]) >= 30
+    write_capture_sequence(root, "walk", faces=body.F, vertices=data["vertices"], colors=body.colors,
+                           unstructured=data["unstructured"], truth=data["truth"], meta=data["meta"])
+    write_capture_manifest(root, {"preset": "test", "fps": 20, "body": {"model_size": body.size},
+                                  "sequences": [data["meta"]]})
+    return root
+
+
+def test_the_root_is_tried_on_a_capture_of_24_frames_or_more(longer_dataset, tmp_path, capsys):
+    out = tmp_path / "tried"
+    assert main(["align", str(longer_dataset), "--out", str(out), "--workers", "2", "--levels", "2"]) == 0
+    captured = capsys.readouterr()
+    assert "try roots: 100%" in captured.err
+    line = next(x for x in captured.out.splitlines() if "root tried:" in x)
+    assert "candidates aligned 6 probe frames each (mean badness, lower is better: walk:" in line, line
+    means = {label: float(value) for label, value in re.findall(r"(walk:\d+) ([0-9.]+)", line.split("better: ")[1])}
+    best = min(means, key=means.get)
+    assert f"; {best} " in line and np.load(out / "alignment.npz")["root"] == int(best.split(":")[1])
+    # the spread's choice alone: no trial
+    assert main(["align", str(longer_dataset), "--out", str(tmp_path / "apart"), "--workers", "1", "--levels", "2",
+                 "--root-choice", "apart"]) == 0
+    captured = capsys.readouterr()
+    assert "root tried" not in captured.out and "try roots" not in captured.err
