@@ -8,6 +8,7 @@
     .venv/bin/python benchmarks/stream_load.py --baseline /tmp/before --repeat 3   # against another checkout
     .venv/bin/python benchmarks/stream_load.py --offline --repeat 3        # the scheduler's CPU per frame, no sockets
     .venv/bin/python benchmarks/stream_load.py --offline --baseline /tmp/before --repeat 3
+    .venv/bin/python benchmarks/stream_load.py --frames-hash --baseline /tmp/before   # every frame the same bytes?
     .venv/bin/python benchmarks/stream_load.py --tiny --out /tmp/stream_load.json   # smoke run, ~30 s
     .venv/bin/python benchmarks/stream_load.py --graph data/spaces/demo.mgraph --actions 0.25   # a motion graph
     .venv/bin/python benchmarks/stream_load.py --tiny --graph tiny --out /tmp/stream_load_graph.json
@@ -56,6 +57,9 @@ and the time from an action to the first frame acknowledging it (``latency_ms``)
 ``--baseline DIR`` replaces the rounds above by this tree's server against the server of the
 source tree ``DIR`` (another checkout), one worker each, ``--repeat`` rounds each, alternating
 (benchmarks/_baseline.py): the medians of their CPU per delivered frame and frames delivered.
+``--frames-hash`` replaces the rounds by a deterministic scheduler run hashed frame by frame
+(benchmarks/_load_hash.py: every kind of frame, ``sent_at`` zeroed), in this tree and, with
+``--baseline DIR``, in DIR's: a change to the hot path must leave the hashes the same.
 ``--offline`` replaces the server and its clients by the scheduler's work alone
 (benchmarks/_offline.py): ``--clients`` sessions, ``--update-share`` of them steering, ``--seconds``
 of frames at 60 fps produced by the scheduler's ticks with the sockets replaced by a counter, the
@@ -81,6 +85,7 @@ import time
 from pathlib import Path
 
 from _baseline import compare_code
+from _load_hash import frames_hashes
 from _offline import offline_rounds
 from _tiny import parse_arguments
 from _load_clients import soak_process
@@ -224,6 +229,9 @@ def main(argv=None):
                              "the project), --repeat rounds each, alternating")
     parser.add_argument("--offline", action="store_true",
                         help="the scheduler's CPU per frame without sockets or a server (benchmarks/_offline.py)")
+    parser.add_argument("--frames-hash", action="store_true",
+                        help="hash every frame of a deterministic scheduler run, here and in --baseline's tree "
+                             "(benchmarks/_load_hash.py)")
     parser.add_argument("--offline-grid", action="store_true",
                         help="with --offline: the sessions' grids spread over a period and served in the tree's "
                              "own ticks (server.scheduler.TICK), as online, instead of full batches")
@@ -252,6 +260,8 @@ def main(argv=None):
         space_path = None if args.graph is not None else served_space(data, args.space, args.tiny)
         if args.graph is not None:
             result = serve_and_measure(args, data, served_graph(data, args.graph, args.tiny))
+        elif args.frames_hash:
+            result = {"frames_hash": frames_hashes(args, space_path, ROOT)}
         elif args.offline and not args.tiny:
             result = {"offline": offline_rounds(args, space_path, ROOT)}
         elif args.baseline is not None:
