@@ -187,6 +187,19 @@ def check_align_breakdown(record, stdout):
     assert "of the tail" in stdout and "flag vs frames over 3pct" in stdout and non_negative(record["load_average_before"][0])
 
 
+def check_root_trial(record, stdout):
+    assert record["dataset"] == "tiny" and record["frames"] == 8 and record["candidates"] == [0, 4]
+    assert len(record["probes"]) == 2 and not set(record["probes"]) & {0, 4}
+    assert record["trial_choice"] in (0, 4) and 0 <= record["spread_choice"] < 8 and positive(record["trial_cpu_seconds"])
+    badness = [row["badness_mean"] for row in record["rows"]]
+    assert all(non_negative(b) for b in badness)
+    assert record["rows"][badness.index(min(badness))]["frame"] == record["trial_choice"]
+    for row in record["rows"]:
+        assert 0 < row["true_mean_pct"] <= row["true_p95_pct"] < 100
+    assert record["rank_correlation"] in (-1.0, 1.0) and record["truth_choice"] in (0, 4)
+    assert "candidates x 2 probes" in stdout and "rank correlation of badness and true error" in stdout
+
+
 def check_align_momentum(record, stdout):
     assert record["dataset"] == "tiny" and record["root"] == 2 and record["frames"] == 4
     assert [run["momentum"] for run in record["runs"]] == [0.0, 0.5, 1.0]
@@ -264,6 +277,7 @@ CHECKS = {
     "graph_load.py": check_graph_load,
     "graph_search.py": check_graph_search,
     "open_blends.py": check_open_blends,
+    "root_trial.py": check_root_trial,
     "similarity_scaling.py": check_similarity_scaling,
     "speed_ground_truth.py": check_speed_ground_truth,
     "stream_load.py": check_stream_load,

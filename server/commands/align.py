@@ -115,6 +115,7 @@ class Progress:
     LABELS = {"read": "read frames", "histograms": "shape histograms", "dissimilarity": "dissimilarity",
               "root": "choose root", "trial": "try roots", "align": "align", "align sequential": "align (sequential)", "repair": "repair",
               "write": "write"}
+    UNITS = {"trial": "root"}  # the trial counts candidate roots, the other stages frames
 
     def __init__(self):
         self.bars = {}
@@ -122,7 +123,7 @@ class Progress:
     def __call__(self, stage, done, total):
         if stage not in self.bars:
             self.close()
-            self.bars[stage] = tqdm(total=total or None, desc=self.LABELS.get(stage, stage), unit="frame",
+            self.bars[stage] = tqdm(total=total or None, desc=self.LABELS.get(stage, stage), unit=self.UNITS.get(stage, "frame"),
                                     dynamic_ncols=True, mininterval=0.5, file=sys.stderr)
         bar = self.bars[stage]
         if total:
