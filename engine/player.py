@@ -29,6 +29,10 @@ MODES = ("linear", "hybrid", "nonlinear")
 # time, phase, heading, the root (x, y, z), finished, loop and cyclic (1.0 or 0.0) at these indices
 TIME, PHASE, HEADING, ROOT, FINISHED, LOOP, CYCLIC = 0, 1, 2, 3, 6, 7, 8
 CLOCK_SIZE = 9
+# Right after the clock, in the same array, the spring's numbers as a batch of steering players
+# reads and writes them (engine/player_steps.py; k parameters): current (k), velocity (k), target
+# (k), the last solution's u (k), valid while ``Player._spring_of`` names the arrays they copy
+SPRING = CLOCK_SIZE
 
 
 @dataclass
@@ -95,8 +99,14 @@ class Player:
         if space.parameter_map is None:
             raise ValueError(f"{space.name}: the space has no parameter map (build it from a spec)")
         self.space = space
-        self._clock = np.zeros(CLOCK_SIZE)  # (the properties time, phase, ... read and write it)
+        k = len(space.parameter_map.names)
+        self._state = np.zeros(SPRING + 4 * k)  # the clock, then the spring's numbers (SPRING)
+        self._clock = self._state[:CLOCK_SIZE]  # (the properties time, phase, ... read and write it)
         self.clock_address = self._clock.ctypes.data  # (fixed while the player lives: the array is never replaced)
+        # (current, target, solution) whose numbers _state[SPRING:] holds, or None: the arrays
+        # are replaced, never changed in place, so a step in Python (or a request) leaves these
+        # behind and engine/player_steps.py copies them again before it reads the spring
+        self._spring_of = None
         self._position = self._clock[ROOT:ROOT + 3]
         self._clock[CYCLIC] = 1.0 if space.cyclic else 0.0
         self._track_cache = None

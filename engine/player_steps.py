@@ -10,7 +10,12 @@ A player whose parameters are on their way to a request (``Player.advance`` with
 still moving) does, every frame, a spring step, a warm Newton solve on the parameter map's
 sheet, the weights at the solution and the blended duration and root rates at the two phase
 samples the step needs: a dozen numpy calls on arrays of two to four numbers, 15-20 us in all.
-Here the steps of every such player of one space are one compiled call (:func:`_step_moving`):
+Here the steps of every such player of one space are one compiled call (:func:`_step_moving`)
+that reads each player's spring (current, velocity, target, last u) where it lies, after its
+clock in one array (``Player._state``, at ``clock_address``; copied there only when a request,
+a reset or a step alone replaced those arrays, ``Player._spring_of``) and a pass that writes the
+clocks and springs back (:func:`_set_clocks`); what stays per player in Python is the views and
+the ``Solution`` the player's fields are (replaced every step, never changed in place):
 the same operations in the same order, the Newton solve the same compiled function
 (``parameter_map._newton_square_compiled``), and the products of weights and rates through the
 very BLAS functions numpy's ``dot`` calls for them (``cblas_ddot`` and ``cblas_dgemv`` of the
@@ -40,7 +45,7 @@ from numba import carray
 
 from engine.jit import compiled, float64_pointer
 from engine.parameters.parameter_map import Solution, _newton_square_compiled
-from engine.player import CLOCK_SIZE, CYCLIC, FINISHED, HEADING, LOOP, PHASE, ROOT, TIME, Player
+from engine.player import CLOCK_SIZE, CYCLIC, FINISHED, HEADING, LOOP, PHASE, ROOT, SPRING, TIME, Player
 
 
 def _numpy_openblas():
@@ -167,15 +172,16 @@ if _OPENBLAS is not None:
         w[right] += _pymax(-d, 0.0)
 
     @compiled
-    def _step_moving(state, clocks, values, last, ranges, bounds, kind, chain, left, right, corners, durations,
-                     root_rate, turn_rate, cyclic, W, out, done):  # pragma: no cover (compiled)
+    def _step_moving(clocks, dts, taus, values, last, ranges, bounds, kind, chain, left, right, corners, durations,
+                     root_rate, turn_rate, cyclic, W, pairs, out, done):  # pragma: no cover (compiled)
         """Player.advance of K players whose parameters move (see the module docstring).
 
-        state : (K, 10) float64   per player: current (2), velocity (2), target (2), the last
-            solution's u (2), dt, smoothing
-        clocks : (K,) int64       the players' ``clock_address`` (read here, not changed)
-        out : (K, 15) float64     current, velocity, u, realised (2 each), phase, heading, x, z,
-                                  time, finished, (unused)
+        clocks : (K,) int64       the players' ``clock_address``: their clocks and, after them
+            (``SPRING``), their springs' current (2), velocity (2), target (2) and the last
+            solution's u (2) (read here, not changed)
+        dts, taus : (K,) float64  the steps and the springs' time constants (``smoothing``)
+        pairs : (K, 4, 2) float64 current, velocity, u, realised
+        out : (K, 6) float64      phase, heading, x, z, time, finished
         W : (K, N) float64 zeroed: the weights;  done : (K,) bool: False where the player must
             step on its own (nothing of it is then to be used)
         """
@@ -183,10 +189,10 @@ if _OPENBLAS is not None:
         s0, s1 = root_rate.shape[1], root_rate.shape[2]
         rates0, rates1 = np.empty(s1), np.empty(s1)
         wn = np.empty(s0)
-        for k in range(state.shape[0]):
+        for k in range(len(clocks)):
             done[k] = False
-            row = state[k]
-            dt, tau = row[8], row[9]
+            row = carray(float64_pointer(clocks[k]), (SPRING + 8,))[SPRING:]
+            dt, tau = dts[k], taus[k]
             if not (dt >= 0 and math.isfinite(dt)) or not tau > 0:
                 continue
             # the spring (engine.player._critically_damped_lists)
@@ -199,20 +205,20 @@ if _OPENBLAS is not None:
                 c = vi + ws * y
                 x_new = ti + (y + c * dt) * decay
                 v_new = (vi - ws * c * dt) * decay
-                out[k, i], out[k, 2 + i] = x_new, v_new
+                pairs[k, 0, i], pairs[k, 1, i] = x_new, v_new
                 if not (abs(x_new - ti) <= 1e-6 * ranges[i] and abs(v_new) * dt <= 1e-6 * ranges[i]):
                     settled = False
             if settled:
                 continue
             # ParameterMap.solve_near, warm from the last solution
-            q0 = _pymin(_pymax(out[k, 0], bounds[0, 0]), bounds[0, 1])
-            q1 = _pymin(_pymax(out[k, 1], bounds[1, 0]), bounds[1, 1])
+            q0 = _pymin(_pymax(pairs[k, 0, 0], bounds[0, 0]), bounds[0, 1])
+            q1 = _pymin(_pymax(pairs[k, 0, 1], bounds[1, 0]), bounds[1, 1])
             u0 = _pymin(_pymax(row[6], 0.0), 1.0)
             u1 = _pymin(_pymax(row[7], 0.0), 1.0)
             ok, u0, u1, at0, at1 = _newton_square_compiled(values, last, ranges[0], ranges[1], q0, q1, u0, u1)
-            if not ok or abs(at0 - out[k, 0]) > 0.005 * ranges[0] or abs(at1 - out[k, 1]) > 0.005 * ranges[1]:
+            if not ok or abs(at0 - pairs[k, 0, 0]) > 0.005 * ranges[0] or abs(at1 - pairs[k, 0, 1]) > 0.005 * ranges[1]:
                 continue  # the general solver, or the cold solve of a clamped request
-            out[k, 4], out[k, 5], out[k, 6], out[k, 7] = u0, u1, at0, at1
+            pairs[k, 2, 0], pairs[k, 2, 1], pairs[k, 3, 0], pairs[k, 3, 1] = u0, u1, at0, at1
             w = W[k]
             _weights(u0, u1, kind, chain, left, right, corners, w)
             clock = carray(float64_pointer(clocks[k]), (CLOCK_SIZE,))
@@ -245,8 +251,8 @@ if _OPENBLAS is not None:
                     phase %= 1.0
                 elif phase >= 1.0 - 1e-12:
                     phase, finished = 1.0, True
-            out[k, 8], out[k, 9], out[k, 10], out[k, 11] = phase, heading, x, z
-            out[k, 12], out[k, 13] = time + dt, 1.0 if finished else 0.0
+            out[k, 0], out[k, 1], out[k, 2], out[k, 3] = phase, heading, x, z
+            out[k, 4], out[k, 5] = time + dt, 1.0 if finished else 0.0
             done[k] = True
 
 
@@ -333,66 +339,83 @@ def advance_together(players, dts):
 
 
 def _step_group(players, dts):
-    """The compiled step of one space's steering players: (clocks, W, out, done) (``_step_moving``)."""
+    """The compiled step of one space's steering players: (clocks, W, pairs, out, done)
+    (``_step_moving``). A player's spring is read where it lies, after its clock: copied there
+    first only when the player's parameters changed outside a batch (a request, a step alone)."""
     K = len(players)
-    state = np.empty((K, 10))
-    state[:, :8] = np.concatenate([a for p in players for a in (p._current, p._velocity, p._target,
-                                                                  p._solution.u)]).reshape(K, 8)
-    state[:, 8] = dts
-    state[:, 9] = [p.smoothing for p in players]
-    clocks = np.array([p.clock_address for p in players], dtype=np.int64)
+    clocks, taus = [], []
+    for player in players:
+        kept = player._spring_of
+        if kept is None or kept[0] is not player._current or kept[1] is not player._target \
+                or kept[2] is not player._solution:
+            _copy_spring(player)
+        clocks.append(player.clock_address)
+        taus.append(player.smoothing)
+    clocks = np.array(clocks, dtype=np.int64)
     W = np.zeros((K, players[0].map.layout.n_sources))
-    out = np.empty((K, 15))
+    pairs, out = np.empty((K, 4, 2)), np.empty((K, 6))
     done = np.empty(K, dtype=np.bool_)
-    _step_moving(state, clocks, *_space_arrays(players[0]), W, out, done)
-    return clocks, W, out, done
+    _step_moving(clocks, np.array(dts, dtype=np.float64), np.array(taus, dtype=np.float64),
+                 *_space_arrays(players[0]), W, pairs, out, done)
+    return clocks, W, pairs, out, done
+
+
+def _copy_spring(player):
+    """Copy ``player``'s current, velocity, target and last u into its spring (after its clock)."""
+    current, target, solution = player._current, player._target, player._solution
+    player._state[SPRING:SPRING + 8] = np.concatenate((current, player._velocity, target, solution.u))
+    player._spring_of = (current, target, solution)
 
 
 @compiled
-def _set_clocks(clocks, out, done):  # pragma: no cover (compiled)
-    """The clocks (``clock_address``) of the players ``_step_moving`` stepped (``done``) from its
-    ``out``: phase, heading, root x and z, time, finished."""
+def _set_clocks(clocks, pairs, out, done):  # pragma: no cover (compiled)
+    """The clocks and springs (``clock_address``) of the players ``_step_moving`` stepped
+    (``done``) from its ``pairs`` and ``out``: phase, heading, root x and z, time, finished;
+    current, velocity and u (the target stays)."""
     for k in range(len(clocks)):
         if done[k]:
-            clock = carray(float64_pointer(clocks[k]), (CLOCK_SIZE,))
-            clock[PHASE], clock[HEADING], clock[ROOT], clock[ROOT + 2] = out[k, 8], out[k, 9], out[k, 10], out[k, 11]
-            clock[TIME], clock[FINISHED] = out[k, 12], out[k, 13]
+            state = carray(float64_pointer(clocks[k]), (SPRING + 8,))
+            state[PHASE], state[HEADING], state[ROOT], state[ROOT + 2] = out[k, 0], out[k, 1], out[k, 2], out[k, 3]
+            state[TIME], state[FINISHED] = out[k, 4], out[k, 5]
+            for i in range(2):
+                state[SPRING + i], state[SPRING + 2 + i] = pairs[k, 0, i], pairs[k, 1, i]
+                state[SPRING + 6 + i] = pairs[k, 2, i]
 
 
-def _commit(players, indices, clocks, W, out, done):
+def _commit(players, indices, clocks, W, pairs, out, done):
     """Set the players' state from ``_step_moving``'s results; returns the indices of those it
     did not step."""
-    _set_clocks(clocks, out, done)
+    _set_clocks(clocks, pairs, out, done)
     rest = []
+    # (views of the results, made in two C loops: replaced, never changed in place: Player.state_key)
+    views, weights = list(pairs.reshape(-1, 2)), list(W)
     for k, (player, flag) in enumerate(zip(players, done.tolist())):
         if not flag:
             rest.append(indices[k])
             continue
-        row = out[k]  # (views of the results: replaced, never changed in place: Player.state_key)
-        c = row[0:2]
-        player._current, player._velocity = c, row[2:4]
-        player._solution = Solution(W[k], row[4:6], c, row[6:8], False)
+        c = views[4 * k]
+        solution = Solution(weights[k], views[4 * k + 2], c, views[4 * k + 3], False)
+        player._current, player._velocity, player._solution = c, views[4 * k + 1], solution
+        player._spring_of = (c, player._target, solution)  # (the numbers _set_clocks wrote)
     return rest
 
 
 def warm_up():
     """Compile (or load from numba's cache) the steps (a server does so before it serves)."""
-    clock = np.zeros((1, CLOCK_SIZE))
-    clock[0, CYCLIC] = 1.0
-    clocks = np.array([clock.ctypes.data], dtype=np.int64)
+    state = np.zeros((1, SPRING + 8))
+    state[0, CYCLIC] = 1.0
+    clocks = np.array([state.ctypes.data], dtype=np.int64)
     rates = np.array([2.0, 1.0, 0, 0, 0, 0, 0, 0, 0, 0])
     _step_settled(clocks, np.array([rates.ctypes.data], dtype=np.int64), np.array([0.01]))
-    out, done = np.zeros((1, 15)), np.zeros(1, dtype=np.bool_)
-    _set_clocks(clocks, out, done)
+    pairs, out, done = np.zeros((1, 4, 2)), np.zeros((1, 6)), np.zeros(1, dtype=np.bool_)
+    _set_clocks(clocks, pairs, out, done)
     if not _blas_agrees():
         return
     values = np.zeros((2, 2, 2))
     values[1, :, 0] = 1.0
     values[:, 1, 1] = 1.0
-    state = np.zeros((1, 10))
-    state[0, 4:6] = 0.5
-    state[0, 8:10] = 0.01, 0.25
+    state[0, SPRING + 4:SPRING + 6] = 0.5
     one = np.zeros(1, dtype=np.int64)
-    _step_moving(state, clocks, values, 1, np.ones(2), np.array([[-1.0, 2.0], [-1.0, 2.0]]), 0, one, 0, 0,
-                 np.zeros(4, dtype=np.int64), np.ones(1), np.zeros((2, 1, 3)), np.zeros((2, 1)), True,
-                 np.zeros((1, 1)), out, done)
+    _step_moving(clocks, np.array([0.01]), np.array([0.25]), values, 1, np.ones(2), np.array([[-1.0, 2.0], [-1.0, 2.0]]),
+                 0, one, 0, 0, np.zeros(4, dtype=np.int64), np.ones(1), np.zeros((2, 1, 3)), np.zeros((2, 1)), True,
+                 np.zeros((1, 1)), pairs, out, done)

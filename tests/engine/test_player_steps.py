@@ -171,3 +171,41 @@ def test_the_products_are_numpys_own():
         assert player_steps._dot(w, d) == float(w.dot(d))
         player_steps._vector_matrix(w, R, out)
         assert out.tobytes() == w.dot(R).tobytes()
+
+
+def test_a_steering_players_spring_is_read_where_it_lies(fan_space):
+    """A batch reads a steering player's spring from its state array (after the clock) and
+    writes it back; a request, a step alone or a reset in between makes it copy the spring
+    again: every state bit for bit as one by one, and the spring the player's numbers."""
+    from engine.player import SPRING
+
+    together, alone = Player(fan_space, smoothing=0.3), Player(fan_space, smoothing=0.3)
+    for player in (together, alone):
+        player.set_params([2.0, 20.0])
+
+    def spring(player):
+        return np.concatenate((player._current, player._velocity, player._target, player._solution.u))
+
+    rng = random.Random(4)
+    stepped = 0
+    for step in range(300):
+        dt = rng.uniform(0.005, 0.03)
+        if step % 37 == 5:  # a new request: a new target the spring must take
+            request = [rng.uniform(1.0, 2.5), rng.uniform(-30.0, 30.0)]
+            together.set_params(request)
+            alone.set_params(request)
+        if step % 53 == 7:
+            together.reset()
+            alone.reset()
+        if step % 11 == 3:  # a step outside a batch
+            together.advance(dt)
+        else:
+            rest = player_steps.advance_together([together], [dt])
+            stepped += not rest
+            if rest:
+                together.advance(dt)
+            else:
+                assert together._state[SPRING:SPRING + 8].tobytes() == spring(together).tobytes()
+        alone.advance(dt)
+        assert _state(together) == _state(alone)
+    assert stepped > 150
