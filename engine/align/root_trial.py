@@ -14,9 +14,11 @@ each unlike those already taken) each align the same few probe frames, spread ev
 capture, straight from themselves; the candidate whose probes come out with the least badness
 (:func:`engine.align.repair.alignment_badness` against no capture floor: the fit, the tail of
 the solid's distortion and, with colour cues, the colours' disagreement) is the root. A root
-with a merged contact shows it in every probe whose limbs are apart: the solid tears there. On
-that take the probes' badness ranked eight candidate roots in nearly the order of their true
-errors (rank correlation 0.74) and put first the best of them.
+with a merged contact shows it in every probe whose limbs are apart: the solid tears there. It
+is a noisy judge: on that take it took frame 9 (2.96%) over the spread's 378 (3.22%), not the
+best of its four candidates (27, 1.89%), and on the dance sampled one frame in 14 frame 0
+(7.88%) over the spread's 406 (9.40%); more candidates and probes ranked worse, a punch that
+aligns the punch probes winning (docs/evaluation.md, "The root tried").
 
 The trial costs ``TRIAL_CANDIDATES`` set-ups and ``TRIAL_CANDIDATES * TRIAL_PROBES`` pairwise
 alignments, a fixed amount whatever the capture's length, and is skipped for captures shorter
