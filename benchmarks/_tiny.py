@@ -35,3 +35,14 @@ def build_tiny_speed_space(path, n_vertices=TINY_VERTICES, fps=TINY_FPS):
     build_motion_space(path, clips, body.F, name=path.stem, epsilon=0.005, rest=body.V,
                        parameters={"layout": Layout("chain", 2, chain=(0, 1)), "names": ["speed"]})
     return body
+
+
+def emit(record, out):
+    """Print ``record`` as indented JSON and, with ``out`` (a Path), write it there too."""
+    import json
+
+    text = json.dumps(record, indent=1)
+    print(text)
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text + "\n")

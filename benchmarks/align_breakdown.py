@@ -27,7 +27,7 @@ import sys
 import time
 from pathlib import Path
 
-from _tiny import parse_arguments
+from _tiny import emit, parse_arguments
 from align_speed import load_frames
 
 TINY = {"start": 0, "frames": 6, "every": 2, "options": ["patches=8", "levels=2"]}
@@ -189,11 +189,7 @@ def main(argv=None):
                  part_mean_pct=np.stack([100.0 * errors[:, labels == k].mean(axis=1) / size if np.any(labels == k)
                                          else np.zeros(n) for k in range(len(names))], axis=1))
         print(f"wrote {args.save}")
-    text = json.dumps(record, indent=1)
-    print(text)
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text + "\n")
+    emit(record, args.out)
     return 0
 
 

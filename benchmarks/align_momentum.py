@@ -19,14 +19,13 @@ at 15 fps from its frame 2, 4 frames, small alignment settings; ``--out`` is req
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
 import time
 from pathlib import Path
 
-from _tiny import TINY_FPS, TINY_VERTICES, parse_arguments
+from _tiny import TINY_FPS, TINY_VERTICES, emit, parse_arguments
 
 TINY = {"root": 2, "frames": 4, "patches": 8, "levels": 1}
 
@@ -118,11 +117,7 @@ def main(argv=None):
                                "cpu_seconds_per_frame": round(cpu / len(errors), 3)})
         print(f"momentum {momentum:g}: mean {record['runs'][-1]['mean_pct']:.2f}%, last frame {errors[-1]:.2f}% "
               f"({' '.join(f'{e:.2f}' for e in errors)}), {cpu / len(errors):.2f} CPU s per frame", flush=True)
-    text = json.dumps(record, indent=1)
-    print(text)
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text + "\n")
+    emit(record, args.out)
     return 0
 
 

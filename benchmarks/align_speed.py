@@ -30,7 +30,7 @@ import sys
 import time
 from pathlib import Path
 
-from _tiny import TINY_FPS, TINY_VERTICES, parse_arguments
+from _tiny import TINY_FPS, TINY_VERTICES, emit, parse_arguments
 
 TARGET_CPU_S = 3.0         # CPU seconds per frame, all in
 TARGET_VERTICES = (9000, 15000)   # the target is stated at 10k vertices: judged in this mean count range
@@ -156,11 +156,7 @@ def main(argv=None):
     verdict = ("met" if record["target_met"] else "NOT met") if judged else \
         f"not judged ({vertices:,.0f} vertices, outside {TARGET_VERTICES[0]:,}-{TARGET_VERTICES[1]:,})"
     print(f"TARGET alignment <= {TARGET_CPU_S:g} CPU s/frame at 10k: {verdict}", flush=True)
-    text = json.dumps(record, indent=1)
-    print(text)
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text + "\n")
+    emit(record, args.out)
     return 0
 
 

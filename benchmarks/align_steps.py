@@ -26,14 +26,13 @@ run at 15 fps, small alignment settings, one part, the oracle included; ``--out`
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
 import time
 from pathlib import Path
 
-from _tiny import parse_arguments
+from _tiny import emit, parse_arguments
 from align_breakdown import parse_options, part_counts
 from align_speed import load_frames
 
@@ -160,11 +159,7 @@ def main(argv=None):
     print(f"{len(rows)} single steps: mean {record['mean_pct']:.2f}%, median {record['median_pct']:.2f}% of the "
           f"model size" + (f"; from the true rigid placement: mean {record['oracle_rigid_mean_pct']:.2f}%; from the "
                            f"true pose: mean {record['oracle_pose_mean_pct']:.2f}%" if args.oracle_rigid else "") + f"; {cpu:.1f} CPU s", flush=True)
-    text = json.dumps(record, indent=1)
-    print(text)
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text + "\n")
+    emit(record, args.out)
 
 
 if __name__ == "__main__":

@@ -20,14 +20,13 @@ error, the rank correlation between the two, and which root the trial, the geode
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys
 import time
 from pathlib import Path
 
-from _tiny import parse_arguments
+from _tiny import emit, parse_arguments
 from align_breakdown import parse_options
 from align_speed import load_frames
 
@@ -154,11 +153,7 @@ def main(argv=None):
             picture(args.picture, rows, f"{record['sequence']} from {args.start}, one in {args.every} ({n} frames): "
                                         f"rank correlation {record['rank_correlation']}")
             print(f"wrote {args.picture}")
-    text = json.dumps(record, indent=1)
-    print(text)
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text + "\n")
+    emit(record, args.out)
     return 0
 
 
