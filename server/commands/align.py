@@ -501,7 +501,8 @@ def run(args):
           f"({result.method}, root {frame_label(aligned.root, sequences, lengths)} = frame {aligned.root}, "
           f"{len(aligned.root_vertices)} vertices)")
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
-          f"{result.tree.components} components reconnected), tetrahedralise {t['tetrahedralize']:.1f} s, "
+          f"{result.tree.components} components reconnected), "
+          + (f"root trial {t['trial']:.1f} s, " if "trial" in t else "") + f"tetrahedralise {t['tetrahedralize']:.1f} s, "
           f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "
           f"{args.workers} worker{'s' if args.workers != 1 else ''} ({aligned.seconds.sum() / max(frames - 1, 1):.2f} s, "
           f"{aligned.cpu_seconds.sum() / max(frames - 1, 1):.2f} CPU s per frame and aligner)")

@@ -447,7 +447,7 @@ def test_the_root_is_tried_on_a_capture_of_24_frames_or_more(longer_dataset, tmp
     out = tmp_path / "tried"
     assert main(["align", str(longer_dataset), "--out", str(out), "--workers", "2", "--levels", "2"]) == 0
     captured = capsys.readouterr()
-    assert "try roots: 100%" in captured.err
+    assert "try roots: 100%" in captured.err and ", root trial " in captured.out
     line = next(x for x in captured.out.splitlines() if "root tried:" in x)
     assert "candidates aligned 6 probe frames each (mean badness, lower is better: walk:" in line, line
     means = {label: float(value) for label, value in re.findall(r"(walk:\d+) ([0-9.]+)", line.split("better: ")[1])}
