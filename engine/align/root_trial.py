@@ -17,7 +17,7 @@ the solid's distortion and, with colour cues, the colours' disagreement) is the 
 with a merged contact shows it in every probe whose limbs are apart: the solid tears there. It
 is a noisy judge: on that take it took frame 9 (2.96%) over the spread's 378 (3.22%), not the
 best of its four candidates (27, 1.89%), and on the dance sampled one frame in 14 frame 0
-(7.88%) over the spread's 406 (9.40%); more candidates and probes ranked worse, a punch that
+(7.70%, the best of its four) over the spread's 406 (9.19%); more candidates and probes ranked worse, a punch that
 aligns the punch probes winning (docs/evaluation.md, "The root tried").
 
 The trial costs ``TRIAL_CANDIDATES`` set-ups and ``TRIAL_CANDIDATES * TRIAL_PROBES`` pairwise
