@@ -201,13 +201,13 @@ def _in_processes(jobs, shared, workers, progress):
     from concurrent.futures import ProcessPoolExecutor
 
     context = multiprocessing.get_context("forkserver")
-    outs = [None] * len(jobs)
+    outs = []
     with ProcessPoolExecutor(max_workers=min(int(workers), len(jobs)), mp_context=context) as pool:
         futures = [pool.submit(trial_task, shared, job) for job in jobs]
-        for done, (i, future) in enumerate(zip(range(len(jobs)), futures), start=1):
-            outs[i] = future.result()
+        for future in futures:
+            outs.append(future.result())
             if progress is not None:
-                progress(done, len(jobs))
+                progress(len(outs), len(jobs))
     return outs
 
 
