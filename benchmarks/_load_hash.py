@@ -21,13 +21,12 @@ import argparse
 import asyncio
 import hashlib
 import json
-import os
 import random
-import subprocess
-import sys
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
+from _offline import _Socket
+from _workers import json_in_tree
+
 RUNS = ((60, 6.0, 1), (100, 8.0, 2))  # (sessions, seconds, seed): 21,600 and 48,000 frames
 _SENT_AT = b"\xa7sent_at\xcb"  # the key and float64 marker before a frame's send time
 
@@ -61,11 +60,6 @@ class _Hasher:
     def write_frame(self, head, vertices, floor):  # (TransportGauge.write_frame, where a tree has it)
         self.write_message([head, vertices])
         return 0
-
-
-class _Socket:
-    def __init__(self, transport):
-        self.scope = {"extensions": {"morphspace.transport": transport}}
 
 
 async def _run(space_path, n, seconds, seed):
@@ -135,12 +129,7 @@ async def _run(space_path, n, seconds, seed):
 
 def hash_in(tree, space_path, n, seconds, seed):
     """One hashed run in a fresh interpreter running ``tree``'s server code; returns its record."""
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    command = [sys.executable, str(HERE / "_load_hash.py"), "--json", str(space_path), str(n), str(seconds), str(seed)]
-    done = subprocess.run(command, env=env, cwd=str(tree), capture_output=True, text=True, timeout=1800)
-    if done.returncode != 0:
-        raise RuntimeError(f"hashed run in {tree} failed:\n{done.stderr[-2000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    return json_in_tree(tree, "_load_hash.py", ["--json", space_path, n, seconds, seed], "hashed run")
 
 
 def frames_hashes(args, space_path, root):

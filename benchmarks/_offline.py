@@ -30,12 +30,11 @@ import json
 import os
 import random
 import statistics
-import subprocess
-import sys
 import time
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
+from _workers import json_in_tree
+
 
 
 class _Counter:
@@ -169,13 +168,8 @@ def measure(space_path, clients, seconds, share, seed=1, grid=False):
 
 def measure_in(tree, space_path, clients, seconds, share, seed=1, grid=False):
     """One offline round in a fresh interpreter running ``tree``'s server code."""
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    command = [sys.executable, str(HERE / "_offline.py"), "--json", str(space_path), str(clients), str(seconds),
-               str(share), str(seed)] + (["--grid"] if grid else [])
-    done = subprocess.run(command, env=env, cwd=str(tree), capture_output=True, text=True, timeout=1800)
-    if done.returncode != 0:
-        raise RuntimeError(f"offline round in {tree} failed:\n{done.stderr[-2000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    return json_in_tree(tree, "_offline.py", ["--json", space_path, clients, seconds, share, seed]
+                        + (["--grid"] if grid else []), "offline round")
 
 
 def offline_rounds(args, space_path, root):

@@ -16,6 +16,20 @@ ROOT = Path(__file__).resolve().parents[1]
 DELIVERED = 0.95  # a client count is held when the clients get this share of their frames on average
 
 
+def json_in_tree(tree, script, arguments, what, timeout=1800):
+    """Run ``benchmarks/<script> arguments`` (of this checkout) in a fresh interpreter with source
+    tree ``tree``'s code first on the path and in ``tree`` as its working directory; returns the
+    JSON object its last line prints. ``what`` names the run in the error when it fails."""
+    import json
+
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    command = [sys.executable, str(Path(__file__).resolve().parent / script)] + [str(a) for a in arguments]
+    done = subprocess.run(command, env=env, cwd=str(tree), capture_output=True, text=True, timeout=timeout)
+    if done.returncode != 0:
+        raise RuntimeError(f"{what} in {tree} failed:\n{done.stderr[-3000:]}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
 def process_tree(pid):
     """``pid`` and every process descending from it (/proc/<pid>/task/*/children)."""
     out, todo = [], [pid]

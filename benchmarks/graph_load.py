@@ -36,13 +36,13 @@ import json
 import os
 import random
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 from _tiny import parse_arguments
+from _workers import json_in_tree
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
@@ -163,13 +163,8 @@ def measure(graph_path, clients, seconds, share, every, nodes, seed=1, check=Fal
 
 def measure_in(tree, graph_path, clients, seconds, share, every, nodes, seed=1, check=False):
     """One round in a fresh interpreter running ``tree``'s server code."""
-    env = dict(os.environ, PYTHONPATH=str(tree))
-    command = [sys.executable, str(HERE / "graph_load.py"), "--round", str(graph_path), str(clients), str(seconds),
-               str(share), str(every), ",".join(nodes), str(seed), "1" if check else "0"]
-    done = subprocess.run(command, env=env, cwd=str(tree), capture_output=True, text=True, timeout=3600)
-    if done.returncode != 0:
-        raise RuntimeError(f"graph round in {tree} failed:\n{done.stderr[-3000:]}")
-    return json.loads(done.stdout.strip().splitlines()[-1])
+    return json_in_tree(tree, "graph_load.py", ["--round", graph_path, clients, seconds, share, every, ",".join(nodes),
+                                                seed, "1" if check else "0"], "graph round", timeout=3600)
 
 
 def tiny_graph(directory):

@@ -140,10 +140,10 @@ class Progress:
         self.bars.clear()
 
 
-def root_trial_text(trial, sequences, lengths):
-    """One line on the root trial: the candidates' mean badness and the one taken."""
+def root_trial_text(trial, chosen, sequences, lengths):
+    """One line on the root trial: the candidates' mean badness and the one taken (``chosen``,
+    the root the alignment used)."""
     tried = ", ".join(f"{frame_label(c, sequences, lengths)} {m:.2f}" for c, m in zip(trial["candidates"], trial["mean"]))
-    chosen = trial["candidates"][int(np.argmin(trial["mean"]))]
     change = ("kept" if chosen == trial["spread_choice"]
               else f"taken instead of {frame_label(trial['spread_choice'], sequences, lengths)}")
     return (f"root tried: {len(trial['candidates'])} candidates aligned {len(trial['probes'])} probe frames each "
@@ -303,11 +303,10 @@ def colour_cues_text(mode, used, meshes):
 def options_record(options, colour_cues):
     """The manifest's ``alignment.options``: ``options`` (a mapping with ``OPTION_NAMES``, ``seed``,
     ``units`` and ``up``: the command line's or an align job's) and whether colour cues were used,
-    in one order, so `morphspace align` and the align job write the same manifest. An option added
-    later (``swing_limbs``) may be missing from a job queued before it: it was off then."""
-    later = {"swing_limbs": False}
-    return {**{name: options.get(name, later[name]) if name in later else options[name] for name in OPTION_NAMES},
-            "colour_cues": colour_cues, "seed": options["seed"], "units": options["units"], "up": options["up"]}
+    in one order, so `morphspace align` and the align job write the same manifest (a job queued
+    before an option existed has it from ``server.jobs.tasks.ALIGN_DEFAULTS``)."""
+    return {**{name: options[name] for name in OPTION_NAMES}, "colour_cues": colour_cues, "seed": options["seed"],
+            "units": options["units"], "up": options["up"]}
 
 
 # what describes the input's frames and not the aligned ones (their count, mesh structure and axes)
@@ -516,7 +515,7 @@ def run(args):
           f"{int(aligned.retried.sum())} frames re-aligned from other parents")
     print(f"  colour cues {colour_cues_text(args.colors, result.colour_cues, meshes)}")
     if result.root_trial:
-        print(f"  {root_trial_text(result.root_trial, sequences, lengths)}")
+        print(f"  {root_trial_text(result.root_trial, int(aligned.root), sequences, lengths)}")
     if result.turned:
         shown = [frame_label(i, sequences, lengths) for i in sorted(result.turned)]
         print(f"  faces wound inward (or mixed) turned outward in {len(shown)} frames: {', '.join(shown[:6])}"

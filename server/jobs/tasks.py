@@ -264,7 +264,7 @@ def run_graph(payload, reporter):
 # --- align ----------------------------------------------------------------------------------------
 # what a job record made before these parameters existed runs with (the AlignJob model's defaults)
 ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "trial", "colors": "auto", "repair_budget": 0.5, "units": "auto",
-                  "up": "auto"}
+                  "up": "auto", "swing_limbs": False}
 
 
 def run_align(payload, reporter, runner=None):
@@ -293,7 +293,7 @@ def run_align(payload, reporter, runner=None):
     meshes, conventions = convert_inputs(meshes, sequences, lengths, params["units"], params["up"], say=reporter.log)
     root = parse_root(params.get("root"), sequences, lengths)
     options = AlignmentOptions(patches=params["patches"], levels=params["levels"],
-                               swing_limbs=params.get("swing_limbs", False))
+                               swing_limbs=params["swing_limbs"])
     result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree",
                             tree_kind=params["tree"], root=root, root_choice=params["root_choice"],
                             options=options, window=params["window"], workers=1, retries=params["retries"],
@@ -310,7 +310,7 @@ def run_align(payload, reporter, runner=None):
     size = model_size(aligned.root_vertices)
     reporter.log(f"aligned {int(lengths.sum())} frames in {time.perf_counter() - started:.1f} s")
     if result.root_trial:
-        reporter.log(root_trial_text(result.root_trial, sequences, lengths))
+        reporter.log(root_trial_text(result.root_trial, int(result.aligned.root), sequences, lengths))
     confidence = confidence_summary(aligned, sequences, lengths)
     reporter.log(f"confidence: {confidence['repaired_frames']} frames repaired, {confidence['flagged_frames']} of "
                  f"{int(lengths.sum())} still below {TRUSTED} (the summary's flagged lists them per sequence)")
