@@ -6,7 +6,10 @@ On a slice of a sequence with ground truth, takes the candidate roots (the trial
 from itself), then, with ``--truth``, the whole alignment rooted at each candidate, scored against
 the ground truth. Prints each candidate's mean probe badness and true mean and 95th-percentile
 error, the rank correlation between the two, and which root the trial, the geodesic spread
-(``apart``) and the truth would take. ``--picture`` plots badness against true error.
+(``apart``) and the truth would take. With ``--truth`` it also reads each whole alignment's mean
+confidence (what the race, ``root_choice="race"``, compares between the trial's two best
+candidates: ``engine.align.root_race``), its rank correlation with the true error, and which
+finalist the race would take. ``--picture`` plots badness against true error.
 
     .venv/bin/python benchmarks/root_trial.py /tmp/studio-strikes --sequence strikes --start 0 --frames 43 \\
         --every 9 [--roots 42,2,3,1,0,41,7,12] [--truth] [--picture /tmp/trial.png] [--out result.json]
@@ -91,6 +94,7 @@ def main(argv=None):
     from engine.align import align_captures, score_alignment
     from engine.align.captures import _apart, _outward
     from engine.align.root_choice import ROOT_SLACK
+    from engine.align.root_race import finalists, race_score
     from engine.align.root_trial import TRIAL_PROBES, trial_candidates, trial_probes, try_roots
     from engine.align.similarity import shape_dissimilarity
     from engine.align.similarity_tree import similarity_tree
@@ -125,14 +129,16 @@ def main(argv=None):
             errors, _ = score_alignment(run.aligned.vertices, c, run.aligned.root_vertices, truth, faces, size)
             row["true_mean_pct"] = round(float(100.0 * errors.mean() / size), 3)
             row["true_p95_pct"] = round(float(100.0 * np.percentile(errors, 95) / size), 3)
+            row["confidence_mean"] = round(race_score(run.aligned.confidence, c), 4)
         rows.append(row)
         print(f"  root {c:>4}: trial badness {mean:.3f}"
-              + (f", true mean {row['true_mean_pct']:.2f}%, p95 {row['true_p95_pct']:.2f}%" if args.truth else "")
+              + (f", true mean {row['true_mean_pct']:.2f}%, p95 {row['true_p95_pct']:.2f}%, whole alignment's mean "
+                 f"confidence {row['confidence_mean']:.3f}" if args.truth else "")
               + (" (trial's choice)" if row["trial_choice"] else "") + (" (spread's choice)" if row["spread_choice"] else ""),
               flush=True)
     record = {"dataset": "tiny" if args.tiny else str(args.dataset), "sequence": "run" if args.tiny else args.sequence,
               "start": args.start, "every": args.every, "frames": n, "options": changes, "candidates": candidates,
-              "probes": probes, "trial_choice": chosen, "spread_choice": int(spread_choice),
+              "probes": probes, "trial_choice": chosen, "finalists": finalists(trial), "spread_choice": int(spread_choice),
               "trial_cpu_seconds": round(trial_cpu, 2), "badness": trial["badness"], "rows": rows,
               "load_average_before": [round(x, 2) for x in load_before],
               "load_average_after": [round(x, 2) for x in os.getloadavg()], "python": platform.python_version()}
@@ -144,11 +150,21 @@ def main(argv=None):
         k = len(rows)
         d = ranks([r["badness_mean"] for r in rows]) - ranks(true)
         record["rank_correlation"] = round(1.0 - 6.0 * float(np.sum(d ** 2)) / (k * (k * k - 1)), 3) if k > 1 else None
+        confidence = {r["frame"]: r["confidence_mean"] for r in rows}
+        d = ranks([-r["confidence_mean"] for r in rows]) - ranks(true)
+        record["confidence_rank_correlation"] = (round(1.0 - 6.0 * float(np.sum(d ** 2)) / (k * (k * k - 1)), 3)
+                                                 if k > 1 else None)
+        race = max(record["finalists"], key=lambda c: confidence[c])  # the first of equals, as the race
+        record["race_choice"] = int(race)
+        record["race_choice_true_mean_pct"] = true[candidates.index(race)]
         record["truth_choice"] = int(best)
         record["trial_choice_true_mean_pct"] = true[candidates.index(chosen)]
         record["spread_choice_true_mean_pct"] = true[candidates.index(spread_choice)] if spread_choice in candidates else None
         print(f"  truly best {best} ({min(true):.2f}%); the trial's {chosen}: {record['trial_choice_true_mean_pct']:.2f}%; "
               f"rank correlation of badness and true error {record['rank_correlation']}")
+        print(f"  the race between {record['finalists']} takes {race} ({record['race_choice_true_mean_pct']:.2f}%); "
+              f"rank correlation of the whole alignments' confidence and true error "
+              f"{record['confidence_rank_correlation']}")
         if args.picture is not None:
             picture(args.picture, rows, f"{record['sequence']} from {args.start}, one in {args.every} ({n} frames): "
                                         f"rank correlation {record['rank_correlation']}")

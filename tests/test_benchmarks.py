@@ -198,6 +198,13 @@ def check_root_trial(record, stdout):
         assert 0 < row["true_mean_pct"] <= row["true_p95_pct"] < 100
     assert record["rank_correlation"] in (-1.0, 1.0) and record["truth_choice"] in (0, 4)
     assert "candidates x 2 probes" in stdout and "rank correlation of badness and true error" in stdout
+    # the race: the trial's two best, the more confident whole alignment
+    assert sorted(record["finalists"]) == [0, 4] and record["finalists"][0] == record["trial_choice"]
+    confidence = {row["frame"]: row["confidence_mean"] for row in record["rows"]}
+    assert all(0 <= c <= 1 for c in confidence.values())
+    assert record["race_choice"] == max(record["finalists"], key=confidence.get)
+    assert record["confidence_rank_correlation"] in (-1.0, 1.0)
+    assert "the race between [" in stdout and "confidence and true error" in stdout
 
 
 def check_align_momentum(record, stdout):

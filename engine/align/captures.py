@@ -16,6 +16,8 @@ from engine.align.pairwise import AlignmentOptions
 from engine.align.propagation import AlignedFrames, align_tree
 from engine.align.repair import alignment_confidence, colour_terms, repair_alignment, tail_reference
 from engine.align.root_choice import ROOT_SLACK, choose_root
+from engine.align import root_race
+from engine.align.root_race import finalists, race_frames, race_score, sub_similarity
 from engine.align.root_trial import TRIAL_MIN_FRAMES, root_setup, trial_candidates, trial_probes, try_roots
 from engine.align.similarity import shape_dissimilarity
 from engine.align.similarity_tree import DEFAULT_TREE, chain_tree, similarity_tree
@@ -81,10 +83,10 @@ def colours_carry_texture(vertices, faces):
     return median < FINE_EDGE * np.sqrt(area)
 
 
-ROOT_CHOICES = ("trial", "apart", "central")
+ROOT_CHOICES = ("race", "trial", "apart", "central")
 
 
-def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, root_choice="trial",
+def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, root_choice="race",
                    options=None, window=2,
                    workers=1, retries=3, tets=None, use_colors="auto", seed=0, similarity=None, repair=True,
                    repair_budget=0.5, progress=None, runner=None):
@@ -155,7 +157,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                          runner=runner)
     timings["similarity"] = time.perf_counter() - started
     started = time.perf_counter()
-    chooser = _apart(meshes, progress) if root is None and root_choice in ("apart", "trial") else None
+    chooser = _apart(meshes, progress) if root is None and root_choice in ("apart", "trial", "race") else None
     tree = similarity_tree(similarity.dissimilarity, root=root, kind=tree_kind, choose_root=chooser)
     timings["tree"] = time.perf_counter() - started
     # colours, when every frame has them, always settle front-back ambiguities (PairwiseAligner
@@ -163,21 +165,49 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     colours = all(getattr(m, "colors", None) is not None for m in meshes)
     options = options or AlignmentOptions()
     trial = None
-    if chooser is not None and root_choice == "trial" and len(meshes) >= TRIAL_MIN_FRAMES and tets is None:
+    tried = {}
+    if chooser is not None and root_choice in ("trial", "race") and len(meshes) >= TRIAL_MIN_FRAMES and tets is None:
         started = time.perf_counter()
         candidates = trial_candidates(similarity.dissimilarity, chooser.centrality, tree.root, slack=ROOT_SLACK)
         if len(candidates) > 1:
             probes = trial_probes(len(meshes), candidates)
-            chosen, trial, tets = try_roots(meshes, candidates, probes, similarity.yaw, options=options,
-                                            use_colors=use_colors, colours=colours, seed=seed, runner=runner,
-                                            workers=workers,
-                                            progress=(lambda d, t: progress("trial", d, t)) if progress else None)
+            chosen, trial, tried = try_roots(meshes, candidates, probes, similarity.yaw, options=options,
+                                             use_colors=use_colors, colours=colours, seed=seed, runner=runner,
+                                             workers=workers,
+                                             progress=(lambda d, t: progress("trial", d, t)) if progress else None)
             trial["spread_choice"] = int(tree.root)
+            tets = tried[chosen]
             if chosen != tree.root:
                 tree = similarity_tree(similarity.dissimilarity, root=chosen, kind=tree_kind)
         timings["trial"] = time.perf_counter() - started
+    settings = dict(options=options, use_colors=use_colors, colours=colours, seed=seed, workers=workers,
+                    retries=retries, runner=runner, repair=repair, repair_budget=repair_budget)
+    run = None
+    if trial is not None and root_choice == "race" and method == "tree":
+        started = time.perf_counter()
+        tree, run = _race(meshes, lengths, similarity, trial, tried, tree_kind, settings, progress)
+        tets = tried[int(tree.root)]
+        # a whole race's winning run is the alignment: its stages are counted as theirs
+        timings["race"] = time.perf_counter() - started - (sum(run[3].values()) if run is not None else 0.0)
     if method == "sequential":
         tree = chain_tree(lengths, tree.root)
+    if run is not None:
+        aligned, tets, cues, spent = run
+    else:
+        aligned, tets, cues, spent = _align_from(meshes, lengths, similarity, tree, method, tets=tets,
+                                                 progress=progress, **settings)
+    timings.update(spent)
+    return CaptureAlignment(similarity=similarity, tree=tree, aligned=aligned, timings=timings, method=method,
+                            tets=tets, colour_cues=bool(cues), turned=turned, root_trial=trial)
+
+
+def _align_from(meshes, lengths, similarity, tree, method, *, options, use_colors, colours, seed, tets, workers,
+                retries, runner, repair, repair_budget, progress):
+    """Align every frame along ``tree`` from its root: the root's aligner (its tet mesh ``tets``,
+    or tetrahedralised here), the alignment and, with the tree, the repair.
+
+    Returns (aligned frames, the root's tet mesh, colour cues on, {stage: seconds})."""
+    timings = {}
     base = meshes[tree.root]
     started = time.perf_counter()
     aligner, options, cues, kept = root_setup(base, options, use_colors, colours, seed, tets=tets,
@@ -199,8 +229,47 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     else:
         _confidence_only(aligned, colours=bool(cues))
     timings["repair"] = time.perf_counter() - started
-    return CaptureAlignment(similarity=similarity, tree=tree, aligned=aligned, timings=timings, method=method,
-                            tets=tets, colour_cues=bool(cues), turned=turned, root_trial=trial)
+    return aligned, tets, bool(cues), timings
+
+
+def _race(meshes, lengths, similarity, trial, tried, tree_kind, settings, progress):
+    """The trial's best candidates each align the capture (or :func:`race_frames` of it); the
+    one with the highest mean confidence wins (:mod:`engine.align.root_race`). Adds ``race`` to
+    the trial's report.
+
+    Returns (the winner's tree, its whole run as :func:`_align_from` returns it, or None when a
+    subset was raced and the capture is still to be aligned)."""
+    final = finalists(trial)
+    frames = race_frames(len(meshes), final, root_race.RACE_FRAMES)
+    whole = len(frames) == len(meshes)
+    sub = meshes if whole else [meshes[f] for f in frames]
+    similar = similarity if whole else sub_similarity(similarity, frames)
+    total = len(final) * len(frames)
+    runs, scores = {}, []
+    for k, c in enumerate(final):
+        at = frames.index(c)
+        tree = similarity_tree(similar.dissimilarity, root=at, kind=tree_kind)
+        run = _align_from(sub, lengths if whole else None, similar, tree, "tree", tets=tried.get(c),
+                          progress=_race_progress(progress, k * len(frames), total), **settings)
+        runs[c] = (tree, run)
+        scores.append(race_score(run[0].confidence, at))
+    winner = final[int(np.argmax(scores))]  # the first of equals: the trial's better candidate
+    trial["race"] = {"finalists": final, "frames": len(frames), "confidence": [round(x, 4) for x in scores],
+                     "winner": int(winner)}
+    if whole:
+        return runs[winner]
+    return similarity_tree(similarity.dissimilarity, root=winner, kind=tree_kind), None
+
+
+def _race_progress(progress, offset, total):
+    """A finalist's alignment reported as the "race" stage (its frames after ``offset`` of ``total``)."""
+    if progress is None:
+        return None
+
+    def report(stage, done, _):
+        if stage == "align":
+            progress("race", offset + done, total)
+    return report
 
 
 def _outward(meshes):

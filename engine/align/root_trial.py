@@ -172,7 +172,7 @@ def try_roots(meshes, candidates, probes, yaw, *, options, use_colors, colours, 
     -------
     root : int
     report : dict   ``candidates``, ``probes``, ``badness`` (candidates x probes), ``mean``
-    tets : (V_tet, T)   the chosen root's tet mesh
+    tets : dict     candidate -> its tet mesh (V_tet, T), None where it could not be filled
     """
     from engine.align.propagation import mesh_arrays
     from engine.tasks import SerialRunner
@@ -192,7 +192,7 @@ def try_roots(meshes, candidates, probes, yaw, *, options, use_colors, colours, 
     best = int(np.argmin(mean))  # the first of equals: the spread's choice wins a tie
     report = {"candidates": [int(c) for c in candidates], "probes": [int(p) for p in probes],
               "badness": badness.round(4).tolist(), "mean": mean.round(4).tolist()}
-    return int(candidates[best]), report, outs[best]["tets"]
+    return int(candidates[best]), report, {int(c): out["tets"] for c, out in zip(candidates, outs)}
 
 
 def _in_processes(jobs, shared, workers, progress):

@@ -70,8 +70,11 @@ def add_arguments(parser):
     parser.add_argument("--only", nargs="+", metavar="NAME", help="with a capture dataset: only these sequences")
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global frame index "
                         "(default: chosen by --root-choice)")
-    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="trial",
-                        help="without --root: trial (default) lets the apart choice and up to 3 other central frames "
+    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="race",
+                        help="without --root: race (default) runs the trial, then its two best candidates each align "
+                             "the capture (a capture of more than 64 frames: 64 frames of it, evenly spaced) and the "
+                             "root of the alignment with the higher mean confidence wins; "
+                             "trial lets the apart choice and up to 3 other central frames "
                              "each align 6 probe frames and takes the one that aligns them best (captures of 24 "
                              "frames or more); apart takes a frame nearly as central as the most central one whose "
                              "limbs are apart (no merged contact tied into every frame); central is the paper's "
@@ -113,9 +116,9 @@ class Progress:
     """tqdm bars on stderr, one per stage."""
 
     LABELS = {"read": "read frames", "histograms": "shape histograms", "dissimilarity": "dissimilarity",
-              "root": "choose root", "trial": "try roots", "align": "align", "align sequential": "align (sequential)", "repair": "repair",
+              "root": "choose root", "trial": "try roots", "race": "race roots", "align": "align", "align sequential": "align (sequential)", "repair": "repair",
               "write": "write"}
-    UNITS = {"trial": "root"}  # the trial counts candidate roots, the other stages frames
+    UNITS = {"trial": "root"}  # the trial counts candidate roots, the other stages frames (the race: each finalist's)
 
     def __init__(self):
         self.bars = {}
@@ -141,13 +144,18 @@ class Progress:
 
 
 def root_trial_text(trial, chosen, sequences, lengths):
-    """One line on the root trial: the candidates' mean badness and the one taken (``chosen``,
-    the root the alignment used)."""
+    """One line on the root trial (and the race, when one ran): the candidates' mean badness, the
+    finalists' mean confidence and the root taken (``chosen``, the root the alignment used)."""
     tried = ", ".join(f"{frame_label(c, sequences, lengths)} {m:.2f}" for c, m in zip(trial["candidates"], trial["mean"]))
     change = ("kept" if chosen == trial["spread_choice"]
               else f"taken instead of {frame_label(trial['spread_choice'], sequences, lengths)}")
+    race = trial.get("race")
+    raced = "" if race is None else (
+        f"; the best {len(race['finalists'])} each aligned {race['frames']} frames (mean confidence, higher is better: "
+        + ", ".join(f"{frame_label(c, sequences, lengths)} {x:.2f}" for c, x in zip(race["finalists"], race["confidence"]))
+        + ")")
     return (f"root tried: {len(trial['candidates'])} candidates aligned {len(trial['probes'])} probe frames each "
-            f"(mean badness, lower is better: {tried}); {frame_label(chosen, sequences, lengths)} {change}")
+            f"(mean badness, lower is better: {tried}){raced}; {frame_label(chosen, sequences, lengths)} {change}")
 
 
 def resolve_inputs(inputs, only=None):
@@ -501,7 +509,8 @@ def run(args):
           f"{len(aligned.root_vertices)} vertices)")
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
           f"{result.tree.components} components reconnected), "
-          + (f"root trial {t['trial']:.1f} s, " if "trial" in t else "") + f"tetrahedralise {t['tetrahedralize']:.1f} s, "
+          + (f"root trial {t['trial']:.1f} s, " if "trial" in t else "")
+          + (f"root race {t['race']:.1f} s, " if "race" in t else "") + f"tetrahedralise {t['tetrahedralize']:.1f} s, "
           f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "
           f"{args.workers} worker{'s' if args.workers != 1 else ''} ({aligned.seconds.sum() / max(frames - 1, 1):.2f} s, "
           f"{aligned.cpu_seconds.sum() / max(frames - 1, 1):.2f} CPU s per frame and aligner)")

@@ -60,8 +60,8 @@ def add_arguments(parser):
                         help=f"the similarity tree: paths or mst (see `morphspace align --help`; default {DEFAULT_TREE})")
     parser.add_argument("--no-sequential", action="store_true", help="skip the frame-to-frame baseline")
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global index (default: the tree's)")
-    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="trial",
-                        help="without --root: trial (default), apart or central (see `morphspace align --help`)")
+    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="race",
+                        help="without --root: race (default), trial, apart or central (see `morphspace align --help`)")
     parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
                         help="vertex colours as local matching cues (see `morphspace align --help`; default auto)")
     parser.add_argument("--swing-limbs", action="store_true",
@@ -301,6 +301,9 @@ def run(args):
             report["colour_cues"] = bool(tree_run.colour_cues)
             report["similarity_seconds"] = round(tree_run.timings["similarity"], 3)
             report["tree_seconds"] = round(tree_run.timings["tree"], 4)
+            for stage in ("trial", "race"):  # choosing the root by trying, then racing, candidates
+                if stage in tree_run.timings:
+                    report[f"root_{stage}_seconds"] = round(tree_run.timings[stage], 2)
             report["tree"] = {"kind": args.tree, "repair_budget": args.repair_budget, "swing_limbs": args.swing_limbs,
                               "depth_max": int(tree_run.tree.depth.max()),
                               "depth_mean": round(float(tree_run.tree.depth.mean()), 2),
@@ -372,7 +375,9 @@ def _print_report(report, out):
           f"{report['model_size_m']:.3f} m; input in {' / '.join(inputs)}; lengths in {unit}")
     if "similarity_seconds" in report:
         print(f"similarity {report['similarity_seconds']:.1f} s, tree {report['tree_seconds']:.3f} s "
-              f"(depth max {report['tree']['depth_max']}, mean {report['tree']['depth_mean']})")
+              f"(depth max {report['tree']['depth_max']}, mean {report['tree']['depth_mean']})"
+              + "".join(f", root {stage} {report[f'root_{stage}_seconds']:.1f} s" for stage in ("trial", "race")
+                        if f"root_{stage}_seconds" in report))
     header = f"{'method':<12}{'mean %':>8}{'p95 %':>8}{'max %':>8}{'mean ' + unit:>9}{'p95 ' + unit:>8}" \
              f"{'max ' + unit:>8}{'resid ' + unit:>10}{'s/frame':>9}{'CPU s/fr':>9}"
     print(header)

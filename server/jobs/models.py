@@ -92,8 +92,10 @@ class AlignJob(_Body):
     output: Name = Field(description="name of the aligned dataset to write")
     only: list[Name] | None = Field(None, max_length=256, description="only these sequences")
     root: str | None = Field(None, max_length=200, description="root frame as SEQUENCE:FRAME or a global index")
-    root_choice: Literal["trial", "apart", "central"] = Field(
-        "trial", description="without root: trial, the apart choice and up to 3 other central frames each align 6 "
+    root_choice: Literal["race", "trial", "apart", "central"] = Field(
+        "race", description="without root: race, the trial's two best candidates each align the capture (or 64 "
+                            "frames of it) and the more confident alignment's root wins; "
+                            "trial, the apart choice and up to 3 other central frames each align 6 "
                              "probe frames and the one that aligns them best is the root (24 frames or more); "
                              "apart, a frame nearly as central as the most central one whose limbs are apart (no "
                              "merged contact tied into every frame); central, the paper's most central frame of "

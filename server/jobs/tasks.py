@@ -32,8 +32,8 @@ from pathlib import Path
 STAGES = {
     "build": [("read", 0.05), ("tetrahedralise", 0.25), ("time-warp", 0.05), ("decompose", 0.3), ("hybrid", 0.15),
               ("parameters", 0.17), ("write", 0.03)],
-    "align": [("read", 0.05), ("histograms", 0.13), ("dissimilarity", 0.05), ("root", 0.02), ("trial", 0.08),
-              ("align", 0.47), ("repair", 0.12), ("write", 0.08)],
+    "align": [("read", 0.05), ("histograms", 0.13), ("dissimilarity", 0.05), ("root", 0.02), ("trial", 0.06),
+              ("race", 0.35), ("align", 0.2), ("repair", 0.06), ("write", 0.08)],
     "ingest": [("validate", 0.75), ("write", 0.25)],
     "export": [("play", 0.4), ("write", 0.6)],
     "graph": [("windows", 0.75), ("edges", 0.2), ("write", 0.05)],
@@ -263,7 +263,7 @@ def run_graph(payload, reporter):
 
 # --- align ----------------------------------------------------------------------------------------
 # what a job record made before these parameters existed runs with (the AlignJob model's defaults)
-ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "trial", "colors": "auto", "repair_budget": 0.5, "units": "auto",
+ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "race", "colors": "auto", "repair_budget": 0.5, "units": "auto",
                   "up": "auto", "swing_limbs": False}
 
 

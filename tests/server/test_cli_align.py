@@ -443,16 +443,28 @@ def longer_dataset(tmp_path_factory):
     return root
 
 
-def test_the_root_is_tried_on_a_capture_of_24_frames_or_more(longer_dataset, tmp_path, capsys):
+def test_the_root_is_tried_and_raced_on_a_capture_of_24_frames_or_more(longer_dataset, tmp_path, capsys):
     out = tmp_path / "tried"
     assert main(["align", str(longer_dataset), "--out", str(out), "--workers", "2", "--levels", "2"]) == 0
     captured = capsys.readouterr()
-    assert "try roots: 100%" in captured.err and ", root trial " in captured.out
+    assert "try roots: 100%" in captured.err and "race roots: 100%" in captured.err
+    assert ", root trial " in captured.out and ", root race " in captured.out
     line = next(x for x in captured.out.splitlines() if "root tried:" in x)
     assert "candidates aligned 6 probe frames each (mean badness, lower is better: walk:" in line, line
-    means = {label: float(value) for label, value in re.findall(r"(walk:\d+) ([0-9.]+)", line.split("better: ")[1])}
-    best = min(means, key=means.get)
+    tried, raced = line.split("better: ")[1], line.split("higher is better: ")[1]
+    means = {label: float(value) for label, value in re.findall(r"(walk:\d+) ([0-9.]+)", tried.split(")")[0])}
+    confidence = {label: float(value) for label, value in re.findall(r"(walk:\d+) ([0-9.]+)", raced.split(")")[0])}
+    frames = len(np.load(out / "alignment.npz")["parent"])
+    # the trial's two least bad candidates each aligned the whole capture; the more confident is the root
+    assert f"; the best 2 each aligned {frames} frames (mean confidence" in line, line
+    assert sorted(confidence) == sorted(sorted(means, key=means.get)[:2]), (means, confidence)
+    best = max(confidence, key=confidence.get)
     assert f"; {best} " in line and np.load(out / "alignment.npz")["root"] == int(best.split(":")[1])
+    # the trial alone: no race
+    assert main(["align", str(longer_dataset), "--out", str(tmp_path / "trial"), "--workers", "1", "--levels", "2",
+                 "--root-choice", "trial"]) == 0
+    captured = capsys.readouterr()
+    assert "root tried:" in captured.out and "race roots" not in captured.err and "root race" not in captured.out
     # the spread's choice alone: no trial
     assert main(["align", str(longer_dataset), "--out", str(tmp_path / "apart"), "--workers", "1", "--levels", "2",
                  "--root-choice", "apart"]) == 0

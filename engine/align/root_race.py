@@ -1,0 +1,74 @@
+"""The root raced: the two best candidates of the root trial each align the capture, the more
+confident alignment wins.
+
+The trial (:mod:`engine.align.root_trial`) judges a candidate root by a few probe frames aligned
+straight from it. That is cheap, and it ranks candidates poorly: on the studio's martial-arts take
+sampled one frame in 9, the probes' true error itself (not just their badness, which follows it
+closely) ranked eight roots against the error of their whole alignments at a rank correlation of
+0.45, because a whole alignment reaches every frame along the tree, not straight from the root.
+The whole alignment's own mean confidence ranked the same eight roots almost exactly. So the
+trial's ``RACE_FINALISTS`` best candidates each align the capture along their own tree (with
+repair, as the final run does) and the alignment with the higher mean confidence over the frames
+other than its root is kept.
+
+A capture of at most ``RACE_FRAMES`` frames is raced whole, and the winner's alignment is the
+result: the race costs one more whole alignment per extra finalist. A longer capture races an
+evenly spaced subset of that many frames (the finalists among them), and the winner then aligns
+the whole capture: a fixed cost, like the trial's.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+RACE_FINALISTS = 2   # the trial's best candidates that align the capture
+RACE_FRAMES = 64     # a longer capture races an evenly spaced subset of this many frames
+
+
+def finalists(trial, count=RACE_FINALISTS):
+    """The ``count`` candidates of a trial report with the least mean badness, best first (ties:
+    the earlier candidate, so the spread's choice)."""
+    mean = np.asarray(trial["mean"], dtype=np.float64)
+    order = np.argsort(mean, kind="stable")[:int(count)]
+    return [int(trial["candidates"][k]) for k in order]
+
+
+def race_frames(n, keep, limit=RACE_FRAMES):
+    """The frames a race aligns: all ``n`` when ``n <= limit``, else ``limit`` of them spread
+    evenly (the middle of each of equal stretches, or the nearest frame not taken) with every frame
+    of ``keep`` among them. Sorted frame indices."""
+    keep = sorted({int(k) for k in keep})
+    if n <= limit:
+        return list(range(n))
+    taken = set(keep)
+    slots = int(limit) - len(taken)
+    for k in range(max(slots, 0)):
+        centre = int((k + 0.5) * n / slots)
+        for step in range(n):
+            picked = next((f for f in (centre - step, centre + step) if 0 <= f < n and f not in taken), None)
+            if picked is not None:
+                taken.add(picked)
+                break
+    return sorted(taken)
+
+
+def race_score(confidence, root):
+    """The mean confidence of the frames other than ``root`` (higher is better)."""
+    confidence = np.asarray(confidence, dtype=np.float64)
+    others = np.ones(len(confidence), dtype=bool)
+    others[int(root)] = False
+    return float(confidence[others].mean()) if others.any() else 1.0
+
+
+def sub_similarity(similarity, frames):
+    """A :class:`engine.align.similarity.ShapeSimilarity` of ``frames`` only (one sequence: the
+    frames are not neighbours in time)."""
+    from dataclasses import replace
+
+    pick = np.ix_(frames, frames)
+    return replace(similarity, histograms=similarity.histograms[frames], raw=similarity.raw[pick],
+                   dissimilarity=similarity.dissimilarity[pick], yaw=similarity.yaw[pick],
+                   lengths=np.array([len(frames)]))
+
+
+__all__ = ["RACE_FINALISTS", "RACE_FRAMES", "finalists", "race_frames", "race_score", "sub_similarity"]

@@ -1,0 +1,87 @@
+"""The root race: the trial's two best candidates align the capture, the more confident wins
+(engine.align.root_race, engine.align.align_captures with root_choice="race")."""
+
+import numpy as np
+import pytest
+
+from engine.align import align_captures, root_race
+from engine.align.options import AlignmentOptions
+from engine.align.root_race import finalists, race_frames, race_score, sub_similarity
+from engine.mesh_io import Mesh
+from engine.synthetic import SequenceSpec, build_body, generate_sequence_data
+
+OPTIONS = AlignmentOptions(levels=2, patches=10)
+
+
+@pytest.fixture(scope="module")
+def walk30():
+    """30 unstructured frames of a walk, 1,000 vertices: long enough for the trial and the race."""
+    body = build_body(1000)
+    data = generate_sequence_data(body, SequenceSpec("walk", "gait", {"speed": 1.2, "cycles": 1.5}), fps=20, seed=3)
+    frames = [Mesh(V, F) for V, F, _ in data["unstructured"]]
+    assert len(frames) >= 30
+    return frames, np.array([len(frames)])
+
+
+def test_finalists_are_the_trials_least_bad_candidates_ties_to_the_earlier():
+    trial = {"candidates": [7, 3, 9, 1], "mean": [2.0, 1.5, 1.5, 3.0]}
+    assert finalists(trial) == [3, 9]
+    assert finalists(trial, count=3) == [3, 9, 7]
+    assert finalists({"candidates": [4], "mean": [1.0]}) == [4]
+
+
+def test_race_frames_are_all_of_a_short_capture_else_spread_evenly_with_the_finalists():
+    assert race_frames(40, [3, 17], limit=64) == list(range(40))
+    frames = race_frames(600, [5, 598], limit=64)
+    assert len(frames) == 64 and frames == sorted(set(frames)) and {5, 598} <= set(frames)
+    gaps = np.diff(frames)
+    assert gaps.max() <= 2 * 600 / 62 + 1, gaps  # no stretch of the take left out
+
+
+def test_race_score_is_the_mean_confidence_of_the_other_frames():
+    assert race_score([1.0, 0.2, 0.4, 0.6], 0) == pytest.approx(0.4)
+    assert race_score([0.3, 1.0], 1) == pytest.approx(0.3)
+    assert race_score([1.0], 0) == 1.0
+
+
+def test_the_race_keeps_the_more_confident_finalist_and_its_alignment_is_that_roots_own(walk30):
+    frames, lengths = walk30
+    run = align_captures(frames, lengths, options=OPTIONS, workers=1)
+    trial = run.root_trial
+    race = trial["race"]
+    assert race["finalists"] == finalists(trial) and len(race["finalists"]) == 2
+    assert race["frames"] == len(frames)  # a short capture is raced whole
+    assert int(run.aligned.root) == race["winner"] == race["finalists"][int(np.argmax(race["confidence"]))]
+    at = race["finalists"].index(race["winner"])
+    assert race["confidence"][at] == round(race_score(run.aligned.confidence, run.aligned.root), 4)
+    assert run.timings["race"] >= 0.0 and run.timings["align"] > 0.0
+    # the winning run is kept as it is: the same as aligning from that root, given
+    alone = align_captures(frames, lengths, options=OPTIONS, workers=1, root=race["winner"])
+    assert np.array_equal(alone.aligned.vertices, run.aligned.vertices)
+    assert np.array_equal(alone.aligned.confidence, run.aligned.confidence)
+    # the trial alone stops at its own best candidate
+    tried = align_captures(frames, lengths, options=OPTIONS, workers=1, root_choice="trial")
+    assert "race" not in tried.root_trial and int(tried.aligned.root) == race["finalists"][0]
+
+
+def test_a_long_capture_races_a_subset_then_the_winner_aligns_it_all(walk30, monkeypatch):
+    frames, lengths = walk30
+    monkeypatch.setattr(root_race, "RACE_FRAMES", 12)
+    run = align_captures(frames, lengths, options=OPTIONS, workers=1)
+    race = run.root_trial["race"]
+    assert race["frames"] == 12 and int(run.aligned.root) == race["winner"]
+    assert run.aligned.vertices.shape[0] == len(frames)
+    alone = align_captures(frames, lengths, options=OPTIONS, workers=1, root=race["winner"])
+    assert np.array_equal(alone.aligned.vertices, run.aligned.vertices)
+
+
+def test_sub_similarity_is_the_frames_rows_and_columns(walk30):
+    from engine.align.similarity import shape_dissimilarity
+
+    frames, lengths = walk30
+    similarity = shape_dissimilarity(frames[:8], np.array([8]), window=2, workers=1)
+    picked = [1, 4, 6]
+    sub = sub_similarity(similarity, picked)
+    assert np.array_equal(sub.dissimilarity, similarity.dissimilarity[np.ix_(picked, picked)])
+    assert np.array_equal(sub.yaw, similarity.yaw[np.ix_(picked, picked)])
+    assert len(sub.histograms) == 3 and list(sub.lengths) == [3]
