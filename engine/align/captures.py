@@ -35,15 +35,18 @@ class CaptureAlignment:
                                                     (a chain for ``method="sequential"``)
     aligned : AlignedFrames
     timings : dict   seconds for "similarity", "tree" (with choosing the root), "trial" (when the root
-                     was tried), "tetrahedralize", "align", "repair"
+                     was tried), "race" (when it was raced; a whole race's winning run is counted
+                     in the next three), "tetrahedralize", "align", "repair"
     method : str     "tree" or "sequential"
     tets : (V_tet, T)   the root's tet mesh (reusable for another run with the same root)
     colour_cues : bool  whether vertex colours were used as local matching cues
     turned : dict       frame index -> faces whose winding was reversed so that the frame faces
                         outward (:func:`engine.surface.orient_outward`); frames as read are absent
-    root_trial : dict or None   with ``root_choice="trial"``: the candidate roots tried, the probe
-                        frames, each candidate's badness per probe and mean, and the spread's
-                        choice (:func:`engine.align.root_trial.try_roots`); None when no trial ran
+    root_trial : dict or None   with ``root_choice="trial"`` or ``"race"``: the candidate roots
+                        tried, the probe frames, each candidate's badness per probe and mean, and
+                        the spread's choice (:func:`engine.align.root_trial.try_roots`); with
+                        "race" also ``race``: ``finalists``, ``frames`` (how many each aligned),
+                        ``confidence`` (each finalist's mean) and ``winner``; None when no trial ran
     """
 
     similarity: object
@@ -104,16 +107,19 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                 the paper's minimum spanning tree, or cheapest paths from the
                                 root with big steps penalised
     root : int or None          root frame (default: chosen by ``root_choice``)
-    root_choice : {"trial", "apart", "central"}
+    root_choice : {"race", "trial", "apart", "central"}
                                 without ``root``: "central" is the paper's, the minimum spanning
                                 tree's most central frame; "apart" a frame nearly as central whose
                                 limbs are apart, so no merged contact (a hand on a hip, a sleeve
                                 against a skirt) is tied into every aligned frame
-                                (:func:`engine.align.root_choice.choose_root`); "trial" (default)
+                                (:func:`engine.align.root_choice.choose_root`); "trial"
                                 the apart choice and a few other central frames each align a few
                                 probe frames, and the one that aligns them best is the root
                                 (:mod:`engine.align.root_trial`; captures of fewer than
-                                ``TRIAL_MIN_FRAMES`` frames, or with ``tets`` given: "apart")
+                                ``TRIAL_MIN_FRAMES`` frames, or with ``tets`` given: "apart");
+                                "race" (default) the trial's two best each align the capture (or
+                                64 frames of it), the more confident alignment wins
+                                (:mod:`engine.align.root_race`; with the tree only)
     options : AlignmentOptions
     window : int                temporal filter half-width
     workers : int               processes for the dissimilarity matrix and for aligning
@@ -133,7 +139,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     repair_budget : float or None   pairwise alignments per frame the repair may spend (the
                                 worst frames first; None: every flagged frame is repaired)
     progress : callable(stage, done, total) or None
-        stages "histograms", "dissimilarity", "root", "trial", "align", "repair"
+        stages "histograms", "dissimilarity", "root", "trial", "race", "align", "repair"
     runner : task runner or None   runs the histogram chunks, matrix blocks, tree pieces and repairs as
                                 tasks (:mod:`engine.tasks`, e.g. on a Dask cluster) instead of
                                 ``workers``; the result is the same
