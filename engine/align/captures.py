@@ -118,7 +118,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                 (:mod:`engine.align.root_trial`; captures of fewer than
                                 ``TRIAL_MIN_FRAMES`` frames, or with ``tets`` given: "apart");
                                 "race" (default) the trial's two best each align the capture (or
-                                64 frames of it), the more confident alignment wins
+                                64 frames of one over 128), the more confident alignment wins
                                 (:mod:`engine.align.root_race`; with the tree only)
     options : AlignmentOptions
     window : int                temporal filter half-width

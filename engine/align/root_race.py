@@ -11,10 +11,12 @@ trial's ``RACE_FINALISTS`` best candidates each align the capture along their ow
 repair, as the final run does) and the alignment with the higher mean confidence over the frames
 other than its root is kept.
 
-A capture of at most ``RACE_FRAMES`` frames is raced whole, and the winner's alignment is the
-result: the race costs one more whole alignment per extra finalist. A longer capture races an
-evenly spaced subset of that many frames (the finalists among them), and the winner then aligns
-the whole capture: a fixed cost, like the trial's.
+A capture of at most ``2 * RACE_FRAMES`` frames is raced whole, and the winner's alignment is
+the result: the race costs one more whole alignment (racing a subset and then aligning the whole
+capture again would cost as much or more). A longer capture races an evenly spaced subset of
+``RACE_FRAMES`` frames (the finalists among them), and the winner then aligns the whole capture:
+a fixed cost, like the trial's. On the studio dance's first 120 frames, a race of 64 frames each
+kept the trial's root, as the whole race would have.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 RACE_FINALISTS = 2   # the trial's best candidates that align the capture
-RACE_FRAMES = 64     # a longer capture races an evenly spaced subset of this many frames
+RACE_FRAMES = 64     # a capture of more than twice this races an evenly spaced subset of this many frames
 
 
 def finalists(trial, count=RACE_FINALISTS):
@@ -34,11 +36,12 @@ def finalists(trial, count=RACE_FINALISTS):
 
 
 def race_frames(n, keep, limit=RACE_FRAMES):
-    """The frames a race aligns: all ``n`` when ``n <= limit``, else ``limit`` of them spread
-    evenly (the middle of each of equal stretches, or the nearest frame not taken) with every frame
-    of ``keep`` among them. Sorted frame indices."""
+    """The frames a race aligns: all ``n`` when ``n <= 2 * limit`` (two finalists aligning
+    ``limit`` frames each, then the winner all ``n``, would cost as much as racing all of them),
+    else ``limit`` of them spread evenly (the middle of each of equal stretches, or the nearest
+    frame not taken) with every frame of ``keep`` among them. Sorted frame indices."""
     keep = sorted({int(k) for k in keep})
-    if n <= limit:
+    if n <= 2 * limit:
         return list(range(n))
     taken = set(keep)
     slots = int(limit) - len(taken)

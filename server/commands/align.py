@@ -72,7 +72,7 @@ def add_arguments(parser):
                         "(default: chosen by --root-choice)")
     parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="race",
                         help="without --root: race (default) runs the trial, then its two best candidates each align "
-                             "the capture (a capture of more than 64 frames: 64 frames of it, evenly spaced) and the "
+                             "the capture (a capture of more than 128 frames: 64 frames of it, evenly spaced) and the "
                              "root of the alignment with the higher mean confidence wins; "
                              "trial lets the apart choice and up to 3 other central frames "
                              "each align 6 probe frames and takes the one that aligns them best (captures of 24 "

@@ -94,7 +94,7 @@ class AlignJob(_Body):
     root: str | None = Field(None, max_length=200, description="root frame as SEQUENCE:FRAME or a global index")
     root_choice: Literal["race", "trial", "apart", "central"] = Field(
         "race", description="without root: race, the trial's two best candidates each align the capture (or 64 "
-                            "frames of it) and the more confident alignment's root wins; "
+                            "frames of one over 128) and the more confident alignment's root wins; "
                             "trial, the apart choice and up to 3 other central frames each align 6 "
                              "probe frames and the one that aligns them best is the root (24 frames or more); "
                              "apart, a frame nearly as central as the most central one whose limbs are apart (no "

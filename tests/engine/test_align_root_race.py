@@ -32,6 +32,7 @@ def test_finalists_are_the_trials_least_bad_candidates_ties_to_the_earlier():
 
 def test_race_frames_are_all_of_a_short_capture_else_spread_evenly_with_the_finalists():
     assert race_frames(40, [3, 17], limit=64) == list(range(40))
+    assert race_frames(128, [3, 17], limit=64) == list(range(128))  # a subset, then all again, costs more
     frames = race_frames(600, [5, 598], limit=64)
     assert len(frames) == 64 and frames == sorted(set(frames)) and {5, 598} <= set(frames)
     gaps = np.diff(frames)
@@ -66,7 +67,7 @@ def test_the_race_keeps_the_more_confident_finalist_and_its_alignment_is_that_ro
 
 def test_a_long_capture_races_a_subset_then_the_winner_aligns_it_all(walk30, monkeypatch):
     frames, lengths = walk30
-    monkeypatch.setattr(root_race, "RACE_FRAMES", 12)
+    monkeypatch.setattr(root_race, "RACE_FRAMES", 12)  # 30 frames: over twice 12
     run = align_captures(frames, lengths, options=OPTIONS, workers=1)
     race = run.root_trial["race"]
     assert race["frames"] == 12 and int(run.aligned.root) == race["winner"]
