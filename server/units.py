@@ -28,8 +28,9 @@ def add_units_arguments(parser):
                         help="length unit of the input meshes (default auto: from the model's size, a "
                              "person being 0.5-2.5 m across; else the dataset's metadata)")
     parser.add_argument("--up", choices=UP_CHOICES, default="auto",
-                        help="up axis of the input meshes (default auto: the longer of the body's Y and "
-                             "Z extents; else the dataset's metadata); +Z up becomes +Y up, (x, y, z) -> "
+                        help="up axis of the input meshes (default auto: the axis along which the subject "
+                             "keeps to a floor, else the longer of the body's Y and Z extents, else the "
+                             "dataset's metadata); +Z up becomes +Y up, (x, y, z) -> "
                              "(x, z, -y)")
 
 

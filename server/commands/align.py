@@ -39,6 +39,7 @@ from tqdm import tqdm
 from engine.align import AlignmentOptions, align_captures
 from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
 from engine.align.captures import FINE_EDGE, ROOT_CHOICES
+from engine.align.root_trial import TRIAL_MIN_FRAMES
 from engine.align.repair import TRUSTED
 from engine.mesh_io import MESH_EXTENSIONS, read_frames, write_obj, write_sequence
 from engine.mesh_io.frames import left_out_frames, list_frames
@@ -147,8 +148,8 @@ def root_trial_text(trial, chosen, sequences, lengths):
     """One line on the root trial (and the race, when one ran): the candidates' mean badness, the
     finalists' mean confidence and the root taken (``chosen``, the root the alignment used)."""
     tried = ", ".join(f"{frame_label(c, sequences, lengths)} {m:.2f}" for c, m in zip(trial["candidates"], trial["mean"]))
-    change = ("kept" if chosen == trial["spread_choice"]
-              else f"taken instead of {frame_label(trial['spread_choice'], sequences, lengths)}")
+    change = ("kept (the spread's choice too)" if chosen == trial["spread_choice"]
+              else f"taken instead of the spread's choice, {frame_label(trial['spread_choice'], sequences, lengths)}")
     race = trial.get("race")
     raced = "" if race is None else (
         f"; the best {len(race['finalists'])} each aligned {race['frames']} frames (mean confidence, higher is better: "
@@ -439,7 +440,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         out / "aligned_pattern.png")
     write_capture_manifest(out, {
         "aligned": True, "alignment": {"method": result.method, "root": root_label,
-                                       "options": options_record,
+                                       "options": options_record, "root_trial": result.root_trial,
                                        "input": {s["name"]: c.to_metadata() for s, c in zip(sequences, conventions)},
                                        "display_unit": display_unit(common)},
         "body": {"vertices": int(len(aligned.root_vertices)), "faces": int(len(aligned.faces)),
@@ -504,7 +505,7 @@ def run(args):
     aligned = result.aligned
     t = result.timings
     frames = int(lengths.sum())
-    print(f"aligned {frames} frames of {len(sequences)} sequences to {out} in {time.perf_counter() - started:.1f} s "
+    print(f"aligned {frames} frames of {len(sequences)} sequence{'s' if len(sequences) != 1 else ''} to {out} in {time.perf_counter() - started:.1f} s "
           f"({result.method}, root {frame_label(aligned.root, sequences, lengths)} = frame {aligned.root}, "
           f"{len(aligned.root_vertices)} vertices)")
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
@@ -513,7 +514,7 @@ def run(args):
           + (f"root race {t['race']:.1f} s, " if "race" in t else "") + f"tetrahedralise {t['tetrahedralize']:.1f} s, "
           f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "
           f"{args.workers} worker{'s' if args.workers != 1 else ''} ({aligned.seconds.sum() / max(frames - 1, 1):.2f} s, "
-          f"{aligned.cpu_seconds.sum() / max(frames - 1, 1):.2f} CPU s per frame and aligner)")
+          f"{aligned.cpu_seconds.sum() / max(frames - 1, 1):.2f} CPU s per frame and aligner), repair {t['repair']:.1f} s")
     size = model_size(aligned.root_vertices)
     convention = common_convention(conventions)
     given = ("mixed units or axes" if convention.units_from == "mixed"
@@ -525,6 +526,8 @@ def run(args):
     print(f"  colour cues {colour_cues_text(args.colors, result.colour_cues, meshes)}")
     if result.root_trial:
         print(f"  {root_trial_text(result.root_trial, int(aligned.root), sequences, lengths)}")
+    elif args.root is None and args.root_choice in ("race", "trial") and frames < TRIAL_MIN_FRAMES:
+        print(f"  root: the spread's choice (`apart`): no trial or race on fewer than {TRIAL_MIN_FRAMES} frames")
     if result.turned:
         shown = [frame_label(i, sequences, lengths) for i in sorted(result.turned)]
         print(f"  faces wound inward (or mixed) turned outward in {len(shown)} frames: {', '.join(shown[:6])}"

@@ -373,6 +373,11 @@ def _print_report(report, out):
     inputs = sorted({f"{r['units']}, {r['up']} up" for r in report["input"].values()})
     print(f"{report['frames']} frames of {len(report['sequences'])} sequences, model size "
           f"{report['model_size_m']:.3f} m; input in {' / '.join(inputs)}; lengths in {unit}")
+    trial = report.get("root_trial")
+    print(f"root frame {report['root']}" + ("" if not trial else (
+        f" (tried: candidates {trial['candidates']}, mean badness {trial['mean']}"
+        + (f"; raced: {trial['race']['finalists']}, mean confidence {trial['race']['confidence']}" if "race" in trial else "")
+        + ")")))
     if "similarity_seconds" in report:
         print(f"similarity {report['similarity_seconds']:.1f} s, tree {report['tree_seconds']:.3f} s "
               f"(depth max {report['tree']['depth_max']}, mean {report['tree']['depth_mean']})"
@@ -396,4 +401,5 @@ def _print_report(report, out):
                                                      for name, p in parts.items()))
     if "sequential_over_tree_mean" in report:
         print(f"sequential / tree mean error: {report['sequential_over_tree_mean']:.2f}x")
-    print(f"wrote {out / 'results.json'} and {out / 'aligned_pattern.png'}")
+    pictures = [name for name in ("aligned_pattern.png", "similarity.png", "tree.png") if (out / name).is_file()]
+    print(f"wrote {out / 'results.json'} and " + ", ".join(str(out / name) for name in pictures))

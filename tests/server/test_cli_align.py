@@ -203,6 +203,12 @@ def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
         assert set(breakdown["confidence"]) == {"over_2pct", "over_3pct"}
         assert len(breakdown["worst_frames"]) == 5 and breakdown["worst_frames"][0]["frame"] != report["root"]
     assert (out / "aligned_pattern.png").is_file() and (out / "results.json").is_file()
+    assert main(["eval-align", str(dataset), "--max-frames", "3", "--out", str(tmp_path / "printed"), "--no-sequential",
+                 "--workers", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert f"root frame {json.loads((tmp_path / 'printed' / 'results.json').read_text())['root']}\n" in printed
+    assert printed.rstrip().endswith(", ".join(str(tmp_path / "printed" / name) for name in
+                                               ("aligned_pattern.png", "similarity.png", "tree.png")))
 
 
 def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsys):
@@ -219,6 +225,7 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
                  "--json", "--workers", "1", "--repair-budget", "0"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["every"] == 2 and report["frames"] == 4 and report["tree"]["frames"] == 4
+    assert report["root_trial"] is None and "root_trial_seconds" not in report  # 4 frames: no trial
     assert report["tree"]["mean_pct"] < 2.0
     assert report["tree"]["repair_budget"] == 0 and report["tree"]["repaired_frames"] == 0
     assert report["tree"]["swing_limbs"] is False
@@ -404,6 +411,9 @@ def test_the_summary_says_whether_colours_were_cues_and_why(aligned_run):
 
     # the 1,000-vertex body is too coarse for its colours to carry a texture
     assert "colour cues off (--colors auto: the root's median edge is not under 1.6% of" in aligned_run[2]
+    # 6 frames: too few to try roots, and the summary says so; the manifest records no trial
+    assert "root: the spread's choice (`apart`): no trial or race on fewer than 24 frames" in aligned_run[2]
+    assert json.loads((aligned_run[0] / "manifest.json").read_text())["alignment"]["root_trial"] is None
     frames = [types.SimpleNamespace(colors=None)]
     assert colour_cues_text("auto", False, frames) == "off (--colors auto: not every frame has vertex colours)"
     assert colour_cues_text("on", True, frames) == "on (--colors on)"
@@ -460,6 +470,11 @@ def test_the_root_is_tried_and_raced_on_a_capture_of_24_frames_or_more(longer_da
     assert sorted(confidence) == sorted(sorted(means, key=means.get)[:2]), (means, confidence)
     best = max(confidence, key=confidence.get)
     assert f"; {best} " in line and np.load(out / "alignment.npz")["root"] == int(best.split(":")[1])
+    assert ("kept (the spread's choice too)" in line) != ("taken instead of the spread's choice, walk:" in line), line
+    # the manifest keeps the whole report, unrounded
+    record = json.loads((out / "manifest.json").read_text())["alignment"]["root_trial"]
+    assert record["race"]["winner"] == np.load(out / "alignment.npz")["root"] and record["race"]["frames"] == frames
+    assert [round(m, 2) for m in record["mean"]] == [means[f"walk:{c}"] for c in record["candidates"]]
     # the trial alone: no race
     assert main(["align", str(longer_dataset), "--out", str(tmp_path / "trial"), "--workers", "1", "--levels", "2",
                  "--root-choice", "trial"]) == 0
