@@ -76,6 +76,10 @@ def add_arguments(parser):
                         help="pairwise alignments per frame the repair of the tree's low-confidence frames may "
                              "spend (see `morphspace align --help`; default 0.5; 0 turns the repair off)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    parser.add_argument("--patches", type=int, default=30, help="patches at the coarsest level (default 30; as "
+                        "`morphspace align`'s)")
+    parser.add_argument("--levels", type=int, default=4, help="coarse-to-fine levels, patches doubling (default 4; "
+                        "as `morphspace align`'s: 2 costs about half the CPU, docs/evaluation.md)")
     add_units_arguments(parser)
 
 
@@ -250,6 +254,9 @@ def run(args):
         raise ValueError(f"--every must be >= 1, got {args.every}")
     if not args.repair_budget >= 0:
         raise ValueError(f"--repair-budget must be >= 0, got {args.repair_budget}")
+    for name, value in (("--patches", args.patches), ("--levels", args.levels)):
+        if value < 1:
+            raise ValueError(f"{name} must be >= 1, got {value}")
     if args.every > 1 and args.aligned is not None:
         raise ValueError("--every picks the frames to align; it does not apply to --aligned")
     progress = Progress()
@@ -288,7 +295,7 @@ def run(args):
             truth = _truth_in_metres(parts, conventions)  # in the same units and axes as the frames
             size = _model_size(manifest, conventions, truth)
             root = parse_root(args.root, sequences, lengths)
-            options = AlignmentOptions(swing_limbs=args.swing_limbs)
+            options = AlignmentOptions(patches=args.patches, levels=args.levels, swing_limbs=args.swing_limbs)
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, every=args.every,
                           **_units_report(names, conventions))
             tree_run = align_captures(meshes, lengths, method="tree", tree_kind=args.tree, root=root,

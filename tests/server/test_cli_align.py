@@ -233,6 +233,12 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
                  "--json", "--workers", "1", "--repair-budget", "0", "--swing-limbs"]) == 0
     swung = json.loads(capsys.readouterr().out)["tree"]
     assert swung["swing_limbs"] is True and swung["frames"] == 4 and swung["mean_pct"] < 2.0
+    # align's --levels and --patches reach the aligner: a coarser run scores differently
+    assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "coarse"),
+                 "--json", "--workers", "1", "--repair-budget", "0", "--levels", "2", "--patches", "10"]) == 0
+    coarse = json.loads(capsys.readouterr().out)
+    assert coarse["tree"]["frames"] == 4 and coarse["tree"]["mean_pct"] != report["tree"]["mean_pct"]
+    assert main(["eval-align", str(dataset), "--levels", "0"]) == 2
     assert main(["eval-align", str(dataset), "--every", "0"]) == 2
     assert main(["eval-align", str(dataset), "--repair-budget", "-1"]) == 2
     assert "--repair-budget must be >= 0, got -1" in capsys.readouterr().err
