@@ -48,22 +48,28 @@ def ranks(values):
 
 
 def picture(path, rows, title):
+    """Badness of the trial's probes against true error, and beside it (when measured) the whole
+    alignments' mean confidence against true error (what the race compares)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6, 4.5))
-    x = [r["badness_mean"] for r in rows]
-    y = [r["true_mean_pct"] for r in rows]
-    ax.scatter(x, y, color="tab:blue")
-    for r in rows:
-        label = f"{r['frame']}" + (" trial" if r["trial_choice"] else "") + (" apart" if r["spread_choice"] else "")
-        ax.annotate(label, (r["badness_mean"], r["true_mean_pct"]), textcoords="offset points", xytext=(4, 4), fontsize=8)
-    ax.set_xlabel("mean badness of the candidate's probes (the trial)")
-    ax.set_ylabel("true mean error of the whole alignment (% of model size)")
-    ax.set_title(title, fontsize=9)
-    ax.grid(alpha=0.3)
+    panels = [("badness_mean", "mean badness of the candidate's probes (the trial)")]
+    if all("confidence_mean" in r for r in rows):
+        panels.append(("confidence_mean", "mean confidence of the whole alignment (the race)"))
+    fig, axes = plt.subplots(1, len(panels), figsize=(6 * len(panels), 4.5), squeeze=False)
+    for ax, (key, label) in zip(axes[0], panels):
+        x = [r[key] for r in rows]
+        y = [r["true_mean_pct"] for r in rows]
+        ax.scatter(x, y, color="tab:blue")
+        for r in rows:
+            text = f"{r['frame']}" + (" trial" if r["trial_choice"] else "") + (" apart" if r["spread_choice"] else "")
+            ax.annotate(text, (r[key], r["true_mean_pct"]), textcoords="offset points", xytext=(4, 4), fontsize=8)
+        ax.set_xlabel(label)
+        ax.set_ylabel("true mean error of the whole alignment (% of model size)")
+        ax.grid(alpha=0.3)
+    fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
@@ -167,7 +173,8 @@ def main(argv=None):
               f"{record['confidence_rank_correlation']}")
         if args.picture is not None:
             picture(args.picture, rows, f"{record['sequence']} from {args.start}, one in {args.every} ({n} frames): "
-                                        f"rank correlation {record['rank_correlation']}")
+                                        f"rank correlation {record['rank_correlation']} (badness), "
+                                        f"{record['confidence_rank_correlation']} (confidence)")
             print(f"wrote {args.picture}")
     emit(record, args.out)
     return 0
