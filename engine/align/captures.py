@@ -189,7 +189,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     settings = dict(options=options, use_colors=use_colors, colours=colours, seed=seed, workers=workers,
                     retries=retries, runner=runner, repair=repair, repair_budget=repair_budget)
     run = None
-    if trial is not None and root_choice == "race" and method == "tree":
+    if trial is not None and root_choice == "race" and method == "tree" and len(finalists(trial)) > 1:
         started = time.perf_counter()
         tree, run = _race(meshes, lengths, similarity, trial, tried, tree_kind, settings, progress)
         tets = tried[int(tree.root)]

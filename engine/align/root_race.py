@@ -29,9 +29,10 @@ RACE_FRAMES = 64     # a capture of more than twice this races an evenly spaced 
 
 def finalists(trial, count=RACE_FINALISTS):
     """The ``count`` candidates of a trial report with the least mean badness, best first (ties:
-    the earlier candidate, so the spread's choice)."""
+    the earlier candidate, so the spread's choice); never one whose badness is not finite (a
+    frame that could not be filled with tetrahedra), so fewer when those are all that is left."""
     mean = np.asarray(trial["mean"], dtype=np.float64)
-    order = np.argsort(mean, kind="stable")[:int(count)]
+    order = [k for k in np.argsort(mean, kind="stable") if np.isfinite(mean[k])][:int(count)]
     return [int(trial["candidates"][k]) for k in order]
 
 

@@ -28,6 +28,9 @@ def test_finalists_are_the_trials_least_bad_candidates_ties_to_the_earlier():
     assert finalists(trial) == [3, 9]
     assert finalists(trial, count=3) == [3, 9, 7]
     assert finalists({"candidates": [4], "mean": [1.0]}) == [4]
+    # a candidate that could not be filled with tetrahedra (infinite badness) never races
+    assert finalists({"candidates": [7, 3, 9], "mean": [2.0, float("inf"), 1.0]}) == [9, 7]
+    assert finalists({"candidates": [7, 3], "mean": [2.0, float("inf")]}) == [7]
 
 
 def test_race_frames_are_all_of_a_short_capture_else_spread_evenly_with_the_finalists():
