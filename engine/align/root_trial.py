@@ -171,7 +171,8 @@ def try_roots(meshes, candidates, probes, yaw, *, options, use_colors, colours, 
     Returns
     -------
     root : int
-    report : dict   ``candidates``, ``probes``, ``badness`` (candidates x probes), ``mean``
+    report : dict   ``candidates``, ``probes``, ``badness`` (candidates x probes), ``mean`` (None for a
+                    candidate that could not be filled with tetrahedra)
     tets : dict     candidate -> its tet mesh (V_tet, T), None where it could not be filled
     """
     from engine.align.propagation import mesh_arrays
@@ -190,9 +191,16 @@ def try_roots(meshes, candidates, probes, yaw, *, options, use_colors, colours, 
     badness = np.stack([out["badness"] for out in outs])
     mean = badness.mean(axis=1)
     best = int(np.argmin(mean))  # the first of equals: the spread's choice wins a tie
+    # a candidate that could not be filled with tetrahedra has no badness: null in the report
+    # (strict JSON: the job record and the aligned dataset's manifest carry it)
     report = {"candidates": [int(c) for c in candidates], "probes": [int(p) for p in probes],
-              "badness": badness.round(4).tolist(), "mean": mean.round(4).tolist()}
+              "badness": [_finite(row) for row in badness], "mean": _finite(mean)}
     return int(candidates[best]), report, {int(c): out["tets"] for c, out in zip(candidates, outs)}
+
+
+def _finite(values):
+    """``values`` rounded to 4 places as a list, None where not finite."""
+    return [round(float(v), 4) if np.isfinite(v) else None for v in values]
 
 
 def _in_processes(jobs, shared, workers, progress):

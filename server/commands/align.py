@@ -147,7 +147,8 @@ class Progress:
 def root_trial_text(trial, chosen, sequences, lengths):
     """One line on the root trial (and the race, when one ran): the candidates' mean badness, the
     finalists' mean confidence and the root taken (``chosen``, the root the alignment used)."""
-    tried = ", ".join(f"{frame_label(c, sequences, lengths)} {m:.2f}" for c, m in zip(trial["candidates"], trial["mean"]))
+    tried = ", ".join(f"{frame_label(c, sequences, lengths)} " + ("no tet mesh" if m is None else f"{m:.2f}")
+                      for c, m in zip(trial["candidates"], trial["mean"]))
     change = ("kept (the spread's choice too)" if chosen == trial["spread_choice"]
               else f"taken instead of the spread's choice, {frame_label(trial['spread_choice'], sequences, lengths)}")
     race = trial.get("race")

@@ -120,3 +120,18 @@ def test_the_trial_takes_the_candidate_whose_probes_align_best():
     assert sorted(tets) == [0, 1] and tets[1][0].shape[1] == 3 and tets[1][1].shape[1] == 4
     again = try_roots(frames, [0, 1], [2, 3, 4], None, options=options, use_colors=False, colours=False, workers=2)
     assert again[1] == report and all(np.array_equal(again[2][c][1], tets[c][1]) for c in (0, 1))
+
+
+def test_a_candidate_that_cannot_be_filled_is_null_in_the_report_and_never_taken():
+    import json
+
+    from engine.align.root_race import finalists
+
+    flat = Mesh(vertices=np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0]]), faces=np.array([[0, 1, 2], [1, 3, 2]]))
+    frames = [flat, _body(0.05), _body(0.05, bend=0.08), _body(0.05, bend=0.12)]
+    root, report, tets = try_roots(frames, [0, 1], [2, 3], None, options=AlignmentOptions(levels=2),
+                                   use_colors=False, colours=False)
+    assert root == 1 and tets[0] is None and tets[1] is not None
+    assert report["badness"][0] == [None, None] and report["mean"][0] is None and report["mean"][1] > 0
+    json.dumps(report, allow_nan=False)  # strict JSON, as the job record and the manifest need
+    assert finalists(report) == [1]
