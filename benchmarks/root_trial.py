@@ -47,6 +47,17 @@ def ranks(values):
     return out
 
 
+def rank_correlation(values, truth):
+    """Spearman's rank correlation of ``values`` and ``truth`` (None for fewer than 2)."""
+    import numpy as np
+
+    k = len(values)
+    if k < 2:
+        return None
+    d = ranks(values) - ranks(truth)
+    return round(1.0 - 6.0 * float(np.sum(d ** 2)) / (k * (k * k - 1)), 3)
+
+
 def picture(path, rows, title):
     """Badness of the trial's probes against true error, and beside it (when measured) the whole
     alignments' mean confidence against true error (what the race compares)."""
@@ -153,13 +164,9 @@ def main(argv=None):
     if args.truth:
         true = [r["true_mean_pct"] for r in rows]
         best = candidates[int(np.argmin(true))]
-        k = len(rows)
-        d = ranks([r["badness_mean"] for r in rows]) - ranks(true)
-        record["rank_correlation"] = round(1.0 - 6.0 * float(np.sum(d ** 2)) / (k * (k * k - 1)), 3) if k > 1 else None
+        record["rank_correlation"] = rank_correlation([r["badness_mean"] for r in rows], true)
         confidence = {r["frame"]: r["confidence_mean"] for r in rows}
-        d = ranks([-r["confidence_mean"] for r in rows]) - ranks(true)
-        record["confidence_rank_correlation"] = (round(1.0 - 6.0 * float(np.sum(d ** 2)) / (k * (k * k - 1)), 3)
-                                                 if k > 1 else None)
+        record["confidence_rank_correlation"] = rank_correlation([-c for c in confidence.values()], true)
         race = max(record["finalists"], key=lambda c: confidence[c])  # the first of equals, as the race
         record["race_choice"] = int(race)
         record["race_choice_true_mean_pct"] = true[candidates.index(race)]

@@ -16,7 +16,6 @@ from engine.align.pairwise import AlignmentOptions
 from engine.align.propagation import AlignedFrames, align_tree
 from engine.align.repair import alignment_confidence, colour_terms, repair_alignment, tail_reference
 from engine.align.root_choice import ROOT_SLACK, choose_root
-from engine.align import root_race
 from engine.align.root_race import finalists, race_frames, race_score, sub_similarity
 from engine.align.root_trial import TRIAL_MIN_FRAMES, root_setup, trial_candidates, trial_probes, try_roots
 from engine.align.similarity import shape_dissimilarity
@@ -246,7 +245,7 @@ def _race(meshes, lengths, similarity, trial, tried, tree_kind, settings, progre
     Returns (the winner's tree, its whole run as :func:`_align_from` returns it, or None when a
     subset was raced and the capture is still to be aligned)."""
     final = finalists(trial)
-    frames = race_frames(len(meshes), final, root_race.RACE_FRAMES)
+    frames = race_frames(len(meshes), final)
     whole = len(frames) == len(meshes)
     sub = meshes if whole else [meshes[f] for f in frames]
     similar = similarity if whole else sub_similarity(similarity, frames)

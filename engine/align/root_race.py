@@ -36,24 +36,19 @@ def finalists(trial, count=RACE_FINALISTS):
     return [int(trial["candidates"][k]) for k in order]
 
 
-def race_frames(n, keep, limit=RACE_FRAMES):
+def race_frames(n, keep, limit=None):
     """The frames a race aligns: all ``n`` when ``n <= 2 * limit`` (two finalists aligning
     ``limit`` frames each, then the winner all ``n``, would cost as much as racing all of them),
-    else ``limit`` of them spread evenly (the middle of each of equal stretches, or the nearest
-    frame not taken) with every frame of ``keep`` among them. Sorted frame indices."""
+    else ``limit`` of them: every frame of ``keep`` and the rest spread evenly as the trial's
+    probes are (:func:`engine.align.root_trial.trial_probes`). ``limit`` defaults to
+    ``RACE_FRAMES`` as it is when called. Sorted frame indices."""
+    from engine.align.root_trial import trial_probes
+
+    limit = RACE_FRAMES if limit is None else int(limit)
     keep = sorted({int(k) for k in keep})
     if n <= 2 * limit:
         return list(range(n))
-    taken = set(keep)
-    slots = int(limit) - len(taken)
-    for k in range(max(slots, 0)):
-        centre = int((k + 0.5) * n / slots)
-        for step in range(n):
-            picked = next((f for f in (centre - step, centre + step) if 0 <= f < n and f not in taken), None)
-            if picked is not None:
-                taken.add(picked)
-                break
-    return sorted(taken)
+    return sorted(keep + trial_probes(n, keep, max(limit - len(keep), 0)))
 
 
 def race_score(confidence, root):
