@@ -19,6 +19,10 @@ it).
     .venv/bin/python benchmarks/align_steps.py --tiny --out /tmp/align_steps.json
 
 ``--every K`` adds the pairs ``a:a+1`` for a = 10, 10 + K, ... (single steps along the whole take).
+``--segments K`` also lists each pair's K worst skeleton segments: every root vertex takes the
+segment (the joint that owns it, from the dataset's ``template/body.npz``) of the template
+vertex it lies nearest on the true surface, and a segment's error is its vertices' mean
+(``lowerarm_r 31.2%``: the right forearm did not follow a punch).
 ``--tiny`` (the test suite's smoke run) needs no dataset: two pairs of the generator's 1,000-vertex
 run at 15 fps, small alignment settings, one part, the oracle included; ``--out`` is required.
 """
@@ -36,7 +40,7 @@ from _tiny import emit, parse_arguments
 from align_breakdown import parse_options, part_counts
 from align_speed import load_frames
 
-TINY = {"pairs": "0:1,3:2", "options": ["patches=8", "levels=2"], "oracle_rigid": True}
+TINY = {"pairs": "0:1,3:2", "options": ["patches=8", "levels=2"], "oracle_rigid": True, "segments": 3}
 
 
 def parse_pairs(text, every, frames):
@@ -54,6 +58,37 @@ def parse_pairs(text, every, frames):
         if not (0 <= a < frames and 0 <= b < frames) or a == b:
             raise SystemExit(f"pair {a}:{b}: frames must differ and lie in 0..{frames - 1}")
     return pairs
+
+
+def template_segments(dataset, tiny):
+    """(segment of every template vertex, joint names) from the dataset's rig, or the tiny body's."""
+    import numpy as np
+
+    if tiny:
+        from _tiny import TINY_VERTICES
+
+        from engine.synthetic import build_body
+
+        body = build_body(TINY_VERTICES)
+        return np.asarray(body.segment), [str(name) for name in body.skeleton.names]
+    path = Path(dataset) / "template" / "body.npz"
+    if not path.is_file():
+        raise SystemExit(f"--segments: {path} is missing (datasets written by `morphspace synth` have it)")
+    with np.load(path) as rig:
+        return rig["segment"], [str(name) for name in rig["joint_names"]]
+
+
+def worst_segments(pct, root_vertices, truth_root, faces, segment, names, count):
+    """The ``count`` segments with the highest mean error: {name: % of the model size}."""
+    import numpy as np
+
+    from engine.align.evaluation import surface_coordinates
+
+    face, bary, _ = surface_coordinates(root_vertices, truth_root, faces)
+    owner = segment[faces[face, np.argmax(bary, axis=1)]]
+    means = {names[k]: float(pct[owner == k].mean()) for k in np.unique(owner)}
+    worst = sorted(means.items(), key=lambda item: item[1], reverse=True)[:count]
+    return {name: round(value, 3) for name, value in worst}
 
 
 def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
@@ -101,6 +136,8 @@ def main(argv=None):
                         help="also align each pair from its true rigid placement and from its true pose")
     parser.add_argument("--option", dest="options", action="append", default=None, metavar="NAME=VALUE",
                         help="an AlignmentOptions field (repeatable)")
+    parser.add_argument("--segments", type=int, default=0, metavar="K",
+                        help="also list each pair's K worst skeleton segments (from the dataset's rig)")
     parser.add_argument("--tiny", action="store_true", help="the test suite's smoke run (no dataset)")
     parser.add_argument("--out", type=Path, help="write the JSON here too")
     args = parse_arguments(parser, argv, TINY)
@@ -120,6 +157,7 @@ def main(argv=None):
     if not pairs:
         parser.error("no pairs: give --pairs or --every")
     parts = None if args.tiny else part_counts(args.dataset, False)
+    segment, joint_names = template_segments(args.dataset, args.tiny) if args.segments > 0 else (None, None)
     names = list(parts) if parts else ["all"]
     load_before = os.getloadavg()
     cpu_started = time.process_time()
@@ -135,6 +173,9 @@ def main(argv=None):
         row = {"pair": [a, b], "mean_pct": round(float(pct.mean()), 3),
                "parts_pct": {name: round(float(pct[labels == k].mean()), 3) for k, name in enumerate(names)
                              if np.any(labels == k)}}
+        if segment is not None:
+            row["worst_segments_pct"] = worst_segments(pct, root_vertices, truth_ab[0], faces, segment, joint_names,
+                                                       args.segments)
         if args.oracle_rigid:
             aligned, placed, from_pose, pose, true = oracle_step(frames[a], frames[b], truth_ab, faces, options)
             for key, W in (("oracle_rigid_pct", aligned), ("placement_alone_pct", placed),
@@ -144,8 +185,10 @@ def main(argv=None):
         extra = (f", from the true rigid placement {row['oracle_rigid_pct']:.2f}% (that placement alone "
                  f"{row['placement_alone_pct']:.2f}%), from the true pose {row['oracle_pose_pct']:.2f}% (that "
                  f"pose alone {row['true_pose_pct']:.2f}%)" if args.oracle_rigid else "")
-        print(f"{a} -> {b}: {row['mean_pct']:.2f}%{extra}; " + ", ".join(f"{k} {v:.2f}%" for k, v in row["parts_pct"].items()),
-              flush=True)
+        worst = ("; worst segments " + ", ".join(f"{k} {v:.1f}%" for k, v in row["worst_segments_pct"].items())
+                 if segment is not None else "")
+        print(f"{a} -> {b}: {row['mean_pct']:.2f}%{extra}; " + ", ".join(f"{k} {v:.2f}%" for k, v in row["parts_pct"].items())
+              + worst, flush=True)
     cpu = time.process_time() - cpu_started
     means = [row["mean_pct"] for row in rows]
     record = {"dataset": "tiny" if args.tiny else str(args.dataset), "sequence": "run" if args.tiny else args.sequence,

@@ -228,6 +228,12 @@ def check_align_steps(record, stdout):
         # (the solid pulled onto the truth) is closer still, and the fit from it stays near it
         assert 0 < row["oracle_rigid_pct"] < row["placement_alone_pct"]
         assert 0 <= row["true_pose_pct"] < row["placement_alone_pct"] and 0 < row["oracle_pose_pct"] < 100
+        # the 3 worst skeleton segments, worst first; each segment's mean bounds the pair's from above
+        # at least once (the worst is no better than the mean over all vertices)
+        worst = list(row["worst_segments_pct"].values())
+        assert len(worst) == 3 and worst == sorted(worst, reverse=True) and worst[0] >= row["mean_pct"] - 2e-3
+        assert all(name in stdout for name in row["worst_segments_pct"])
+    assert "worst segments" in stdout
     assert record["mean_pct"] == pytest.approx(sum(r["mean_pct"] for r in record["pairs"]) / 2, abs=2e-3)
     assert positive(record["cpu_seconds"]) and "2 single steps: mean" in stdout and "true rigid placement" in stdout
     assert 0 < record["oracle_pose_mean_pct"] < 100 and "from the true pose" in stdout
