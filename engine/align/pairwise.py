@@ -39,6 +39,7 @@ from engine.align.matching import (
 )
 from engine.align.options import AlignmentOptions, PairAlignment
 from engine.align.patches import border_points, farthest_point_patches, patch_adjacency, patch_samples, search_patches
+from engine.align.reach import reach_uncovered
 from engine.align.rigid import (
     patch_rigid_steps,
     point_to_plane_step,
@@ -110,7 +111,7 @@ class PairwiseAligner:
         self._match_subset = _subset(n, o.match_samples, seed)
         self._fine_subset = _subset(n, o.fine_match_samples, seed)
         self._tet_volume = np.abs(tet_volumes(self.V_tet, self.T))
-        scale = float(tet_laplacian(self.V_tet, self.T).diagonal().mean())
+        scale = self._laplacian_scale = float(tet_laplacian(self.V_tet, self.T).diagonal().mean())
         weights = sorted(set(list(o.stiffness[:o.levels]) + [o.final_stiffness]))
         self._solvers = {w: DeformationSolver(self.V_tet, self.T, constraints=self.B,
                                               constraint_weight=np.sqrt(w * scale)) for w in weights}
@@ -173,6 +174,8 @@ class PairwiseAligner:
                                                        coarse=level < o.match_sample_levels,
                                                        graph=self.patch_graph[level])
                 X, R = self._deform(X, R, solver, goal, confidence, prior)
+                if o.reach_limbs and level == 0 and round_ == 0:
+                    X, R, _ = reach_uncovered(self, X, R, target)
         solver = self._solvers[o.final_stiffness]
         for _ in range(o.final_rounds):
             S = self.B @ X

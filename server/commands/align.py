@@ -98,6 +98,10 @@ def add_arguments(parser):
                         help="swing limbs onto the parts of a frame nothing covers in the coarse matching (an arm "
                              "thrown into a punch): better on tight-fitting clothes, not on loose garments "
                              "(docs/alignment.md)")
+    parser.add_argument("--reach-limbs", action="store_true",
+                        help="pull the root's hands, feet and garment ends onto the parts of a frame nothing "
+                             "covers, bending the limb as-rigid-as-possible (an arm thrown into a punch; "
+                             "docs/alignment.md)")
     parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
                         help="vertex colours as local matching cues when every frame has them: auto (default) "
                              "when the meshes are fine enough for colours to carry texture (median edge "
@@ -295,7 +299,7 @@ def convert_inputs(meshes, sequences, lengths, units="auto", up="auto", *, say=N
 
 
 OPTION_NAMES = ("patches", "levels", "window", "retries", "repair_budget", "tree", "root_choice", "colors",
-                "swing_limbs")
+                "swing_limbs", "reach_limbs")
 
 
 def colour_cues_text(mode, used, meshes):
@@ -480,7 +484,8 @@ def run(args):
             say(f"note: {', '.join(unlabelled)}: no meta.json gives the frame rate; written as {DEFAULT_FPS:g} "
                 f"frames/s (say --fps)")
         root = parse_root(args.root, sequences, lengths)
-        options = AlignmentOptions(patches=args.patches, levels=args.levels, swing_limbs=args.swing_limbs)
+        options = AlignmentOptions(patches=args.patches, levels=args.levels, swing_limbs=args.swing_limbs,
+                                   reach_limbs=args.reach_limbs)
         result = align_captures(meshes, lengths, method="sequential" if args.sequential else "tree", tree_kind=args.tree,
                                 root=root, root_choice=args.root_choice, options=options, window=args.window,
                                 workers=args.workers, retries=args.retries,

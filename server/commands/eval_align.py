@@ -66,6 +66,8 @@ def add_arguments(parser):
                         help="vertex colours as local matching cues (see `morphspace align --help`; default auto)")
     parser.add_argument("--swing-limbs", action="store_true",
                         help="swing limbs onto what nothing covers (see `morphspace align --help`)")
+    parser.add_argument("--reach-limbs", action="store_true",
+                        help="pull limbs onto what nothing covers (see `morphspace align --help`)")
     parser.add_argument("--out", type=Path, help="directory for results.json and the pictures "
                         "(default: <dataset>-align-eval next to the dataset)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
@@ -295,7 +297,8 @@ def run(args):
             truth = _truth_in_metres(parts, conventions)  # in the same units and axes as the frames
             size = _model_size(manifest, conventions, truth)
             root = parse_root(args.root, sequences, lengths)
-            options = AlignmentOptions(patches=args.patches, levels=args.levels, swing_limbs=args.swing_limbs)
+            options = AlignmentOptions(patches=args.patches, levels=args.levels, swing_limbs=args.swing_limbs,
+                                       reach_limbs=args.reach_limbs)
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, every=args.every,
                           **_units_report(names, conventions))
             tree_run = align_captures(meshes, lengths, method="tree", tree_kind=args.tree, root=root,
@@ -312,6 +315,7 @@ def run(args):
                 if stage in tree_run.timings:
                     report[f"root_{stage}_seconds"] = round(tree_run.timings[stage], 2)
             report["tree"] = {"kind": args.tree, "repair_budget": args.repair_budget, "swing_limbs": args.swing_limbs,
+                              "reach_limbs": args.reach_limbs,
                               "depth_max": int(tree_run.tree.depth.max()),
                               "depth_mean": round(float(tree_run.tree.depth.mean()), 2),
                               "components_reconnected": int(tree_run.tree.components)}

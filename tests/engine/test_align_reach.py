@@ -1,0 +1,70 @@
+"""Limbs pulled out as-rigid-as-possible to what nothing covers (engine.align.reach)."""
+
+import numpy as np
+import pytest
+
+from engine.align import AlignmentOptions, PairwiseAligner
+from engine.align.matching import TargetSurface
+from engine.align.reach import HANDLE, HOLD, Extremities, extremities_of, reach_uncovered
+from engine.surface import model_size
+from engine.synthetic import animate, build_body
+from engine.synthetic.body import JOINT_INDEX
+from engine.synthetic.reaches import reach
+from engine.tetmesh import tetrahedralize
+
+
+@pytest.fixture(scope="module")
+def reach_pair():
+    """The plain 1,000-vertex body with its right hand hanging, and reaching forward at 1.4 m."""
+    body = build_body(1000)
+    motion = reach(body.skeleton, 1.4, fps=15)
+    frames = animate(body, motion)
+    V0, V1 = frames[0], frames[motion.events["peak_frame"]]
+    return body, V0, V1, tetrahedralize(V0, body.F, resolution=48)
+
+
+def test_the_extremities_of_a_body_are_its_hands_feet_and_head(reach_pair):
+    body, V0, _, _ = reach_pair
+    size = model_size(V0)
+    extremities = Extremities(V0, body.F, size)
+    names = {index: name for name, index in JOINT_INDEX.items()}
+    owners = [{names[s] for s in np.unique(body.segment[h])} for h in extremities.handles]
+    # the five ends of the body's geodesic reach come first, each alone in its handle
+    assert sorted(map(sorted, owners[:5])) == [["ankle_l"], ["ankle_r"], ["head"], ["wrist_l"], ["wrist_r"]]
+    right = owners.index({"wrist_r"})
+    hand = extremities.handles[right]
+    assert np.all(np.linalg.norm(V0[hand] - V0[extremities.vertices[right]], axis=1) < HANDLE * size)
+    # what holds is the body beyond the arm: not the forearm, and not the hand
+    hold = extremities.holds[right]
+    assert not np.isin(hand, hold).any()
+    assert not np.isin(np.flatnonzero(body.segment == JOINT_INDEX["elbow_r"]), hold).any()
+    assert np.isin(np.flatnonzero(body.segment == JOINT_INDEX["ankle_l"]), hold).all()
+    assert len(hold) > 0.5 * len(V0) and HOLD > HANDLE
+
+
+def test_a_limb_thrown_forward_is_pulled_onto_the_surface_nothing_covers(reach_pair):
+    """Matched patch by patch, the arm stays by the hip it fits and the target's arm is left
+    uncovered; pulled by its hand with the body beyond the shoulder holding, the arm bends as
+    the solid lets it and lands on the target's arm. The same input gives the same result."""
+    body, V0, V1, tets = reach_pair
+    target = TargetSurface(V1, body.F)
+    error, results = {}, {}
+    for pull in (False, True):
+        aligner = PairwiseAligner(V0, body.F, tets=tets, options=AlignmentOptions(patches=16, reach_limbs=pull))
+        results[pull] = aligner.align(aligner.V_tet, target)
+        error[pull] = np.linalg.norm(results[pull].V - V1, axis=1) / body.size
+    assert error[False].mean() > 0.015 and error[False].max() > 0.3  # the arm left by the hip
+    assert error[True].mean() < 0.3 * error[False].mean() and error[True].max() < 0.2 * error[False].max()
+    again = PairwiseAligner(V0, body.F, tets=tets, options=AlignmentOptions(patches=16, reach_limbs=True))
+    assert np.array_equal(again.align(again.V_tet, target).V, results[True].V)
+
+
+def test_nothing_is_pulled_where_the_target_is_covered(reach_pair):
+    """A target the source already covers (itself, moved 2 cm) leaves the pose as it was."""
+    body, V0, _, tets = reach_pair
+    aligner = PairwiseAligner(V0, body.F, tets=tets, options=AlignmentOptions(patches=16, reach_limbs=True))
+    X = aligner.V_tet + [0.0, 0.0, 0.02]
+    R = np.broadcast_to(np.eye(3), (len(aligner.T), 3, 3)).copy()
+    X2, R2, pulled = reach_uncovered(aligner, X, R, TargetSurface(V0, body.F))
+    assert pulled == 0 and X2 is X and R2 is R
+    assert extremities_of(aligner) is extremities_of(aligner)  # made once per aligner
