@@ -46,7 +46,8 @@ class AlignmentOptions:
                                 into a punch, which patch matching leaves by the hip it fits
     reach_limbs : bool          after the coarsest level's first round, pull the root's
                                 extremities (hands, feet, head) onto what nothing covers,
-                                bending the limb as-rigid-as-possible (:mod:`engine.align.reach`)
+                                bending the limb as-rigid-as-possible (:mod:`engine.align.reach`;
+                                on by default)
     search_angles : tuple       rotation angles tried about each axis (degrees, both signs)
     search_samples : int        vertices per patch used to score hypotheses
     search_cap : float          distance (m) at which a sample counts as unmatched
@@ -92,7 +93,7 @@ class AlignmentOptions:
     search_levels: int = 1
     search_rounds: int = 3
     swing_limbs: bool = False
-    reach_limbs: bool = False
+    reach_limbs: bool = True
     search_angles: tuple = (30.0, 60.0, 90.0)
     search_samples: int = 24
     search_cap: float = 0.05

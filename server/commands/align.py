@@ -25,6 +25,7 @@ Example:
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import json
 import os
@@ -98,10 +99,10 @@ def add_arguments(parser):
                         help="swing limbs onto the parts of a frame nothing covers in the coarse matching (an arm "
                              "thrown into a punch): better on tight-fitting clothes, not on loose garments "
                              "(docs/alignment.md)")
-    parser.add_argument("--reach-limbs", action="store_true",
+    parser.add_argument("--reach-limbs", action=argparse.BooleanOptionalAction, default=True,
                         help="pull the root's hands, feet and garment ends onto the parts of a frame nothing "
                              "covers, bending the limb as-rigid-as-possible (an arm thrown into a punch; "
-                             "docs/alignment.md)")
+                             "default on; docs/alignment.md)")
     parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
                         help="vertex colours as local matching cues when every frame has them: auto (default) "
                              "when the meshes are fine enough for colours to carry texture (median edge "

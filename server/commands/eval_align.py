@@ -16,6 +16,7 @@ reported in the data's units (mm for data in metres) and in % of the model size.
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import sys
@@ -66,8 +67,8 @@ def add_arguments(parser):
                         help="vertex colours as local matching cues (see `morphspace align --help`; default auto)")
     parser.add_argument("--swing-limbs", action="store_true",
                         help="swing limbs onto what nothing covers (see `morphspace align --help`)")
-    parser.add_argument("--reach-limbs", action="store_true",
-                        help="pull limbs onto what nothing covers (see `morphspace align --help`)")
+    parser.add_argument("--reach-limbs", action=argparse.BooleanOptionalAction, default=True,
+                        help="pull limbs onto what nothing covers (see `morphspace align --help`; default on)")
     parser.add_argument("--out", type=Path, help="directory for results.json and the pictures "
                         "(default: <dataset>-align-eval next to the dataset)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")

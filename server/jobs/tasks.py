@@ -264,7 +264,7 @@ def run_graph(payload, reporter):
 # --- align ----------------------------------------------------------------------------------------
 # what a job record made before these parameters existed runs with (the AlignJob model's defaults)
 ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "race", "colors": "auto", "repair_budget": 0.5, "units": "auto",
-                  "up": "auto", "swing_limbs": False, "reach_limbs": False}
+                  "up": "auto", "swing_limbs": False, "reach_limbs": True}
 
 
 def run_align(payload, reporter, runner=None):

@@ -233,11 +233,11 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
                  "--json", "--workers", "1", "--repair-budget", "0", "--swing-limbs"]) == 0
     swung = json.loads(capsys.readouterr().out)["tree"]
     assert swung["swing_limbs"] is True and swung["frames"] == 4 and swung["mean_pct"] < 2.0
-    assert report["tree"]["reach_limbs"] is False and swung["reach_limbs"] is False
+    assert report["tree"]["reach_limbs"] is True and swung["reach_limbs"] is True  # on by default
     assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "reach"),
-                 "--json", "--workers", "1", "--repair-budget", "0", "--reach-limbs"]) == 0
-    pulled = json.loads(capsys.readouterr().out)["tree"]
-    assert pulled["reach_limbs"] is True and pulled["frames"] == 4 and pulled["mean_pct"] < 2.0
+                 "--json", "--workers", "1", "--repair-budget", "0", "--no-reach-limbs"]) == 0
+    unpulled = json.loads(capsys.readouterr().out)["tree"]
+    assert unpulled["reach_limbs"] is False and unpulled["frames"] == 4 and unpulled["mean_pct"] < 2.0
     # align's --levels and --patches reach the aligner: a coarser run scores differently
     assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "coarse"),
                  "--json", "--workers", "1", "--repair-budget", "0", "--levels", "2", "--patches", "10"]) == 0
