@@ -64,7 +64,7 @@ def _limbs(pairs, count, sizes, centres, reach):
     return out
 
 
-def _regions(points, radius):
+def point_regions(points, radius):
     """Connected regions of ``points`` (neighbours within ``radius``): a list of index arrays."""
     if len(points) == 0:
         return []
@@ -123,7 +123,7 @@ def cover_uncovered(x, n, target, labels, count, sampled, adjacency, limbs, opti
     d, idx = PointTree(x).query(target_samples, k=k)
     d, idx = d.reshape(len(target_samples), k), idx.reshape(len(target_samples), k)
     uncovered = np.flatnonzero(d[:, 0] > far)
-    regions = [r for r in _regions(target_samples[uncovered], far) if len(r) >= REGION_SHARE * len(target_samples)]
+    regions = [r for r in point_regions(target_samples[uncovered], far) if len(r) >= REGION_SHARE * len(target_samples)]
     if not regions or not limbs:
         return x, n
     members = patch_members(sampled, count)
@@ -195,4 +195,4 @@ def cover_uncovered(x, n, target, labels, count, sampled, adjacency, limbs, opti
     return x, n
 
 
-__all__ = ["cover_uncovered", "limbs_of"]
+__all__ = ["cover_uncovered", "limbs_of", "point_regions"]

@@ -26,7 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 
-from engine.align.coverage import _regions
+from engine.align.coverage import REGION_SHARE, UNCOVERED, point_regions
 from engine.align.matching import sample_cost
 from engine.align.rigid import rotation_fit, stack_rotations
 from engine.deform import DeformationSolver
@@ -37,14 +37,12 @@ EXTREMITY_SPACING = 0.2   # extremities lie at least this share of the model siz
 EXTREMITY_REACH = 0.3     # and this share of it from the surface's centre
 HANDLE = 0.05             # the surface within this share of the model size of an extremity is pulled
 HOLD = 0.4                # the surface farther than this share of it from the extremity holds
-UNCOVERED = 2.0           # a target sample farther than this many search caps from the source is uncovered
-REGION_SHARE = 0.02       # an uncovered region holds at least this share of the target samples
 KEEP_COVER = 0.4          # a pull must cover this share of its region ...
 KEEP_FIT = 0.9            # ... the surface it moved fit the target at least this well (mean capped cost)
-ARAP_STEPS = 10
+ARAP_STEPS = 10            # as-rigid-as-possible steps (rotations, then one solve) of a pull
 CANDIDATES = 6            # the extremities nearest a region's far end are tried
 LOST_WEIGHT = 2.0         # a target sample a pull uncovers costs this many it covers
-SAMPLES = 2000
+SAMPLES = 2000            # about this many target vertices (every m-th) are measured
 
 
 def _edge_graph(V, F):
@@ -129,7 +127,7 @@ def reach_uncovered(aligner, X, R, target):
     samples = target.V[::max(1, len(target.V) // SAMPLES)]
     gap = PointTree(S).query(samples, k=1)[0]
     uncovered = np.flatnonzero(gap > far)
-    regions = [r for r in _regions(samples[uncovered], far) if len(r) >= REGION_SHARE * len(samples)]
+    regions = [r for r in point_regions(samples[uncovered], far) if len(r) >= REGION_SHARE * len(samples)]
     pulled = 0
     for region in regions[:2]:
         U = samples[uncovered[region]]
