@@ -100,9 +100,9 @@ def add_arguments(parser):
                              "thrown into a punch): better on tight-fitting clothes, not on loose garments "
                              "(docs/alignment.md)")
     parser.add_argument("--reach-limbs", action=argparse.BooleanOptionalAction, default=True,
-                        help="pull the root's hands, feet and garment ends onto the parts of a frame nothing "
-                             "covers, bending the limb as-rigid-as-possible (an arm thrown into a punch; "
-                             "default on; docs/alignment.md)")
+                        help="pull the root's extremities (hands, feet, head, a sleeve's or hem's end) onto "
+                             "the parts of a frame nothing covers, bending the limb as-rigid-as-possible (an "
+                             "arm thrown into a punch; default on; docs/alignment.md)")
     parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
                         help="vertex colours as local matching cues when every frame has them: auto (default) "
                              "when the meshes are fine enough for colours to carry texture (median edge "

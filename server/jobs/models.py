@@ -116,8 +116,9 @@ class AlignJob(_Body):
                                                                "low-confidence frames may spend (0: no repair)")
     swing_limbs: bool = Field(False, description="swing limbs onto the parts of a frame nothing covers in the "
                                                  "coarse matching (an arm thrown into a punch)")
-    reach_limbs: bool = Field(True, description="pull the root's hands, feet and garment ends onto the parts of "
-                                                 "a frame nothing covers, bending the limb as-rigid-as-possible")
+    reach_limbs: bool = Field(True, description="pull the root's extremities (hands, feet, head, a sleeve's or "
+                                                "hem's end) onto the parts of a frame nothing covers, bending "
+                                                "the limb as-rigid-as-possible")
     seed: int = Field(0, ge=0, le=2**31 - 1)
     units: Literal["auto", "m", "cm", "mm"] = Field(
         "auto", description="length unit of the input meshes; auto: from the model's size (a person is "
