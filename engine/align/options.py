@@ -125,6 +125,8 @@ class PairAlignment:
     colour_mean : float         mean of those distances (NaN without colours): what the frame's
                                 confidence reads (:mod:`engine.align.appearance`)
     orientations : int          rigid starts aligned from (2 when front and back were ambiguous)
+    pulled : int                limbs pulled onto what nothing covered (``reach_limbs``) in the
+                                alignment kept
     """
 
     V: np.ndarray
@@ -137,6 +139,7 @@ class PairAlignment:
     colour_distance: float = float("nan")
     colour_mean: float = float("nan")
     orientations: int = 1
+    pulled: int = 0
 
     @property
     def quality(self):

@@ -161,7 +161,7 @@ class PairwiseAligner:
         """Coarse-to-fine patch matching and deformation from a rigidly placed pose X."""
         o = self.options
         R = rotation_fit(self._gradients(X), self._eye, iterations=8)
-        prior = R.copy()
+        prior, pulled = R.copy(), 0
         use_colour = self.colors is not None and target.colors is not None and o.colour_weight > 0
         for level in range(o.levels):
             labels, count = self.patch_labels[level], self.patch_counts[level]
@@ -175,7 +175,7 @@ class PairwiseAligner:
                                                        graph=self.patch_graph[level])
                 X, R = self._deform(X, R, solver, goal, confidence, prior)
                 if o.reach_limbs and level == 0 and round_ == 0:
-                    X, R, _ = reach_uncovered(self, X, R, target)
+                    X, R, pulled = reach_uncovered(self, X, R, target)
         solver = self._solvers[o.final_stiffness]
         for _ in range(o.final_rounds):
             S = self.B @ X
@@ -189,7 +189,7 @@ class PairwiseAligner:
         per_tet = np.sum((F - R) ** 2, axis=(1, 2))
         distortion = float(self._tet_volume @ per_tet / self._tet_volume.sum())
         return PairAlignment(V=V, X=X, residual=residual, residual_max=residual_max, distortion=distortion,
-                             distortion_tail=self._tail(per_tet))
+                             distortion_tail=self._tail(per_tet), pulled=pulled)
 
     def _colour_distance(self, V, target):
         """Median RGB distance between the root's colours and the target's where V lands (NaN without colours)."""

@@ -92,7 +92,7 @@ def align_piece(aligner, job, tick=None):
     floor = aligner.colour_floor if aligner.options.colour_weight > 0 else float("nan")  # retries read colours with cues on
     colour_of = {}  # node -> its colour disagreement (this piece's frames)
     out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "tail": [], "colour": [],
-           "seconds": [], "cpu_seconds": [], "parent": [], "retried": [], "quality": [], "poses": {}}
+           "seconds": [], "cpu_seconds": [], "parent": [], "retried": [], "pulled": [], "quality": [], "poses": {}}
     for i, node in enumerate(nodes):
         checkpoint()  # a task stops here when its runner says the work has ended
         node = int(node)
@@ -142,6 +142,7 @@ def align_piece(aligner, job, tick=None):
         out["cpu_seconds"].append(time.process_time() - cpu_started)
         out["parent"].append(p)
         out["retried"].append(retried)
+        out["pulled"].append(result.pulled)
         if parents[i] >= 0:
             out["quality"].append(result.quality)
         out["poses"][node] = result.X  # every pose: the repair pass starts frames from trusted ones

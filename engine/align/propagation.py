@@ -33,6 +33,8 @@ class AlignedFrames:
     parent : (N,) int array            the frame each was finally aligned from (-1 for the root)
     retried : (N,) bool array          frames whose first alignment was poor and that were
                                        aligned again from other frames
+    pulled : (N,) int array            limbs pulled onto what nothing covered in each frame's
+                                       alignment (:mod:`engine.align.reach`; 0 without ``reach_limbs``)
     root : int
     cpu_seconds : (N,) float array     CPU time of the aligning process per frame (target
                                        surface set-up and all attempts; all its threads), which
@@ -66,6 +68,7 @@ class AlignedFrames:
     confidence: np.ndarray = None
     repaired: np.ndarray = None
     poses: dict = None
+    pulled: np.ndarray = None
 
 
 def partition_tree(parent, order, chunk):
@@ -188,6 +191,7 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
     colour = np.full(N, np.nan)
     parent = tree_parent.copy()
     retried = np.zeros(N, dtype=bool)
+    pulled = np.zeros(N, dtype=np.int64)
     poses = {}
     qualities = [None] * len(heads)
     done = 0
@@ -212,7 +216,7 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
         distortion[idx], seconds[idx] = out["distortion"], out["seconds"]
         tail[idx], colour[idx] = out["tail"], out["colour"]
         cpu_seconds[idx] = out["cpu_seconds"]
-        parent[idx], retried[idx] = out["parent"], out["retried"]
+        parent[idx], retried[idx], pulled[idx] = out["parent"], out["retried"], out["pulled"]
         poses.update(out["poses"])
         qualities[t] = out["quality"]
 
@@ -263,7 +267,7 @@ def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3
                          distortion=distortion, seconds=seconds, parent=parent, retried=retried,
                          root=int(tree.root), cpu_seconds=cpu_seconds, root_vertices=aligner.V.copy(),
                          root_kept=np.arange(len(aligner.V)), distortion_tail=tail, colour=colour,
-                         poses=poses)
+                         poses=poses, pulled=pulled)
 
 
 def in_line_grandparents(parent, lengths):

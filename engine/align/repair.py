@@ -191,6 +191,8 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             if best_source != frame:  # (its own alignment turned round keeps its parent)
                 aligned.parent[frame] = best_source
             aligned.poses[frame] = best.X
+            if aligned.pulled is not None:
+                aligned.pulled[frame] = best.pulled
             versions[frame] = versions.get(frame, 0) + 1
             repaired[frame] = True
             confidence[frame] = float(np.exp(-best_badness))

@@ -412,6 +412,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
             "residual_mean_pct": float(100 * aligned.residual[span].mean() / size),
             "residual_max_pct": float(100 * aligned.residual_max[span].max() / size),
             "retried_frames": int(aligned.retried[span].sum()),
+            "pulled_frames": int((aligned.pulled[span] > 0).sum()),
             "repaired_frames": int(aligned.repaired[span].sum()),
             "confidence_min": float(aligned.confidence[span].min()),
             "flagged_frames": flagged[s["name"]],
@@ -431,7 +432,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         residual=aligned.residual, residual_max=aligned.residual_max, distortion=aligned.distortion,
         retried=aligned.retried, distortion_tail=aligned.distortion_tail,
         colour=np.full(len(aligned.parent), np.nan) if aligned.colour is None else aligned.colour,
-        confidence=aligned.confidence, repaired=aligned.repaired,
+        confidence=aligned.confidence, repaired=aligned.repaired, pulled=aligned.pulled,
         source_units=np.array([c.units for c in conventions]), source_up=np.array([c.up_label for c in conventions]),
     ))
     # the only output that differs from run to run: how long it took
@@ -529,7 +530,8 @@ def run(args):
     print(f"  input {given} (written in metres, +Y up); fit residual mean "
           f"{length_text(aligned.residual.mean(), convention, size)}, max "
           f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "
-          f"{int(aligned.retried.sum())} frames re-aligned from other parents")
+          f"{int(aligned.retried.sum())} frames re-aligned from other parents, "
+          f"{int((aligned.pulled > 0).sum())} with a limb pulled onto what nothing covered")
     print(f"  colour cues {colour_cues_text(args.colors, result.colour_cues, meshes)}")
     if result.root_trial:
         print(f"  {root_trial_text(result.root_trial, int(aligned.root), sequences, lengths)}")

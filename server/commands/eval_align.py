@@ -114,7 +114,7 @@ def _truth_in_metres(parts, conventions):
 
 def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, lengths, names, *, residual=None,
            residual_max=None, seconds=None, retried=None, cpu_seconds=None, confidence=None, repaired=None,
-           part_counts=None, depth=None):
+           part_counts=None, depth=None, pulled=None):
     errors, summary = score_alignment(aligned_vertices, root, root_vertices, truth, faces, size)
     frames = len(aligned_vertices)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -136,6 +136,8 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
         record["cpu_seconds_per_frame"] = round(float(np.sum(cpu_seconds)) / max(frames - 1, 1), 3)
     if retried is not None:
         record["retried_frames"] = int(np.sum(retried))
+    if pulled is not None:  # frames whose kept alignment pulled a limb onto what nothing covered
+        record["pulled_frames"] = int(np.sum(np.asarray(pulled) > 0))
     frame_mean = errors.mean(axis=1)
     if confidence is not None:
         record["repaired_frames"] = int(np.sum(repaired))
@@ -218,7 +220,8 @@ def _load_aligned(directory, dataset_names):
             lengths = data["lengths"].astype(np.int64)
             root = int(data["root"])
             extra = {k: data[k] for k in ("residual", "residual_max", "seconds", "retried", "cpu_seconds",
-                                          "confidence", "repaired", "tree_edges", "tree_weights") if k in data.files}
+                                          "confidence", "repaired", "pulled", "tree_edges", "tree_weights")
+                     if k in data.files}
     except FileNotFoundError:
         raise MeshFormatError(f"{path}: not found; is {directory} a `morphspace align` output?") from None
     except (OSError, ValueError, KeyError) as exc:
@@ -280,7 +283,8 @@ def run(args):
                                residual=extra.get("residual"), residual_max=extra.get("residual_max"),
                                seconds=extra.get("seconds"), retried=extra.get("retried"),
                                cpu_seconds=extra.get("cpu_seconds"), confidence=extra.get("confidence"),
-                               repaired=extra.get("repaired"), part_counts=_part_counts(manifest),
+                               repaired=extra.get("repaired"), pulled=extra.get("pulled"),
+                               part_counts=_part_counts(manifest),
                                depth=_depth(extra, root, int(lengths.sum())))
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, root=int(root),
                           aligned=record, **_units_report(names, conventions))
@@ -334,7 +338,7 @@ def run(args):
                 record, _ = _score(method, a.vertices, root, a.root_vertices, truth, template_faces, size,
                                    lengths, names, residual=a.residual, residual_max=a.residual_max,
                                    seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds,
-                                   confidence=a.confidence, repaired=a.repaired,
+                                   confidence=a.confidence, repaired=a.repaired, pulled=a.pulled,
                                    part_counts=_part_counts(manifest), depth=result.tree.depth)
                 report[method] = {**report.get(method, {}), **record}
                 results[method] = (a.vertices, a.faces, a.root_vertices)

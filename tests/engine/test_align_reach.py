@@ -68,3 +68,20 @@ def test_nothing_is_pulled_where_the_target_is_covered(reach_pair):
     X2, R2, pulled = reach_uncovered(aligner, X, R, TargetSurface(V0, body.F))
     assert pulled == 0 and X2 is X and R2 is R
     assert extremities_of(aligner) is extremities_of(aligner)  # made once per aligner
+
+
+def test_the_frames_with_a_limb_pulled_are_counted(reach_pair):
+    """``AlignedFrames.pulled`` counts the pulls kept in each frame's alignment: the reach frame,
+    aligned from the hanging arm, has its hand pulled out; without the option nothing is."""
+    from engine.align import align_captures
+    from engine.mesh_io import Mesh
+
+    body, V0, V1, _ = reach_pair
+    meshes = [Mesh(V0, body.F), Mesh(V1, body.F)]
+    counts = {}
+    for pull in (True, False):
+        run = align_captures(meshes, np.array([2]), root=0, workers=1, repair=False,
+                             options=AlignmentOptions(patches=16, reach_limbs=pull))
+        counts[pull] = run.aligned.pulled.tolist()
+    assert counts[True][0] == 0 and counts[True][1] >= 1
+    assert counts[False] == [0, 0]

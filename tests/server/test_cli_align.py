@@ -238,6 +238,7 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
                  "--json", "--workers", "1", "--repair-budget", "0", "--no-reach-limbs"]) == 0
     unpulled = json.loads(capsys.readouterr().out)["tree"]
     assert unpulled["reach_limbs"] is False and unpulled["frames"] == 4 and unpulled["mean_pct"] < 2.0
+    assert unpulled["pulled_frames"] == 0 and 0 <= report["tree"]["pulled_frames"] <= 4
     # align's --levels and --patches reach the aligner: a coarser run scores differently
     assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "coarse"),
                  "--json", "--workers", "1", "--repair-budget", "0", "--levels", "2", "--patches", "10"]) == 0
@@ -258,6 +259,10 @@ def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, cap
     record = np.load(aligned / "alignment.npz")
     assert report["aligned"]["flagged_frames"] == int(np.sum(record["confidence"] < 0.5))
     assert report["aligned"]["repaired_frames"] == int(np.sum(record["repaired"]))
+    # the pulls kept per frame (engine.align.reach): counted, never negative, none for the root
+    assert record["pulled"].dtype.kind == "i" and record["pulled"].min() >= 0
+    assert record["pulled"][int(record["root"])] == 0
+    assert report["aligned"]["pulled_frames"] == int(np.sum(record["pulled"] > 0))
     breakdown = report["aligned"]["breakdown"]
     assert set(breakdown["confidence"]) == {"over_2pct", "over_3pct"}
     assert sum(row["frames"] for row in breakdown["per_depth"]) == report["frames"] - 1
