@@ -82,10 +82,9 @@ def worst_segments(pct, root_vertices, truth_root, faces, segment, names, count)
     """The ``count`` segments with the highest mean error: {name: % of the model size}."""
     import numpy as np
 
-    from engine.align.evaluation import surface_coordinates
+    from engine.align.evaluation import nearest_template_vertices
 
-    face, bary, _ = surface_coordinates(root_vertices, truth_root, faces)
-    owner = segment[faces[face, np.argmax(bary, axis=1)]]
+    owner = segment[nearest_template_vertices(root_vertices, truth_root, faces)]
     means = {names[k]: float(pct[owner == k].mean()) for k in np.unique(owner)}
     worst = sorted(means.items(), key=lambda item: item[1], reverse=True)[:count]
     return {name: round(value, 3) for name, value in worst}

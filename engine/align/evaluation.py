@@ -107,6 +107,13 @@ def score_alignment(aligned, root, root_vertices, truth, template_faces, model_s
     return errors, error_summary(errors[others] if others.any() else errors, model_size)
 
 
+def nearest_template_vertices(root_vertices, truth_root, template_faces):
+    """The template vertex each root vertex lies nearest to on the true surface of the root frame
+    (the corner of its closest face with the largest barycentric weight): (n,) int array."""
+    faces, bary, _ = surface_coordinates(root_vertices, truth_root, template_faces)
+    return np.asarray(template_faces)[faces, np.argmax(bary, axis=1)]
+
+
 def part_labels(root_vertices, truth_root, template_faces, part_counts):
     """The template part (0, 1, ...) each root vertex lies on.
 
@@ -121,8 +128,7 @@ def part_labels(root_vertices, truth_root, template_faces, part_counts):
     -------
     labels : (n,) int array   index into ``list(part_counts)``
     """
-    faces, bary, _ = surface_coordinates(root_vertices, truth_root, template_faces)
-    nearest = np.asarray(template_faces)[faces, np.argmax(bary, axis=1)]
+    nearest = nearest_template_vertices(root_vertices, truth_root, template_faces)
     bounds = np.cumsum([0] + [int(c) for c in part_counts.values()])
     return np.searchsorted(bounds, nearest, side="right") - 1
 
@@ -294,7 +300,8 @@ def pattern_sheet(vertices, faces, root, lengths, names=None, *, count=6, title=
     return pattern_render(frames, faces, colors, columns=columns, size=size, title=title, facing=facing)
 
 
-__all__ = ["correspondence_errors", "score_alignment", "error_summary", "part_errors", "part_labels", "pattern_colors",
+__all__ = ["correspondence_errors", "score_alignment", "error_summary", "nearest_template_vertices", "part_errors",
+           "part_labels", "pattern_colors",
            "pattern_frames",
            "pattern_render", "pattern_sheet",
            "surface_coordinates", "true_positions"]

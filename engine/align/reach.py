@@ -43,6 +43,7 @@ ARAP_STEPS = 10           # as-rigid-as-possible steps (rotations, then one solv
 CANDIDATES = 6            # the extremities nearest a region's far end are tried
 LOST_WEIGHT = 2.0         # a target sample a pull uncovers costs this many it covers
 SAMPLES = 2000            # about this many target vertices (every m-th) are measured
+HOLD_WEIGHT = 100.0       # handle and hold constraints, times the mean Laplacian diagonal: nearly hard
 
 
 def _edge_graph(V, F):
@@ -92,7 +93,7 @@ class Extremities:
         """The tet solve with extremity ``k``'s handle and hold constrained (factored when first asked)."""
         if k not in self._solvers:
             rows = np.concatenate([self.handles[k], self.holds[k]])
-            weight = np.sqrt(100.0 * aligner._laplacian_scale)
+            weight = np.sqrt(HOLD_WEIGHT * aligner._laplacian_scale)
             self._solvers[k] = (rows, DeformationSolver(aligner.V_tet, aligner.T, constraints=aligner.B[rows],
                                                         constraint_weight=weight))
         return self._solvers[k]
