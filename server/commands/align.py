@@ -351,12 +351,15 @@ def frame_label(index, sequences, lengths):
 def confidence_summary(aligned, sequences, lengths):
     """The per-frame confidence in a few numbers (the align job's summary, the CLI's last line):
     ``root_frame`` ("SEQUENCE:FRAME"), ``repaired_frames`` and ``flagged_frames`` (below
-    ``TRUSTED``) counted over all sequences, ``confidence_min``, and ``flagged``: per sequence
-    the frames (its own numbering) still below ``TRUSTED``."""
+    ``TRUSTED``) counted over all sequences, ``confidence_min``, ``pulled_frames`` (frames whose
+    alignment pulled a limb onto what nothing covered, ``reach_limbs``), and ``flagged``: per
+    sequence the frames (its own numbering) still below ``TRUSTED``."""
     return {"root_frame": frame_label(aligned.root, sequences, lengths),
             "repaired_frames": int(np.sum(aligned.repaired)),
             "flagged_frames": int(np.sum(aligned.confidence < TRUSTED)),
-            "confidence_min": float(np.min(aligned.confidence)), "flagged": flagged_by_sequence(aligned, sequences, lengths)}
+            "confidence_min": float(np.min(aligned.confidence)),
+            "pulled_frames": int(np.sum(np.asarray(aligned.pulled) > 0)) if aligned.pulled is not None else 0,
+            "flagged": flagged_by_sequence(aligned, sequences, lengths)}
 
 
 def flagged_by_sequence(aligned, sequences, lengths):

@@ -313,7 +313,8 @@ def run_align(payload, reporter, runner=None):
         reporter.log(root_trial_text(result.root_trial, int(result.aligned.root), sequences, lengths))
     confidence = confidence_summary(aligned, sequences, lengths)
     reporter.log(f"confidence: {confidence['repaired_frames']} frames repaired, {confidence['flagged_frames']} of "
-                 f"{int(lengths.sum())} still below {TRUSTED} (the summary's flagged lists them per sequence)")
+                 f"{int(lengths.sum())} still below {TRUSTED} (the summary's flagged lists them per sequence), "
+                 f"{confidence['pulled_frames']} with a limb pulled onto what nothing covered")
     return {"output": {"type": "dataset", "name": params["output"], "path": out.name},
             "summary": {"dataset": params["output"], "frames": int(lengths.sum()),
                         "sequences": [s["name"] for s in sequences], "root": int(aligned.root),
