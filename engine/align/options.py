@@ -28,7 +28,9 @@ class AlignmentOptions:
     max_normal_angle : float    degrees; pairs with normals further apart are rejected
     neighbours : int            target vertices examined per correspondence
     stiffness : tuple of float  constraint weight^2 / mean Laplacian diagonal, per level
-    final_stiffness : float     the same for the per-vertex rounds
+    final_stiffness : float     the same for the per-vertex rounds (soft: pulled hard onto
+                                their closest points, the vertices slide along a noisy surface
+                                and the correspondence gets worse while the fit gets better)
     colour_sigma : float        RGB distance (0..1 per channel) at which colour cues fade
     colour_weight : float       tangential weight of colour cues (0 disables them)
     colour_regions : bool       the colour measures take out each coarse patch's brightness
@@ -78,11 +80,11 @@ class AlignmentOptions:
     rounds: tuple = (6, 3, 2, 1)
     icp_steps: int = 3
     arap_steps: int = 2
-    final_rounds: int = 2
+    final_rounds: int = 1
     max_normal_angle: float = 60.0
     neighbours: int = 8
     stiffness: tuple = (0.5, 2.0, 8.0, 30.0)
-    final_stiffness: float = 100.0
+    final_stiffness: float = 8.0
     colour_sigma: float = 0.12
     colour_weight: float = 0.0
     colour_regions: bool = True
