@@ -527,6 +527,7 @@ def run(args):
           f"{args.workers} worker{'s' if args.workers != 1 else ''} ({aligned.seconds.sum() / max(frames - 1, 1):.2f} s, "
           f"{aligned.cpu_seconds.sum() / max(frames - 1, 1):.2f} CPU s per frame and aligner), repair {t['repair']:.1f} s")
     size = model_size(aligned.root_vertices)
+    confidence = confidence_summary(aligned, sequences, lengths)
     convention = common_convention(conventions)
     given = ("mixed units or axes" if convention.units_from == "mixed"
              else f"{convention.units}, {convention.up_label} up")
@@ -534,7 +535,7 @@ def run(args):
           f"{length_text(aligned.residual.mean(), convention, size)}, max "
           f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "
           f"{int(aligned.retried.sum())} frames re-aligned from other parents, "
-          f"{int((aligned.pulled > 0).sum())} with a limb pulled onto what nothing covered")
+          f"{confidence['pulled_frames']} with a limb pulled onto what nothing covered")
     print(f"  colour cues {colour_cues_text(args.colors, result.colour_cues, meshes)}")
     if result.root_trial:
         print(f"  {root_trial_text(result.root_trial, int(aligned.root), sequences, lengths)}")
@@ -544,7 +545,6 @@ def run(args):
         shown = [frame_label(i, sequences, lengths) for i in sorted(result.turned)]
         print(f"  faces wound inward (or mixed) turned outward in {len(shown)} frames: {', '.join(shown[:6])}"
               + (", ..." if len(shown) > 6 else ""))
-    confidence = confidence_summary(aligned, sequences, lengths)
     print(f"  confidence: {confidence['repaired_frames']} frames repaired (aligned again from the root or trusted "
           f"frames), {confidence['flagged_frames']} of {frames} still below {TRUSTED} (listed per sequence in "
           "meta.json)")
