@@ -24,7 +24,7 @@ import weakref
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from engine.align.coverage import REGION_SHARE, UNCOVERED, point_regions
 from engine.align.matching import sample_cost
@@ -90,13 +90,28 @@ class Extremities:
         self._solvers = {}
 
     def solver(self, k, aligner):
-        """The tet solve with extremity ``k``'s handle and hold constrained (factored when first asked)."""
+        """The tet solve with extremity ``k``'s handle and hold constrained (factored when first asked).
+
+        A part of the solid that neither reaches (a tet island under a fingertip or a thin hem,
+        joined to the rest only through the surface) is held too: nothing would pin it, and the
+        solve would be singular. Its surface vertices follow the handle and hold rows."""
         if k not in self._solvers:
             rows = np.concatenate([self.handles[k], self.holds[k]])
+            part = _surface_parts(aligner)
+            rows = np.concatenate([rows, np.flatnonzero(~np.isin(part, part[rows]))])
             weight = np.sqrt(HOLD_WEIGHT * aligner._laplacian_scale)
             self._solvers[k] = (rows, DeformationSolver(aligner.V_tet, aligner.T, constraints=aligner.B[rows],
                                                         constraint_weight=weight))
         return self._solvers[k]
+
+
+def _surface_parts(aligner):
+    """The connected part of the aligner's tet mesh (k, 4) that embeds each surface vertex (n,) int."""
+    T = aligner.T
+    corners = np.repeat(T, 4, axis=1).ravel(), np.tile(T, (1, 4)).ravel()
+    graph = sp.csr_matrix((np.ones(len(corners[0])), corners), shape=(len(aligner.V_tet),) * 2)
+    _, part = connected_components(graph, directed=False)
+    return part[np.asarray(aligner.B.argmax(axis=1)).ravel()]
 
 
 _EXTREMITIES = weakref.WeakKeyDictionary()  # aligner -> its Extremities, in this process

@@ -85,3 +85,38 @@ def test_the_frames_with_a_limb_pulled_are_counted(reach_pair):
         counts[pull] = run.aligned.pulled.tolist()
     assert counts[True][0] == 0 and counts[True][1] >= 1
     assert counts[False] == [0, 0]
+
+
+def test_a_part_of_the_solid_between_the_hand_and_the_hold_is_held(reach_pair):
+    """A tet island joined to the rest only through the surface (here the forearm's middle,
+    cut out of the solid; in a studio frame the tets under a fingertip or a thin hem) that
+    falls between a pull's handle and its hold is held where it is: without it the pull's
+    solve would be singular and the whole alignment would stop with a ValueError."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components, dijkstra
+
+    from engine.align.reach import _edge_graph
+
+    body, V0, V1, (V_tet, T) = reach_pair
+    size = model_size(V0)
+    extremities = Extremities(V0, body.F, size)
+    names = {index: name for name, index in JOINT_INDEX.items()}
+    right = [k for k, h in enumerate(extremities.handles) if {names[s] for s in np.unique(body.segment[h])} == {"wrist_r"}][0]
+    along = dijkstra(_edge_graph(V0, body.F), indices=int(extremities.vertices[right]))
+    # cut the solid across the arm twice, between the handle and the hold
+    at = along[np.argmin(np.linalg.norm(V_tet[:, None] - V0[None], axis=2), axis=1)][T]
+    cut = (((at > 0.14) & (at < 0.2)) | ((at > 0.3) & (at < 0.36))).any(axis=1)
+    used = np.unique(T[~cut])
+    kept = np.searchsorted(used, T[~cut])
+    tets = (V_tet[used], kept)
+    aligner = PairwiseAligner(V0, body.F, tets=tets, options=AlignmentOptions(patches=16, reach_limbs=True))
+    corners = np.repeat(kept, 4, axis=1).ravel(), np.tile(kept, (1, 4)).ravel()
+    parts, part = connected_components(sp.csr_matrix((np.ones(len(corners[0])), corners), shape=(len(used),) * 2))
+    owner = part[np.asarray(aligner.B.argmax(axis=1)).ravel()]
+    base = np.concatenate([extremities.handles[right], extremities.holds[right]])
+    loose = np.flatnonzero(~np.isin(owner, owner[base]))
+    assert parts >= 3 and len(loose) > 0   # an island that neither the hand nor the hold reaches
+    rows, _ = extremities_of(aligner).solver(right, aligner)   # factors without a singular system
+    assert np.isin(loose, rows).all() and np.isin(base, rows).all()
+    result = aligner.align(aligner.V_tet, TargetSurface(V1, body.F))
+    assert np.isfinite(result.V).all()   # the alignment went through the pulls it tried
