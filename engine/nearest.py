@@ -1,4 +1,4 @@
-"""k-nearest-neighbour queries on fixed 3-D point sets, the alignment's hottest call.
+"""k-nearest-neighbour queries on fixed point sets (3-D, or more), the alignment's hottest call.
 
 ``PointTree(points).query(P, k)`` answers as ``scipy.spatial.cKDTree.query`` does (distances,
 indices; 1-D for k = 1), built on pykdtree: on a 10,000-vertex studio frame the tree builds in
@@ -27,11 +27,12 @@ def _one_thread():
 
 
 class PointTree:
-    """A k-d tree of fixed points (n, 3) for k-nearest-neighbour queries.
+    """A k-d tree of fixed points (n, d) for k-nearest-neighbour queries (d = 3: positions;
+    more for joint spaces such as position and colour, engine.align.colour_reach).
 
     Parameters
     ----------
-    points : (n, 3) float array   copied as contiguous float64
+    points : (n, d) float array   copied as contiguous float64
 
     Notes
     -----
@@ -40,21 +41,21 @@ class PointTree:
 
     def __init__(self, points, leafsize=16):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
-        if self.points.ndim != 2 or self.points.shape[1] != 3 or len(self.points) == 0:
-            raise ValueError(f"a point tree needs (n >= 1, 3) points, got {self.points.shape}")
+        if self.points.ndim != 2 or self.points.shape[1] < 1 or len(self.points) == 0:
+            raise ValueError(f"a point tree needs (n >= 1, d >= 1) points, got {self.points.shape}")
         self.leafsize = int(leafsize)
         _one_thread()
         self._tree = KDTree(self.points, leafsize=self.leafsize)
 
     def query(self, P, k=1):
-        """Distances and indices of the ``k`` nearest points to each of P (q, 3).
+        """Distances and indices of the ``k`` nearest points to each of P (q, d).
 
         Returns
         -------
         distance : (q,) or (q, k) float64     index : (q,) or (q, k) int64
         (1-D for k = 1, as ``cKDTree.query``)
         """
-        P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, 3)
+        P = np.ascontiguousarray(P, dtype=np.float64).reshape(-1, self.points.shape[1])
         k = int(k)
         if not 1 <= k <= len(self.points):
             raise ValueError(f"k must be between 1 and {len(self.points)}, got {k}")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from engine.align.appearance import GAIN_RANGE
+from engine.align.colour_reach import reach_for_colour
 from engine.align.compiled import closest_among_faces, colour_choice
 from engine.align.shape_histogram import shape_centre
 from engine.nearest import PointTree
@@ -88,13 +89,15 @@ def nearest_compatible(P, N, target, options):
     return q, m, d[rows, j], ok
 
 
-def correspondences(x, n, target, options, colors=None, labels=None, count=1):
+def correspondences(x, n, target, options, colors=None, labels=None, count=1, reach=None):
     """Correspondences of source points x (normals n) on the target surface.
 
     The closest surface point (exact, among the faces with the nearest centres) when its
     normal is compatible, otherwise the foot on the tangent plane of the nearest compatible
     vertex; robust weights from the distances (outliers get 0). With the root's ``colors``
-    (n, 3) the matches also shift towards the target's matching colours (:func:`colour_flow`).
+    (n, 3) the matches also shift towards the target's matching colours (:func:`colour_flow`);
+    with ``reach`` (the points' smoothed colours (p, 3), metres per unit of colour) those whose
+    colour disagrees reach further (:func:`engine.align.colour_reach.reach_for_colour`).
 
     Returns
     -------
@@ -118,6 +121,9 @@ def correspondences(x, n, target, options, colors=None, labels=None, count=1):
         flow, strength = colour_flow(y[used], m[used], face[used], bary[used], target, source, o)
         y[used] += flow
         tangential[used] += o.colour_weight * strength
+        if reach is not None:
+            y, m, replaced = reach_for_colour(x, y, m, w, tangential, target, *reach)
+            d = np.where(replaced, np.linalg.norm(x - y, axis=1), d)
     return y, m, w, tangential, d
 
 
@@ -233,6 +239,26 @@ def robust_weights(d, ok, labels, count, factor, floor):
     return np.where(ok & (d < limit), (1.0 - (np.minimum(d, limit) / limit) ** 2) ** 2, 0.0)
 
 
+def project_onto(S, F, target):
+    """Closest points of the surface S (n, 3) with faces F on the target, except where that
+    would fold or collapse faces: vertices of faces whose normal turns by more than 60 degrees
+    or whose area shrinks below a fifth keep their unprojected positions (a few millimetres off
+    the surface). Returns (n, 3)."""
+    V, _, _ = target.closest(S)
+    before_n = np.cross(S[F[:, 1]] - S[F[:, 0]], S[F[:, 2]] - S[F[:, 0]])
+    before_a = np.linalg.norm(before_n, axis=1)
+    for _ in range(3):
+        after_n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+        after_a = np.linalg.norm(after_n, axis=1)
+        cosine = np.einsum("fc,fc->f", before_n, after_n) / np.maximum(before_a * after_a, 1e-300)
+        bad = (cosine < 0.5) | (after_a < 0.2 * before_a)
+        if not bad.any():
+            break
+        keep = np.unique(F[bad])
+        V[keep] = S[keep]
+    return V
+
+
 def closest_points(P, V, F, face_tree, k=6):
     """Closest points on a mesh among the k faces whose centres (in face_tree) are nearest.
 
@@ -250,6 +276,6 @@ def point_to_mesh_distance(P, V, F, k=6):
     return closest_points(P, V, F, PointTree(V[F].mean(axis=1)), k=k)[1]
 
 
-__all__ = ["TargetSurface", "closest_points", "colour_flow", "compatible_closest",
+__all__ = ["TargetSurface", "closest_points", "colour_flow", "compatible_closest", "project_onto",
            "correspondence_weights", "correspondences", "nearest_compatible",
            "normal_cosine", "point_to_mesh_distance", "reverse_correspondences", "robust_weights", "sample_cost"]

@@ -33,6 +33,11 @@ class AlignmentOptions:
                                 and the correspondence gets worse while the fit gets better)
     colour_sigma : float        RGB distance (0..1 per channel) at which colour cues fade
     colour_weight : float       tangential weight of colour cues (0 disables them)
+    colour_reach : float        on the coarsest levels, matches whose smoothed colour disagrees
+                                also look for the target point nearest in position and colour,
+                                colour weighed at this share of the model size per unit of RGB
+                                distance (:mod:`engine.align.colour_reach`; 0 turns it off)
+    colour_reach_levels : int   the coarse levels whose matches reach for the colour
     colour_regions : bool       the colour measures take out each coarse patch's brightness
                                 (light and exposure: engine.align.appearance)
     tangential_damping : float  weight keeping patches from sliding along the surface
@@ -87,6 +92,8 @@ class AlignmentOptions:
     final_stiffness: float = 8.0
     colour_sigma: float = 0.12
     colour_weight: float = 0.0
+    colour_reach: float = 0.18
+    colour_reach_levels: int = 1
     colour_regions: bool = True
     tangential_damping: float = 0.05
     outlier_factor: float = 3.0

@@ -28,13 +28,15 @@ import time
 import numpy as np
 import scipy.sparse as sp
 
-from engine.align.appearance import colour_distance, colour_floor, colour_measures
+from engine.align.appearance import colour_floor, colour_measures
+from engine.align.colour_reach import reach_colours
 from engine.align.coverage import cover_uncovered, limbs_of
 from engine.align.matching import (
     correspondence_weights,
     correspondences,
     nearest_compatible,
     point_to_mesh_distance,
+    project_onto,
     reverse_correspondences,
 )
 from engine.align.options import AlignmentOptions, PairAlignment
@@ -51,7 +53,7 @@ from engine.align.rigid import (
 from engine.align.shape_histogram import is_closed, shape_centre
 from engine.deform import DeformationSolver
 from engine.rotations import rot_y
-from engine.surface import vertex_normals
+from engine.surface import model_size, vertex_normals
 
 
 class PairwiseAligner:
@@ -172,7 +174,8 @@ class PairwiseAligner:
                 goal, confidence = self._match_patches(S, target, labels, count, use_colour,
                                                        level=level if search else None,
                                                        coarse=level < o.match_sample_levels,
-                                                       graph=self.patch_graph[level])
+                                                       graph=self.patch_graph[level],
+                                                       reach=use_colour and level < o.colour_reach_levels)
                 X, R = self._deform(X, R, solver, goal, confidence, prior)
                 if o.reach_limbs and level == 0 and round_ == 0:
                     X, R, pulled = reach_uncovered(self, X, R, target)
@@ -182,7 +185,7 @@ class PairwiseAligner:
             goal, confidence = self._match_vertices(S, target, use_colour)
             X, R = self._deform(X, R, solver, goal, confidence, prior)
         S = self.B @ X
-        V = self._project(S, target)
+        V = project_onto(S, self.F, target)
         residual, residual_max = self._residual(V, target)
         F = self._gradients(X)
         R = rotation_fit(F, R, iterations=4)
@@ -191,9 +194,10 @@ class PairwiseAligner:
         return PairAlignment(V=V, X=X, residual=residual, residual_max=residual_max, distortion=distortion,
                              distortion_tail=self._tail(per_tet), pulled=pulled)
 
-    def _colour_distance(self, V, target):
-        """Median RGB distance between the root's colours and the target's where V lands (NaN without colours)."""
-        return colour_distance(V, self.colors, target, self.colour_regions)
+    @functools.cached_property
+    def smoothed_colours(self):
+        """The root's colours averaged over each vertex's neighbours (:mod:`engine.align.colour_reach`)."""
+        return reach_colours(self.V, self.colors)
 
     @functools.cached_property
     def colour_floor(self):
@@ -227,26 +231,6 @@ class PairwiseAligner:
         take = np.cumsum(volume) <= fraction * volume.sum()
         take[0] = True
         return float(volume[take] @ per_tet[order][take] / volume[take].sum())
-
-    def _project(self, S, target):
-        """Closest points of S on the target, except where that would fold or collapse faces.
-
-        Vertices of faces whose normal turns by more than 60 degrees or whose area shrinks
-        below a fifth keep their unprojected positions (a few millimetres off the surface).
-        """
-        V, _, _ = target.closest(S)
-        before_n = np.cross(S[self.F[:, 1]] - S[self.F[:, 0]], S[self.F[:, 2]] - S[self.F[:, 0]])
-        before_a = np.linalg.norm(before_n, axis=1)
-        for _ in range(3):
-            after_n = np.cross(V[self.F[:, 1]] - V[self.F[:, 0]], V[self.F[:, 2]] - V[self.F[:, 0]])
-            after_a = np.linalg.norm(after_n, axis=1)
-            cosine = np.einsum("fc,fc->f", before_n, after_n) / np.maximum(before_a * after_a, 1e-300)
-            bad = (cosine < 0.5) | (after_a < 0.2 * before_a)
-            if not bad.any():
-                break
-            keep = np.unique(self.F[bad])
-            V[keep] = S[keep]
-        return V
 
     def _residual(self, V, target):
         """Mean and max of the two-sided surface distance between aligned V and the target."""
@@ -301,7 +285,7 @@ class PairwiseAligner:
                 starts.append(X @ fits[1][1].T + fits[1][2])
         return starts
 
-    def _match_patches(self, S, target, labels, count, use_colour, level=None, coarse=True, graph=None):
+    def _match_patches(self, S, target, labels, count, use_colour, level=None, coarse=True, graph=None, reach=False):
         """Rigidly match every patch to the target; returns per-vertex goals and confidences.
 
         The rigid steps are driven by at most ``options.match_samples`` source vertices and as
@@ -310,7 +294,8 @@ class PairwiseAligner:
         ``level`` given, badly fitting patches also try articulated hypotheses
         (:func:`engine.align.patches.search_patches`) after the ICP steps. With ``graph`` (the
         level's ``patch_adjacency``) and ``options.patch_coupling`` > 0, adjacent patches' steps
-        are solved together (:func:`engine.align.rigid.coupled_patch_steps`).
+        are solved together (:func:`engine.align.rigid.coupled_patch_steps`). With ``reach`` (and
+        ``options.colour_reach`` > 0) matches reach for the colour (:mod:`engine.align.colour_reach`).
         """
         o = self.options
         x = S.copy()
@@ -321,9 +306,13 @@ class PairwiseAligner:
         picked_labels = labels if pick is None else labels[pick]
         picked_colours = colours if colours is None or pick is None else colours[pick]
         target_pick = _subset(len(target.V), o.match_samples if coarse else o.fine_match_samples, 0)
+        # with reach: the matched points' smoothed colours and metres per unit of colour
+        reach = (self.smoothed_colours[slice(None) if pick is None else pick], o.colour_reach * model_size(self.V)) \
+            if reach and o.colour_reach > 0 else None
         for _ in range(o.icp_steps):
             xs, ns = (x, n) if pick is None else (x[pick], n[pick])
-            y, m, w, tangential, d = correspondences(xs, ns, target, o, picked_colours, picked_labels, count)
+            y, m, w, tangential, d = correspondences(xs, ns, target, o, picked_colours, picked_labels, count,
+                                                     reach=reach)
             # target -> source pairs pull the source into parts of the target it does not cover
             points, src, ys, ms, ws = reverse_correspondences(x, n, self.F, target, o, labels, count,
                                                               subset=target_pick)

@@ -283,11 +283,13 @@ def repair_task(shared, job):
 
 def _colour_now(aligner, mesh, vertices):
     """How well the colours of a frame's aligned ``vertices`` agree with the root's (median RGB
-    distance, :meth:`PairwiseAligner._colour_distance`)."""
+    distance against the root's colours, :func:`engine.align.appearance.colour_distance`; NaN
+    without colours)."""
+    from engine.align.appearance import colour_distance
     from engine.align.propagation import mesh_arrays
 
     V, F, C = mesh_arrays(mesh, True)
-    return aligner._colour_distance(vertices, TargetSurface(V, F, C))
+    return colour_distance(vertices, aligner.colors, TargetSurface(V, F, C), aligner.colour_regions)
 
 
 def _tree_order(parent, root):
