@@ -196,7 +196,7 @@ class PairwiseAligner:
 
     @functools.cached_property
     def smoothed_colours(self):
-        """The root's colours averaged over each vertex's neighbours (:mod:`engine.align.colour_reach`)."""
+        """The root's colours smoothed over each vertex's neighbours, NaN on patterns (:func:`reach_colours`)."""
         return reach_colours(self.V, self.colors)
 
     @functools.cached_property
