@@ -195,7 +195,7 @@ class PairwiseAligner:
                              distortion_tail=self._tail(per_tet), pulled=pulled)
 
     @functools.cached_property
-    def smoothed_colours(self):
+    def reach_colours(self):
         """The root's colours smoothed over each vertex's neighbours, NaN on patterns (:func:`reach_colours`)."""
         return reach_colours(self.V, self.colors)
 
@@ -307,7 +307,7 @@ class PairwiseAligner:
         picked_colours = colours if colours is None or pick is None else colours[pick]
         target_pick = _subset(len(target.V), o.match_samples if coarse else o.fine_match_samples, 0)
         # with reach: the matched points' smoothed colours and metres per unit of colour
-        reach = (self.smoothed_colours[slice(None) if pick is None else pick], o.colour_reach * model_size(self.V)) \
+        reach = (self.reach_colours[slice(None) if pick is None else pick], o.colour_reach * model_size(self.V)) \
             if reach and o.colour_reach > 0 else None
         for _ in range(o.icp_steps):
             xs, ns = (x, n) if pick is None else (x[pick], n[pick])

@@ -24,7 +24,7 @@ import weakref
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.sparse.csgraph import dijkstra
 
 from engine.align.coverage import REGION_SHARE, UNCOVERED, point_regions
 from engine.align.matching import sample_cost
@@ -32,6 +32,7 @@ from engine.align.rigid import rotation_fit, stack_rotations
 from engine.deform import DeformationSolver
 from engine.nearest import PointTree
 from engine.surface import model_size, vertex_normals
+from engine.tetmesh import tet_components
 
 EXTREMITY_SPACING = 0.2   # extremities lie at least this share of the model size apart (geodesic)
 EXTREMITY_REACH = 0.3     # and this share of it from the surface's centre
@@ -88,6 +89,7 @@ class Extremities:
             self.holds.append(np.flatnonzero(~(near < HOLD * size)))
         self.vertices = np.array(vertices, dtype=np.int64)
         self._solvers = {}
+        self._parts = None   # the solid's part of each surface vertex, made with the first solver
 
     def solver(self, k, aligner):
         """The tet solve with extremity ``k``'s handle and hold constrained (factored when first asked).
@@ -97,8 +99,9 @@ class Extremities:
         solve would be singular. Its surface vertices follow the handle and hold rows."""
         if k not in self._solvers:
             rows = np.concatenate([self.handles[k], self.holds[k]])
-            part = _surface_parts(aligner)
-            rows = np.concatenate([rows, np.flatnonzero(~np.isin(part, part[rows]))])
+            if self._parts is None:
+                self._parts = _surface_parts(aligner)
+            rows = np.concatenate([rows, np.flatnonzero(~np.isin(self._parts, self._parts[rows]))])
             weight = np.sqrt(HOLD_WEIGHT * aligner._laplacian_scale)
             self._solvers[k] = (rows, DeformationSolver(aligner.V_tet, aligner.T, constraints=aligner.B[rows],
                                                         constraint_weight=weight))
@@ -106,11 +109,8 @@ class Extremities:
 
 
 def _surface_parts(aligner):
-    """The connected part of the aligner's tet mesh (k, 4) that embeds each surface vertex (n,) int."""
-    T = aligner.T
-    corners = np.repeat(T, 4, axis=1).ravel(), np.tile(T, (1, 4)).ravel()
-    graph = sp.csr_matrix((np.ones(len(corners[0])), corners), shape=(len(aligner.V_tet),) * 2)
-    _, part = connected_components(graph, directed=False)
+    """The connected part of the aligner's tet mesh that embeds each surface vertex (n,) int."""
+    _, part = tet_components(aligner.T, len(aligner.V_tet))
     return part[np.asarray(aligner.B.argmax(axis=1)).ravel()]
 
 

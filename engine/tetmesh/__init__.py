@@ -6,6 +6,7 @@ One function per file, each named after what it returns:
 ``B = embed_barycentric(P, V_tet, T)``         surface points as tet-vertex combinations
 ``tet_index, W, distance = tet_barycentric(P, V_tet, T)``
 ``F, tet_index = boundary_faces(T)``           outward boundary triangles
+``count, label = tet_components(T, k)``       connected parts (vertices joined through tets)
 ``volume = tet_volumes(V, T)``                 signed volumes
 ``G = tet_gradient(V, T)``                     (3t, k) gradient operator
 ``D = tet_mass(V, T)``                         (3t, 3t) volumes, each repeated 3 times
@@ -22,6 +23,7 @@ from .deformation_gradients import deformation_gradients
 from .embed_barycentric import embed_barycentric, tet_barycentric
 from .polar_decomposition import polar_decomposition
 from .quaternions import quaternions_to_rotations, rotations_to_quaternions
+from .tet_components import tet_components
 from .tet_gradient import tet_gradient
 from .tet_laplacian import tet_laplacian
 from .tet_mass import tet_mass
@@ -36,6 +38,7 @@ __all__ = [
     "quaternions_to_rotations",
     "rotations_to_quaternions",
     "tet_barycentric",
+    "tet_components",
     "tet_gradient",
     "tet_laplacian",
     "tet_mass",

@@ -5,13 +5,12 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from ..holes import cap_holes
 from ..surface import enclosed_volume
 from ._validate import as_vertices
 from .occupancy import grid_occupancy
+from .tet_components import tet_components
 from .tet_volumes import tet_volumes
 
 # The lattice sits off the surface's own coordinates by an irrational fraction of a cell, so
@@ -105,11 +104,7 @@ def _held_components(P, V_tet, T):
     """Drop tet components that no point of P is embedded in (they would float in a fit)."""
     from .embed_barycentric import tet_barycentric
 
-    n = len(V_tet)
-    rows = np.repeat(T, 4, axis=1).ravel()
-    cols = np.tile(T, (1, 4)).ravel()
-    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n, n))
-    count, label = connected_components(graph, directed=False)
+    count, label = tet_components(T, len(V_tet))
     if count == 1:
         return V_tet, T
     tet_index, _, _ = tet_barycentric(P, V_tet, T)

@@ -92,10 +92,10 @@ def test_a_part_of_the_solid_between_the_hand_and_the_hold_is_held(reach_pair):
     cut out of the solid; in a studio frame the tets under a fingertip or a thin hem) that
     falls between a pull's handle and its hold is held where it is: without it the pull's
     solve would be singular and the whole alignment would stop with a ValueError."""
-    import scipy.sparse as sp
-    from scipy.sparse.csgraph import connected_components, dijkstra
+    from scipy.sparse.csgraph import dijkstra
 
     from engine.align.reach import _edge_graph
+    from engine.tetmesh import tet_components
 
     body, V0, V1, (V_tet, T) = reach_pair
     size = model_size(V0)
@@ -110,8 +110,7 @@ def test_a_part_of_the_solid_between_the_hand_and_the_hold_is_held(reach_pair):
     kept = np.searchsorted(used, T[~cut])
     tets = (V_tet[used], kept)
     aligner = PairwiseAligner(V0, body.F, tets=tets, options=AlignmentOptions(patches=16, reach_limbs=True))
-    corners = np.repeat(kept, 4, axis=1).ravel(), np.tile(kept, (1, 4)).ravel()
-    parts, part = connected_components(sp.csr_matrix((np.ones(len(corners[0])), corners), shape=(len(used),) * 2))
+    parts, part = tet_components(kept, len(used))
     owner = part[np.asarray(aligner.B.argmax(axis=1)).ravel()]
     base = np.concatenate([extremities.handles[right], extremities.holds[right]])
     loose = np.flatnonzero(~np.isin(owner, owner[base]))
