@@ -10,7 +10,8 @@ looks only among the few nearest target vertices, too near to cross that gap.
 
 So on the coarsest levels (``AlignmentOptions.colour_reach_levels``) each match whose
 *smoothed* colour (the mean over a vertex's ``SMOOTHING`` nearest vertices, so that noise and
-shading average out) disagrees with the source's by more than ``GAP`` also
+shading average out; repeated on denser surfaces so that it spans the same few centimetres,
+:func:`smoothing_passes`) disagrees with the source's by more than ``GAP`` also
 looks for the target vertex nearest in position and smoothed colour together: a 6-D nearest
 neighbour, colour scaled by ``AlignmentOptions.colour_reach`` times the root's model size, so
 that at 0.18 a colour 0.1 apart weighs as 3 cm at 1.7 m. That vertex replaces the closest point
@@ -41,43 +42,73 @@ AGREE = 0.15     # ... and its smoothed colour is within this distance of the so
 BETTER = 0.5     # a colour match is taken when its joint squared distance is below this share of the closest point's
 SPREAD = 0.2     # a root vertex whose neighbours' colours spread more than this is patterned: it does not reach
 WEIGHT = 0.5     # the least robust weight of a match so taken
+DENSITY = 8000   # vertices per model size squared of surface where one pass of SMOOTHING spans 3-4 cm (the studio's 10k)
 
 
-def smoothed_colours(V, colors, k=SMOOTHING, spread=False):
-    """(n, 3) mean colour of each vertex's ``k`` nearest vertices (itself included); with
-    ``spread`` also (n,) the RMS distance of those colours from their mean (a pattern's
-    stripes or checks: large; a plain cloth or skin: small)."""
+def smoothing_passes(V, F, size):
+    """How many times :func:`smoothed_colours` averages over the nearest ``SMOOTHING`` vertices
+    so that the smoothing spans about the same share of the body whatever the surface's
+    density: one at up to 1.5 times ``DENSITY`` vertices per ``size`` squared of surface (the
+    studio's 10k-vertex frames, where 24 neighbours reach about 4 cm), five on a 50k-vertex
+    capture of the same body. Each pass widens the averaging as a diffusion does: p passes of
+    k neighbours at p times the density spread as far as one pass at the density.
+
+    Parameters
+    ----------
+    V, F : the surface       size : float   the root's model size (the same for source and target)
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    area = 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
+    if not area > 0:
+        return 1
+    return max(1, int(round(len(V) * float(size) ** 2 / area / DENSITY)))
+
+
+def smoothed_colours(V, colors, k=SMOOTHING, spread=False, passes=1):
+    """(n, 3) mean colour of each vertex's ``k`` nearest vertices (itself included), that mean
+    taken ``passes`` times over; with ``spread`` also (n,) the RMS distance of the colours so
+    averaged from their mean (a pattern's stripes or checks: large; a plain cloth or skin:
+    small)."""
+    import scipy.sparse as sp
+
     V = np.asarray(V, dtype=np.float64)
     colors = np.asarray(colors, dtype=np.float64)
-    k = min(int(k), len(V))
-    near = colors[PointTree(V).query(V, k=k)[1].reshape(len(V), k)]
-    mean = near.mean(axis=1)
+    n, k = len(V), min(int(k), len(V))
+    near = PointTree(V).query(V, k=k)[1].reshape(n, k)
+    average = sp.csr_matrix((np.full(n * k, 1.0 / k), near.ravel(), np.arange(0, n * k + 1, k)), shape=(n, n))
+    both = np.hstack([colors, colors ** 2]) if spread else colors
+    for _ in range(max(1, int(passes))):
+        both = average @ both
+    mean = both[:, :3]
     if not spread:
         return mean
-    return mean, np.sqrt(np.mean(np.sum((near - mean[:, None]) ** 2, axis=2), axis=1))
+    return mean, np.sqrt(np.maximum(np.sum(both[:, 3:] - mean ** 2, axis=1), 0.0))
 
 
-def reach_colours(V, colors):
+def reach_colours(V, colors, passes=1):
     """The root's colours as :func:`reach_for_colour` reads them: smoothed, and NaN where the
     surface is patterned (spread over ``SPREAD``), whose smoothed colour repeats every stripe."""
-    mean, spread = smoothed_colours(V, colors, spread=True)
+    mean, spread = smoothed_colours(V, colors, spread=True, passes=passes)
     mean[spread > SPREAD] = np.nan
     return mean
 
 
-def target_colour_tree(target, scale):
+def target_colour_tree(target, scale, size=None):
     """The target's vertices in 6-D (position, ``scale`` x smoothed colour) as a PointTree, made
-    once per target and scale (kept on the target, with its smoothed colours)."""
+    once per target and scale (kept on the target, with its smoothed colours: smoothed as often
+    as :func:`smoothing_passes` says for the root's model size ``size``, once without it)."""
     cache = target.__dict__.setdefault("_colour_reach", {})
     if "smoothed" not in cache:
-        cache["smoothed"] = smoothed_colours(target.V, target.colors)
+        passes = 1 if size is None else smoothing_passes(target.V, target.F, size)
+        cache["smoothed"] = smoothed_colours(target.V, target.colors, passes=passes)
     key = round(float(scale), 12)
     if key not in cache:
         cache[key] = PointTree(np.hstack([target.V, scale * cache["smoothed"]]))
     return cache["smoothed"], cache[key]
 
 
-def reach_for_colour(x, y, m, w, tangential, target, source, scale):
+def reach_for_colour(x, y, m, w, tangential, target, source, scale, size=None):
     """Replace matches whose colour disagrees with the nearest target vertex in position and colour.
 
     Parameters
@@ -87,12 +118,13 @@ def reach_for_colour(x, y, m, w, tangential, target, source, scale):
     target : TargetSurface with colours
     source : (p, 3) the source points' smoothed colours (the root's)
     scale : float                     metres per unit of RGB distance
+    size : float or None              the root's model size (sets the target's smoothing passes)
 
     Returns
     -------
     y, m : new arrays (the replaced rows changed)      replaced : (p,) bool
     """
-    smoothed, tree = target_colour_tree(target, scale)
+    smoothed, tree = target_colour_tree(target, scale, size)
     replaced = np.zeros(len(x), dtype=bool)
     plain = np.isfinite(source[:, 0])
     if not plain.any():
@@ -118,4 +150,5 @@ def reach_for_colour(x, y, m, w, tangential, target, source, scale):
     return y, m, replaced
 
 
-__all__ = ["AGREE", "BETTER", "GAP", "SMOOTHING", "SPREAD", "WEIGHT", "reach_colours", "reach_for_colour", "smoothed_colours", "target_colour_tree"]
+__all__ = ["AGREE", "BETTER", "DENSITY", "GAP", "SMOOTHING", "SPREAD", "WEIGHT", "reach_colours", "reach_for_colour",
+           "smoothed_colours", "smoothing_passes", "target_colour_tree"]

@@ -96,8 +96,9 @@ def correspondences(x, n, target, options, colors=None, labels=None, count=1, re
     normal is compatible, otherwise the foot on the tangent plane of the nearest compatible
     vertex; robust weights from the distances (outliers get 0). With the root's ``colors``
     (n, 3) the matches also shift towards the target's matching colours (:func:`colour_flow`);
-    with ``reach`` (the points' smoothed colours (p, 3), metres per unit of colour) those whose
-    colour disagrees reach further (:func:`engine.align.colour_reach.reach_for_colour`).
+    with ``reach`` (the points' smoothed colours (p, 3), metres per unit of colour, the root's
+    model size) those whose colour disagrees reach further
+    (:func:`engine.align.colour_reach.reach_for_colour`).
 
     Returns
     -------

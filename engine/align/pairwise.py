@@ -29,7 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from engine.align.appearance import colour_floor, colour_measures
-from engine.align.colour_reach import reach_colours
+from engine.align.colour_reach import reach_colours, smoothing_passes
 from engine.align.coverage import cover_uncovered, limbs_of
 from engine.align.matching import (
     correspondence_weights,
@@ -197,7 +197,7 @@ class PairwiseAligner:
     @functools.cached_property
     def reach_colours(self):
         """The root's colours smoothed over each vertex's neighbours, NaN on patterns (:func:`reach_colours`)."""
-        return reach_colours(self.V, self.colors)
+        return reach_colours(self.V, self.colors, smoothing_passes(self.V, self.F, model_size(self.V)))
 
     @functools.cached_property
     def colour_floor(self):
@@ -306,8 +306,9 @@ class PairwiseAligner:
         picked_labels = labels if pick is None else labels[pick]
         picked_colours = colours if colours is None or pick is None else colours[pick]
         target_pick = _subset(len(target.V), o.match_samples if coarse else o.fine_match_samples, 0)
-        # with reach: the matched points' smoothed colours and metres per unit of colour
-        reach = (self.reach_colours[slice(None) if pick is None else pick], o.colour_reach * model_size(self.V)) \
+        # with reach: the matched points' smoothed colours, metres per unit of colour, the model size
+        size = model_size(self.V)
+        reach = (self.reach_colours[slice(None) if pick is None else pick], o.colour_reach * size, size) \
             if reach and o.colour_reach > 0 else None
         for _ in range(o.icp_steps):
             xs, ns = (x, n) if pick is None else (x[pick], n[pick])

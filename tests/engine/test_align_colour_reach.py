@@ -2,7 +2,8 @@
 
 import numpy as np
 
-from engine.align.colour_reach import AGREE, GAP, SPREAD, reach_colours, reach_for_colour, smoothed_colours, target_colour_tree
+from engine.align.colour_reach import (AGREE, GAP, SPREAD, reach_colours, reach_for_colour, smoothed_colours, smoothing_passes,
+                                      target_colour_tree)
 from engine.align.matching import TargetSurface, correspondences
 from engine.align.options import AlignmentOptions
 from engine.nearest import PointTree
@@ -43,6 +44,30 @@ def test_smoothed_colours_are_the_mean_of_each_vertex_neighbourhood():
     index = PointTree(V).query(V, k=9)[1]
     assert np.allclose(smooth, C[index].mean(axis=1))
     assert np.allclose(smooth[V[:, 0] < -0.1], GREY)   # far from the band: its own colour
+    # two passes: the mean of the neighbours' means
+    assert np.allclose(smoothed_colours(V, C, k=9, passes=2), smooth[index].mean(axis=1))
+
+
+def test_a_denser_surface_is_smoothed_over_the_same_span_so_its_checks_still_read_as_a_pattern():
+    """The same sheet with 3 cm checks at 8,100, 32,400 and 73,441 vertices: one pass over 24
+    neighbours spans less of the denser sheets, so their checks' centres read as plain cloth
+    (and would reach for their colour a check away); the passes smoothing_passes asks for
+    (1, 4, 9: vertices per model size squared of surface over DENSITY) spread as far as
+    one pass does on the coarse sheet."""
+    share, median = {}, {}
+    for n in (90, 180, 271):
+        V, F, C = _sheet(0.08, n=n)
+        checks = (V[:, 0] < -0.1) & ((np.floor(V[:, 0] / 0.03) + np.floor(V[:, 2] / 0.03)) % 2 == 0)
+        C = np.where(checks[:, None], [1.0, 1.0, 1.0], C)
+        inside = (V[:, 0] < -0.14) & (V[:, 0] > -0.27) & (np.abs(V[:, 2]) < 0.25)
+        passes = smoothing_passes(V, F, 0.6)
+        for q in {1, passes}:
+            spread = smoothed_colours(V, C, spread=True, passes=q)[1][inside]
+            share[n, q == passes], median[n, q == passes] = (spread > SPREAD).mean(), np.median(spread)
+        assert passes == {90: 1, 180: 4, 271: 9}[n]
+    assert share[90, True] > 0.98 and share[180, True] > 0.98 and share[271, True] > 0.98
+    assert share[180, False] < 0.8 and share[271, False] < 0.6
+    assert abs(median[271, True] - median[90, True]) < 0.02 and median[271, False] < median[90, True] - 0.08
 
 
 def test_a_red_point_on_grey_reaches_the_red_band_nearby_and_grey_points_stay():
