@@ -4,8 +4,8 @@ Aligns the dataset's unstructured frames along the shape similarity tree and, fo
 by frame-to-frame tracking from the same root, then scores both against the generator's ground
 truth: every root-mesh vertex is located on the true surface of the root frame and followed to
 every other frame. Reports mean, 95th percentile and max correspondence error (mm and % of the
-model size), the surface fit residual and seconds per frame, and writes DIR/results.json, a
-render of aligned frames textured with a pattern fixed on the root mesh (paper fig. 2,
+model size), the surface fit residual and seconds per frame, and writes DIR/results.json,
+DIR/frames.csv (every frame's error, depth, parent, confidence and repair), a render of aligned frames textured with a pattern fixed on the root mesh (paper fig. 2,
 DIR/aligned_pattern.png), DIR/similarity.png and DIR/tree.png. With --aligned, scores the output
 of an earlier `morphspace align` instead. Frames and ground truth in centimetres or millimetres, or
 with +Z up, are converted to metres with +Y up (--units, --up; detected by default); lengths are
@@ -17,6 +17,7 @@ reported in the data's units (mm for data in metres) and in % of the model size.
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import os
 import sys
@@ -161,6 +162,32 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
     return record, errors
 
 
+FRAME_COLUMNS = ("method", "sequence", "frame", "mean_pct", "p95_pct", "max_pct", "depth", "parent", "confidence",
+                 "flagged", "repaired")
+
+
+def _frame_rows(method, errors, size, names, picks, *, depth=None, parent=None, confidence=None, repaired=None):
+    """One row per aligned frame (``FRAME_COLUMNS``): its sequence and frame number in the capture
+    (``picks``: the frames of each sequence that were aligned), its error's mean, 95th percentile
+    and max in % of the model size, its depth in the tree, the frame it was finally aligned from
+    (``sequence:frame``; empty for the root), its confidence, whether that is flagged (below
+    ``TRUSTED``) and whether the repair aligned it again. Unknown values are empty."""
+    frame_errors = np.asarray(errors) / size * 100.0
+    labels = [(name, int(f)) for name, pick in zip(names, picks) for f in pick]
+    def cell(values, k, text):
+        return "" if values is None else text(values[k])
+    rows = []
+    for k, (name, frame) in enumerate(labels):
+        e = frame_errors[k]
+        up = None if parent is None or parent[k] < 0 else labels[int(parent[k])]
+        rows.append([method, name, frame, f"{e.mean():.4f}", f"{np.percentile(e, 95):.4f}", f"{e.max():.4f}",
+                     cell(depth, k, lambda v: str(int(v))), "" if up is None else f"{up[0]}:{up[1]}",
+                     cell(confidence, k, lambda v: f"{float(v):.4f}"),
+                     cell(confidence, k, lambda v: str(int(float(v) < TRUSTED))),
+                     cell(repaired, k, lambda v: str(int(bool(v))))])
+    return rows
+
+
 def _part_counts(manifest):
     """The template's parts and their vertex counts (``body.parts``), or None."""
     parts = manifest.get("body", {}).get("parts")
@@ -220,7 +247,7 @@ def _load_aligned(directory, dataset_names):
             lengths = data["lengths"].astype(np.int64)
             root = int(data["root"])
             extra = {k: data[k] for k in ("residual", "residual_max", "seconds", "retried", "cpu_seconds",
-                                          "confidence", "repaired", "pulled", "tree_edges", "tree_weights")
+                                          "confidence", "repaired", "pulled", "tree_edges", "tree_weights", "parent")
                      if k in data.files}
     except FileNotFoundError:
         raise MeshFormatError(f"{path}: not found; is {directory} a `morphspace align` output?") from None
@@ -279,7 +306,7 @@ def run(args):
             say_conventions(conventions, names, _say_line, what="ground truth")
             truth = _truth_in_metres(parts, conventions)
             size = _model_size(manifest, conventions, truth)
-            record, _ = _score("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths, names,
+            record, errors = _score("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths, names,
                                residual=extra.get("residual"), residual_max=extra.get("residual_max"),
                                seconds=extra.get("seconds"), retried=extra.get("retried"),
                                cpu_seconds=extra.get("cpu_seconds"), confidence=extra.get("confidence"),
@@ -289,6 +316,9 @@ def run(args):
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, root=int(root),
                           aligned=record, **_units_report(names, conventions))
             results = {"aligned": (vertices, faces, root_vertices)}
+            frame_rows = _frame_rows("aligned", errors, size, names, [np.arange(n) for n in lengths],
+                                     depth=_depth(extra, root, int(lengths.sum())), parent=extra.get("parent"),
+                                     confidence=extra.get("confidence"), repaired=extra.get("repaired"))
         else:
             sequences = resolve_inputs([dataset], args.only)
             meshes, lengths = read_inputs(sequences, progress, say=_say_line)
@@ -332,16 +362,18 @@ def run(args):
                                                     progress=lambda stage, done, total: progress(
                                                         "align sequential" if stage == "align" else stage,
                                                         done, total))
-            results = {}
+            results, frame_rows = {}, []
             for method, result in runs.items():
                 a = result.aligned
-                record, _ = _score(method, a.vertices, root, a.root_vertices, truth, template_faces, size,
+                record, errors = _score(method, a.vertices, root, a.root_vertices, truth, template_faces, size,
                                    lengths, names, residual=a.residual, residual_max=a.residual_max,
                                    seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds,
                                    confidence=a.confidence, repaired=a.repaired, pulled=a.pulled,
                                    part_counts=_part_counts(manifest), depth=result.tree.depth)
                 report[method] = {**report.get(method, {}), **record}
                 results[method] = (a.vertices, a.faces, a.root_vertices)
+                frame_rows += _frame_rows(method, errors, size, names, picks, depth=result.tree.depth, parent=a.parent,
+                                          confidence=a.confidence, repaired=a.repaired)
             if "sequential" in report:
                 report["sequential_over_tree_mean"] = round(report["sequential"]["mean_mm"]
                                                             / max(report["tree"]["mean_mm"], 1e-9), 2)
@@ -366,6 +398,10 @@ def run(args):
             out / "similarity.png")
         Image.fromarray(tree_image(runs["tree"].tree, lengths, names)).save(out / "tree.png")
     (out / "results.json").write_text(json.dumps(report, indent=2) + "\n")
+    with open(out / "frames.csv", "w", newline="") as stream:   # every frame's figures, for plots and digging
+        writer = csv.writer(stream)
+        writer.writerow(FRAME_COLUMNS)
+        writer.writerows(frame_rows)
     if args.json:
         print(json.dumps(report))
     else:
@@ -418,4 +454,4 @@ def _print_report(report, out):
     if "sequential_over_tree_mean" in report:
         print(f"sequential / tree mean error: {report['sequential_over_tree_mean']:.2f}x")
     pictures = [name for name in ("aligned_pattern.png", "similarity.png", "tree.png") if (out / name).is_file()]
-    print(f"wrote {out / 'results.json'} and " + ", ".join(str(out / name) for name in pictures))
+    print(f"wrote {out / 'results.json'}, {out / 'frames.csv'} and " + ", ".join(str(out / name) for name in pictures))

@@ -203,6 +203,19 @@ def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
         assert set(breakdown["confidence"]) == {"over_2pct", "over_3pct"}
         assert len(breakdown["worst_frames"]) == 5 and breakdown["worst_frames"][0]["frame"] != report["root"]
     assert (out / "aligned_pattern.png").is_file() and (out / "results.json").is_file()
+    # every frame of both methods, in DIR/frames.csv, agreeing with the summary
+    import csv
+    rows = list(csv.DictReader((out / "frames.csv").open()))
+    assert [r["method"] for r in rows] == ["tree"] * 6 + ["sequential"] * 6
+    for method in ("tree", "sequential"):
+        mine = [r for r in rows if r["method"] == method]
+        assert [(r["sequence"], int(r["frame"])) for r in mine] == [(s, f) for s in ("walk", "jog") for f in range(3)]
+        worst = max(mine, key=lambda r: float(r["mean_pct"]))
+        assert abs(float(worst["mean_pct"]) - report[method]["worst_frame_mean_pct"]) < 1e-3
+        roots = [r for r in mine if r["parent"] == ""]
+        assert len(roots) == 1 and roots[0]["depth"] == "0" and float(roots[0]["mean_pct"]) < 0.05
+        assert all(r["parent"].split(":")[0] in ("walk", "jog") for r in mine if r["parent"])
+        assert sum(r["flagged"] == "1" for r in mine) == report[method]["flagged_frames"]
     assert main(["eval-align", str(dataset), "--max-frames", "3", "--out", str(tmp_path / "printed"), "--no-sequential",
                  "--workers", "1"]) == 0
     printed = capsys.readouterr().out
@@ -267,6 +280,12 @@ def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, cap
     assert set(breakdown["confidence"]) == {"over_2pct", "over_3pct"}
     assert sum(row["frames"] for row in breakdown["per_depth"]) == report["frames"] - 1
     assert all({"depth", "confidence"} <= set(row) for row in breakdown["worst_frames"])
+    import csv
+    rows = list(csv.DictReader((tmp_path / "frames.csv").open()))
+    assert len(rows) == report["frames"] and {r["method"] for r in rows} == {"aligned"}
+    assert [float(r["confidence"]) for r in rows] == pytest.approx(record["confidence"].tolist(), abs=1e-4)
+    assert sum(r["repaired"] == "1" for r in rows) == report["aligned"]["repaired_frames"]
+    assert sum(r["parent"] == "" for r in rows) == 1 and all(r["depth"] != "" for r in rows)
 
 
 def test_bad_input_gives_a_clear_error(tmp_path, capsys, dataset):
