@@ -5,7 +5,8 @@ the dissimilarity matrix, pieces of the similarity tree, decompositions of chunk
 frames). A function that accepts ``runner=`` hands its tasks to that runner instead of running
 its own loop; the tasks are module-level functions of plain arguments, so a runner may run them
 in this process (:class:`SerialRunner`) or ship them to other machines (the server's
-``server.jobs.dask_runner.DaskRunner``). Every task's result depends only on its arguments, so
+``server.jobs.dask_runner.DaskRunner``; :class:`ProcessRunner` runs ``map``'s tasks in local
+processes). Every task's result depends only on its arguments, so
 every runner gives the same result, bit for bit, whatever the order in which the tasks run or
 finish: results are placed by task index, never by arrival, and a task's set-up object
 (:class:`Rebuilt`) is its thread's own, never used by two tasks at the same time.
@@ -84,6 +85,69 @@ class SerialRunner:
         return results
 
 
+class ProcessRunner:
+    """Runs tasks in ``workers`` processes of this machine (``map`` only; use it as a context
+    manager, which stops the processes at the end).
+
+    The processes start with the first ``map`` and are kept for the next calls that pass the
+    same ``shared`` object (a repair's waves: the aligner is set up once per process, not once
+    per wave); another ``shared`` starts them again with it. ``shared`` reaches each process
+    once, when it starts. A call of one job, or a runner of one worker, runs here.
+    """
+
+    def __init__(self, workers):
+        self.workers = max(1, int(workers))
+        self._pool, self._shared = None, None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool, self._shared = None, None
+
+    def map(self, function, jobs, *, shared=None, sizes=None, progress=None):
+        if self.workers <= 1 or len(jobs) <= 1:
+            return SerialRunner().map(function, jobs, shared=shared, sizes=sizes, progress=progress)
+        import multiprocessing
+        from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+
+        if self._pool is None or self._shared is not shared:
+            self.close()
+            self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("forkserver"),
+                                             initializer=_hold_shared, initargs=(shared,))
+            self._shared = shared
+        sizes = list(sizes) if sizes is not None else [1] * len(jobs)
+        total, done = int(sum(sizes)), 0
+        futures = {self._pool.submit(_with_shared, function, job): k for k, job in enumerate(jobs)}
+        results, pending = [None] * len(jobs), set(futures)
+        while pending:
+            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in finished:
+                k = futures[future]
+                results[k] = future.result()   # placed by index, never by arrival
+                done += sizes[k]
+                if progress is not None:
+                    progress(done, total)
+        return results
+
+
+_HELD = {}
+
+
+def _hold_shared(shared):
+    """Process-pool initializer of :class:`ProcessRunner`: keep the calls' ``shared``."""
+    _HELD["shared"] = shared
+
+
+def _with_shared(function, job):
+    return function(_HELD.get("shared"), job)
+
+
 def check_parents(parents):
     """Every task's parent comes before it (or is -1)."""
     for t, p in enumerate(parents):
@@ -127,4 +191,4 @@ def shared_value(shared):
     return shared.value if isinstance(shared, Rebuilt) else shared
 
 
-__all__ = ["Rebuilt", "SerialRunner", "check_parents", "shared_value"]
+__all__ = ["ProcessRunner", "Rebuilt", "SerialRunner", "check_parents", "shared_value"]

@@ -7,6 +7,7 @@ along the tree. The CLI (``morphspace align``, ``eval-align``) and the align job
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field, is_dataclass, replace
 
@@ -228,9 +229,13 @@ def _align_from(meshes, lengths, similarity, tree, method, *, options, use_color
     timings["align"] = time.perf_counter() - started
     started = time.perf_counter()
     if method == "tree" and repair:
-        repair_alignment(aligner, meshes, aligned, dissimilarity=similarity.dissimilarity, yaw=similarity.yaw,
-                         candidates=retries, budget=repair_budget, progress=(lambda d, t: progress("repair", d, t)) if progress else None,
-                         runner=runner)
+        from engine.tasks import ProcessRunner
+
+        # without a runner, the repair's waves still use the ``workers`` processes
+        with contextlib.nullcontext(runner) if runner is not None or workers <= 1 else ProcessRunner(workers) as local:
+            repair_alignment(aligner, meshes, aligned, dissimilarity=similarity.dissimilarity, yaw=similarity.yaw,
+                             candidates=retries, budget=repair_budget,
+                             progress=(lambda d, t: progress("repair", d, t)) if progress else None, runner=local)
     else:
         _confidence_only(aligned, colours=bool(cues))
     timings["repair"] = time.perf_counter() - started

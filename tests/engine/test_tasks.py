@@ -253,3 +253,60 @@ def test_decomposition_through_a_runner_equals_the_plain_run(make_runner):
     assert runner.calls == [("decompose_task", len(frames))]
     for a, b in zip(plain, tasks, strict=True):
         assert a.tobytes() == b.tobytes()
+
+
+def _shared_and_process(shared, job):
+    import os
+
+    return shared * job, os.getpid(), id(shared)
+
+
+def test_a_process_runner_places_results_by_index_and_keeps_its_processes_for_the_same_shared():
+    """``ProcessRunner``: results in the jobs' order, progress as tasks finish, ``shared`` set once
+    per process (the same object for every task there), the processes kept while the calls pass
+    the same ``shared`` and started again for another; one job runs here."""
+    import os
+
+    from engine.tasks import ProcessRunner
+
+    ticks = []
+    with ProcessRunner(2) as runner:
+        first = runner.map(_shared_and_process, list(range(8)), shared=3, sizes=[2] * 8,
+                           progress=lambda d, t: ticks.append((d, t)))
+        assert [r[0] for r in first] == [3 * k for k in range(8)] and ticks[-1] == (16, 16) and len(ticks) == 8
+        pids = {r[1] for r in first}
+        assert os.getpid() not in pids and 1 <= len(pids) <= 2
+        # one shared object per process, whatever the task
+        assert len({(r[1], r[2]) for r in first}) == len(pids)
+        same = runner.map(_shared_and_process, list(range(8)), shared=runner._shared)
+        assert {r[1] for r in same} <= pids
+        other = runner.map(_shared_and_process, list(range(8)), shared=5)
+        assert [r[0] for r in other] == [5 * k for k in range(8)] and not {r[1] for r in other} & pids
+        assert runner.map(_shared_and_process, [4], shared=2)[0][:2] == (8, os.getpid())
+    assert runner._pool is None
+
+
+def test_repairs_in_local_processes_equal_the_serial_pass(walk_aligner):
+    """The repair's waves in two processes (as ``align_captures`` runs them with ``workers`` 2 and
+    no runner) give the serial pass's result to the last bit."""
+    import copy
+
+    from engine.align import repair_alignment
+    from engine.synthetic import SequenceSpec, build_body, generate_sequence_data
+    from engine.tasks import ProcessRunner
+
+    from test_align_repair import _slipped
+
+    data = generate_sequence_data(build_body(1000), SequenceSpec("walk", "gait", {"speed": 1.0, "cycles": 0.34,
+                                                                                  "start_phase": 0.1}),
+                                  fps=15, seed=1)
+    meshes = data["unstructured"][:5]
+    aligned = _slipped(walk_aligner, meshes, [2, 3])
+    D = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)
+    serial, tasks = copy.deepcopy(aligned), copy.deepcopy(aligned)
+    repair_alignment(walk_aligner, meshes, serial, dissimilarity=D, candidates=2)
+    with ProcessRunner(2) as runner:
+        repair_alignment(walk_aligner, meshes, tasks, dissimilarity=D, candidates=2, runner=runner)
+    assert serial.repaired[[2, 3]].all()
+    for name in ("vertices", "residual", "distortion_tail", "colour", "parent", "confidence", "repaired"):
+        assert np.array_equal(getattr(tasks, name), getattr(serial, name), equal_nan=name == "colour"), name
