@@ -70,20 +70,27 @@ def smoothed_colours(V, colors, k=SMOOTHING, spread=False, passes=1):
     taken ``passes`` times over; with ``spread`` also (n,) the RMS distance of the colours so
     averaged from their mean (a pattern's stripes or checks: large; a plain cloth or skin:
     small)."""
-    import scipy.sparse as sp
-
     V = np.asarray(V, dtype=np.float64)
     colors = np.asarray(colors, dtype=np.float64)
     n, k = len(V), min(int(k), len(V))
-    near = PointTree(V).query(V, k=k)[1].reshape(n, k)
-    average = sp.csr_matrix((np.full(n * k, 1.0 / k), near.ravel(), np.arange(0, n * k + 1, k)), shape=(n, n))
-    both = np.hstack([colors, colors ** 2]) if spread else colors
-    for _ in range(max(1, int(passes))):
+    index = PointTree(V).query(V, k=k)[1].reshape(n, k)
+    near = colors[index]
+    mean = near.mean(axis=1)
+    passes = max(1, int(passes))
+    if passes == 1:   # (kept as the sums were first made: the alignment follows their last bits)
+        if not spread:
+            return mean
+        return mean, np.sqrt(np.mean(np.sum((near - mean[:, None]) ** 2, axis=2), axis=1))
+    import scipy.sparse as sp
+
+    average = sp.csr_matrix((np.full(n * k, 1.0 / k), index.ravel(), np.arange(0, n * k + 1, k)), shape=(n, n))
+    both = np.hstack([mean, np.mean(np.sum(near ** 2, axis=2), axis=1)[:, None]])   # colour, squared norm
+    for _ in range(passes - 1):
         both = average @ both
     mean = both[:, :3]
     if not spread:
         return mean
-    return mean, np.sqrt(np.maximum(np.sum(both[:, 3:] - mean ** 2, axis=1), 0.0))
+    return mean, np.sqrt(np.maximum(both[:, 3] - np.sum(mean ** 2, axis=1), 0.0))
 
 
 def reach_colours(V, colors, passes=1):
