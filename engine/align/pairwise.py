@@ -307,8 +307,8 @@ class PairwiseAligner:
         picked_colours = colours if colours is None or pick is None else colours[pick]
         target_pick = _subset(len(target.V), o.match_samples if coarse else o.fine_match_samples, 0)
         # with reach: the matched points' smoothed colours, metres per unit of colour, the model size
-        size = model_size(self.V)
-        reach = (self.reach_colours[slice(None) if pick is None else pick], o.colour_reach * size, size) \
+        body = model_size(self.V)
+        reach = (self.reach_colours[slice(None) if pick is None else pick], o.colour_reach * body, body) \
             if reach and o.colour_reach > 0 else None
         for _ in range(o.icp_steps):
             xs, ns = (x, n) if pick is None else (x[pick], n[pick])

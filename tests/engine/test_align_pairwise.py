@@ -128,3 +128,26 @@ def test_a_limb_thrown_forward_is_swung_onto_the_surface_nothing_covers():
         error[swing] = np.linalg.norm(aligner.align(aligner.V_tet, target).V - V1, axis=1) / body.size
     assert error[False].mean() > 0.015 and error[False].max() > 0.3  # the arm left by the hip
     assert error[True].mean() < 0.5 * error[False].mean() and error[True].max() < 0.5 * error[False].max()
+
+
+def test_a_patch_half_covered_by_the_target_is_matched_with_partial_confidence(walk_aligner):
+    """A patch's confidence is 1.25 times the share of its vertices that find a match (clipped to
+    0..1): on a target that keeps only one side of the body, patches wholly kept are about sure
+    and patches the cut runs through (and that slid onto what is left) come out in between, at a
+    fine level (every vertex matched) as at a coarse one. (A model size once took the place of
+    the patches' vertex counts at the fine levels, and every patch with a few matches came out
+    fully sure.)"""
+    a = walk_aligner
+    V, F = a.V, a.F
+    cut = np.median(V[:, 0])
+    keep = F[(V[F][:, :, 0] < cut).all(axis=1)]
+    used = np.unique(keep)
+    target = TargetSurface(V[used], np.searchsorted(used, keep))
+    for level in (0, len(a.patch_counts) - 1):
+        labels, count = a.patch_labels[level], a.patch_counts[level]
+        _, confidence = a._match_patches(V, target, labels, count, False, coarse=level == 0)
+        per_patch = np.array([confidence[labels == p].max() for p in range(count)])
+        side = np.array([np.mean(V[labels == p, 0] < cut) for p in range(count)])
+        assert np.all(per_patch[side == 1] > 0.9), level
+        partial = (per_patch > 0.05) & (per_patch < 0.95)
+        assert partial.sum() >= 0.05 * count, (level, np.round(per_patch, 2))   # 9 of 30, 23 of 240
