@@ -77,7 +77,7 @@ def smoothed_colours(V, colors, k=SMOOTHING, spread=False, passes=1):
     near = colors[index]
     mean = near.mean(axis=1)
     passes = max(1, int(passes))
-    if passes == 1:   # (kept as the sums were first made: the alignment follows their last bits)
+    if passes == 1:   # summed as before passes existed: 10k-vertex alignments keep their bits
         if not spread:
             return mean
         return mean, np.sqrt(np.mean(np.sum((near - mean[:, None]) ** 2, axis=2), axis=1))

@@ -349,6 +349,8 @@ def run(args):
             for stage in ("trial", "race"):  # choosing the root by trying, then racing, candidates
                 if stage in tree_run.timings:
                     report[f"root_{stage}_seconds"] = round(tree_run.timings[stage], 2)
+            # wall seconds of every stage: similarity, tree, trial, race, tetrahedralize, align, repair
+            report["stage_seconds"] = {stage: round(float(t), 2) for stage, t in tree_run.timings.items()}
             report["tree"] = {"kind": args.tree, "repair_budget": args.repair_budget, "swing_limbs": args.swing_limbs,
                               "reach_limbs": args.reach_limbs,
                               "depth_max": int(tree_run.tree.depth.max()),

@@ -196,6 +196,9 @@ def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
         assert report[method]["frames"] == 6
         assert {"mean_pct", "p95_pct", "max_pct", "residual_mean_mm", "seconds_per_frame"} <= set(report[method])
     assert report["tree"]["mean_pct"] < 1.5
+    stages = report["stage_seconds"]   # every stage's wall time, the alignment and the repair among them
+    assert {"similarity", "tree", "tetrahedralize", "align", "repair"} <= set(stages)
+    assert all(t >= 0 for t in stages.values()) and stages["align"] > 0
     for method in ("tree", "sequential"):  # where the error lies, and whether the flag finds the bad frames
         breakdown = report[method]["breakdown"]
         assert {row["depths"] for row in breakdown["per_depth"]} <= {"1", "2-4", "5-16", "17-64", "65+"}
