@@ -212,9 +212,9 @@ def test_tree_pieces_through_a_runner_equal_the_plain_run(walk_capture, walk_ali
     assert all(np.array_equal(tasks.poses[k], plain.poses[k]) for k in plain.poses)
 
 
-def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner, make_runner):
-    """Frames 2 and 3 slipped; with frame distance as the dissimilarity, frame 3's trusted sources
-    change once frame 2 is repaired, so the runner needs a second wave: the result is the same."""
+def _repaired_serially_and_through(walk_aligner, runner):
+    """Frames 2 and 3 of a walk slipped, repaired by the serial pass and through ``runner``
+    (frame distance as the dissimilarity): both results, after checking the frames were mended."""
     import copy
 
     from engine.align import repair_alignment
@@ -230,12 +230,18 @@ def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner, m
     D = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)
     serial, tasks = copy.deepcopy(aligned), copy.deepcopy(aligned)
     repair_alignment(walk_aligner, meshes, serial, dissimilarity=D, candidates=2)
-    runner = make_runner()
     repair_alignment(walk_aligner, meshes, tasks, dissimilarity=D, candidates=2, runner=runner)
     assert serial.repaired[[2, 3]].all()
-    assert runner.calls and all(name == "repair_task" for name, _ in runner.calls)
     for name in ("vertices", "residual", "distortion_tail", "colour", "parent", "confidence", "repaired"):
         assert np.array_equal(getattr(tasks, name), getattr(serial, name), equal_nan=name == "colour"), name
+
+
+def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner, make_runner):
+    """Frame 3's trusted sources change once frame 2 is repaired, so the runner needs a second
+    wave: the result is the same."""
+    runner = make_runner()
+    _repaired_serially_and_through(walk_aligner, runner)
+    assert runner.calls and all(name == "repair_task" for name, _ in runner.calls)
 
 
 def test_decomposition_through_a_runner_equals_the_plain_run(make_runner):
@@ -289,24 +295,7 @@ def test_a_process_runner_places_results_by_index_and_keeps_its_processes_for_th
 def test_repairs_in_local_processes_equal_the_serial_pass(walk_aligner):
     """The repair's waves in two processes (as ``align_captures`` runs them with ``workers`` 2 and
     no runner) give the serial pass's result to the last bit."""
-    import copy
-
-    from engine.align import repair_alignment
-    from engine.synthetic import SequenceSpec, build_body, generate_sequence_data
     from engine.tasks import ProcessRunner
 
-    from test_align_repair import _slipped
-
-    data = generate_sequence_data(build_body(1000), SequenceSpec("walk", "gait", {"speed": 1.0, "cycles": 0.34,
-                                                                                  "start_phase": 0.1}),
-                                  fps=15, seed=1)
-    meshes = data["unstructured"][:5]
-    aligned = _slipped(walk_aligner, meshes, [2, 3])
-    D = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)
-    serial, tasks = copy.deepcopy(aligned), copy.deepcopy(aligned)
-    repair_alignment(walk_aligner, meshes, serial, dissimilarity=D, candidates=2)
     with ProcessRunner(2) as runner:
-        repair_alignment(walk_aligner, meshes, tasks, dissimilarity=D, candidates=2, runner=runner)
-    assert serial.repaired[[2, 3]].all()
-    for name in ("vertices", "residual", "distortion_tail", "colour", "parent", "confidence", "repaired"):
-        assert np.array_equal(getattr(tasks, name), getattr(serial, name), equal_nan=name == "colour"), name
+        _repaired_serially_and_through(walk_aligner, runner)
