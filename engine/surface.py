@@ -71,6 +71,13 @@ def volume_centroid(V, F):
     return np.einsum("...f,...fi->...i", vol, centre) / vol.sum(axis=-1)[..., None]
 
 
+def surface_area(V, F):
+    """Total area of the triangles F (m, 3) over vertices V (n, 3), as a float."""
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    return 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
+
+
 def face_normals(V, F):
     """Unit face normals (m, 3) of an (n, 3) vertex array."""
     n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])

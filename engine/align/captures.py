@@ -21,7 +21,7 @@ from engine.align.root_race import finalists, race_frames, race_score, sub_simil
 from engine.align.root_trial import TRIAL_MIN_FRAMES, root_setup, trial_candidates, trial_probes, try_roots
 from engine.align.similarity import shape_dissimilarity
 from engine.align.similarity_tree import DEFAULT_TREE, chain_tree, similarity_tree
-from engine.surface import orient_outward
+from engine.surface import orient_outward, surface_area
 
 
 @dataclass
@@ -82,8 +82,7 @@ def colours_carry_texture(vertices, faces):
         return False
     edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     median = float(np.median(np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)))
-    area = 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
-    return median < FINE_EDGE * np.sqrt(area)
+    return median < FINE_EDGE * np.sqrt(surface_area(V, F))
 
 
 ROOT_CHOICES = ("race", "trial", "apart", "central")

@@ -35,6 +35,7 @@ import numpy as np
 
 from engine.align.appearance import GAIN_RANGE
 from engine.nearest import PointTree
+from engine.surface import surface_area
 
 SMOOTHING = 24   # vertices averaged into a vertex's smoothed colour (about 3-4 cm on a 10k-vertex body)
 GAP = 0.15       # smoothed RGB distance at the closest point above which a match looks further
@@ -57,9 +58,7 @@ def smoothing_passes(V, F, size):
     ----------
     V, F : the surface       size : float   the root's model size (the same for source and target)
     """
-    V = np.asarray(V, dtype=np.float64)
-    F = np.asarray(F, dtype=np.int64)
-    area = 0.5 * float(np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1).sum())
+    area = surface_area(V, F)
     if not area > 0:
         return 1
     return max(1, int(round(len(V) * float(size) ** 2 / area / DENSITY)))

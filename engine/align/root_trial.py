@@ -176,7 +176,7 @@ def try_roots(meshes, candidates, probes, yaw, *, options, use_colors, colours, 
     tets : dict     candidate -> its tet mesh (V_tet, T), None where it could not be filled
     """
     from engine.align.propagation import mesh_arrays
-    from engine.tasks import SerialRunner
+    from engine.tasks import ProcessRunner
 
     shared = [mesh_arrays(meshes[p], colours) for p in probes]
     jobs = []
@@ -184,10 +184,11 @@ def try_roots(meshes, candidates, probes, yaw, *, options, use_colors, colours, 
         V, F, C = mesh_arrays(meshes[c], colours)
         hints = [None if yaw is None else float(yaw[p, c]) for p in probes]
         jobs.append(((V, F, C, getattr(meshes[c], "source", None)), options, use_colors, colours, seed, hints))
-    if runner is None and workers > 1 and len(jobs) > 1:
-        outs = _in_processes(jobs, shared, workers, progress)
+    if runner is not None:
+        outs = runner.map(trial_task, jobs, shared=shared, progress=progress)
     else:
-        outs = (runner or SerialRunner()).map(trial_task, jobs, shared=shared, progress=progress)
+        with ProcessRunner(workers) as local:   # one worker: here
+            outs = local.map(trial_task, jobs, shared=shared, progress=progress)
     badness = np.stack([out["badness"] for out in outs])
     mean = badness.mean(axis=1)
     best = int(np.argmin(mean))  # the first of equals: the spread's choice wins a tie
@@ -201,22 +202,6 @@ def try_roots(meshes, candidates, probes, yaw, *, options, use_colors, colours, 
 def _finite(values):
     """``values`` rounded to 4 places as a list, None where not finite."""
     return [round(float(v), 4) if np.isfinite(v) else None for v in values]
-
-
-def _in_processes(jobs, shared, workers, progress):
-    """:func:`trial_task` of every job in ``workers`` processes; results in the jobs' order."""
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    context = multiprocessing.get_context("forkserver")
-    outs = []
-    with ProcessPoolExecutor(max_workers=min(int(workers), len(jobs)), mp_context=context) as pool:
-        futures = [pool.submit(trial_task, shared, job) for job in jobs]
-        for future in futures:
-            outs.append(future.result())
-            if progress is not None:
-                progress(len(outs), len(jobs))
-    return outs
 
 
 __all__ = ["TRIAL_CANDIDATES", "TRIAL_MIN_FRAMES", "TRIAL_PROBES", "root_setup", "trial_candidates",

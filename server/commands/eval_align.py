@@ -174,6 +174,7 @@ def _frame_rows(method, errors, size, names, picks, *, depth=None, parent=None, 
     ``TRUSTED``) and whether the repair aligned it again. Unknown values are empty."""
     frame_errors = np.asarray(errors) / size * 100.0
     labels = [(name, int(f)) for name, pick in zip(names, picks) for f in pick]
+
     def cell(values, k, text):
         return "" if values is None else text(values[k])
     rows = []
@@ -306,13 +307,13 @@ def run(args):
             say_conventions(conventions, names, _say_line, what="ground truth")
             truth = _truth_in_metres(parts, conventions)
             size = _model_size(manifest, conventions, truth)
-            record, errors = _score("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths, names,
-                               residual=extra.get("residual"), residual_max=extra.get("residual_max"),
-                               seconds=extra.get("seconds"), retried=extra.get("retried"),
-                               cpu_seconds=extra.get("cpu_seconds"), confidence=extra.get("confidence"),
-                               repaired=extra.get("repaired"), pulled=extra.get("pulled"),
-                               part_counts=_part_counts(manifest),
-                               depth=_depth(extra, root, int(lengths.sum())))
+            record, errors = _score("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths,
+                                    names, residual=extra.get("residual"), residual_max=extra.get("residual_max"),
+                                    seconds=extra.get("seconds"), retried=extra.get("retried"),
+                                    cpu_seconds=extra.get("cpu_seconds"), confidence=extra.get("confidence"),
+                                    repaired=extra.get("repaired"), pulled=extra.get("pulled"),
+                                    part_counts=_part_counts(manifest),
+                                    depth=_depth(extra, root, int(lengths.sum())))
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, root=int(root),
                           aligned=record, **_units_report(names, conventions))
             results = {"aligned": (vertices, faces, root_vertices)}
@@ -368,10 +369,10 @@ def run(args):
             for method, result in runs.items():
                 a = result.aligned
                 record, errors = _score(method, a.vertices, root, a.root_vertices, truth, template_faces, size,
-                                   lengths, names, residual=a.residual, residual_max=a.residual_max,
-                                   seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds,
-                                   confidence=a.confidence, repaired=a.repaired, pulled=a.pulled,
-                                   part_counts=_part_counts(manifest), depth=result.tree.depth)
+                                        lengths, names, residual=a.residual, residual_max=a.residual_max,
+                                        seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds,
+                                        confidence=a.confidence, repaired=a.repaired, pulled=a.pulled,
+                                        part_counts=_part_counts(manifest), depth=result.tree.depth)
                 report[method] = {**report.get(method, {}), **record}
                 results[method] = (a.vertices, a.faces, a.root_vertices)
                 frame_rows += _frame_rows(method, errors, size, names, picks, depth=result.tree.depth, parent=a.parent,

@@ -262,33 +262,40 @@ def test_decomposition_through_a_runner_equals_the_plain_run(make_runner):
 
 
 def _shared_and_process(shared, job):
+    """``factor`` x job, this process, and how many tasks this process's ``shared`` has seen."""
     import os
 
-    return shared * job, os.getpid(), id(shared)
+    shared["seen"].append(job)
+    return shared["factor"] * job, os.getpid(), len(shared["seen"])
 
 
 def test_a_process_runner_places_results_by_index_and_keeps_its_processes_for_the_same_shared():
     """``ProcessRunner``: results in the jobs' order, progress as tasks finish, ``shared`` set once
-    per process (the same object for every task there), the processes kept while the calls pass
-    the same ``shared`` and started again for another; one job runs here."""
+    per process (every task there sees the one object: its count of tasks grows), the processes
+    kept while the calls pass the same ``shared`` and started again for another; one job runs here."""
+    import collections
     import os
 
     from engine.tasks import ProcessRunner
 
     ticks = []
+    shared = {"factor": 3, "seen": []}
     with ProcessRunner(2) as runner:
-        first = runner.map(_shared_and_process, list(range(8)), shared=3, sizes=[2] * 8,
+        first = runner.map(_shared_and_process, list(range(8)), shared=shared, sizes=[2] * 8,
                            progress=lambda d, t: ticks.append((d, t)))
         assert [r[0] for r in first] == [3 * k for k in range(8)] and ticks[-1] == (16, 16) and len(ticks) == 8
         pids = {r[1] for r in first}
-        assert os.getpid() not in pids and 1 <= len(pids) <= 2
-        # one shared object per process, whatever the task
-        assert len({(r[1], r[2]) for r in first}) == len(pids)
-        same = runner.map(_shared_and_process, list(range(8)), shared=runner._shared)
-        assert {r[1] for r in same} <= pids
-        other = runner.map(_shared_and_process, list(range(8)), shared=5)
+        assert os.getpid() not in pids and 1 <= len(pids) <= 2 and shared["seen"] == []   # the caller's is untouched
+        # one shared object per process: its tasks counted 1, 2, 3, ... there
+        per_process = collections.defaultdict(list)
+        for _, pid, count in first:
+            per_process[pid].append(count)
+        assert all(sorted(counts) == list(range(1, len(counts) + 1)) for counts in per_process.values())
+        same = runner.map(_shared_and_process, list(range(8)), shared=shared)
+        assert {r[1] for r in same} <= pids and sum(r[2] for r in same) > sum(range(1, 9))   # counts go on
+        other = runner.map(_shared_and_process, list(range(8)), shared={"factor": 5, "seen": []})
         assert [r[0] for r in other] == [5 * k for k in range(8)] and not {r[1] for r in other} & pids
-        assert runner.map(_shared_and_process, [4], shared=2)[0][:2] == (8, os.getpid())
+        assert runner.map(_shared_and_process, [4], shared={"factor": 2, "seen": []})[0][:2] == (8, os.getpid())
     assert runner._pool is None
 
 
