@@ -91,7 +91,7 @@ ROOT_CHOICES = ("race", "trial", "apart", "central")
 def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, root_choice="race",
                    options=None, window=2,
                    workers=1, retries=3, tets=None, use_colors="auto", seed=0, similarity=None, repair=True,
-                   repair_budget=0.5, progress=None, runner=None):
+                   repair_budget=0.25, progress=None, runner=None):
     """Shape similarity, tree and alignment of unstructured frames of several sequences.
 
     Parameters

@@ -10,10 +10,12 @@ show (:func:`tail_reference`) is subtracted first. Where the frames' colours car
 cues on), the confidence also reads the colours where each frame's vertices landed against the
 root's (:mod:`engine.align.appearance`): anchored to the root, they show what a frame inherited
 along its path as well as its own step's slip, and the tail then counts only where the solid is
-torn far beyond the floor. Frames below a confidence of one half are aligned again,
-parents first, from other sources: the root itself (a frame aligned straight from the root
-cannot inherit a slip) and the most similar trusted frames; the best result by the same score
-is kept. A frame that no source aligns well stays flagged, with its confidence, never silent.
+torn far beyond the floor. Frames below a confidence of one half are aligned again from
+other sources: first from the root itself (a frame aligned straight from the root cannot
+inherit a slip; the frames most like the root first, as far as the budget goes), then, where
+that did not lift the frame to one half, parents first from the most similar trusted frames;
+the best result by the same score is kept. A frame that no source aligns well stays flagged,
+with its confidence, never silent.
 """
 
 from __future__ import annotations
@@ -79,7 +81,7 @@ def tail_reference(distortion_tail, parent, root):
 
 
 def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, candidates=2, budget=None,
-                     progress=None, runner=None):
+                     progress=None, runner=None, strategy="root_first"):
     """Align low-confidence frames again from the root and from trusted similar frames.
 
     Parameters
@@ -93,13 +95,20 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     candidates : int                 trusted frames tried besides the root
     budget : float or None           at most this many pairwise alignments per frame of the
                                      whole capture go to repairs (None: no limit); when the
-                                     flagged frames would need more, the worst of them (lowest
-                                     confidence) are repaired first and the others stay flagged
+                                     flagged frames would need more, those ``strategy`` puts
+                                     first are repaired and the others stay flagged
     progress : callable(done, total) or None
     runner : task runner or None     align the repairs as tasks of this runner (:mod:`engine.tasks`):
                                      in waves, every remaining frame's alignments at once from the
                                      frames as they stand, then applied in order while the sources
                                      the serial pass would pick are among them; the same result
+    strategy : {"root_first", "together"}
+        "root_first" (default): the flagged frames first from the root alone, the frames most
+        like the root first as far as the budget goes (one wave of independent alignments: the
+        root's pose never changes), then the frames still below ``TRUSTED`` from the trusted
+        similar frames (and turned round), the lowest confidence first; "together" (the repair
+        before 2026-11-30): each flagged frame from all its sources at once, the lowest
+        confidence first (docs/evaluation.md, "The repair priced")
 
     Returns
     -------
@@ -131,30 +140,45 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     use_colours = aligner.colors is not None
     current_colour = {}  # flagged frame -> how well the colours of its alignment before the repair agree
     turn = set()         # flagged frames also aligned from their own alignment turned round
-    if use_colours and flagged:
+    if use_colours and flagged and limit > 0:  # (the colours are read for the repair's sake alone)
         current_colour = {f: _colour_now(aligner, meshes[f], aligned.vertices[f]) for f in flagged}
         trusted = [f for f in depth_order if confidence[f] >= TRUSTED and f != root]
         sample = [trusted[i] for i in np.unique(np.linspace(0, len(trusted) - 1, min(len(trusted), TURN_SAMPLE))
                                                 .astype(np.int64))] if trusted else []
         usual = float(np.median([_colour_now(aligner, meshes[f], aligned.vertices[f]) for f in sample])) if sample else 0.0
         turn = {f for f in flagged if not current_colour[f] <= TURN_COLOUR * usual}  # (NaN: turned too)
-    if budget is not None:
-        cost = {f: (1 if aligned.parent[f] != root else 0) + (max(0, int(candidates)) if dissimilarity is not None else 0)
-                + (1 if f in turn else 0) for f in flagged}
-        chosen, planned = set(), 0
-        for f in sorted(flagged, key=lambda f: (confidence[f], f)):
-            if planned + cost[f] <= limit:
+    if strategy not in ("together", "root_first"):
+        raise ValueError(f"strategy must be 'root_first' or 'together', got {strategy!r}")
+    first = strategy == "root_first"
+
+    def affordable(frames, cost, planned, near=False):
+        """``frames`` (in the tree's order) the budget reaches: the lowest confidence first, or
+        (``near``, with a dissimilarity) the most like the root first."""
+        if budget is None:
+            return frames
+        chosen = set()
+        if near and dissimilarity is not None:
+            row = np.asarray(dissimilarity)[root]
+            key = lambda f: (float(row[f]), f)  # noqa: E731
+        else:
+            key = lambda f: (confidence[f], f)  # noqa: E731
+        for f in sorted(frames, key=key):
+            if planned + cost(f) <= limit:
                 chosen.add(f)
-                planned += cost[f]
-        flagged = [f for f in flagged if f in chosen]
+                planned += cost(f)
+        return [f for f in frames if f in chosen]
+
     versions = {}  # frame -> how often its pose was replaced: the runner's results name the pose they started from
 
-    def plan(frame, spent):
+    def plan(frame, spent, phase="all"):
         """The sources the frame is aligned from now (the trusted set grows as frames are repaired);
-        the frame itself stands for its own alignment turned round (with colours)."""
+        the frame itself stands for its own alignment turned round (with colours). ``phase``:
+        "root" (the root alone), "others" (all but the root) or "all"."""
         trusted = np.flatnonzero(confidence >= TRUSTED)
         parent = aligned.parent[frame]
-        sources = [] if parent == root else [root]  # the same source again gives the same result
+        sources = [] if parent == root or phase == "others" else [root]  # the same source again: the same result
+        if phase == "root":
+            return sources[:max(0, int(limit) - spent)] if spent + len(sources) > limit else sources
         if dissimilarity is not None:
             others = trusted[(trusted != root) & (trusted != parent)]
             others = others[np.argsort(np.asarray(dissimilarity)[frame, others], kind="stable")]
@@ -196,52 +220,81 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             versions[frame] = versions.get(frame, 0) + 1
             repaired[frame] = True
             confidence[frame] = float(np.exp(-best_badness))
+            current_colour[frame] = best.colour_distance  # (a later phase weighs it as the frame's own)
 
-    spent, done = 0, 0
-    if progress is not None and flagged:  # the stage shows from its start
-        progress(0, len(flagged))
+    others = max(0, int(candidates)) if dissimilarity is not None else 0
+    spent, done, steps = 0, 0, []
+    if first:  # every flagged frame from the root, then those still flagged from the others
+        steps.append(("root", affordable(flagged, lambda f: 1 if aligned.parent[f] != root else 0, 0, near=True)))
+        steps.append(("others", None))
+    else:
+        steps.append(("all", affordable(flagged, lambda f: (1 if aligned.parent[f] != root else 0) + others
+                                        + (1 if f in turn else 0), 0)))
+    total = len(steps[0][1])
+    if progress is not None and total:  # the stage shows from its start
+        progress(0, total)
     if runner is None:
-        for frame in flagged:
-            sources = plan(frame, spent)
-            spent += len(sources)
-            results = repair_task(aligner, job(frame, sources))
-            apply(frame, sources, results)
-            done += 1
-            if progress is not None:
-                progress(done, len(flagged))
+        local, shared = _SerialRunner(aligner), None
     else:
         from engine.align.pieces import portable_aligner
 
-        shared, found = portable_aligner(aligner), {}
-        while done < len(flagged):
-            # a wave: every remaining frame's alignments as the frames stand now, all at once ...
-            wanted, planned = {}, spent
-            for frame in flagged[done:]:
-                sources = plan(frame, planned)
-                planned += len(sources)
-                missing = [s for s in sources if (frame, s, versions.get(s, 0)) not in found]
-                if missing:
-                    wanted[frame] = missing
-            jobs = [job(f, sources) for f, sources in wanted.items()]
-            outs = runner.map(repair_task, jobs, shared=shared, sizes=[len(j[1]) for j in jobs])
-            for (frame, sources), results in zip(wanted.items(), outs, strict=True):
-                found.update({(frame, s, versions.get(s, 0)): r for s, r in zip(sources, results, strict=True)})
-            # ... then the frames in order, as the serial pass does, while the sources it picks were aligned
-            # (a frame repaired in this wave may change a later frame's sources: that one waits for the next)
-            while done < len(flagged):
-                frame = flagged[done]
-                sources = plan(frame, spent)
-                keys = [(frame, s, versions.get(s, 0)) for s in sources]
-                if any(key not in found for key in keys):
-                    break
-                spent += len(sources)
-                apply(frame, sources, [found.pop(key) for key in keys])
-                done += 1
-                if progress is not None:
-                    progress(done, len(flagged))
+        local, shared = runner, portable_aligner(aligner)  # one object: a ProcessRunner keeps its processes
+    for phase, frames in steps:
+        if frames is None:  # root_first's second phase: the frames the root did not mend
+            still = [f for f in flagged if confidence[f] < TRUSTED]
+            frames = affordable(still, lambda f: others + (1 if f in turn else 0), spent)
+            total += len(frames)
+        spent, done = _run_phase(frames, phase, plan, job, apply, local, shared, versions, spent, done, total,
+                                 progress)
+    aligned.repair_spent = spent
     aligned.confidence = confidence
     aligned.repaired = repaired
     return aligned
+
+
+class _SerialRunner:
+    """``runner.map`` in this process, one task after another (the repair without a runner)."""
+
+    def __init__(self, aligner):
+        self.aligner = aligner
+
+    def map(self, fn, jobs, *, shared=None, sizes=None):
+        return [fn(self.aligner, job) for job in jobs]
+
+
+def _run_phase(frames, phase, plan, job, apply, runner, shared, versions, spent, done, total, progress):
+    """Repair ``frames`` in order from ``plan(frame, spent, phase)``'s sources through ``runner``,
+    in waves: every remaining frame's alignments as the frames stand now, all at once, then the
+    frames applied in order while the sources the serial pass would pick were aligned (a frame
+    repaired in this wave may change a later frame's sources: that one waits for the next wave).
+    One frame a wave in this process (the serial pass itself). Returns (spent, done)."""
+    serial = isinstance(runner, _SerialRunner)
+    found, k = {}, 0
+    while k < len(frames):
+        wanted, planned = {}, spent
+        for frame in frames[k:k + 1] if serial else frames[k:]:
+            sources = plan(frame, planned, phase)
+            planned += len(sources)
+            missing = [s for s in sources if (frame, s, versions.get(s, 0)) not in found]
+            if missing:
+                wanted[frame] = missing
+        jobs = [job(f, sources) for f, sources in wanted.items()]
+        outs = runner.map(repair_task, jobs, shared=shared, sizes=[len(j[1]) for j in jobs])
+        for (frame, sources), results in zip(wanted.items(), outs, strict=True):
+            found.update({(frame, s, versions.get(s, 0)): r for s, r in zip(sources, results, strict=True)})
+        while k < len(frames):
+            frame = frames[k]
+            sources = plan(frame, spent, phase)
+            keys = [(frame, s, versions.get(s, 0)) for s in sources]
+            if any(key not in found for key in keys):
+                break
+            spent += len(sources)
+            apply(frame, sources, [found.pop(key) for key in keys])
+            k += 1
+            done += 1
+            if progress is not None:
+                progress(done, total)
+    return spent, done
 
 
 def colour_terms(aligned, use):

@@ -92,9 +92,9 @@ def add_arguments(parser):
     parser.add_argument("--retries", type=int, default=3,
                         help="other parents tried for a frame whose alignment scores poorly or, with colour cues, "
                              "whose step lost the root's colours (default 3)")
-    parser.add_argument("--repair-budget", type=float, default=0.5, metavar="B",
+    parser.add_argument("--repair-budget", type=float, default=0.25, metavar="B",
                         help="pairwise alignments per frame the repair of low-confidence frames may spend, "
-                             "the worst frames first (default 0.5; 0 turns the repair off)")
+                             "from the root first, the frames most like it first (default 0.25; 0 turns the repair off)")
     parser.add_argument("--swing-limbs", action="store_true",
                         help="swing limbs onto the parts of a frame nothing covers in the coarse matching (an arm "
                              "thrown into a punch): better on tight-fitting clothes, not on loose garments "

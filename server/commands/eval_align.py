@@ -76,9 +76,9 @@ def add_arguments(parser):
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                         help="worker processes for the shape histograms, the dissimilarity matrix (from 3,000 "
                              "frames) and independent pieces of the tree (default: up to 2)")
-    parser.add_argument("--repair-budget", type=float, default=0.5, metavar="B",
+    parser.add_argument("--repair-budget", type=float, default=0.25, metavar="B",
                         help="pairwise alignments per frame the repair of the tree's low-confidence frames may "
-                             "spend (see `morphspace align --help`; default 0.5; 0 turns the repair off)")
+                             "spend (see `morphspace align --help`; default 0.25; 0 turns the repair off)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--patches", type=int, default=30, help="patches at the coarsest level (default 30; as "
                         "`morphspace align`'s)")

@@ -112,7 +112,7 @@ class AlignJob(_Body):
     patches: int = Field(30, ge=1, le=500)
     levels: int = Field(4, ge=1, le=8)
     retries: int = Field(3, ge=0, le=10)
-    repair_budget: float = Field(0.5, ge=0, le=10, description="pairwise alignments per frame that repairing "
+    repair_budget: float = Field(0.25, ge=0, le=10, description="pairwise alignments per frame that repairing "
                                                                "low-confidence frames may spend (0: no repair)")
     swing_limbs: bool = Field(False, description="swing limbs onto the parts of a frame nothing covers in the "
                                                  "coarse matching (an arm thrown into a punch)")

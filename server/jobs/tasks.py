@@ -263,7 +263,7 @@ def run_graph(payload, reporter):
 
 # --- align ----------------------------------------------------------------------------------------
 # what a job record made before these parameters existed runs with (the AlignJob model's defaults)
-ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "race", "colors": "auto", "repair_budget": 0.5, "units": "auto",
+ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "race", "colors": "auto", "repair_budget": 0.25, "units": "auto",
                   "up": "auto", "swing_limbs": False, "reach_limbs": True}
 
 

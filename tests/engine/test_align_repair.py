@@ -91,10 +91,63 @@ def test_the_repair_budget_repairs_the_worst_frames_first_and_no_more(walk_align
     # 5 frames x 0.4 = two pairwise alignments: for the worst frame only, from the root and (the
     # frames have colours) from its own alignment turned round
     assert walk_aligner.colors is not None
-    repair_alignment(counting, meshes, aligned, budget=0.4)
+    repair_alignment(counting, meshes, aligned, budget=0.4, strategy="together")
     assert counting.calls == 2
     assert aligned.repaired[worst] and not aligned.repaired[5 - worst] and not aligned.repaired[[0, 1, 4]].any()
     assert aligned.confidence[5 - worst] < 0.5  # left flagged, not silently passed
+
+
+def test_root_first_spends_the_budget_on_the_root_for_every_flagged_frame_before_anything_else(walk_aligner,
+                                                                                                five_frames):
+    """The same two slipped frames and budget, repaired root first: both frames from the root (the
+    two alignments of the budget), nothing turned round; both mended."""
+    meshes = five_frames
+    aligned = _slipped(walk_aligner, meshes, [2, 3])
+    root_pose = aligned.poses[0].copy()
+    starts = []
+
+    class Recording(_Counting):
+        def align(self, pose, *args, **kwargs):
+            starts.append(np.asarray(pose).copy())
+            return super().align(pose, *args, **kwargs)
+
+    repair_alignment(Recording(walk_aligner), meshes, aligned, budget=0.4)
+    assert len(starts) == 2 and all(np.array_equal(s, root_pose) for s in starts)
+    assert aligned.repaired[[2, 3]].all() and (aligned.parent[[2, 3]] == 0).all()
+    assert (aligned.confidence[[2, 3]] >= 0.5).all()
+
+
+def test_root_first_tries_the_other_sources_only_where_the_root_left_the_frame_flagged(walk_aligner, five_frames):
+    """Frames 2 and 3 slipped; the real aligner's results from the root are marked torn for frame 2
+    (as on a frame too far from the root), so only frame 2 goes on to the trusted similar frames;
+    frame 3, mended from the root, does not."""
+    import dataclasses
+
+    meshes = five_frames
+    aligned = _slipped(walk_aligner, meshes, [2, 3])
+    poses = {f: aligned.poses[f].copy() for f in range(5)}
+    starts = []
+
+    class RootFailsFrame2(_Counting):
+        def align(self, pose, target, *args, **kwargs):
+            starts.append(np.asarray(pose).copy())
+            result = super().align(pose, target, *args, **kwargs)
+            if np.array_equal(pose, poses[0]) and len(target.V) == len(meshes[2][0]) \
+                    and np.array_equal(target.V, meshes[2][0]):
+                result = dataclasses.replace(result, distortion_tail=100.0)
+            return result
+
+    D = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)
+    repair_alignment(RootFailsFrame2(walk_aligner), meshes, aligned, dissimilarity=D, candidates=1)
+    assert aligned.repaired[3] and aligned.parent[3] == 0 and aligned.confidence[3] >= 0.5
+    from_root = [k for k, s in enumerate(starts) if np.array_equal(s, poses[0])]
+    others = [k for k, s in enumerate(starts) if not np.array_equal(s, poses[0])]
+    assert len(from_root) >= 2 and others and max(from_root) < min(others)  # the root's wave first
+    # then frame 2 alone: from its most similar trusted frame (1) and, when its colours disagree,
+    # from its own alignment turned round; frame 3 never goes on
+    assert any(np.array_equal(starts[k], poses[1]) for k in others)
+    assert len(others) <= 2 and aligned.parent[2] != 0
+    assert aligned.parent[3] == 0
 
 
 def test_only_a_frame_whose_colours_disagree_is_also_tried_turned_round(walk_aligner, five_frames):
@@ -113,7 +166,7 @@ def test_only_a_frame_whose_colours_disagree_is_also_tried_turned_round(walk_ali
 
     counting = Recording(walk_aligner)
     poses = {f: aligned.poses[f].copy() for f in (0, 2, 3)}
-    repair_alignment(counting, meshes, aligned)
+    repair_alignment(counting, meshes, aligned, strategy="together")
     # from the root for every flagged frame (2, 3, and 4 when its own fit is flagged too, its
     # colours agreeing), and turned round for frame 3 only
     from_root = sum(np.array_equal(s, poses[0]) for s in starts)

@@ -212,7 +212,7 @@ def test_tree_pieces_through_a_runner_equal_the_plain_run(walk_capture, walk_ali
     assert all(np.array_equal(tasks.poses[k], plain.poses[k]) for k in plain.poses)
 
 
-def _repaired_serially_and_through(walk_aligner, runner):
+def _repaired_serially_and_through(walk_aligner, runner, strategy="root_first"):
     """Frames 2 and 3 of a walk slipped, repaired by the serial pass and through ``runner``
     (frame distance as the dissimilarity): both results, after checking the frames were mended."""
     import copy
@@ -229,18 +229,19 @@ def _repaired_serially_and_through(walk_aligner, runner):
     aligned = _slipped(walk_aligner, meshes, [2, 3])
     D = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)
     serial, tasks = copy.deepcopy(aligned), copy.deepcopy(aligned)
-    repair_alignment(walk_aligner, meshes, serial, dissimilarity=D, candidates=2)
-    repair_alignment(walk_aligner, meshes, tasks, dissimilarity=D, candidates=2, runner=runner)
+    repair_alignment(walk_aligner, meshes, serial, dissimilarity=D, candidates=2, strategy=strategy)
+    repair_alignment(walk_aligner, meshes, tasks, dissimilarity=D, candidates=2, runner=runner, strategy=strategy)
     assert serial.repaired[[2, 3]].all()
     for name in ("vertices", "residual", "distortion_tail", "colour", "parent", "confidence", "repaired"):
         assert np.array_equal(getattr(tasks, name), getattr(serial, name), equal_nan=name == "colour"), name
 
 
-def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner, make_runner):
+@pytest.mark.parametrize("strategy", ["root_first", "together"])
+def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner, make_runner, strategy):
     """Frame 3's trusted sources change once frame 2 is repaired, so the runner needs a second
     wave: the result is the same."""
     runner = make_runner()
-    _repaired_serially_and_through(walk_aligner, runner)
+    _repaired_serially_and_through(walk_aligner, runner, strategy)
     assert runner.calls and all(name == "repair_task" for name, _ in runner.calls)
 
 
