@@ -187,6 +187,21 @@ def check_align_breakdown(record, stdout):
     assert "of the tail" in stdout and "flag vs frames over 3pct" in stdout and non_negative(record["load_average_before"][0])
 
 
+def check_repair_variants(record, stdout):
+    assert record["dataset"] == "tiny" and record["frames"] == 8 and record["workers"] == 1
+    rows = {row["variant"]: row for row in record["variants"]}
+    assert list(rows) == ["none", "together@0.5", "root_first@0.25", "root_first@0"]
+    for row in rows.values():
+        assert 0 < row["mean_pct"] <= row["p95_pct"] < 100 and non_negative(row["seconds"])
+        assert row["frames_over_3pct_flagged"] <= row["frames_over_3pct"] and row["repaired"] <= row["flagged"] + row["repaired"]
+        assert row["alignments"] <= int(row["budget"] * record["frames"])  # the budget holds
+    # no budget, no repair: the same alignment as without the repair, scored alike
+    for label in ("none", "root_first@0"):
+        assert rows[label]["repaired"] == 0 and rows[label]["alignments"] == 0
+    assert rows["root_first@0"]["mean_pct"] == rows["none"]["mean_pct"]
+    assert "aligned once" in stdout and "root_first@0.25" in stdout
+
+
 def check_root_trial(record, stdout):
     assert record["dataset"] == "tiny" and record["frames"] == 8 and record["candidates"] == [0, 4]
     assert len(record["probes"]) == 2 and not set(record["probes"]) & {0, 4}
@@ -290,6 +305,7 @@ CHECKS = {
     "graph_load.py": check_graph_load,
     "graph_search.py": check_graph_search,
     "open_blends.py": check_open_blends,
+    "repair_variants.py": check_repair_variants,
     "root_trial.py": check_root_trial,
     "similarity_scaling.py": check_similarity_scaling,
     "speed_ground_truth.py": check_speed_ground_truth,

@@ -1,0 +1,149 @@
+"""What the repair of low-confidence frames buys, for what it costs: one alignment, several repairs.
+
+Aligns a slice of a sequence with ground truth once along the tree without the repair
+(``engine.align.align_captures(repair=False)``: the race's root, colour cues as by default), then
+runs ``engine.align.repair_alignment`` on copies of that alignment, one per variant
+``STRATEGY@BUDGET`` (``root_first`` or ``together``; the budget in pairwise alignments per frame),
+and scores each against the truth: mean and 95th percentile of the correspondence error, frames
+over 3% of the model size, frames repaired and still flagged, the alignments spent and the wall
+seconds. Every variant starts from the same alignment, so the differences are the repair's alone.
+
+    .venv/bin/python benchmarks/repair_variants.py /tmp/studio-full --sequence dance --every 2 \\
+        --variants none,together@0.5,root_first@0.1,root_first@0.25,root_first@0.5 --workers 2 --out result.json
+    .venv/bin/python benchmarks/repair_variants.py --tiny --out /tmp/repair_variants.json
+
+``--tiny`` (the test suite's smoke run) needs no dataset: 8 frames of the generator's 1,000-vertex
+run at 15 fps, small alignment settings, one worker; ``--out`` is required with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+from _tiny import emit, parse_arguments
+from align_breakdown import parse_options
+from align_speed import load_frames
+
+TINY = {"start": 0, "frames": 8, "every": 1, "options": ["patches=8", "levels=2"], "workers": 1,
+        "variants": "none,together@0.5,root_first@0.25,root_first@0"}
+
+
+def parse_variants(text):
+    """"none,root_first@0.25,..." -> [(label, strategy or None, budget)]."""
+    variants = []
+    for label in [v.strip() for v in text.split(",") if v.strip()]:
+        if label == "none":
+            variants.append((label, None, 0.0))
+            continue
+        strategy, sep, budget = label.partition("@")
+        if strategy not in ("root_first", "together") or not sep:
+            raise SystemExit(f"--variants {label!r}: expected none or STRATEGY@BUDGET, STRATEGY root_first or together")
+        try:
+            value = float(budget)
+        except ValueError:
+            raise SystemExit(f"--variants {label!r}: the budget {budget!r} is not a number") from None
+        if not value >= 0:
+            raise SystemExit(f"--variants {label!r}: the budget must be >= 0")
+        variants.append((label, strategy, value))
+    if not variants:
+        raise SystemExit("--variants: name at least one")
+    return variants
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("dataset", nargs="?", help="a dataset with ground truth (morphspace synth)")
+    parser.add_argument("--sequence", default="dance")
+    parser.add_argument("--start", type=int, default=0, help="first frame of the slice (default 0)")
+    parser.add_argument("--frames", type=int, default=None, help="frames in the slice (default: to the end)")
+    parser.add_argument("--every", type=int, default=2, help="take every N-th frame from --start (default 2)")
+    parser.add_argument("--variants", default="none,together@0.5,root_first@0.25",
+                        help="comma-separated: none, or STRATEGY@BUDGET (default none,together@0.5,root_first@0.25)")
+    parser.add_argument("--retries", type=int, default=3, help="trusted frames tried besides the root (default 3)")
+    parser.add_argument("--option", dest="options", action="append", default=None, metavar="NAME=VALUE",
+                        help="an AlignmentOptions field (repeatable)")
+    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                        help="processes for the alignment and the repairs (default up to 2)")
+    parser.add_argument("--tiny", action="store_true", help="the test suite's smoke run (no dataset)")
+    parser.add_argument("--out", type=Path, help="write the JSON here too")
+    args = parse_arguments(parser, argv, TINY)
+    if not args.tiny and args.dataset is None:
+        parser.error("a dataset is needed (or --tiny)")
+    if args.every < 1:
+        parser.error("--every must be at least 1")
+    variants = parse_variants(args.variants)
+    import contextlib
+
+    import numpy as np
+
+    from engine.align import align_captures, repair_alignment, score_alignment
+    from engine.align.captures import _outward
+    from engine.align.repair import TRUSTED
+    from engine.align.root_trial import root_setup
+    from engine.tasks import ProcessRunner
+
+    options, changes = parse_options(args.options)
+    count = args.frames if args.frames is not None else 1 << 30
+    frames, truth, faces, size = load_frames(args.dataset, args.sequence, args.start, count, args.tiny, args.every)
+    n = len(frames)
+    load_before = os.getloadavg()
+    started = time.perf_counter()
+    run = align_captures(frames, np.array([n]), workers=args.workers, options=options, retries=args.retries,
+                         repair=False)
+    align_seconds = time.perf_counter() - started
+    base = run.aligned
+    root = int(base.root)
+    # the repair's aligner and frames, as align_captures set them up (faces wound outward)
+    meshes, _ = _outward(frames)
+    colours = all(getattr(m, "colors", None) is not None for m in meshes)
+    aligner, _, _, _ = root_setup(meshes[root], options, "auto", colours, 0, tets=run.tets)
+
+    def score(aligned):
+        errors, summary = score_alignment(aligned.vertices, root, aligned.root_vertices, truth, faces, size)
+        frame = 100.0 * errors.mean(axis=1) / size
+        frame[root] = 0.0
+        return summary, frame
+
+    rows = []
+    with ProcessRunner(args.workers) if args.workers > 1 else contextlib.nullcontext() as runner:
+        for label, strategy, budget in variants:
+            aligned = copy.deepcopy(base)
+            started = time.perf_counter()
+            if strategy is not None:
+                repair_alignment(aligner, meshes, aligned, dissimilarity=run.similarity.dissimilarity,
+                                 yaw=run.similarity.yaw, candidates=args.retries, budget=budget, runner=runner,
+                                 strategy=strategy)
+            else:  # the confidence alone (a zero budget repairs nothing)
+                repair_alignment(aligner, meshes, aligned, budget=0.0)
+            seconds = time.perf_counter() - started
+            summary, frame = score(aligned)
+            flagged = aligned.confidence < TRUSTED
+            row = {"variant": label, "strategy": strategy, "budget": budget,
+                   "mean_pct": round(float(summary["mean_pct"]), 4), "p95_pct": round(float(summary["p95_pct"]), 4),
+                   "frames_over_3pct": int(np.sum(frame > 3.0)),
+                   "frames_over_3pct_flagged": int(np.sum((frame > 3.0) & flagged)),
+                   "repaired": int(np.sum(aligned.repaired)), "flagged": int(np.sum(flagged)),
+                   "alignments": int(getattr(aligned, "repair_spent", 0)), "seconds": round(seconds, 2)}
+            rows.append(row)
+            print(f"{label:<18} mean {row['mean_pct']:.3f}%  p95 {row['p95_pct']:.3f}%  over 3% {row['frames_over_3pct']:>4}"
+                  f" (flagged {row['frames_over_3pct_flagged']})  repaired {row['repaired']:>4}  flagged {row['flagged']:>4}"
+                  f"  alignments {row['alignments']:>5}  {seconds:.1f} s", flush=True)
+    record = {"dataset": "tiny" if args.tiny else str(args.dataset), "sequence": "run" if args.tiny else args.sequence,
+              "start": args.start, "every": args.every, "frames": n, "root": root, "options": changes,
+              "workers": args.workers, "retries": args.retries, "align_seconds": round(align_seconds, 2),
+              "variants": rows, "load_average_before": [round(x, 2) for x in load_before],
+              "load_average_after": [round(x, 2) for x in os.getloadavg()], "python": platform.python_version()}
+    print(f"{n} frames of {record['sequence']} from {args.start}, one in {args.every}, root {root}, aligned once in "
+          f"{align_seconds:.0f} s ({args.workers} workers); each variant repairs a copy of that alignment")
+    emit(record, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
