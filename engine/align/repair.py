@@ -222,13 +222,13 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             confidence[frame] = float(np.exp(-best_badness))
             current_colour[frame] = best.colour_distance  # (a later phase weighs it as the frame's own)
 
-    others = max(0, int(candidates)) if dissimilarity is not None else 0
+    similar = max(0, int(candidates)) if dissimilarity is not None else 0  # trusted similar frames a frame tries
     spent, done, steps = 0, 0, []
     if first:  # every flagged frame from the root, then those still flagged from the others
         steps.append(("root", affordable(flagged, lambda f: 1 if aligned.parent[f] != root else 0, 0, near=True)))
         steps.append(("others", None))
     else:
-        steps.append(("all", affordable(flagged, lambda f: (1 if aligned.parent[f] != root else 0) + others
+        steps.append(("all", affordable(flagged, lambda f: (1 if aligned.parent[f] != root else 0) + similar
                                         + (1 if f in turn else 0), 0)))
     total = len(steps[0][1])
     if progress is not None and total:  # the stage shows from its start
@@ -242,7 +242,7 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     for phase, frames in steps:
         if frames is None:  # root_first's second phase: the frames the root did not mend
             still = [f for f in flagged if confidence[f] < TRUSTED]
-            frames = affordable(still, lambda f: others + (1 if f in turn else 0), spent)
+            frames = affordable(still, lambda f: similar + (1 if f in turn else 0), spent)
             total += len(frames)
         spent, done = _run_phase(frames, phase, plan, job, apply, local, shared, versions, spent, done, total,
                                  progress)
