@@ -129,7 +129,7 @@ def main(argv=None):
                    "frames_over_3pct": int(np.sum(frame > 3.0)),
                    "frames_over_3pct_flagged": int(np.sum((frame > 3.0) & flagged)),
                    "repaired": int(np.sum(aligned.repaired)), "flagged": int(np.sum(flagged)),
-                   "alignments": int(getattr(aligned, "repair_spent", 0)), "seconds": round(seconds, 2)}
+                   "alignments": int(aligned.repair_spent), "seconds": round(seconds, 2)}
             rows.append(row)
             print(f"{label:<18} mean {row['mean_pct']:.3f}%  p95 {row['p95_pct']:.3f}%  over 3% {row['frames_over_3pct']:>4}"
                   f" (flagged {row['frames_over_3pct_flagged']})  repaired {row['repaired']:>4}  flagged {row['flagged']:>4}"

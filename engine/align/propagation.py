@@ -49,6 +49,7 @@ class AlignedFrames:
     confidence : (N,) float array      0..1, see :func:`engine.align.repair.alignment_confidence`
     repaired : (N,) bool array         frames the repair pass aligned again from other sources
     poses : dict                       frame -> aligned tet vertices (k, 3) (not written out)
+    repair_spent : int                 pairwise alignments the repair pass spent (not written out)
     """
 
     vertices: np.ndarray
@@ -69,6 +70,7 @@ class AlignedFrames:
     repaired: np.ndarray = None
     poses: dict = None
     pulled: np.ndarray = None
+    repair_spent: int = 0
 
 
 def partition_tree(parent, order, chunk):

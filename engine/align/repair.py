@@ -174,16 +174,14 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         """The sources the frame is aligned from now (the trusted set grows as frames are repaired);
         the frame itself stands for its own alignment turned round (with colours). ``phase``:
         "root" (the root alone), "others" (all but the root) or "all"."""
-        trusted = np.flatnonzero(confidence >= TRUSTED)
         parent = aligned.parent[frame]
         sources = [] if parent == root or phase == "others" else [root]  # the same source again: the same result
-        if phase == "root":
-            return sources[:max(0, int(limit) - spent)] if spent + len(sources) > limit else sources
-        if dissimilarity is not None:
+        if phase != "root" and dissimilarity is not None:
+            trusted = np.flatnonzero(confidence >= TRUSTED)
             others = trusted[(trusted != root) & (trusted != parent)]
             others = others[np.argsort(np.asarray(dissimilarity)[frame, others], kind="stable")]
             sources += [int(s) for s in others[:max(0, int(candidates))]]
-        if frame in turn:  # (a flagged frame is never a trusted source: the frame means this)
+        if phase != "root" and frame in turn:  # (a flagged frame is never a trusted source: the frame means this)
             sources.append(int(frame))
         if spent + len(sources) > limit:
             sources = sources[:max(0, int(limit) - spent)]
