@@ -341,6 +341,7 @@ function togglePause() {
 
 function userReset() {
   state.resetPending = false;
+  viewer.keepTrailOnce = false;  // a replay the page had just asked for is overtaken: clear as a reset
   connection.send("reset");
   viewer.clearPath();
   viewer.clearTrail();
