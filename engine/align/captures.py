@@ -102,7 +102,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
         "tree" aligns along the shape similarity tree (paper section 3); "sequential" tracks
         frame to frame from the same root (forwards and backwards, sequences end to end), the
         baseline, with no retries.
-    tree_kind : {"mst", "paths"}   the similarity tree (:func:`engine.align.similarity_tree.similarity_tree`):
+    tree_kind : {"mst", "paths", "steps"}   the similarity tree (:func:`engine.align.similarity_tree.similarity_tree`):
                                 the paper's minimum spanning tree, or cheapest paths from the
                                 root with big steps penalised
     root : int or None          root frame (default: chosen by ``root_choice``)
@@ -163,7 +163,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     timings["similarity"] = time.perf_counter() - started
     started = time.perf_counter()
     chooser = _apart(meshes, progress) if root is None and root_choice in ("apart", "trial", "race") else None
-    tree = similarity_tree(similarity.dissimilarity, root=root, kind=tree_kind, choose_root=chooser)
+    tree = similarity_tree(similarity.dissimilarity, root=root, kind=tree_kind, choose_root=chooser, lengths=lengths)
     timings["tree"] = time.perf_counter() - started
     # colours, when every frame has them, always settle front-back ambiguities (PairwiseAligner
     # ._orientation_score); ``use_colors`` adds them as local matching cues (options.colour_weight)
@@ -183,7 +183,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
             trial["spread_choice"] = int(tree.root)
             tets = tried[chosen]
             if chosen != tree.root:
-                tree = similarity_tree(similarity.dissimilarity, root=chosen, kind=tree_kind)
+                tree = similarity_tree(similarity.dissimilarity, root=chosen, kind=tree_kind, lengths=lengths)
         timings["trial"] = time.perf_counter() - started
     settings = dict(options=options, use_colors=use_colors, colours=colours, seed=seed, workers=workers,
                     retries=retries, runner=runner, repair=repair, repair_budget=repair_budget)
@@ -257,7 +257,7 @@ def _race(meshes, lengths, similarity, trial, tried, tree_kind, settings, progre
     runs, scores = {}, []
     for k, c in enumerate(final):
         at = frames.index(c)
-        tree = similarity_tree(similar.dissimilarity, root=at, kind=tree_kind)
+        tree = similarity_tree(similar.dissimilarity, root=at, kind=tree_kind, lengths=lengths if whole else None)
         run = _align_from(sub, lengths if whole else None, similar, tree, "tree", tets=tried.get(c),
                           progress=_race_progress(progress, k * len(frames), total), **settings)
         runs[c] = (tree, run)
@@ -267,7 +267,7 @@ def _race(meshes, lengths, similarity, trial, tried, tree_kind, settings, progre
                      "winner": int(winner)}
     if whole:
         return runs[winner]
-    return similarity_tree(similarity.dissimilarity, root=winner, kind=tree_kind), None
+    return similarity_tree(similarity.dissimilarity, root=winner, kind=tree_kind, lengths=lengths), None
 
 
 def _race_progress(progress, offset, total):

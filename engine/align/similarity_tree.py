@@ -227,12 +227,12 @@ def _farthest(adjacency, source):
     return int(np.argmax(dist)), dist
 
 
-TREE_KINDS = ("paths", "mst")
+TREE_KINDS = ("paths", "mst", "steps")
 DEFAULT_TREE = "mst"
 
 
 def similarity_tree(D, *, root=None, threshold=None, criterion="median", kind=DEFAULT_TREE, power=3.0,
-                    choose_root=None):
+                    choose_root=None, lengths=None):
     """Spanning tree of the pruned, reconnected similarity graph, rooted.
 
     Parameters
@@ -242,14 +242,18 @@ def similarity_tree(D, *, root=None, threshold=None, criterion="median", kind=DE
                              tree (``criterion``)
     threshold : float or None   pruning threshold, default :func:`pruning_threshold`
     criterion : {"median", "center"}   see :func:`tree_root`
-    kind : {"mst", "paths"}
+    kind : {"mst", "paths", "steps"}
         "mst": the minimum spanning tree (the paper's eq. 1). "paths": every frame's cheapest
         path from the root over the same graph, an edge costing ``(D / threshold) ** power``.
+        "steps": every frame's path of the least expected error
+        (:func:`engine.align.step_tree.step_tree`; ``lengths`` tells neighbours in time).
     power : float            for ``kind="paths"``
     choose_root : callable(centrality) -> int, or None
         picks the root when ``root`` is None, from every frame's sum of path lengths in the
         minimum spanning tree (:func:`tree_centrality`), instead of ``criterion``
         (e.g. :func:`engine.align.root_choice.choose_root`: central, with its limbs apart)
+    lengths : (S,) int array or None   frames per sequence, for ``kind="steps"`` (None: no two
+                             frames are neighbours in time)
 
     Returns
     -------
@@ -291,7 +295,12 @@ def similarity_tree(D, *, root=None, threshold=None, criterion="median", kind=DE
             raise ValueError(f"choose_root gave {root}, not a frame index in 0..{n - 1}")
     elif root is None:
         root = tree_root(edges, weights, n, criterion=criterion)
-    if kind == "paths":
+    if kind == "steps":
+        from engine.align.step_tree import step_tree
+
+        edges, _ = step_tree(D, int(root), lengths)
+        weights = D[edges[:, 0], edges[:, 1]]
+    elif kind == "paths":
         costs = graph.copy()
         costs.data = np.maximum((costs.data / max(float(threshold), 1e-300)) ** float(power), np.finfo(float).tiny)
         _, predecessor = dijkstra(costs, directed=False, indices=int(root), return_predecessors=True)

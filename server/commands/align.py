@@ -85,7 +85,8 @@ def add_arguments(parser):
                         help="frame-to-frame tracking from the root instead of the tree (the baseline)")
     parser.add_argument("--tree", choices=TREE_KINDS, default=DEFAULT_TREE,
                         help="mst: the paper's minimum spanning tree; paths: every frame's cheapest path from the root, "
-                             f"big steps penalised (shallower) (default {DEFAULT_TREE})")
+                             "big steps penalised (shallower); steps: every frame's path of the least expected error "
+                             f"(default {DEFAULT_TREE})")
     parser.add_argument("--window", type=int, default=2, help="temporal filter half-width in frames (default 2)")
     parser.add_argument("--patches", type=int, default=30, help="patches at the coarsest level (default 30)")
     parser.add_argument("--levels", type=int, default=4, help="coarse-to-fine levels, patches doubling (default 4)")

@@ -59,7 +59,7 @@ def add_arguments(parser):
     parser.add_argument("--aligned", type=Path, metavar="DIR", help="score this `morphspace align` output "
                         "instead of aligning here")
     parser.add_argument("--tree", choices=TREE_KINDS, default=DEFAULT_TREE,
-                        help=f"the similarity tree: paths or mst (see `morphspace align --help`; default {DEFAULT_TREE})")
+                        help=f"the similarity tree: mst, paths or steps (see `morphspace align --help`; default {DEFAULT_TREE})")
     parser.add_argument("--no-sequential", action="store_true", help="skip the frame-to-frame baseline")
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global index (default: the tree's)")
     parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="race",

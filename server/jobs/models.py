@@ -101,9 +101,10 @@ class AlignJob(_Body):
                              "merged contact tied into every frame); central, the paper's most central frame of "
                              "the tree")
     sequential: bool = Field(False, description="frame-to-frame tracking instead of the tree")
-    tree: Literal["mst", "paths"] = Field(
+    tree: Literal["mst", "paths", "steps"] = Field(
         "mst", description="mst: the paper's minimum spanning tree; paths: every frame's cheapest path "
-                           "from the root with big steps penalised (shallower)")
+                           "from the root with big steps penalised (shallower); steps: every frame's path of "
+                           "the least expected error")
     colors: Literal["auto", "on", "off"] = Field(
         "auto", description="vertex colours as local matching cues: auto when the meshes are fine enough "
                             f"for colours to carry texture (median edge under {FINE_EDGE:.1%} of the square root of the "
