@@ -253,21 +253,74 @@ def _race(meshes, lengths, similarity, trial, tried, tree_kind, settings, progre
     whole = len(frames) == len(meshes)
     sub = meshes if whole else [meshes[f] for f in frames]
     similar = similarity if whole else sub_similarity(similarity, frames)
-    total = len(final) * len(frames)
-    runs, scores = {}, []
-    for k, c in enumerate(final):
-        at = frames.index(c)
-        tree = similarity_tree(similar.dissimilarity, root=at, kind=tree_kind, lengths=lengths if whole else None)
-        run = _align_from(sub, lengths if whole else None, similar, tree, "tree", tets=tried.get(c),
-                          progress=_race_progress(progress, k * len(frames), total), **settings)
-        runs[c] = (tree, run)
-        scores.append(race_score(run[0].confidence, at))
+    sub_lengths = lengths if whole else None
+    trees = [similarity_tree(similar.dissimilarity, root=frames.index(c), kind=tree_kind, lengths=sub_lengths)
+             for c in final]
+    if settings["runner"] is None and settings["workers"] >= 2:
+        # the finalists side by side, one process each: a race's tree is one or two pieces, so a
+        # finalist alone keeps one core busy (the same result: it does not depend on ``workers``)
+        done = _race_in_processes(sub, sub_lengths, similar, trees, [tried.get(c) for c in final], settings,
+                                  progress)
+    else:
+        done = [_align_from(sub, sub_lengths, similar, tree, "tree", tets=tried.get(c),
+                            progress=_race_progress(progress, k * len(frames), len(final) * len(frames)), **settings)
+                for k, (c, tree) in enumerate(zip(final, trees))]
+    runs = {c: (tree, run) for c, tree, run in zip(final, trees, done)}
+    scores = [race_score(run[0].confidence, tree.root) for tree, run in runs.values()]
     winner = final[int(np.argmax(scores))]  # the first of equals: the trial's better candidate
     trial["race"] = {"finalists": final, "frames": len(frames), "confidence": [round(x, 4) for x in scores],
                      "winner": int(winner)}
     if whole:
         return runs[winner]
     return similarity_tree(similarity.dissimilarity, root=winner, kind=tree_kind, lengths=lengths), None
+
+
+_RACE = {}
+
+
+def _race_in_processes(sub, lengths, similar, trees, tets, settings, progress):
+    """Each finalist's :func:`_align_from` in its own process (``settings["workers"]`` at most),
+    with one worker each; the "race" stage's progress counts the frames of all of them."""
+    import multiprocessing
+    import queue as queue_module
+    from concurrent.futures import ProcessPoolExecutor, wait
+
+    context = multiprocessing.get_context("forkserver")
+    ticks = context.Queue()
+    shared = (sub, lengths, similar, dict(settings, workers=1))
+    frames, total = {}, len(trees) * len(sub)
+    with ProcessPoolExecutor(max_workers=min(int(settings["workers"]), len(trees)), mp_context=context,
+                             initializer=_race_init, initargs=(shared, ticks)) as pool:
+        futures = [pool.submit(_race_entry, (k, tree, t)) for k, (tree, t) in enumerate(zip(trees, tets))]
+        pending = set(futures)
+        while pending:
+            _, pending = wait(pending, timeout=0.5)
+            while True:
+                try:
+                    k, done = ticks.get_nowait()
+                except queue_module.Empty:
+                    break
+                frames[k] = done
+                if progress is not None:
+                    progress("race", sum(frames.values()), total)
+        return [future.result() for future in futures]
+
+
+def _race_init(shared, ticks):
+    """Process-pool initializer of :func:`_race_in_processes`."""
+    _RACE["shared"], _RACE["ticks"] = shared, ticks
+
+
+def _race_entry(job):
+    """One finalist's alignment in a process of the race: ``job`` is (its index, tree, tets)."""
+    k, tree, tets = job
+    sub, lengths, similar, settings = _RACE["shared"]
+    ticks = _RACE["ticks"]
+
+    def report(stage, done, _):
+        if stage == "align":
+            ticks.put((k, done))
+    return _align_from(sub, lengths, similar, tree, "tree", tets=tets, progress=report, **settings)
 
 
 def _race_progress(progress, offset, total):

@@ -89,3 +89,19 @@ def test_sub_similarity_is_the_frames_rows_and_columns(walk30):
     assert np.array_equal(sub.dissimilarity, similarity.dissimilarity[np.ix_(picked, picked)])
     assert np.array_equal(sub.yaw, similarity.yaw[np.ix_(picked, picked)])
     assert len(sub.histograms) == 3 and list(sub.lengths) == [3]
+
+
+def test_finalists_raced_side_by_side_in_two_processes_give_the_same_alignment(walk30):
+    """With two workers the finalists align at the same time, one process each (a race's tree
+    is one piece or two, so one finalist kept one core busy); the result is the serial race's."""
+    frames, lengths = walk30
+    serial = align_captures(frames, lengths, options=OPTIONS, workers=1)
+    seen = []
+    both = align_captures(frames, lengths, options=OPTIONS, workers=2,
+                          progress=lambda stage, done, total: seen.append((stage, done, total)))
+    assert both.root_trial["race"] == serial.root_trial["race"]
+    assert np.array_equal(both.aligned.vertices, serial.aligned.vertices)
+    assert np.array_equal(both.aligned.confidence, serial.aligned.confidence)
+    race = [(done, total) for stage, done, total in seen if stage == "race"]
+    assert race and race[-1] == (2 * len(frames), 2 * len(frames))  # every frame of both finalists counted
+    assert [done for done, _ in race] == sorted(done for done, _ in race)
