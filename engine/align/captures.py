@@ -303,7 +303,10 @@ def _race_in_processes(sub, lengths, similar, trees, tets, settings, progress):
                 frames[k] = done
                 if progress is not None:
                     progress("race", sum(frames.values()), total)
-        return [future.result() for future in futures]
+        results = [future.result() for future in futures]
+    if progress is not None:
+        progress("race", total, total)  # ticks a process sent after its result came back
+    return results
 
 
 def _race_init(shared, ticks):
