@@ -48,9 +48,16 @@ def test_race_score_is_the_mean_confidence_of_the_other_frames():
     assert race_score([1.0], 0) == 1.0
 
 
-def test_the_race_keeps_the_more_confident_finalist_and_its_alignment_is_that_roots_own(walk30):
+@pytest.fixture(scope="module")
+def raced(walk30):
+    """walk30 aligned with the race, one worker."""
     frames, lengths = walk30
-    run = align_captures(frames, lengths, options=OPTIONS, workers=1)
+    return align_captures(frames, lengths, options=OPTIONS, workers=1)
+
+
+def test_the_race_keeps_the_more_confident_finalist_and_its_alignment_is_that_roots_own(walk30, raced):
+    frames, lengths = walk30
+    run = raced
     trial = run.root_trial
     race = trial["race"]
     assert race["finalists"] == finalists(trial) and len(race["finalists"]) == 2
@@ -91,11 +98,11 @@ def test_sub_similarity_is_the_frames_rows_and_columns(walk30):
     assert len(sub.histograms) == 3 and list(sub.lengths) == [3]
 
 
-def test_finalists_raced_side_by_side_in_two_processes_give_the_same_alignment(walk30):
+def test_finalists_raced_side_by_side_in_two_processes_give_the_same_alignment(walk30, raced):
     """With two workers the finalists align at the same time, one process each (a race's tree
     is one piece or two, so one finalist kept one core busy); the result is the serial race's."""
     frames, lengths = walk30
-    serial = align_captures(frames, lengths, options=OPTIONS, workers=1)
+    serial = raced
     seen = []
     both = align_captures(frames, lengths, options=OPTIONS, workers=2,
                           progress=lambda stage, done, total: seen.append((stage, done, total)))
