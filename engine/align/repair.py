@@ -229,6 +229,7 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         steps.append(("all", affordable(flagged, lambda f: (1 if aligned.parent[f] != root else 0) + similar
                                         + (1 if f in turn else 0), 0)))
     total = len(steps[0][1])
+    progress = _forward_only(progress)  # a wave's share can run ahead of the frames applied after it
     if progress is not None and total:  # the stage shows from its start
         progress(0, total)
     if runner is None:
@@ -256,7 +257,7 @@ class _SerialRunner:
     def __init__(self, aligner):
         self.aligner = aligner
 
-    def map(self, fn, jobs, *, shared=None, sizes=None):
+    def map(self, fn, jobs, *, shared=None, sizes=None, progress=None):
         return [fn(self.aligner, job) for job in jobs]
 
 
@@ -277,7 +278,11 @@ def _run_phase(frames, phase, plan, job, apply, runner, shared, versions, spent,
             if missing:
                 wanted[frame] = missing
         jobs = [job(f, sources) for f, sources in wanted.items()]
-        outs = runner.map(repair_task, jobs, shared=shared, sizes=[len(j[1]) for j in jobs])
+        # during a wave the bar moves with its alignments (a frame's share of them), so a wave of
+        # every flagged frame at once (root first) does not sit at 0 for its whole length
+        wave = None if progress is None else (
+            lambda d, t, base=done, n=len(jobs): progress(base + (n * d) // max(t, 1), total))
+        outs = runner.map(repair_task, jobs, shared=shared, sizes=[len(j[1]) for j in jobs], progress=wave)
         for (frame, sources), results in zip(wanted.items(), outs, strict=True):
             found.update({(frame, s, versions.get(s, 0)): r for s, r in zip(sources, results, strict=True)})
         while k < len(frames):
@@ -293,6 +298,19 @@ def _run_phase(frames, phase, plan, job, apply, runner, shared, versions, spent,
             if progress is not None:
                 progress(done, total)
     return spent, done
+
+
+def _forward_only(progress):
+    """``progress`` called only when ``done`` grows (or ``total`` changes), or None."""
+    if progress is None:
+        return None
+    shown = [-1, None]
+
+    def report(done, total):
+        if done > shown[0] or total != shown[1]:
+            shown[0], shown[1] = max(done, shown[0]) if total == shown[1] else done, total
+            progress(shown[0], total)
+    return report
 
 
 def colour_terms(aligned, use):

@@ -212,7 +212,7 @@ def test_tree_pieces_through_a_runner_equal_the_plain_run(walk_capture, walk_ali
     assert all(np.array_equal(tasks.poses[k], plain.poses[k]) for k in plain.poses)
 
 
-def _repaired_serially_and_through(walk_aligner, runner, strategy="root_first"):
+def _repaired_serially_and_through(walk_aligner, runner, strategy="root_first", ticks=None):
     """Frames 2 and 3 of a walk slipped, repaired by the serial pass and through ``runner``
     (frame distance as the dissimilarity): both results, after checking the frames were mended."""
     import copy
@@ -230,7 +230,8 @@ def _repaired_serially_and_through(walk_aligner, runner, strategy="root_first"):
     D = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)
     serial, tasks = copy.deepcopy(aligned), copy.deepcopy(aligned)
     repair_alignment(walk_aligner, meshes, serial, dissimilarity=D, candidates=2, strategy=strategy)
-    repair_alignment(walk_aligner, meshes, tasks, dissimilarity=D, candidates=2, runner=runner, strategy=strategy)
+    repair_alignment(walk_aligner, meshes, tasks, dissimilarity=D, candidates=2, runner=runner, strategy=strategy,
+                     progress=None if ticks is None else (lambda d, t: ticks.append((d, t))))
     assert serial.repaired[[2, 3]].all()
     for name in ("vertices", "residual", "distortion_tail", "colour", "parent", "confidence", "repaired"):
         assert np.array_equal(getattr(tasks, name), getattr(serial, name), equal_nan=name == "colour"), name
@@ -241,8 +242,12 @@ def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner, m
     """Frame 3's trusted sources change once frame 2 is repaired, so the runner needs a second
     wave: the result is the same."""
     runner = make_runner()
-    _repaired_serially_and_through(walk_aligner, runner, strategy)
+    ticks = []
+    _repaired_serially_and_through(walk_aligner, runner, strategy, ticks)
     assert runner.calls and all(name == "repair_task" for name, _ in runner.calls)
+    # the bar moves with a wave's alignments as they finish, and never goes back
+    assert ticks[0][0] == 0 and ticks[-1][0] == ticks[-1][1] > 0
+    assert all(b[0] > a[0] or b[1] != a[1] for a, b in zip(ticks, ticks[1:])), ticks
 
 
 def test_decomposition_through_a_runner_equals_the_plain_run(make_runner):
