@@ -308,8 +308,8 @@ def _forward_only(progress):
 
     def report(done, total):
         if done > shown[0] or total != shown[1]:
-            shown[0], shown[1] = max(done, shown[0]) if total == shown[1] else done, total
-            progress(shown[0], total)
+            shown[:] = [done, total]
+            progress(done, total)
     return report
 
 

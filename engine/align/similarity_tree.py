@@ -298,7 +298,7 @@ def similarity_tree(D, *, root=None, threshold=None, criterion="median", kind=DE
     if kind == "steps":
         from engine.align.step_tree import step_tree
 
-        edges, _ = step_tree(D, int(root), lengths)
+        edges, _ = step_tree(D, int(root), lengths, spanning=edges)  # (the spanning tree's edges, made above)
         weights = D[edges[:, 0], edges[:, 1]]
     elif kind == "paths":
         costs = graph.copy()

@@ -67,35 +67,37 @@ def step_cost(d, near, unit=STEP_UNIT):
     return STEP_HOP + np.where(near, STEP_NEAR * x ** 2, STEP_FAR * x ** 4)
 
 
-def step_graph(D, lengths=None, neighbours=STEP_NEIGHBOURS):
+def step_graph(D, lengths=None, neighbours=STEP_NEIGHBOURS, spanning=None):
     """The steps a path may take, each with its :func:`step_cost`: every frame to its
     ``neighbours`` most similar frames, to its neighbours in time, and the edges of the minimum
-    spanning tree (so every frame is reachable). Symmetric sparse (N, N)."""
+    spanning tree (so every frame is reachable; ``spanning``, (N - 1, 2) edges, when the caller
+    has it: :func:`engine.align.similarity_tree.similarity_tree` has). Symmetric sparse (N, N)."""
     D = np.asarray(D, dtype=np.float64)
     n = len(D)
     k = min(int(neighbours), n - 1)
     off = D + np.diag(np.full(n, np.inf))
     nearest = np.argpartition(off, k - 1, axis=1)[:, :k] if k > 0 else np.zeros((n, 0), dtype=np.int64)
-    rows = [np.repeat(np.arange(n), k), nearest.ravel()]
     timed = temporal_neighbours(lengths, n)
-    mst = minimum_spanning_tree(sp.csr_matrix(np.triu(np.maximum(D, np.finfo(float).tiny), 1))).tocoo()
-    i = np.concatenate([rows[0], timed[:, 0], mst.row])
-    j = np.concatenate([rows[1], timed[:, 1], mst.col])
+    if spanning is None:
+        mst = minimum_spanning_tree(sp.csr_matrix(np.triu(np.maximum(D, np.finfo(float).tiny), 1))).tocoo()
+        spanning = np.stack([mst.row, mst.col], axis=1)
+    spanning = np.asarray(spanning, dtype=np.int64).reshape(-1, 2)
+    i = np.concatenate([np.repeat(np.arange(n), k), timed[:, 0], spanning[:, 0]])
+    j = np.concatenate([nearest.ravel(), timed[:, 1], spanning[:, 1]])
     lo, hi = np.minimum(i, j), np.maximum(i, j)
     keep = lo != hi
     pair = np.unique(np.stack([lo[keep], hi[keep]], axis=1), axis=0)
-    near = np.zeros(len(pair), dtype=bool)
-    if len(timed):
-        near = np.isin(pair[:, 0] * n + pair[:, 1], timed[:, 0] * n + timed[:, 1])
+    near = np.isin(pair[:, 0] * n + pair[:, 1], timed[:, 0] * n + timed[:, 1])
     cost = step_cost(D[pair[:, 0], pair[:, 1]], near)
     graph = sp.coo_matrix((np.concatenate([cost, cost]), (np.concatenate([pair[:, 0], pair[:, 1]]),
                                                           np.concatenate([pair[:, 1], pair[:, 0]]))), shape=(n, n))
     return graph.tocsr()
 
 
-def step_tree(D, root, lengths=None):
-    """Edges (parent, child) of every frame's cheapest path from ``root`` over :func:`step_graph`,
-    and each frame's expected error (the sum of its path's step costs).
+def step_tree(D, root, lengths=None, spanning=None):
+    """Edges (parent, child) of every frame's cheapest path from ``root`` over :func:`step_graph`
+    (``spanning``: the minimum spanning tree's edges, if known), and each frame's expected error
+    (the sum of its path's step costs).
 
     Returns
     -------
@@ -104,7 +106,7 @@ def step_tree(D, root, lengths=None):
     """
     D = np.asarray(D, dtype=np.float64)
     n = len(D)
-    expected, predecessor = dijkstra(step_graph(D, lengths), directed=False, indices=int(root),
+    expected, predecessor = dijkstra(step_graph(D, lengths, spanning=spanning), directed=False, indices=int(root),
                                      return_predecessors=True)
     nodes = np.flatnonzero(predecessor >= 0)
     if len(nodes) != n - 1:
