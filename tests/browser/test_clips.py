@@ -21,9 +21,11 @@ def test_a_replayed_jump_keeps_its_trail(web_server, open_page):
     page.page.check("#trail")
     page.page.click("#reset")  # the jump back to its start, with the trail on
     replays = page.status()["replays"]
+    since = page.log_frames()
     page.page.click("#pause")  # resume: the jump from its start
-    page.wait_status(lambda s: not s["frame"]["finished"] and s["frame"]["time"] < 0.3, what="the jump to start")
-    finished = page.wait_status(lambda s: s["frame"]["finished"], timeout=20, what="the jump to end")
+    start = page.wait_logged(lambda f: not f["finished"] and f["time"] < 0.3, since, what="the jump to start")
+    page.wait_logged(lambda f: f["finished"], start, timeout=20, what="the jump to end")
+    finished = page.wait_status(lambda s: s["frame"]["finished"], what="the jump's end shown")
     distance = float(np.hypot(finished["frame"]["root"][0], finished["frame"]["root"][2]))
     assert distance > 0.8
     page.wait_status(lambda s: s["replays"] > replays and not s["frame"]["finished"] and s["frame"]["time"] < 0.6,

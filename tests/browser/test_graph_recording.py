@@ -76,7 +76,13 @@ def test_a_recorded_graph_session_downloads_and_replays_to_the_frames_shown(reco
     page.page.on("download", lambda download: downloads.append(download))
     page.page.click("#record")
     assert page.page.locator("#record").get_attribute("aria-pressed") == "true"
-    page.wait_status(lambda s: s["frame"]["time"] < 0.5 and s["frame"]["node"] == "walk", what="the stream restarted")
+    # the first frame after Record's reset (it shows time 0 for a moment only: the recorder keeps its seq)
+    restarted = page.wait_status(lambda s: s["recording"] and s["recording"]["firstSeq"] is not None,
+                                 what="the stream restarted")
+    assert restarted["recording"]["kind"] == "graph" and restarted["recording"]["resetSeq"] is not None
+    first_frame = page.page.evaluate("(seq) => window.__frames.find((f) => f.seq === seq)",
+                                     restarted["recording"]["firstSeq"])
+    assert first_frame["time"] == 0 and first_frame["node"] == "walk", first_frame
     page.page.locator("#view").focus()
     page.page.keyboard.press("Space")
     page.wait_status(lambda s: s["frame"]["node"] == "jump", what="Space to jump")

@@ -27,6 +27,15 @@ def free_port():
         return s.getsockname()[1]
 
 
+def _stop_with_parent():
+    """In the server's process before it runs: SIGTERM when the test process dies (Linux's
+    PR_SET_PDEATHSIG), so a pytest killed by a timeout leaves no server behind."""
+    import ctypes
+
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # 1: PR_SET_PDEATHSIG
+
+
 class LiveServer:
     """A ``morphspace serve`` subprocess on 127.0.0.1."""
 
@@ -46,7 +55,8 @@ class LiveServer:
             self.process = subprocess.Popen(
                 [sys.executable, "-m", "server.cli", "serve", "--data-dir", str(self.data_dir),
                  "--port", str(self.port), "--log-level", "warning", *self.args],
-                stdout=log, stderr=subprocess.STDOUT, env=self.env, start_new_session=True)
+                stdout=log, stderr=subprocess.STDOUT, env=self.env, start_new_session=True,
+                preexec_fn=_stop_with_parent)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.process.poll() is not None:

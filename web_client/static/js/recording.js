@@ -28,6 +28,14 @@ export class Recorder {
     $("record").addEventListener("click", () => (this.recording ? this.stop() : this.start()));
   }
 
+  /** What is being recorded, for status(): null, {kind: "space"} or {kind: "graph", resetSeq, steps}. */
+  describe() {
+    const rec = this.recording;
+    if (!rec) return null;
+    if (!(rec instanceof GraphRecording)) return { kind: "space", space: rec.space };
+    return { kind: "graph", resetSeq: rec.resetSeq, firstSeq: rec.firstSeq, steps: rec.times.length - 1 };
+  }
+
   /** See every message the page sends on ``connection`` (a graph recording keeps its requests). */
   watch(connection) {
     const send = connection.send.bind(connection);
