@@ -79,6 +79,9 @@ def add_arguments(parser):
     parser.add_argument("--repair-budget", type=float, default=0.25, metavar="B",
                         help="pairwise alignments per frame the repair of the tree's low-confidence frames may "
                              "spend (see `morphspace align --help`; default 0.25; 0 turns the repair off)")
+    parser.add_argument("--retries", type=int, default=3,
+                        help="other parents tried for a frame whose alignment scores poorly (see `morphspace align "
+                             "--help`; default 3; 0: none)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     parser.add_argument("--patches", type=int, default=30, help="patches at the coarsest level (default 30; as "
                         "`morphspace align`'s)")
@@ -288,6 +291,8 @@ def run(args):
         raise ValueError(f"--every must be >= 1, got {args.every}")
     if not args.repair_budget >= 0:
         raise ValueError(f"--repair-budget must be >= 0, got {args.repair_budget}")
+    if args.retries < 0:
+        raise ValueError(f"--retries must be >= 0, got {args.retries}")
     for name, value in (("--patches", args.patches), ("--levels", args.levels)):
         if value < 1:
             raise ValueError(f"{name} must be >= 1, got {value}")
@@ -340,7 +345,7 @@ def run(args):
             tree_run = align_captures(meshes, lengths, method="tree", tree_kind=args.tree, root=root,
                                       root_choice=args.root_choice, options=options,
                                       workers=args.workers, use_colors=COLOUR_MODES[args.colors], seed=args.seed,
-                                      repair_budget=args.repair_budget, progress=progress)
+                                      retries=args.retries, repair_budget=args.repair_budget, progress=progress)
             root = tree_run.aligned.root
             report["root"] = int(root)
             report["root_trial"] = tree_run.root_trial
@@ -352,7 +357,8 @@ def run(args):
                     report[f"root_{stage}_seconds"] = round(tree_run.timings[stage], 2)
             # wall seconds of every stage: similarity, tree, trial, race, tetrahedralize, align, repair
             report["stage_seconds"] = {stage: round(float(t), 2) for stage, t in tree_run.timings.items()}
-            report["tree"] = {"kind": args.tree, "repair_budget": args.repair_budget, "swing_limbs": args.swing_limbs,
+            report["tree"] = {"kind": args.tree, "retries": args.retries, "repair_budget": args.repair_budget,
+                              "swing_limbs": args.swing_limbs,
                               "reach_limbs": args.reach_limbs,
                               "depth_max": int(tree_run.tree.depth.max()),
                               "depth_mean": round(float(tree_run.tree.depth.mean()), 2),

@@ -262,8 +262,29 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
     assert coarse["tree"]["frames"] == 4 and coarse["tree"]["mean_pct"] != report["tree"]["mean_pct"]
     assert main(["eval-align", str(dataset), "--levels", "0"]) == 2
     assert main(["eval-align", str(dataset), "--every", "0"]) == 2
+    assert main(["eval-align", str(dataset), "--retries", "-1"]) == 2
+    assert "--retries must be >= 0, got -1" in capsys.readouterr().err
     assert main(["eval-align", str(dataset), "--repair-budget", "-1"]) == 2
     assert "--repair-budget must be >= 0, got -1" in capsys.readouterr().err
+
+
+def test_eval_align_passes_retries_to_the_tree(dataset, tmp_path, capsys, monkeypatch):
+    """``--retries`` is align's: it reaches the tree's alignment (not the sequential baseline) and the report."""
+    import server.commands.eval_align as eval_align
+
+    seen = []
+    real = eval_align.align_captures
+
+    def recording(*args, **kwargs):
+        seen.append((kwargs.get("method"), kwargs.get("retries", 3)))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(eval_align, "align_captures", recording)
+    assert main(["eval-align", str(dataset), "--every", "2", "--out", str(tmp_path / "eval"), "--json",
+                 "--workers", "1", "--repair-budget", "0", "--retries", "0"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert seen == [("tree", 0), ("sequential", 3)]  # the baseline's default: align_tree gives it none
+    assert report["tree"]["retries"] == 0 and report["tree"]["retried_frames"] == 0
 
 
 def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, capsys):
