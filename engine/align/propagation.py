@@ -15,6 +15,7 @@ import numpy as np
 
 from engine.align.pieces import align_piece, init_worker, piece_task, portable_aligner, run_piece
 
+RETRY_FACTOR = 1.8  # a frame scoring above this many times the median so far tries other parents (was 2.5)
 MOMENTUM = 0.5  # share of the last step (grandparent -> parent) a frame in line in time starts ahead by
 
 
@@ -117,7 +118,7 @@ def partition_tree(parent, order, chunk):
     return task_of, heads, task_parent
 
 
-def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3, retry_factor=2.5, chunk=48,
+def align_tree(aligner, meshes, tree, *, yaw=None, dissimilarity=None, retries=3, retry_factor=RETRY_FACTOR, chunk=48,
                workers=1, progress=None, runner=None, lengths=None, momentum=MOMENTUM):
     """Align every frame along a rooted tree, each from its parent's aligned pose.
 
@@ -309,4 +310,5 @@ def mesh_arrays(mesh, use_colours):
             None if (C is None or not use_colours) else np.asarray(C, dtype=np.float64))
 
 
-__all__ = ["AlignedFrames", "MOMENTUM", "align_tree", "in_line_grandparents", "mesh_arrays", "partition_tree"]
+__all__ = ["AlignedFrames", "MOMENTUM", "RETRY_FACTOR", "align_tree", "in_line_grandparents", "mesh_arrays",
+           "partition_tree"]
