@@ -28,7 +28,8 @@ export class Recorder {
     $("record").addEventListener("click", () => (this.recording ? this.stop() : this.start()));
   }
 
-  /** What is being recorded, for status(): null, {kind: "space"} or {kind: "graph", resetSeq, steps}. */
+  /** What is being recorded, for status(): null, {kind: "space", space} or {kind: "graph", resetSeq,
+   * firstSeq (the first frame after the reset, null until it comes), steps}. */
   describe() {
     const rec = this.recording;
     if (!rec) return null;
