@@ -358,8 +358,7 @@ def run(args):
             # wall seconds of every stage: similarity, tree, trial, race, tetrahedralize, align, repair
             report["stage_seconds"] = {stage: round(float(t), 2) for stage, t in tree_run.timings.items()}
             report["tree"] = {"kind": args.tree, "retries": args.retries, "repair_budget": args.repair_budget,
-                              "swing_limbs": args.swing_limbs,
-                              "reach_limbs": args.reach_limbs,
+                              "swing_limbs": args.swing_limbs, "reach_limbs": args.reach_limbs,
                               "depth_max": int(tree_run.tree.depth.max()),
                               "depth_mean": round(float(tree_run.tree.depth.mean()), 2),
                               "components_reconnected": int(tree_run.tree.components)}

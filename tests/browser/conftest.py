@@ -147,7 +147,7 @@ class Page:
         raise AssertionError(f"timed out after {timeout} s waiting for {what}; last status: {status}")
 
     def log_frames(self):
-        """From now on, keep every received frame's head (seq, time, finished, node) in the page.
+        """From now on, keep every received frame's head (seq, time, finished, node, root) in the page.
 
         ``status()`` shows only the latest frame: a state that lasts a fraction of a second of
         stream time (a clip's first frames) can come and go between two polls on a loaded
@@ -158,7 +158,8 @@ class Page:
             window.__frameLog = [];
             const frame = c.handlers.frame;
             c.handlers.frame = (m) => {
-              window.__frameLog.push({seq: m.seq, time: m.time, finished: !!m.finished, node: m.node ?? null});
+              window.__frameLog.push({seq: m.seq, time: m.time, finished: !!m.finished, node: m.node ?? null,
+                                      root: m.root});
               frame(m);
             };
           }
@@ -167,14 +168,14 @@ class Page:
 
     def wait_logged(self, predicate, since=0, timeout=15.0, what="a frame"):
         """Wait until a frame logged at or after index ``since`` (:meth:`log_frames`) satisfies
-        ``predicate(head)``; returns its index in the log."""
+        ``predicate(head)``; returns (its index in the log, the head)."""
         deadline = time.monotonic() + timeout
         seen = since
         while time.monotonic() < deadline:
             heads = self.page.evaluate("(since) => window.__frameLog.slice(since)", seen)
             for k, head in enumerate(heads):
                 if predicate(head):
-                    return seen + k
+                    return seen + k, head
             seen += len(heads)
             self.page.wait_for_timeout(100)
         raise AssertionError(f"timed out after {timeout} s waiting for {what}; {seen - since} frames logged since, "

@@ -23,13 +23,14 @@ def test_a_replayed_jump_keeps_its_trail(web_server, open_page):
     replays = page.status()["replays"]
     since = page.log_frames()
     page.page.click("#pause")  # resume: the jump from its start
-    start = page.wait_logged(lambda f: not f["finished"] and f["time"] < 0.3, since, what="the jump to start")
-    page.wait_logged(lambda f: f["finished"], start, timeout=20, what="the jump to end")
-    finished = page.wait_status(lambda s: s["frame"]["finished"], what="the jump's end shown")
-    distance = float(np.hypot(finished["frame"]["root"][0], finished["frame"]["root"][2]))
+    start, _ = page.wait_logged(lambda f: not f["finished"] and f["time"] < 0.3, since, what="the jump to start")
+    end, landing = page.wait_logged(lambda f: f["finished"], start, timeout=20, what="the jump to end")
+    distance = float(np.hypot(landing["root"][0], landing["root"][2]))
     assert distance > 0.8
-    page.wait_status(lambda s: s["replays"] > replays and not s["frame"]["finished"] and s["frame"]["time"] < 0.6,
-                     timeout=15, what="the clip to play again")
+    # the replay 0.7 s after the end: its first frames from the log, the page's count of replays from status()
+    page.wait_logged(lambda f: not f["finished"] and f["time"] < 0.6, end, timeout=15, what="the clip to play again")
+    page.wait_status(lambda s: s["replays"] > replays, what="the replay counted")
+    page.wait_frames(3)  # drawn past the replay's start, where the trail used to be cleared
     spots = page.page.evaluate("window.morphspace.viewer.trail.meshes.filter(m => m.visible)"
                                ".map(m => [m.position.x, m.position.z])")
     along = np.hypot(*np.asarray(spots).T)

@@ -276,14 +276,14 @@ def test_eval_align_passes_retries_to_the_tree(dataset, tmp_path, capsys, monkey
     real = eval_align.align_captures
 
     def recording(*args, **kwargs):
-        seen.append((kwargs.get("method"), kwargs.get("retries", 3)))
+        seen.append((kwargs.get("method"), kwargs.get("retries")))
         return real(*args, **kwargs)
 
     monkeypatch.setattr(eval_align, "align_captures", recording)
     assert main(["eval-align", str(dataset), "--every", "2", "--out", str(tmp_path / "eval"), "--json",
                  "--workers", "1", "--repair-budget", "0", "--retries", "0"]) == 0
     report = json.loads(capsys.readouterr().out)
-    assert seen == [("tree", 0), ("sequential", 3)]  # the baseline's default: align_tree gives it none
+    assert seen == [("tree", 0), ("sequential", None)]  # the baseline is never retried (align_captures)
     assert report["tree"]["retries"] == 0 and report["tree"]["retried_frames"] == 0
 
 

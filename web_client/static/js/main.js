@@ -450,7 +450,7 @@ window.morphspace = {
       action: state.action && { ...state.action }, shownParameters: (state.topology?.parameters ?? []).map((p) => p.name),
       stats: stats.snapshot(), framesDrawn: viewer.framesDrawn, errors: state.errors.map((e) => `${e.code}: ${e.message}`),
       spaces: state.spaces.map((s) => s.name), lastParamsSeq: connection.seq, replays: state.replays,
-      recording: recorder.describe(), socketOpen: connection.open,
+      recording: recorder.describe(),
       camera: frame ? viewer.rig.describe(frame.root, frame.heading) : { preset: viewer.rig.preset },
       heatScale: viewer.heatmap.scale, compared: comparison.shown, drawnSeq: viewer.lastFrame?.seq ?? null,
     };
