@@ -136,7 +136,8 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     repair : bool               with the tree: align frames of low confidence again from the
                                 root and trusted similar frames (:mod:`engine.align.repair`)
     repair_budget : float or None   pairwise alignments per frame the repair may spend (the
-                                worst frames first; None: every flagged frame is repaired)
+                                flagged frames most like the root first: :mod:`engine.align.repair`;
+                                None: every flagged frame is repaired)
     progress : callable(stage, done, total) or None
         stages "histograms", "dissimilarity", "root", "trial", "race", "align", "repair"
     runner : task runner or None   runs the histogram chunks, matrix blocks, tree pieces and repairs as

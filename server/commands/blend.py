@@ -89,7 +89,7 @@ def run(args):
         for mode in ("linear", "hybrid"):
             error = np.linalg.norm(result[mode] - result["nonlinear"], axis=1)
             print(f"  {mode:<7} vs non-linear: max {length_text(error.max(), convention, size)}, "
-                  f"mean {length_text(error.mean(), convention)}")
+                  f"mean {length_text(error.mean(), convention, size)}")
     return 0
 
 

@@ -63,7 +63,9 @@ def test_blend_compare_reports_errors(arms, capsys):
     assert main(["blend", str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "0.5", "0.5",
                  "--mode", "hybrid", "--compare", "--out", str(folder / "cmp.obj")]) == 0
     out = capsys.readouterr().out
-    assert "linear  vs non-linear: max" in out and "hybrid  vs non-linear: max" in out
+    for mode in ("linear ", "hybrid "):  # max and mean, each in the data's unit and in % of the model size
+        assert re.search(rf"{mode} vs non-linear: max \d+\.\d\d mm \([\d.e+-]+% of model size\), "
+                         rf"mean \d+\.\d\d mm \([\d.e+-]+% of model size\)", out), out
 
 
 def test_blend_shows_its_stages_on_stderr_and_keeps_stdout_and_output(arms, capsys):
