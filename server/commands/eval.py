@@ -69,7 +69,8 @@ def capture_truth(space, dataset):
         sources.append({"name": name, "speed": speeds[-1], "turn_rate": turns[-1]})
     if len(fps) != 1:
         raise ValueError(f"{dataset}: the sources have different frame rates {sorted(fps)}")
-    body = build_body(int(manifest["body"]["vertices"]), float(manifest["body"]["height"]))
+    height = manifest["body"].get("height")  # null in datasets synthesised before 2026-11-30: the default
+    body = build_body(int(manifest["body"]["vertices"]), *(() if height is None else (float(height),)))
     if len(body.V) != space.n_vertices:
         raise ValueError(f"{dataset}: its body has {len(body.V)} vertices, the space {space.n_vertices}")
     true_motion = evaluation.gait_truth(body, speeds, turn_rates=turns, fps=fps.pop())

@@ -194,7 +194,7 @@ def run(args):
         raise
     manifest = {
         "preset": preset.name, "seed": args.seed, "fps": fps, "noise_mm": noise_mm,
-        "body": {"vertices": int(len(body.V)), "faces": int(len(body.F)), "height": args.height,
+        "body": {"vertices": int(len(body.V)), "faces": int(len(body.F)), "height": height,
                  "model_size": body.size, "up": "+Y", "forward": "+Z", "units": "m"},
         "skeleton": body.skeleton.to_dict(),
         "consistent_format": consistent_format,

@@ -29,6 +29,7 @@ def run_ingest(payload, reporter):
 
     from engine.mesh_io import MeshError, list_frames, read_mesh, write_obj
     from engine.mesh_io.dataset import write_capture_manifest
+    from engine.mesh_io.mesh_file import mesh_file_type
     from engine.surface import model_size
     from server.uploads import KINDS, FrameStats, sequence_meta
     from server.units import decide_convention, declared_convention
@@ -93,6 +94,8 @@ def run_ingest(payload, reporter):
         (out / "sequences" / seq / "meta.json").write_text(json.dumps(record, indent=2) + "\n")
     if (source / "template").is_dir():
         for path in sorted((source / "template").iterdir()):
+            if mesh_file_type(path.name) is None:  # a textured template's .mtl and images: read with it
+                continue
             try:
                 mesh = read_mesh(path, name=f"{params['dataset']}/template/{path.name}")
             except MeshError as exc:

@@ -51,7 +51,8 @@ def member_parts(name):
             raise UploadError(422, f"{name}: {part!r} has characters other than letters, digits, space and "
                                    "_ - . @ + = , ( ) (or is longer than 128)")
     if len(parts) > MAX_DEPTH:
-        raise UploadError(422, f"{name}: nested {len(parts)} folders deep; see the accepted layouts in docs/rest.md")
+        raise UploadError(422, f"{name}: {len(parts)} path parts deep (at most {MAX_DEPTH}, the file name included); "
+                               "see the accepted layouts in docs/rest.md")
     return parts
 
 

@@ -69,8 +69,8 @@ async def receive_dataset(request, settings, *, name, fps=30.0, cyclic=False, re
     target = dataset_path(settings, name)
     if target.exists() and not replace:
         raise UploadError(409, f"dataset {name!r} already exists (pass replace=true to replace it)")
-    if target.exists() and busy is not None and busy(name):
-        raise UploadError(409, f"dataset {name!r} is used by a queued or running job; it cannot be replaced now")
+    if busy is not None and busy(name):  # reads it, or will write it as its output
+        raise UploadError(409, f"dataset {name!r} is used by a queued or running job; it cannot be written now")
     limits = Limits.from_settings(settings)
     settings.datasets_dir.mkdir(parents=True, exist_ok=True)
     staging = settings.datasets_dir / f"{STAGING_PREFIX}{uuid.uuid4().hex[:12]}"

@@ -83,6 +83,21 @@ def test_eval_sweep_and_ground_truth(dataset, capsys):
     assert gt["summary"]["nonlinear"]["mean_mm"] < gt["summary"]["linear"]["mean_mm"]
 
 
+def test_eval_ground_truth_of_a_dataset_without_a_recorded_height(dataset, tmp_path, capsys):
+    """Datasets synthesised before 2026-11-30 record ``"height": null`` for the default body (1.75 m)."""
+    import shutil
+
+    space, captures = dataset
+    old = tmp_path / "old-captures"
+    shutil.copytree(captures, old)
+    manifest = json.loads((old / "manifest.json").read_text())
+    manifest["body"]["height"] = None
+    (old / "manifest.json").write_text(json.dumps(manifest))
+    result = run_json(capsys, ["eval", str(space), "--json", "--out", str(tmp_path / "out"), "--captures", str(old),
+                               "--timing-calls", "5"])
+    assert all(s["max_mm"] < 1.0 for s in result["ground_truth"]["sources"])
+
+
 def test_eval_prints_tables(dataset, tmp_path, capsys):
     space, _ = dataset
     assert main(["eval", str(space), "--out", str(tmp_path), "--timing-calls", "5",

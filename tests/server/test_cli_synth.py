@@ -24,6 +24,7 @@ def test_dataset_layout_and_manifest(tiny):
     manifest = read_capture_manifest(tiny)
     assert [s["name"] for s in manifest["sequences"]] == ["walk", "jump"]
     assert manifest["body"]["model_size"] == pytest.approx(1.75, abs=0.02)
+    assert manifest["body"]["height"] == 1.75  # the height the body was built at (no --height given)
     for name in ("walk", "jump"):
         base = tiny / "sequences" / name
         meta = json.loads((base / "meta.json").read_text())

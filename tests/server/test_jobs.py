@@ -240,6 +240,49 @@ def test_ingest_records_the_units_and_up_axis_it_finds(client, live):
             np.testing.assert_array_equal(a.vertices, b.vertices)
 
 
+def test_ingest_of_a_dataset_with_a_textured_template(client, live, dataset_zip, tmp_path):
+    """An uploaded template may come textured (OBJ, MTL and image side by side in template/): the
+    ingest reads the mesh with its texture and writes it as body.obj with vertex colours."""
+    from engine.mesh_io import read_mesh
+    from engine.mesh_io.atlas import write_textured
+
+    frame = read_mesh(live.data_dir / "datasets" / "gaits" / "sequences" / "slow" / "consistent" / "frame_0000.obj")
+    colours = np.tile([[0.2, 0.5, 0.8]], (len(frame.vertices), 1))
+    write_textured(tmp_path / "body.obj", frame.vertices, frame.faces, colours)
+    buffer = io.BytesIO(dataset_zip)
+    with zipfile.ZipFile(buffer, "a") as archive:
+        for path in sorted(tmp_path.iterdir()):
+            archive.write(path, f"template/{path.name}")
+    client.post("/v1/datasets", params={"name": "gaits_textured"}, content=buffer.getvalue(),
+                headers={**AUTH, "Content-Type": "application/zip"}).raise_for_status()
+    assert sorted(p.name for p in (live.data_dir / "datasets" / "gaits_textured" / "template").iterdir()) == \
+        ["body.mtl", "body.obj", "body.png"]
+    r = client.post("/v1/jobs", json={"kind": "ingest", "dataset": "gaits_textured", "output": "gaits_textured_clean"},
+                    headers=AUTH)
+    job = wait_for(client, r.json()["id"], lambda j: j["status"] in FINAL, timeout=60)
+    assert job["status"] == "succeeded", job
+    template = live.data_dir / "datasets" / "gaits_textured_clean" / "template"
+    assert sorted(p.name for p in template.iterdir()) == ["body.obj"]
+    body = read_mesh(template / "body.obj")
+    assert len(body.vertices) == len(frame.vertices) and np.abs(body.colors - colours).max() < 0.01
+
+
+def test_an_upload_cannot_take_the_name_a_queued_job_will_write(client, live, dataset_zip):
+    running = client.post("/v1/jobs", json=build_request("busy_space"), headers=AUTH).json()
+    queued = client.post("/v1/jobs", json={"kind": "ingest", "dataset": "gaits", "output": "pending_out"},
+                         headers=AUTH).json()
+    try:
+        wait_for(client, running["id"], lambda j: j["status"] == "running")
+        assert client.get(f"/v1/jobs/{queued['id']}").json()["status"] == "queued"  # one local worker slot
+        r = client.post("/v1/datasets", params={"name": "pending_out"}, content=dataset_zip,
+                        headers={**AUTH, "Content-Type": "application/zip"})
+        assert r.status_code == 409 and "used by a queued or running job" in r.json()["detail"], r.text
+        assert not (live.data_dir / "datasets" / "pending_out").exists()
+    finally:
+        for job in (queued, running):
+            client.post(f"/v1/jobs/{job['id']}/cancel", headers=AUTH)
+
+
 def test_a_job_left_running_by_a_crashed_server_is_run_again(tmp_path, dataset_zip):
     data = tmp_path / "crash-data"
     first = LiveServer(data, env={"MORPHSPACE_TOKEN": TOKEN}).start()
