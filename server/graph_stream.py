@@ -352,7 +352,7 @@ async def on_hello(session, m):
         _, _, clamped, message = node.solve(stream.player.params_of(node.name))
         if clamped:
             await session.send(P.Notice(code="clamped", message=message, seq=m.seq))
-    session.seq = session.acked_frame = 0
+    session.seq = session.acked_frame = session.ack = session.dropped = 0  # afresh: as on a new connection
     session.waiting_ack = False
     session.stalled_since = None
     session.next_due = asyncio.get_running_loop().time()

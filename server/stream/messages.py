@@ -73,7 +73,7 @@ async def on_hello(session, m):
         limits=dict(session.limits)))
     if solution is not None and solution.clamped:  # before the first frame, as a params message's
         await session.send(P.Notice(code="clamped", message=solution.message, seq=m.seq))
-    session.seq = session.acked_frame = session.ack = 0  # afresh: acks count from this hello's seq
+    session.seq = session.acked_frame = session.ack = session.dropped = 0  # afresh: acks count from this hello's seq
     session.waiting_ack = False
     session.stalled_since = None
     session.next_due = asyncio.get_running_loop().time()

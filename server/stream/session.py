@@ -202,8 +202,10 @@ class StreamSession(FrameOutput):
         except P.ProtocolError as exc:
             failure = exc
         if not self.bucket.take(0.25 if isinstance(message, P.Ack) else 1.0):
+            ref, seq = (message.type, message_seq(message)) if message is not None else \
+                (failure.ref, failure.seq)  # what could be read of it
             await self.error("rate_limited", f"more than {self.settings.stream_max_rate:g} messages per second "
-                                             f"(burst {self.settings.stream_burst}); message dropped")
+                                             f"(burst {self.settings.stream_burst}); message dropped", ref, seq)
             return
         try:
             if failure is not None:
@@ -215,7 +217,8 @@ class StreamSession(FrameOutput):
             await self.error("invalid_field", str(exc), message.type, message_seq(message))
         except Exception as exc:  # noqa: BLE001 - report, keep the connection and the server
             log.exception("stream: failed to apply %r", data[:200])
-            await self.error("internal", f"the server failed on this message: {type(exc).__name__}: {exc}")
+            await self.error("internal", f"the server failed on this message: {type(exc).__name__}: {exc}",
+                             message.type, message_seq(message))
 
     async def _apply(self, m):
         """Hand client message ``m`` to its handler (server/stream/messages.py; on a graph stream,

@@ -110,3 +110,42 @@ def test_the_picker_lists_graphs_beside_spaces(graph_web_server, open_page):
     page.page.keyboard.press("Space")
     page.wait_status(lambda s: s["paused"], what="Space to pause a space")
     assert page.errors() == []
+
+
+def test_the_frame_on_screen_of_a_graph_downloads_from_its_node_space(graph_web_server, open_page, tmp_path):
+    """The OBJ link of a graph's frame asks the space of the node shown (the walk's) for the same pose."""
+    page = open_page(graph_web_server.url + "/app/?graph=tiny&p.speed=1.2")
+    page.wait_status(lambda s: s["topologySpace"] == "graph:tiny" and s["framesDrawn"] > 2
+                     and s["frame"]["node"] == "walk", what="the graph streaming")
+    page.page.click("#pause")
+    page.wait_status(lambda s: s["paused"], what="the pause")
+    page.wait_status(lambda s: s["drawnSeq"] == s["frame"]["seq"], what="the last frame drawn")
+    shown = np.asarray(page.page.evaluate("Array.from(window.morphspace.viewer.mesh.geometry.attributes.position.array)"),
+                       dtype=float).reshape(-1, 3)
+    with page.page.expect_download(timeout=20000) as download:
+        page.page.click("#download-obj")
+    path = tmp_path / download.value.suggested_filename
+    download.value.save_as(path)
+    assert path.name.startswith("tiny-walk-") and path.suffix == ".obj", path.name
+    V = np.array([[float(x) for x in line.split()[1:4]] for line in path.read_text().splitlines()
+                  if line.startswith("v ")])
+    assert V.shape == shown.shape
+    distance = np.linalg.norm(V - shown, axis=1)  # the same pose, root-local (q16 on screen)
+    assert distance.max() < 0.002, distance.max()
+    assert page.errors() == []
+
+
+def test_a_space_recording_ends_when_the_page_switches_to_a_graph(graph_web_server, open_page):
+    """Record on a space, then pick a graph: the space's recording ends and downloads there
+    (docs/web-client.md, Download)."""
+    page = open_page(graph_web_server.url + "/app/?space=walk")
+    page.wait_status(lambda s: s["topologySpace"] == "walk" and s["framesDrawn"] > 2, what="the walk space")
+    page.page.click("#record")
+    page.page.wait_for_function("document.getElementById('record').textContent !== 'Stop (0 s)'",
+                                polling=100, timeout=10000)
+    with page.page.expect_download(timeout=60000) as info:
+        page.page.locator("#space").select_option("graph:tiny")
+    assert info.value.suggested_filename == "walk-recording.glb"
+    assert page.page.locator("#record").get_attribute("aria-pressed") == "false"
+    page.wait_status(lambda s: s["topologySpace"] == "graph:tiny" and s["recording"] is None, what="the graph")
+    assert page.errors() == []

@@ -248,3 +248,28 @@ def test_a_replaced_action_is_told_and_a_queued_one_planned_later(graph_server):
     assert told.count(("superseded", first)) == 1 and all(code != "superseded" or seq == first for code, seq in told)
     assert max(f.requested.get("reach_height", 0.0) for f in frames if f.node == "reach") == pytest.approx(1.6)
     assert told[-1] == ("planned", shown) and "already there" in notices[-1].message
+
+
+def test_a_graph_hello_after_a_space_starts_the_acks_afresh(graph_server):
+    """A second hello starts the stream afresh, as on a new connection, a graph's too: its frames'
+    ack is the hello's seq, not the space stream's highest (as it was until 2026-11-30)."""
+    async def go():
+        async with websockets.connect(graph_server.ws_url, max_size=2**26) as ws:
+            await ws.send(msgpack.packb({"type": "hello", "space": "walk", "rate": 30, "seq": 1}))
+            await ws.send(msgpack.packb({"type": "params", "params": {"speed": 1.2}, "seq": 50}))
+            deadline = time.monotonic() + 20
+            while time.monotonic() < deadline:
+                m = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
+                if m["type"] == "frame" and m["ack"] == 50:
+                    break
+            await ws.send(msgpack.packb({"type": "hello", "graph": "tiny", "rate": 30, "seq": 2}))
+            while time.monotonic() < deadline:
+                m = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
+                if m["type"] == "topology":
+                    break
+            while time.monotonic() < deadline:
+                m = msgpack.unpackb(await asyncio.wait_for(ws.recv(), 5))
+                if m["type"] == "frame":
+                    return m
+    first = run(go())
+    assert first["node"] is not None and first["seq"] == 1 and first["ack"] == 2 and first["dropped"] == 0, first

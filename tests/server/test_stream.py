@@ -376,10 +376,11 @@ def test_every_client_message_has_one_handler():
 
 
 def test_a_message_flood_is_rate_limited_not_fatal(server):
-    flood = [{"type": "seek", "phase": 0.1}] * 400
+    flood = [{"type": "seek", "phase": 0.1, "seq": 9}] * 400
     errors, alive = run(raw_session(server.ws_url, flood))
     codes = {e.get("code") for e in errors}
     assert codes == {"rate_limited"}
+    assert {(e["ref"], e["seq"]) for e in errors} == {("seek", 9)}  # the dropped message, as read
     assert alive
 
 

@@ -48,6 +48,8 @@ export function frameUrl(space, defs, frame, format) {
   return `/v1/spaces/${encodeURIComponent(space)}/frame?${query}`;
 }
 
+/** The OBJ and GLB links of the frame on screen: ``current()`` gives {space (whose /frame is asked), name
+ * (of the file), defs (the parameters' definitions), frame} or null (nothing to download). */
 export function setUpDownloads(current) {
   for (const format of ["obj", "glb"]) {
     const link = $(`download-${format}`);
@@ -60,7 +62,7 @@ export function setUpDownloads(current) {
       }
       link.removeAttribute("aria-disabled");
       link.href = frameUrl(now.space, now.defs, now.frame, format);
-      link.download = `${now.space}-${now.frame.mode}-phase${now.frame.phase.toFixed(3)}.${format}`;
+      link.download = `${now.name}-${now.frame.mode}-phase${now.frame.phase.toFixed(3)}.${format}`;
     };
     link.addEventListener("click", update);   // runs before the link is followed
     link.addEventListener("focus", update);

@@ -226,6 +226,7 @@ async function refreshSpaces() {
 }
 
 function chooseSpace(name) {
+  recorder.spaceChosen(name);  // a recording of another space ends here
   const chosen = state.graphs.find((g) => g.name === graphName(name));
   const info = chosen ? null : state.spaces.find((s) => s.name === name);
   state.space = name;
@@ -410,9 +411,13 @@ const recorder = new Recorder(() => {
   return info ? { info, mode: state.mode, rate: state.rate, params: start ? graph.paramsOf(start) : undefined } : null;
 });
 recorder.watch(connection);
-setUpDownloads(() => state.frame && state.topology && keyOf(state.topology) === state.space
-  ? { space: state.topology.graph ? `${state.topology.graph}-${state.frame.node}` : state.space,
-    defs: state.topology.parameters, frame: state.frame } : null);
+setUpDownloads(() => {  // the frame on screen from its space; on a graph, from the space of the node shown
+  if (!state.frame || !state.topology || keyOf(state.topology) !== state.space) return null;
+  if (!state.topology.graph) return { space: state.space, name: state.space, defs: state.topology.parameters, frame: state.frame };
+  const node = state.topology.nodes.find((n) => n.name === state.frame.node);
+  return node ? { space: node.space, name: `${state.topology.graph}-${node.name}`, defs: node.parameters, frame: state.frame }
+    : null;
+});
 
 // ------------------------------------------------------------------ loop
 

@@ -92,6 +92,13 @@ export class Recorder {
     this.say(`Recording ${now.space}: steer, then Stop to download it (at most ${this.recording.limit} s).`, "info", 5000);
   }
 
+  /** The page switched to ``name`` (a space or a graph): a space's recording ends there (a graph's ends
+   * when the stream starts again: GraphRecording.sent). */
+  spaceChosen(name) {
+    const rec = this.recording;
+    if (rec && !(rec instanceof GraphRecording) && rec.space !== name) this.stop();
+  }
+
   /** The targets changed (sliders, keys, stick): a timed request in the recording. */
   changed(space, targets) {
     const rec = this.recording;
