@@ -45,8 +45,8 @@ class AlignmentOptions:
     rigid_iterations : int      ICP iterations of the rigid start
     rotation_prior : float      pull of each tet's rotation towards the source pose's
     search_levels : int         coarse levels whose patches also try articulated hypotheses
-                                (rotations about the joint with the best-fitting neighbour,
-                                the neighbours' motions) and keep the best fitting one
+                                (rotations about the joint with the best-fitting neighbour)
+                                and keep the best fitting one
     search_rounds : int         rounds per such level that search
     swing_limbs : bool          in those rounds, also swing limbs onto the parts of the target
                                 nothing covers (:mod:`engine.align.coverage`): an arm thrown

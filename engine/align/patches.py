@@ -91,8 +91,7 @@ def patch_samples(labels, count, per_patch, rng):
 def search_patches(x, n, target, labels, count, sampled, adjacency, rotations, options):
     """Articulated hypotheses for every patch; the best fitting one (after ICP) wins.
 
-    Hypotheses: the current pose, the motions of the neighbouring patches (as moved in
-    this round relative to their start), and rotations about the joint with the
+    Hypotheses: the current pose and rotations about the joint with the
     best-fitting neighbour (the centre of their shared border) by the search angles about
     the three axes. Each is refined by point-to-plane ICP on a few samples and scored by
     its capped fit cost plus how far it tears the joint open.

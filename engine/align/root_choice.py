@@ -22,7 +22,7 @@ per cent (on the tiny preset, whose procedural body merges nothing, the widest c
 a merged hand or sleeve takes 10-16% off it. Depth costs too: rooted at the
 least merged frame of those 200 (150: 30% less central, 149 frames deep) the alignment erred
 more (3.78% mean) than from the central one (2.50%); the weight picks frame 105 there (0.5%
-less central, spread 11% wider than the central frame 99, whose sleeves are merged with the
+less central, spread 12% wider than the central frame 99, whose sleeves are merged with the
 skirt), for any weight from 0.5 to 2 (docs/evaluation.md).
 """
 
