@@ -17,6 +17,7 @@ Everything is written atomically (temporary name, then rename).
 from __future__ import annotations
 
 import json
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -130,6 +131,10 @@ def read_capture_manifest(root):
     if not isinstance(manifest, dict) or manifest.get("format") != DATASET_FORMAT:
         raise MeshFormatError(f"{path}: not a morphspace capture dataset (format {manifest.get('format')!r})"
                               if isinstance(manifest, dict) else f"{path}: not a JSON object")
+    sequences = manifest.get("sequences", [])
+    if not isinstance(sequences, list) or not all(isinstance(q, dict) and isinstance(q.get("name"), str)
+                                                  for q in sequences):
+        raise MeshFormatError(f"{path}: 'sequences' must be a list of objects with a 'name'")
     if manifest.get("version", 0) > DATASET_VERSION:
         raise MeshFormatError(f"{path}: dataset version {manifest['version']} is newer than this "
                               f"morphspace understands ({DATASET_VERSION})")
@@ -144,5 +149,5 @@ def load_capture_truth(root, name):
             return {k: data[k] for k in data.files}
     except FileNotFoundError:
         raise MeshFormatError(f"{path}: no ground truth for sequence {name!r}") from None
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as exc:
         raise MeshFormatError(f"{path}: unreadable ground truth: {exc}") from None

@@ -62,6 +62,7 @@ def read_ply(data, source, resources=None):
                   (``ply_texture``)
     """
     byte_order, elements, body, textures = _parse_header(data, source)
+    _check_counts(elements, byte_order, len(data) - body, source)
     wanted = {"vertex", "face"}
     values = {}
     if byte_order is None:
@@ -89,6 +90,24 @@ def read_ply(data, source, resources=None):
         if colors is not None:
             mesh = Mesh(mesh.vertices, mesh.faces, colors, source)
     return mesh
+
+
+def _check_counts(elements, byte_order, available, source):
+    """Refuse element counts the file cannot hold (before anything is allocated for them): a
+    binary row takes at least its scalars' and list lengths' bytes, an ascii row at least one
+    byte a value."""
+    need = 0
+    for element in elements:
+        if byte_order is None:
+            row = len(element.properties)
+        else:
+            row = sum((p.count_dtype or p.dtype).itemsize for p in element.properties)
+        need += element.count * row
+    if need > available:
+        counts = ", ".join(f"{e.count} {e.name}" for e in elements)
+        raise MeshFormatError(f"{source}: truncated, or its counts are wrong: the header declares {counts}, "
+                              f"which need at least {need} bytes; "
+                              f"the file has {available} after its header")
 
 
 def _parse_header(data, source):

@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import math
 import os
 import shutil
 import sys
@@ -208,8 +209,15 @@ def _sequence_entry(path, body=None):
     if (path / "meta.json").is_file():
         try:
             meta = json.loads((path / "meta.json").read_text())
-        except (OSError, json.JSONDecodeError) as exc:
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise MeshFormatError(f"{path / 'meta.json'}: unreadable: {exc}") from None
+        if not isinstance(meta, dict):
+            raise MeshFormatError(f"{path / 'meta.json'}: not a JSON object")
+        fps = meta.get("fps")
+        if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float))
+                                or not (math.isfinite(fps) and 0 < fps <= MAX_FPS)):
+            raise MeshFormatError(f"{path / 'meta.json'}: fps must be a number above 0 and at most {MAX_FPS:g}, "
+                                  f"got {fps!r}")
     frames = path / "unstructured" if (path / "unstructured").is_dir() else path
     name = (meta or {}).get("name") or (path.stem if path.suffix.lower() == ".zip" else path.name)
     if body is None and (path.parent.parent / "manifest.json").is_file():  # a sequence of a dataset
@@ -248,6 +256,7 @@ def parse_root(text, sequences, lengths):
 
 
 DEFAULT_FPS = 30.0  # the frame rate of inputs without a meta.json, unless --fps says
+MAX_FPS = 1000.0    # frame rates are in (0, MAX_FPS], as uploads take them (docs/rest.md)
 
 
 def read_inputs(sequences, progress=None, *, say=None):
@@ -469,15 +478,33 @@ def _file_name(source):
     return PurePosixPath(member).name if sep else Path(str(source)).name
 
 
+def check_output(out, inputs, force):
+    """Refuse an output directory ``out`` that would destroy what it is made from or cannot be
+    written, before any work: an existing one without ``force``, a file, an input or a directory
+    holding one (``--force`` would delete it), a directory inside an input."""
+    if out.exists() and not force:
+        raise FileExistsError(f"{out} already exists; pass --force to replace it")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out} is a file, not a directory: name a directory for the output")
+    target = out.resolve()
+    for path in inputs:
+        source = Path(path).resolve()
+        if target == source or target in source.parents:
+            raise ValueError(f"--out {out} holds the input {path}: replacing it would delete the frames being aligned")
+        if source in target.parents:
+            raise ValueError(f"--out {out} is inside the input {path}: name a directory outside it")
+
+
 def run(args):
     out = args.out
-    if out.exists() and not args.force:
-        raise FileExistsError(f"{out} already exists; pass --force to replace it")
+    check_output(out, args.inputs, args.force)
     for name, value, low in (("--window", args.window, 0), ("--patches", args.patches, 1),
                              ("--levels", args.levels, 1), ("--retries", args.retries, 0),
                              ("--workers", args.workers, 1), ("--repair-budget", args.repair_budget, 0)):
-        if value < low:
-            raise ValueError(f"{name} must be >= {low}, got {value}")
+        if not value >= low or not math.isfinite(value):  # (NaN fails both)
+            raise ValueError(f"{name} must be a number >= {low}, got {value}")
+    if args.fps is not None and not (math.isfinite(args.fps) and 0 < args.fps <= MAX_FPS):
+        raise ValueError(f"--fps must be above 0 and at most {MAX_FPS:g} frames/s, got {args.fps}")
     sequences = resolve_inputs(args.inputs, args.only)
     progress = Progress()
     started = time.perf_counter()

@@ -36,6 +36,9 @@ from server.progress import StageBars
 from server.units import add_units_arguments, length_text, meshes_to_metres, say_conventions
 
 
+MAX_SIZE_RATIO = 10.0  # inputs whose sizes differ more than this are in different units
+
+
 def add_arguments(parser):
     parser.add_argument("meshes", nargs="+", type=Path, help="two or more meshes with the same topology")
     parser.add_argument("--weights", nargs="+", type=float, required=True,
@@ -62,6 +65,15 @@ def _load(paths, progress):
                              "blending needs meshes with the same topology")
         if mesh.faces.shape != first.faces.shape or not np.array_equal(mesh.faces, first.faces):
             raise ValueError(f"{path} has different faces from {paths[0]}; blending needs the same topology")
+    sizes = [model_size(mesh.vertices) for mesh in meshes]
+    for path, size in zip(paths, sizes):
+        if not (np.isfinite(size) and size > 0):
+            raise ValueError(f"{path}: model size must be positive and finite, got {size} (all its vertices at "
+                             "one point): nothing to blend")
+    big, small = int(np.argmax(sizes)), int(np.argmin(sizes))
+    if sizes[big] > MAX_SIZE_RATIO * sizes[small]:  # one decision of units for all: the same units, or a mistake
+        raise ValueError(f"{paths[big]} is {sizes[big] / sizes[small]:.0f} times the size of {paths[small]}: "
+                         "blend meshes in the same units (convert one, e.g. from millimetres to metres)")
     return meshes
 
 
@@ -71,10 +83,13 @@ def run(args):
     if len(args.weights) != len(args.meshes):
         raise ValueError(f"{len(args.meshes)} meshes need {len(args.meshes)} weights, got {len(args.weights)}")
     w = np.asarray(args.weights, dtype=np.float64)
-    if not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+    if not np.all(np.isfinite(w)) or np.any(w < 0) or w.max() <= 0:
         raise ValueError(f"weights must be finite, non-negative and not all zero, got {args.weights}")
-    if args.epsilon_mm <= 0:
-        raise ValueError(f"--epsilon-mm must be > 0, got {args.epsilon_mm}")
+    w = w / w.max()  # (then their sum cannot overflow: 1e308 and 1e308 blend half and half)
+    if not (np.isfinite(args.epsilon_mm) and args.epsilon_mm > 0):
+        raise ValueError(f"--epsilon-mm must be a finite number > 0, got {args.epsilon_mm}")
+    if args.out.is_dir():
+        raise ValueError(f"--out {args.out} is a directory: name the output mesh file (.obj, .ply or .off)")
     bars = StageBars()
     try:
         (meshes, convention), result, elapsed = _blend(args, w, bars)

@@ -22,6 +22,7 @@ import json
 import os
 import sys
 import time
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -98,7 +99,17 @@ def _truth(dataset, sequences, picks, counts):
     template = read_mesh(dataset / "template" / "body.obj")
     parts = []
     for s, pick, count in zip(sequences, picks, counts):
-        positions = load_capture_truth(dataset, s["name"])["template_positions"]
+        truth = load_capture_truth(dataset, s["name"])
+        where = f"{dataset}/sequences/{s['name']}/truth.npz"
+        positions = truth.get("template_positions")
+        if positions is None:
+            raise MeshFormatError(f"{where}: no template_positions (the true place of every template vertex in "
+                                  "every frame): not a morphspace synth ground truth")
+        if positions.ndim != 3 or positions.shape[1:] != (len(template.vertices), 3):
+            raise MeshFormatError(f"{where}: template_positions has shape {positions.shape}; the template "
+                                  f"(template/body.obj) has {len(template.vertices)} vertices")
+        if not np.isfinite(positions).all():
+            raise MeshFormatError(f"{where}: template_positions holds NaN or infinite values")
         if len(positions) != count:
             raise MeshFormatError(f"{dataset}/sequences/{s['name']}/truth.npz: ground truth for {len(positions)} "
                                   f"frames, the sequence has {count}: frames and truth must match one to one")
@@ -255,8 +266,9 @@ def _load_aligned(directory, dataset_names):
                      if k in data.files}
     except FileNotFoundError:
         raise MeshFormatError(f"{path}: not found; is {directory} a `morphspace align` output?") from None
-    except (OSError, ValueError, KeyError) as exc:
-        raise MeshFormatError(f"{path}: unreadable alignment record: {exc}") from None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        why = "it holds pickled objects, which are never loaded" if "allow_pickle" in str(exc) else exc
+        raise MeshFormatError(f"{path}: unreadable alignment record: {why}") from None
     timings = directory / "timings.json"  # per-frame times (older outputs kept them in alignment.npz)
     if timings.is_file():
         try:
@@ -283,8 +295,15 @@ def _load_aligned(directory, dataset_names):
 
 def run(args):
     dataset = args.dataset
+    if not dataset.is_dir():
+        raise FileNotFoundError(f"{dataset}: no such directory" if not dataset.exists() else
+                                f"{dataset}: not a directory (a capture dataset is one)")
     manifest = read_capture_manifest(dataset)
     out = args.out or dataset.with_name(dataset.name + "-align-eval")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out} is a file, not a directory: name a directory for the report (--out)")
+    if args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
     if args.max_frames is not None and args.max_frames < 2:
         raise ValueError(f"--max-frames must be >= 2, got {args.max_frames}")
     if args.every < 1:

@@ -822,3 +822,14 @@ def test_left_out_frames_are_the_other_tools_formats_the_reader_skips(tmp_path):
             zf.writestr(name, b"x")
     assert left_out_frames(archive) == ["take/frame_2.stl"]
     assert left_out_frames(tmp_path / "missing") == []
+
+
+def test_ply_counts_the_file_cannot_hold_are_refused_before_reading(tmp_path):
+    """A header declaring two billion faces made the reader allocate for them (MemoryError)."""
+    for fmt in ("ascii", "binary_little_endian"):
+        header = (f"ply\nformat {fmt} 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+                  "element face 2000000000\nproperty list uchar int vertex_indices\nend_header\n").encode()
+        body = b"0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n" if fmt == "ascii" else bytes(36) + bytes([3]) + bytes(12)
+        with pytest.raises(MeshFormatError, match=r"^huge\.ply: truncated, or its counts are wrong: the header "
+                                                  r"declares 3 vertex, 2000000000 face"):
+            read_mesh(header + body, name="huge.ply")

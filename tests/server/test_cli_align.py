@@ -544,3 +544,72 @@ def test_the_root_is_tried_and_raced_on_a_capture_of_24_frames_or_more(longer_da
                  "--root-choice", "apart"]) == 0
     captured = capsys.readouterr()
     assert "root tried" not in captured.out and "try roots" not in captured.err
+
+
+def test_an_output_that_would_destroy_the_input_is_refused_before_any_work(dataset, tmp_path, capsys):
+    """--out the input itself (or a directory holding it) with --force replaced the frames being
+    aligned by the result; a file as --out failed only after the whole alignment, leaving its
+    staging directory behind (found by a bad-input trial)."""
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset / "sequences" / "walk", copy)
+    before = sorted(p.name for p in copy.rglob("*"))
+    for out in (copy, tmp_path, copy / "inside"):
+        assert main(["align", str(copy), "--out", str(out), "--force"]) == 2
+        err = capsys.readouterr().err
+        assert "--out" in err and str(copy) in err and "Traceback" not in err
+    assert sorted(p.name for p in copy.rglob("*")) == before
+    afile = tmp_path / "afile"
+    afile.write_text("not a directory")
+    assert main(["align", str(copy), "--out", str(afile), "--force"]) == 2
+    assert "afile is a file, not a directory" in capsys.readouterr().err
+    assert afile.read_text() == "not a directory" and not list(tmp_path.glob(".afile*"))
+
+
+def test_bad_frame_rates_and_metadata_are_named(dataset, tmp_path, capsys):
+    copy = tmp_path / "walk"
+    shutil.copytree(dataset / "sequences" / "walk", copy)
+    for fps in ("nan", "-3", "0", "inf"):
+        assert main(["align", str(copy), "--out", str(tmp_path / "o"), "--fps", fps]) == 2
+        assert "--fps must be above 0 and at most 1000" in capsys.readouterr().err
+    assert main(["align", str(copy), "--out", str(tmp_path / "o"), "--repair-budget", "nan"]) == 2
+    assert "--repair-budget must be a number >= 0, got nan" in capsys.readouterr().err
+    for meta, words in (("[1, 2]", "meta.json: not a JSON object"), ('{"fps": "fast"}', "meta.json: fps must be"),
+                        ('{"fps": NaN}', "meta.json: fps must be")):
+        (copy / "meta.json").write_text(meta)
+        assert main(["align", str(copy), "--out", str(tmp_path / "o")]) == 2
+        assert words in capsys.readouterr().err
+    broken = tmp_path / "broken"
+    shutil.copytree(dataset, broken)
+    manifest = json.loads((broken / "manifest.json").read_text())
+    (broken / "manifest.json").write_text(json.dumps({**manifest, "sequences": 5}))
+    assert main(["align", str(broken), "--out", str(tmp_path / "o")]) == 2
+    assert "manifest.json: 'sequences' must be a list of objects with a 'name'" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_eval_align_names_a_broken_ground_truth_or_alignment(dataset, aligned, tmp_path, capsys):
+    copy = tmp_path / "copy"
+    shutil.copytree(dataset, copy)
+    truth = copy / "sequences" / "walk" / "truth.npz"
+    with np.load(truth) as data:
+        arrays = {k: data[k] for k in data.files}
+    cases = {"no positions": {k: v for k, v in arrays.items() if k != "template_positions"},
+             "half the vertices": {**arrays, "template_positions": arrays["template_positions"][:, :500]}}
+    words = {"no positions": "truth.npz: no template_positions", "half the vertices": "has shape (3, 500, 3)"}
+    for case, content in cases.items():
+        np.savez(truth, **content)
+        assert main(["eval-align", str(copy), "--aligned", str(aligned), "--out", str(tmp_path / "e")]) == 2
+        assert words[case] in capsys.readouterr().err, case
+    truth.write_bytes(b"PK\x03\x04 not really a zip")
+    assert main(["eval-align", str(copy), "--aligned", str(aligned), "--out", str(tmp_path / "e")]) == 2
+    assert "truth.npz: unreadable ground truth" in capsys.readouterr().err
+    broken = tmp_path / "aligned"
+    shutil.copytree(aligned, broken)
+    (broken / "alignment.npz").write_bytes((aligned / "alignment.npz").read_bytes()[:300])
+    assert main(["eval-align", str(dataset), "--aligned", str(broken), "--out", str(tmp_path / "e")]) == 2
+    assert "alignment.npz: unreadable alignment record" in capsys.readouterr().err
+    assert main(["eval-align", str(tmp_path / "nope"), "--out", str(tmp_path / "e")]) == 2
+    assert "nope: no such directory" in capsys.readouterr().err
+    assert main(["eval-align", str(dataset), "--workers", "0", "--out", str(tmp_path / "e")]) == 2
+    assert "--workers must be >= 1" in capsys.readouterr().err
+    assert not (tmp_path / "e").exists()

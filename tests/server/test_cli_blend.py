@@ -164,3 +164,26 @@ def test_vertex_colours_are_mixed_by_the_weights(arms, tmp_path):
     assert main(["blend", str(tmp_path / "a.ply"), str(folder / "bent.ply"), "--weights", "1", "1",
                  "--mode", "linear", "--out", str(tmp_path / "plain.ply")]) == 0
     assert read_mesh(tmp_path / "plain.ply").colors is None
+
+
+def test_bad_weights_epsilon_outputs_and_units_are_named(arms, tmp_path, capsys):
+    folder, V0, V1, F = arms
+    inputs = [str(folder / "straight.obj"), str(folder / "bent.ply")]
+    out = tmp_path / "o.obj"
+    # huge weights blend as their ratio (their sum overflowed: every vertex came out at the origin)
+    assert main(["blend", *inputs, "--weights", "1e308", "1e308", "--mode", "linear", "--out", str(out)]) == 0
+    np.testing.assert_allclose(read_mesh(out).vertices, 0.5 * (V0 + V1), atol=1e-5)
+    capsys.readouterr()
+    for eps in ("nan", "inf"):
+        assert main(["blend", *inputs, "--weights", "1", "1", "--mode", "hybrid", "--epsilon-mm", eps,
+                     "--out", str(out)]) == 2
+        assert "--epsilon-mm must be a finite number > 0" in capsys.readouterr().err
+    assert main(["blend", *inputs, "--weights", "1", "1", "--out", str(tmp_path)]) == 2
+    assert "is a directory: name the output mesh file" in capsys.readouterr().err
+    write_obj(tmp_path / "mm.obj", 1000.0 * V1, F)  # the same arm in millimetres
+    assert main(["blend", inputs[0], str(tmp_path / "mm.obj"), "--weights", "1", "1", "--out", str(out)]) == 2
+    assert re.search(r"mm\.obj is \d+ times the size of .*straight\.obj: blend meshes in the same units",
+                     capsys.readouterr().err)
+    write_obj(tmp_path / "point.obj", np.zeros_like(V0), F)
+    assert main(["blend", inputs[0], str(tmp_path / "point.obj"), "--weights", "1", "1", "--out", str(out)]) == 2
+    assert "point.obj: model size must be positive" in capsys.readouterr().err
