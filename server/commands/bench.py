@@ -16,21 +16,48 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.bench import blend_requests, blend_speed, single_core
+from engine.bench import blend_speed, single_core
 from engine.motion_space import MotionSpace
+
+MAX_CALLS, MAX_NONLINEAR_CALLS = 1_000_000, 100_000
 
 
 def add_arguments(parser):
     parser.add_argument("space", type=Path, help="a .mspace file")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    parser.add_argument("--calls", type=int, default=3000, help="blend calls for linear and hybrid (default 3000)")
-    parser.add_argument("--nonlinear-calls", type=int, default=100, help="calls for non-linear (default 100)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--calls", type=int, default=3000,
+                        help=f"blend calls for linear and hybrid, 10 to {MAX_CALLS:,} (default 3000)")
+    parser.add_argument("--nonlinear-calls", type=int, default=100,
+                        help=f"calls for non-linear, 5 to {MAX_NONLINEAR_CALLS:,} (default 100)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the random weights and phases (default 0)")
+
+
+class Requests:
+    """The random (weights, phase) requests of ``engine.bench.blend_requests`` (the same draws for a seed), kept
+    as two arrays, (sources + 1) floats a call, rather than a tuple and an array object a call (~250 bytes)."""
+
+    def __init__(self, n_sources, count, seed=0):
+        rng = np.random.default_rng(seed)
+        self.weights = rng.dirichlet(np.ones(n_sources), count)
+        self.phases = rng.uniform(0, 1, count)
+
+    def __len__(self):
+        return len(self.phases)
+
+    def __getitem__(self, k):
+        return self.weights[k], float(self.phases[k])
+
+    def __iter__(self):
+        return ((w, float(p)) for w, p in zip(self.weights, self.phases))
 
 
 def run(args):
-    if args.calls < 10 or args.nonlinear_calls < 5:
-        raise ValueError("--calls must be >= 10 and --nonlinear-calls >= 5")
+    if not 10 <= args.calls <= MAX_CALLS:
+        raise ValueError(f"--calls must be between 10 and {MAX_CALLS}, got {args.calls}")
+    if not 5 <= args.nonlinear_calls <= MAX_NONLINEAR_CALLS:
+        raise ValueError(f"--nonlinear-calls must be between 5 and {MAX_NONLINEAR_CALLS}, got {args.nonlinear_calls}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
     space = MotionSpace.open(args.space)
     meta = space.metadata
     results = {"space": str(args.space), "name": space.name, "vertices": space.n_vertices,
@@ -42,7 +69,7 @@ def run(args):
         for mode, calls, out in (("linear", args.calls, out32), ("hybrid", args.calls, out32),
                                  ("nonlinear", args.nonlinear_calls, out64)):
             blender = space.blender(mode)
-            requests = blend_requests(space.n_sources, calls, seed=args.seed)
+            requests = Requests(space.n_sources, calls, seed=args.seed)
             blender.blend(*requests[0], out=out)  # warm up (page in the mapped arrays)
             results["modes"][mode] = blend_speed(blender, requests, out=out)
     c = space.container

@@ -19,6 +19,7 @@ default, and said on stderr); the space is in metres, +Y up.
 from __future__ import annotations
 
 import json
+import math
 import sys
 import time
 import tomllib
@@ -35,6 +36,14 @@ from server.progress import StageBars
 from server.units import add_units_arguments, decide_convention, declared_convention, say_conventions, source_metadata
 
 LAYOUT_KEYS = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}
+SPEC_KEYS = ("name", "captures", "epsilon_mm", "phases", "rest", "sources", "parameters")
+PARAMETER_KEYS = ("layout", "chain", "corners", "left", "right", "measures", "resolution")
+SOURCE_KEYS = ("name", "path")
+MAX_FPS = 1000.0            # frame rates are in (0, MAX_FPS], as uploads take them (docs/rest.md)
+EPSILON_MM = (0.0, 100.0)   # the hybrid's error bound: above the first, at most the second (as the REST job)
+PHASES = (2, 512)           # phase samples (the REST job's range is 4..512; the engine needs 2)
+RESOLUTION = (2, 41)        # samples per layout axis of the parameter map (as the REST job)
+MAX_MEASURES = 3
 
 
 def add_arguments(parser):
@@ -43,31 +52,93 @@ def add_arguments(parser):
                         help="a source sequence, instead of a spec (repeat; at least 2)")
     parser.add_argument("--out", type=Path, help="output .mspace file (default: the spec's name next to it)")
     parser.add_argument("--name", help="space name (default: from the spec, or the output file's stem)")
-    parser.add_argument("--epsilon-mm", type=float, help="hybrid error bound in mm (default: spec, or 5)")
-    parser.add_argument("--phases", type=int, help="phase samples (default: spec, or the longest source)")
+    parser.add_argument("--epsilon-mm", type=float, help=f"hybrid error bound in mm, above {EPSILON_MM[0]:g} and at "
+                        f"most {EPSILON_MM[1]:g} (default: spec, or 5)")
+    parser.add_argument("--phases", type=int, help=f"phase samples, {PHASES[0]} to {PHASES[1]} (default: spec, or the "
+                        "longest source)")
     parser.add_argument("--rest", type=Path, help="rest-pose mesh (default: the capture dataset's "
                         "template/body.obj, else the first source's first frame)")
-    parser.add_argument("--fps", type=float, default=30.0, help="frame rate of sources without meta.json")
-    parser.add_argument("--cyclic", action="store_true", help="sources without meta.json are cyclic")
+    parser.add_argument("--fps", type=float, default=30.0, help=f"frame rate of sources without meta.json (or whose "
+                        f"meta.json has no fps), above 0 and at most {MAX_FPS:g}")
+    parser.add_argument("--cyclic", action="store_true", help="sources without meta.json (or whose meta.json does "
+                        "not say) are cyclic")
     add_units_arguments(parser)
     parser.add_argument("--force", action="store_true", help="replace an existing output file")
 
 
-def load_source(directory, *, fps, cyclic):
-    """SourceClip from a capture-dataset sequence directory or a directory/zip of frames."""
-    directory = Path(directory)
-    meta_path = directory / "meta.json"
-    if meta_path.is_file():
+def check_number(value, what, low, high, *, integer=False, above=False, unit=""):
+    """``value`` if it is a number (an int when ``integer``; never a bool) from ``low`` to ``high``
+    (above ``low`` when ``above``) and finite, else a ValueError: "``what`` must be ..., got ..."."""
+    if integer:
+        good = isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
+        accepted = f"an integer from {low} to {high}"
+    else:
+        good = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+                and (low < value if above else low <= value) and value <= high)
+        accepted = f"a number {'above' if above else 'from'} {low:g} {'and at most' if above else 'to'} {high:g}"
+    if not good:
+        raise ValueError(f"{what} must be {accepted}{' ' + unit if unit else ''}, got {value!r}")
+    return value
+
+
+def check_output_file(out, option="--out", inputs=()):
+    """Refuse an output file path before any work: an existing directory, a path below a file, or
+    one of the ``inputs`` (replacing it would destroy what the output is made from)."""
+    out = Path(out)
+    named = f"{option} {out}" if option else str(out)
+    if out.is_dir():
+        raise ValueError(f"{named} is a directory, not a file: name the file to write")
+    parent = next((p for p in out.parents if p.exists()), None)
+    if parent is not None and not parent.is_dir():
+        raise ValueError(f"{named}: {parent} is a file, not a directory")
+    target = out.resolve()
+    for path in inputs:
+        if path is not None and Path(path).resolve() == target:
+            raise ValueError(f"{named} is the input {path}: name another output file")
+
+
+def read_meta(directory):
+    """A sequence directory's meta.json as a dict, checked: an object with an optional ``name``
+    (a string), ``fps`` (a number in (0, MAX_FPS]) and ``cyclic`` (a boolean)."""
+    meta_path = Path(directory) / "meta.json"
+    try:
         meta = json.loads(meta_path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{meta_path}: not valid JSON: {exc}") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{meta_path}: not a JSON object")
+    if "name" in meta and (not isinstance(meta["name"], str) or not meta["name"]):
+        raise ValueError(f"{meta_path}: name must be a non-empty string, got {meta['name']!r}")
+    if "fps" in meta:
+        check_number(meta["fps"], f"{meta_path}: fps", 0.0, MAX_FPS, above=True, unit="frames/s")
+    if "cyclic" in meta and not isinstance(meta["cyclic"], bool):
+        raise ValueError(f"{meta_path}: cyclic must be true or false, got {meta['cyclic']!r}")
+    return meta
+
+
+def load_source(directory, *, fps, cyclic):
+    """SourceClip from a capture-dataset sequence directory or a directory/zip of frames.
+
+    A sequence directory's meta.json gives the name, frame rate and whether the source is cyclic;
+    what it does not give is the directory's name, ``fps`` and ``cyclic``."""
+    directory = Path(directory)
+    if (directory / "meta.json").is_file():
+        meta = read_meta(directory)
         sequence = read_sequence(directory / "consistent")
-        return SourceClip(name=meta["name"], vertices=sequence.vertices, fps=float(meta["fps"]),
-                          cyclic=bool(meta["cyclic"])), sequence.faces
+        return SourceClip(name=meta.get("name", directory.name), vertices=sequence.vertices,
+                          fps=float(meta.get("fps", fps)), cyclic=meta.get("cyclic", cyclic)), sequence.faces
+    if (directory / "manifest.json").is_file() and (directory / "sequences").is_dir():
+        have = sorted(p.name for p in (directory / "sequences").iterdir() if p.is_dir())
+        raise ValueError(f"{directory} is a capture dataset, not a sequence: use its sequences/<name> (it has "
+                         f"{', '.join(have[:8]) + (', ...' if len(have) > 8 else '') or 'none'})")
     sequence = read_sequence(directory)
     return SourceClip(name=directory.stem, vertices=sequence.vertices, fps=fps, cyclic=cyclic), sequence.faces
 
 
 def read_toml(path, what, missing=None):
     """A TOML file as a dict; a missing or malformed file is a ValueError naming it and ``what`` it is."""
+    if Path(path).is_dir():
+        raise ValueError(f"{path} is a directory, not a {what} file")
     try:
         return tomllib.loads(Path(path).read_text())
     except FileNotFoundError:
@@ -76,11 +147,35 @@ def read_toml(path, what, missing=None):
         raise ValueError(f"{path}: not a valid TOML {what}: {exc}") from None
 
 
+def check_keys(path, table, known, where=""):
+    """Refuse keys of a spec table not in ``known``, naming the spec, the table (``where``) and them."""
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise ValueError(f"{path}: {where}unknown key(s) {', '.join(unknown)}; known: {', '.join(known)}")
+
+
+def check_file_name(path, value, key):
+    """``value`` if it can name an output file beside others (a non-empty string without '/' or '\\',
+    not starting with '.'), else a ValueError naming the spec and ``key``."""
+    if not isinstance(value, str) or not value or value.startswith(".") or "/" in value or "\\" in value:
+        raise ValueError(f"{path}: {key} must be a non-empty string without '/' or '\\', not starting with '.' "
+                         f"(it names the output file), got {value!r}")
+    return value
+
+
 def read_spec(path):
-    """Parse and check a space spec; returns a dict with resolved source directories."""
+    """Parse and check a space spec; returns a dict with resolved source directories.
+
+    Every key's type and range is checked and unknown keys are refused (docs/file-formats.md,
+    "Motion space specs"); errors name the spec, the key and the problem."""
     path = Path(path)
     spec = read_toml(path, "spec", missing="no such spec file")
+    check_keys(path, spec, SPEC_KEYS)
     base = path.parent
+    name = check_file_name(path, spec["name"], "name") if "name" in spec else path.stem
+    for key in ("captures", "rest"):
+        if key in spec and (not isinstance(spec[key], str) or not spec[key]):
+            raise ValueError(f"{path}: {key} must be a path (a non-empty string), got {spec[key]!r}")
     captures = base / spec["captures"] if "captures" in spec else None
     sources = spec.get("sources")
     if not isinstance(sources, list) or len(sources) < 2:
@@ -89,8 +184,13 @@ def read_spec(path):
     for entry in sources:
         if isinstance(entry, str):
             entry = {"name": entry}
-        if not isinstance(entry, dict) or "name" not in entry:
-            raise ValueError(f"{path}: each source is a sequence name or a table with 'name' (and 'path')")
+        if not isinstance(entry, dict) or not isinstance(entry.get("name"), str) or not entry["name"] or (
+                "path" in entry and (not isinstance(entry["path"], str) or not entry["path"])):
+            raise ValueError(f"{path}: each source is a sequence name or a table with 'name' (and 'path'), "
+                             f"both strings; got {entry!r}")
+        check_keys(path, entry, SOURCE_KEYS, f"source {entry['name']!r}: ")
+        if entry["name"] in names:
+            raise ValueError(f"{path}: source {entry['name']!r} is listed twice; sources must be different sequences")
         if "path" in entry:
             directory = base / entry["path"]
         elif captures is not None:
@@ -101,9 +201,16 @@ def read_spec(path):
             raise ValueError(f"{path}: source {entry['name']!r}: {directory} does not exist")
         names.append(entry["name"])
         directories.append(directory)
+    if spec.get("epsilon_mm") is not None:
+        check_number(spec["epsilon_mm"], f"{path}: epsilon_mm", *EPSILON_MM, above=True, unit="(mm)")
+    if spec.get("phases") is not None:
+        check_number(spec["phases"], f"{path}: phases", *PHASES, integer=True)
     parameters = spec.get("parameters")
     layout = None
     if parameters is not None:
+        if not isinstance(parameters, dict):
+            raise ValueError(f"{path}: parameters must be a table ([parameters]), got {parameters!r}")
+        check_keys(path, parameters, PARAMETER_KEYS, "parameters: ")
         kind = parameters.get("layout")
         if kind not in LAYOUT_KEYS:
             raise ValueError(f"{path}: parameters.layout must be one of {', '.join(LAYOUT_KEYS)}, got {kind!r}")
@@ -118,14 +225,34 @@ def read_spec(path):
             if key not in parameters:
                 raise ValueError(f"{path}: a {kind} layout needs parameters.{key}")
             value = parameters[key]
-            fields[key] = tuple(index(v) for v in value) if isinstance(value, list) else index(value)
-        layout = Layout(kind=kind, n_sources=len(names), **fields)
+            if key in ("chain", "corners"):
+                if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+                    raise ValueError(f"{path}: parameters.{key} must be a list of source names, got {value!r}")
+                fields[key] = tuple(index(v) for v in value)
+            else:
+                if not isinstance(value, str):
+                    raise ValueError(f"{path}: parameters.{key} must be a source name, got {value!r}")
+                fields[key] = index(value)
+        used = [v for key in LAYOUT_KEYS[kind] for v in (fields[key] if key in ("chain", "corners") else [fields[key]])]
+        twice = next((names[i] for i in used if used.count(i) > 1), None)
+        if twice is not None:
+            raise ValueError(f"{path}: parameters: the {kind} layout names {twice!r} twice; its sources must differ")
+        try:
+            layout = Layout(kind=kind, n_sources=len(names), **fields)
+        except ValueError as exc:
+            raise ValueError(f"{path}: parameters: {exc}") from None
         measures = parameters.get("measures")
-        if not measures or any(m not in MEASURES for m in measures):
-            raise ValueError(f"{path}: parameters.measures must list some of {', '.join(MEASURES)}")
-        parameters = {"layout": layout, "names": list(measures), "resolution": parameters.get("resolution")}
+        if (not isinstance(measures, list) or not 1 <= len(measures) <= MAX_MEASURES
+                or any(not isinstance(m, str) or m not in MEASURES for m in measures)
+                or len(set(measures)) != len(measures)):
+            raise ValueError(f"{path}: parameters.measures must list 1 to {MAX_MEASURES} different ones of "
+                             f"{', '.join(MEASURES)}, got {measures!r}")
+        resolution = parameters.get("resolution")
+        if resolution is not None:
+            check_number(resolution, f"{path}: parameters.resolution", *RESOLUTION, integer=True)
+        parameters = {"layout": layout, "names": list(measures), "resolution": resolution}
     rest = spec.get("rest")
-    return {"name": spec.get("name", path.stem), "directories": directories, "names": names,
+    return {"name": name, "directories": directories, "names": names,
             "epsilon_mm": spec.get("epsilon_mm"), "phases": spec.get("phases"),
             "rest": (captures / rest if captures is not None else base / rest) if rest else None,
             "captures": captures, "parameters": parameters}
@@ -208,6 +335,11 @@ def run(args):
         raise ValueError("give a spec file or at least two --source sequences")
     if args.spec is not None and args.source:
         raise ValueError("give either a spec or --source sequences, not both")
+    check_number(args.fps, "--fps", 0.0, MAX_FPS, above=True, unit="frames/s")
+    if args.epsilon_mm is not None:
+        check_number(args.epsilon_mm, "--epsilon-mm", *EPSILON_MM, above=True, unit="(mm)")
+    if args.phases is not None:
+        check_number(args.phases, "--phases", *PHASES, integer=True)
     if args.spec is not None:
         spec = read_spec(args.spec)
         directories, name = spec["directories"], args.name or spec["name"]
@@ -220,14 +352,14 @@ def run(args):
         spec = {"epsilon_mm": None, "phases": None, "rest": None, "parameters": None, "captures": None}
         directories, out = args.source, args.out
         name = args.name or out.stem
-    epsilon_mm = args.epsilon_mm or spec["epsilon_mm"] or 5.0
-    if epsilon_mm <= 0:
-        raise ValueError(f"epsilon must be > 0 mm, got {epsilon_mm}")
+    epsilon_mm = next((e for e in (args.epsilon_mm, spec["epsilon_mm"]) if e is not None), 5.0)
+    n_phases = next((p for p in (args.phases, spec["phases"]) if p is not None), None)
+    rest_path = args.rest or spec["rest"]
+    check_output_file(out, "--out" if args.out else None, inputs=[args.spec, *directories, rest_path])
     if out.exists() and not args.force:
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
 
     clips, faces = load_sources(directories, fps=args.fps, cyclic=args.cyclic)
-    rest_path = args.rest or spec["rest"]
     rest, rest_note = choose_rest(clips, faces, rest_path, Path(directories[0]).parent.parent / "template" / "body.obj")
     clips, rest, conventions = sources_to_metres(clips, rest, directories, args.units, args.up)
     say = lambda line: print(f"morphspace build: {line}", file=sys.stderr)  # noqa: E731
@@ -235,7 +367,7 @@ def run(args):
     say_conventions(conventions, [clip.name for clip in clips] + ["the rest shape"], say, what="source")
     bars = StageBars()
     started = time.perf_counter()
-    report = build_motion_space(out, clips, faces, name=name, n_phases=args.phases or spec["phases"],
+    report = build_motion_space(out, clips, faces, name=name, n_phases=n_phases,
                                 epsilon=epsilon_mm / 1000.0, rest=rest, parameters=spec["parameters"],
                                 metadata=source_metadata([clip.name for clip in clips], conventions[:-1],
                                                          conventions[-1]),

@@ -14,11 +14,16 @@ import sys
 from pathlib import Path
 
 from engine.graph import GraphError, NodeSpec, WindowOptions, build_graph
-from server.commands.build import read_toml
+from server.commands.build import check_file_name, check_keys, check_number, check_output_file, read_toml
 from server.progress import StageBars
 
 WINDOW_KEYS = {"window_frames": "frames", "window_step": "step", "vertices": "vertices",
                "velocity_weight": "velocity_weight", "phases": "phases", "per_axis": "per_axis"}
+# each [window] key's range, (low, high, integer, above low): WindowOptions' and the REST job's (GraphWindow)
+WINDOW_LIMITS = {"window_frames": (2, 60, True, False), "window_step": (0.0, 0.5, False, True),
+                 "vertices": (10, 100_000, True, False), "velocity_weight": (0.0, 10.0, False, False),
+                 "phases": (4, 256, True, False), "per_axis": (1, 21, True, False)}
+GRAPH_KEYS = ("name", "spaces", "edges", "window", "nodes")
 
 
 def add_arguments(parser):
@@ -33,7 +38,11 @@ def read_graph_spec(path):
     spaces (directory)}. Errors name the spec and the problem."""
     path = Path(path)
     spec = read_toml(path, "graph spec")
+    check_keys(path, spec, GRAPH_KEYS)
     base = path.parent
+    name = check_file_name(path, spec["name"], "name") if "name" in spec else path.stem
+    if not isinstance(spec.get("spaces", "."), str) or not spec.get("spaces", "."):
+        raise ValueError(f"{path}: spaces must be a directory (a non-empty string), got {spec['spaces']!r}")
     spaces = base / spec.get("spaces", ".")
     nodes = spec.get("nodes")
     if not isinstance(nodes, list) or len(nodes) < 2:
@@ -47,6 +56,9 @@ def read_graph_spec(path):
         if unknown:
             raise ValueError(f"{path}: node {entry['name']!r}: unknown key(s) {', '.join(unknown)} (in TOML, "
                              "top-level keys such as edges go before the first [[nodes]])")
+        if not isinstance(entry.get("return_to", ""), str):
+            raise ValueError(f"{path}: node {entry['name']!r}: return_to must be a node name, "
+                             f"got {entry['return_to']!r}")
         file = spaces / entry["space"]
         if not file.is_file():
             raise ValueError(f"{path}: node {entry['name']!r}: {file} does not exist (build the space first)")
@@ -56,20 +68,25 @@ def read_graph_spec(path):
             isinstance(e, list) and len(e) == 2 and all(isinstance(x, str) for x in e) for e in edges):
         raise ValueError(f"{path}: edges must be a list of [from, to] node-name pairs")
     window = spec.get("window", {})
+    if not isinstance(window, dict):
+        raise ValueError(f"{path}: window must be a table ([window]), got {window!r}")
     unknown = sorted(set(window) - set(WINDOW_KEYS))
     if unknown:
         raise ValueError(f"{path}: [window] has unknown key(s) {', '.join(unknown)}; known: {', '.join(WINDOW_KEYS)}")
+    for key, value in window.items():
+        low, high, integer, above = WINDOW_LIMITS[key]
+        check_number(value, f"{path}: [window] {key}", low, high, integer=integer, above=above)
     try:
         options = WindowOptions(**{WINDOW_KEYS[k]: v for k, v in window.items()})
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{path}: [window]: {exc}") from None
-    return {"name": spec.get("name", path.stem), "nodes": specs, "edges": [tuple(e) for e in edges],
-            "options": options, "spaces": spaces}
+    return {"name": name, "nodes": specs, "edges": [tuple(e) for e in edges], "options": options, "spaces": spaces}
 
 
 def run(args):
     spec = read_graph_spec(args.spec)
     out = args.out or spec["spaces"] / f"{spec['name']}.mgraph"
+    check_output_file(out, "--out" if args.out else None, inputs=[args.spec, *(node.space for node in spec["nodes"])])
     if out.exists() and not args.force:
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
     bars = StageBars()

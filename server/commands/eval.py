@@ -14,6 +14,8 @@ Example:
 from __future__ import annotations
 
 import json
+import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +25,9 @@ from server.progress import StageBars
 from engine.mesh_io.dataset import read_capture_manifest, sequence_dir
 from engine.motion_space import MotionSpace
 from engine.synthetic import build_body
+from server.commands.synth import check_output_path
+
+MAX_TIMING_CALLS = 100_000  # the timing draws its random requests up front: memory grows with the calls
 
 
 def add_arguments(parser):
@@ -146,22 +151,42 @@ def _write_png(path, image):
     Image.fromarray(image).save(path)
 
 
+def heatmap_weights(weights):
+    """--weights normalised to sum 1 (finite, >= 0, not all 0; divided by their largest first, so huge ones
+    do not overflow the sum); a ValueError naming the option otherwise."""
+    w = np.asarray(weights, dtype=np.float64)
+    if not (np.all(np.isfinite(w)) and np.all(w >= 0) and w.max() > 0):
+        raise ValueError(f"--weights must be finite, non-negative and not all zero, got {' '.join(map(str, weights))}")
+    w = w / w.max()
+    return w / w.sum()
+
+
 def run(args):
+    if args.space.is_dir():
+        raise ValueError(f"{args.space}: is a directory, not a motion space file")
     if not args.space.is_file():
         raise FileNotFoundError(f"{args.space}: no such motion space file")
-    if args.timing_calls < 1:
-        raise ValueError(f"--timing-calls must be at least 1, got {args.timing_calls}")
-    if any(e <= 0 for e in args.epsilons_mm):
-        raise ValueError(f"--epsilons-mm must be positive, got {args.epsilons_mm}")
+    if not 1 <= args.timing_calls <= MAX_TIMING_CALLS:
+        raise ValueError(f"--timing-calls must be between 1 and {MAX_TIMING_CALLS}, got {args.timing_calls}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
+    if not all(math.isfinite(e) and e > 0 for e in args.epsilons_mm):
+        raise ValueError(f"--epsilons-mm must be positive numbers of millimetres, got "
+                         f"{' '.join(f'{e:g}' for e in args.epsilons_mm)}")
     if args.phase is not None and not 0.0 <= args.phase <= 1.0:
-        raise ValueError(f"--phase must be in [0, 1], got {args.phase}")
+        raise ValueError(f"--phase must be in [0, 1], got {args.phase:g}")
+    weights = heatmap_weights(args.weights) if args.weights is not None else None
     out = args.out or args.space.with_name(f"{args.space.stem}-eval")
+    check_output_path(out, "--out", directory=True)
+    made = next((p for p in [out.absolute(), *out.absolute().parents] if not p.exists()
+                 and p.parent.exists()), None)  # the directory to remove if nothing is written
     space = MotionSpace.open(args.space)
     progress = StageBars(leave=False)
     result = {"space": str(args.space)}
     try:
-        if args.weights is not None:
-            space.check_weights(args.weights)
+        if weights is not None and len(weights) != space.n_sources:
+            raise ValueError(f"--weights: expected {space.n_sources} weights ({', '.join(space.source_names)}) for "
+                             f"{args.space}, got {len(weights)}")
         truth = capture_truth(space, args.captures) if args.captures is not None else None
         out.mkdir(parents=True, exist_ok=True)
         cache = evaluation.BlendCache(space, progress)
@@ -170,7 +195,7 @@ def run(args):
                                          progress=progress)
         result["errors"] = errors
         worst = errors["methods"]["hybrid_1"]
-        weights = args.weights if args.weights is not None else worst["worst_weights"]
+        weights = weights if weights is not None else worst["worst_weights"]
         phase = args.phase if args.phase is not None else worst["worst_phase"]
         path = out / "heatmap.png"
         _write_png(path, evaluation.heatmap_figure(space, weights, phase, cache=cache))
@@ -190,11 +215,15 @@ def run(args):
             for s, info in zip(gt["sources"], sources):
                 s.update(info)
             result["ground_truth"] = gt
+        result["results"] = str(out / "results.json")
+        (out / "results.json").write_text(json.dumps(result, indent=1, default=_json_default))
+    except BaseException:
+        if made is not None:  # an --out made for this run: nothing left behind
+            shutil.rmtree(made, ignore_errors=True)
+        raise
     finally:
         progress.close()
         space.close()
-    result["results"] = str(out / "results.json")
-    (out / "results.json").write_text(json.dumps(result, indent=1, default=_json_default))
     if args.json:
         print(json.dumps(result, default=_json_default))
     else:

@@ -16,13 +16,16 @@ With a motion graph (.mgraph) each ``--at`` names a node first (server/commands/
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 
+from engine.export.clip import MAX_FRAMES
 from engine.mesh_io import write_obj
 from engine.motion_space import MotionSpace
 from engine.player import Player
+from server.commands.synth import check_output_path
 
 
 def add_arguments(parser):
@@ -54,19 +57,81 @@ def _assignments(items, names):
         name, value = item.split("=", 1)
         if name not in names:
             raise ValueError(f"unknown parameter {name!r}; this space has {', '.join(names)}")
-        try:
-            out[name] = float(value)
-        except ValueError:
-            raise ValueError(f"{name}: {value!r} is not a number") from None
+        out[name] = finite_number(name, value)
     return out
 
 
-def at_time(entry):
-    """The time that starts an ``--at TIME ...`` entry."""
+def finite_number(name, value):
+    """``value`` (a string) as a float; a ValueError naming ``name`` unless it is a finite number."""
     try:
-        return float(entry[0])
+        number = float(value)
+    except ValueError:
+        raise ValueError(f"{name}: {value!r} is not a number") from None
+    if not math.isfinite(number):
+        raise ValueError(f"{name}: {value!r} is not a finite number")
+    return number
+
+
+def at_time(entry):
+    """The time that starts an ``--at TIME ...`` entry: a finite number of seconds >= 0."""
+    try:
+        when = float(entry[0])
     except ValueError:
         raise ValueError(f"--at needs a time first, got {entry[0]!r}") from None
+    if not (math.isfinite(when) and when >= 0):
+        raise ValueError(f"--at {entry[0]}: the time must be a finite number of seconds >= 0")
+    return when
+
+
+def check_arguments(args, graph=False):
+    """Refuse bad numbers and output paths before anything is played or written (a ValueError naming the
+    option): --fps and --seconds finite and positive, at most MAX_FRAMES frames, --smoothing and --trail-every
+    for a space, --trail a picture file, --frames a directory, --record a file, --replay an existing file."""
+    if not (math.isfinite(args.fps) and args.fps > 0):
+        raise ValueError(f"--fps must be a positive number of frames per second, got {args.fps:g}")
+    if args.seconds is not None:
+        if not (math.isfinite(args.seconds) and args.seconds > 0):
+            raise ValueError(f"--seconds must be a positive number, got {args.seconds:g}")
+        frame_steps(args.seconds, args.fps, f"--seconds {args.seconds:g}")
+    if graph:
+        if args.trail:
+            raise ValueError("--trail is for motion spaces (.mspace); a graph's play writes its frames with --frames")
+    else:
+        if not (math.isfinite(args.smoothing) and args.smoothing >= 0):
+            raise ValueError(f"--smoothing must be a non-negative number of seconds, got {args.smoothing:g}")
+        if not (math.isfinite(args.trail_every) and args.trail_every > 0):
+            raise ValueError(f"--trail-every must be a positive number of seconds, got {args.trail_every:g}")
+    if args.trail:
+        from PIL import Image
+
+        check_output_path(args.trail, "--trail")
+        if args.trail.suffix.lower() not in Image.registered_extensions():
+            raise ValueError(f"--trail {args.trail}: not a picture file name; give one ending in .png")
+    if args.frames:
+        check_output_path(args.frames, "--frames", directory=True)
+    if getattr(args, "record", None):
+        check_output_path(args.record, "--record")
+    if getattr(args, "replay", None):
+        if args.replay.is_dir():
+            raise ValueError(f"--replay {args.replay}: is a directory, not a recording")
+        if not args.replay.is_file():
+            raise ValueError(f"--replay {args.replay}: no such file")
+
+
+def note_time(seconds):
+    """A time of a note: 0.80 s, 1e+300 s (a request past the end may be anything)."""
+    return f"t={seconds:.2f} s" if seconds < 1e9 else f"t={seconds:.6g} s"
+
+
+def frame_steps(seconds, fps, what):
+    """The steps after the first frame of ``seconds`` at ``fps``; a ValueError saying ``what`` asked for more than
+    MAX_FRAMES frames (as ``morphspace export`` refuses them)."""
+    steps = seconds * fps
+    if not steps + 1 < MAX_FRAMES + 0.5:
+        frames = (f"{math.floor(steps + 0.5) + 1}" if steps < 1e15 else f"about {steps:.3g}" if math.isfinite(steps)
+                  else f"more than {MAX_FRAMES}")
+        raise ValueError(f"{what} at --fps {fps:g} is {frames} frames; at most {MAX_FRAMES} per play")
+    return int(round(steps))
 
 
 def scripted(entries, names):
@@ -81,9 +146,10 @@ def run(args):
         return run_graph(args)
     if args.start or args.record or args.replay:
         raise ValueError("--start, --record and --replay are for motion graphs (.mgraph)")
-    if args.fps <= 0 or (args.seconds is not None and args.seconds <= 0):
-        raise ValueError("--fps and --seconds must be positive")
+    check_arguments(args)
     space = MotionSpace.open(args.space)
+    if space.parameter_map is None:
+        raise ValueError(f"{args.space}: the space has no parameter map (build it from a spec with parameters)")
     player = Player(space, mode=args.mode, smoothing=args.smoothing, loop=args.loop or None)
     names = player.names
     notes = []
@@ -95,11 +161,12 @@ def run(args):
     duration = args.seconds or (10.0 if space.cyclic or args.loop else
                                 player.track.duration(player._solution.weights) + 0.5)
     dt = 1.0 / args.fps
-    steps = int(round(duration * args.fps))
+    steps = frame_steps(duration, args.fps, f"--seconds {duration:g}" if args.seconds else
+                        f"{duration:g} s (the default --seconds)")
     log, trail = [], []
-    every = max(1, int(round(args.trail_every * args.fps)))
+    every = max(1, int(round(min(args.trail_every * args.fps, steps + 1))))
     if args.frames:
-        args.frames.mkdir(parents=True, exist_ok=True)
+        args.frames.mkdir(parents=True, exist_ok=True)  # (checked by check_arguments)
     frame = player.frame()
     for k in range(steps + 1):
         while script and script[0][0] <= k * dt + 1e-9:
@@ -119,9 +186,9 @@ def run(args):
     end = log[-1]["time"]
     why = ("the one-shot clip ended (--loop plays it again)" if frame.finished and not args.loop
            else "--seconds ended the play")
-    for when, params in script:  # requests the play never reached: said, not dropped silently
+    for at, params in script:  # requests the play never reached: said, not dropped silently
         asked = ", ".join(f"{name}={value:g}" for name, value in params.items())
-        notes.append(f"t={when:.2f} s: {asked} not applied: {why} at {end:.2f} s")
+        notes.append(f"{note_time(at)}: {asked} not applied: {why} at {end:.2f} s")
     root = np.array([entry["root"] for entry in log])
     travelled = float(np.sum(np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=1)))
     report = {"space": space.name, "parameters": names, "mode": args.mode, "seconds": log[-1]["time"],

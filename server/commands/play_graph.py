@@ -10,13 +10,15 @@ requests (``--record``) and replay a recording to the same frames, byte for byte
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 
+from engine.export.clip import MAX_FRAMES
 from engine.graph import GraphError, MotionGraph
 from engine.graph.recording import perform, read_recording, recording
 from engine.mesh_io import write_obj
-from server.commands.play import at_time
+from server.commands.play import at_time, check_arguments, finite_number, frame_steps, note_time
 
 
 def node_assignments(items, node):
@@ -26,10 +28,7 @@ def node_assignments(items, node):
         if "=" not in item:
             raise ValueError(f"expected NAME=VALUE, got {item!r}")
         name, value = item.split("=", 1)
-        try:
-            number = float(value)
-        except ValueError:
-            raise ValueError(f"{name}: {value!r} is not a number") from None
+        number = finite_number(name, value)
         if name == "budget":
             budget = number
         elif name not in node.parameters:
@@ -41,39 +40,41 @@ def node_assignments(items, node):
 
 
 def run_graph(args):
-    if args.fps <= 0 or (args.seconds is not None and args.seconds <= 0):
-        raise ValueError("--fps and --seconds must be positive")
+    check_arguments(args, graph=True)
     try:
         graph = MotionGraph.open(args.space)
     except GraphError as exc:
         raise ValueError(str(exc)) from None
     with graph:
         if args.replay:
-            try:
-                document = read_recording(json.loads(args.replay.read_text()), graph)
-            except json.JSONDecodeError as exc:
-                raise ValueError(f"{args.replay}: not JSON: {exc}") from None
-            except GraphError as exc:
-                raise ValueError(f"{args.replay}: {exc}") from None
+            document = _read_replay(args.replay, graph)
             start, params, fps, steps = document["start"], document["params"], document["fps"], document["steps"]
             mode, requests = document["mode"], document["requests"]
             dts = _step_times(document, args.replay)
+            times, why = None, "the recording ended"
         else:
             start = args.start or next(n.name for n in graph.nodes if n.cyclic)
             params, _ = node_assignments(args.set, graph.node(start))
             fps, mode = args.fps, args.mode
-            requests = []
+            script = []
             for entry in args.at:
                 if len(entry) < 2:
                     raise ValueError(f"--at needs a time and a node, got {' '.join(entry)!r}")
                 when = at_time(entry)
                 node = graph.node(entry[1])
                 values, budget = node_assignments(entry[2:], node)
-                requests.append({"frame": int(round(when * fps)), "node": node.name, "params": values,
-                                 "budget": budget})
-            last = max((r["frame"] / fps for r in requests), default=0.0)
-            steps = int(round((args.seconds or last + 4.0) * fps))
+                script.append((when, {"node": node.name, "params": values, "budget": budget}))
+            if args.seconds is not None:
+                steps = frame_steps(args.seconds, fps, f"--seconds {args.seconds:g}")
+            else:
+                last = max((when for when, _ in script), default=0.0)
+                steps = frame_steps(last + 4.0, fps, f"{last + 4.0:g} s (4 s after the last --at; --seconds to "
+                                    "change it)")
+            # a request past the end keeps a frame past it (its time * fps may not even be a number of frames)
+            requests = [{"frame": min(int(round(min(when * fps, steps + 1.0))), steps + 1), **request}
+                        for when, request in script]
             dts = None
+            times, why = [when for when, _ in script], "--seconds ended the play"
         if args.frames:
             args.frames.mkdir(parents=True, exist_ok=True)
         faces = graph.nodes[0].space.faces
@@ -91,13 +92,21 @@ def run_graph(args):
             player, digest, answers = perform(graph, start=start, params=params, fps=fps, steps=steps, mode=mode,
                                               requests=requests, on_frame=on_frame, dts=dts)
         except GraphError as exc:
-            raise ValueError(str(exc)) from None
+            raise ValueError(f"--replay {args.replay}: {exc}" if args.replay else str(exc)) from None
         root = np.array([entry["root"] for entry in log])
         travelled = float(np.sum(np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=1)))
         events = [{"time": e["time"], "event": ev} for e in log for ev in e["events"]]
+        notes = []
+        # requests the play never reached (perform answers them in frame order): said, not dropped silently
+        for i in sorted(range(len(requests)), key=lambda i: requests[i]["frame"])[len(answers):]:
+            r = requests[i]
+            values = {**(r.get("params") or {}), **({"budget": r["budget"]} if r.get("budget") is not None else {})}
+            asked = " ".join([str(r.get("node") or "set")] + [f"{k}={_number(v)}" for k, v in values.items()])
+            at = _seconds(r["frame"], fps) if times is None else times[i]
+            notes.append(f"{note_time(at)}: {asked} not applied: {why} at {log[-1]['time']:.2f} s")
         report = {"graph": graph.name, "mode": mode, "fps": fps, "seconds": log[-1]["time"], "frames": len(log),
                   "path_length_m": travelled, "requests": answers, "events": events, "end": log[-1],
-                  "frames_sha256": digest, "timeline": log[:: max(1, len(log) // 50)]}
+                  "notes": notes, "frames_sha256": digest, "timeline": log[:: max(1, len(log) // 50)]}
         if args.replay:
             report["replayed"] = args.replay.name
             # a browser recording has no digest (the page saw the stream's frames, not these bytes)
@@ -123,6 +132,8 @@ def run_graph(args):
                 print(f"    note: {answer['message']}")
         for event in events:
             print(f"  t {event['time']:6.2f} s  {event['event']}")
+        for note in notes:
+            print(f"  note: {note}")
         end = report["end"]
         print(f"  end: {end['node']} at phase {end['phase']:.2f}, root {end['root'][0]:+.2f}, {end['root'][2]:+.2f} m, "
               f"heading {end['heading_deg']:+.1f} deg")
@@ -138,6 +149,41 @@ def run_graph(args):
     return 0
 
 
+def _read_replay(path, graph):
+    """The recording at ``path`` (--replay) checked against ``graph``; a ValueError naming the file says what is
+    wrong (not text, not JSON, not a recording of this graph, more frames than a play makes)."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise ValueError(f"--replay {path}: not a text file (a JSON recording)") from None
+    except OSError as exc:
+        raise ValueError(f"--replay {path}: {exc.strerror or exc}") from None
+    try:
+        document = read_recording(json.loads(text), graph)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"--replay {path}: not JSON: {exc}") from None
+    except GraphError as exc:
+        raise ValueError(f"--replay {path}: {exc}") from None
+    if not math.isfinite(_seconds(document["fps"], 1.0)):
+        raise ValueError(f"--replay {path}: recording: fps must be a finite number of frames per second")
+    if document["steps"] + 1 > MAX_FRAMES:
+        raise ValueError(f"--replay {path}: recording: {document['steps'] + 1} frames; at most {MAX_FRAMES} per "
+                         "play")
+    return document
+
+
+def _number(value):
+    return f"{value:g}" if isinstance(value, (int, float)) and not isinstance(value, bool) else repr(value)
+
+
+def _seconds(frame, fps):
+    """``frame / fps`` as a float, inf for a JSON integer too large for one."""
+    try:
+        return float(frame) / fps
+    except OverflowError:
+        return math.inf
+
+
 def _step_times(document, path):
     """The seconds of every step of a recording with ``times`` (a browser recording), else None."""
     from engine.export.performance import ClipError, step_times
@@ -145,5 +191,5 @@ def _step_times(document, path):
     try:
         dts, _ = step_times(document)
     except ClipError as exc:
-        raise ValueError(f"{path}: {exc}") from None
+        raise ValueError(f"--replay {path}: {exc}") from None
     return None if document.get("times") is None else dts

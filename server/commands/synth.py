@@ -13,12 +13,14 @@ some sequences written in millimetres and/or Z up). Examples:
 
 from __future__ import annotations
 
+import math
 import multiprocessing
 import os
 import queue
 import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor
+from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path
 
@@ -31,7 +33,11 @@ from engine.mesh_io.dataset import (
     write_capture_template,
 )
 from engine.synthetic import PRESETS, build_body, generate_sequence_data, get_preset
+from engine.synthetic.body import MAX_VERTICES, MIN_VERTICES
 from engine.synthetic.studio import StudioPreset
+
+MAX_FPS = 240.0  # frames per second of a synthetic capture (a fast studio camera)
+MAX_NOISE_MM = 100.0
 
 
 def add_arguments(parser):
@@ -140,10 +146,38 @@ def select_sequences(preset, only):
     return specs
 
 
-def staging_directory(out, force):
-    """A fresh hidden directory next to ``out`` to write into (renamed onto ``out`` when complete)."""
+def check_output_path(path, option, *, directory=False):
+    """Refuse (a ValueError naming ``option`` and ``path``) an output that cannot be written where the user
+    said: a directory where a file is wanted, something else where a directory is (``directory``), a parent
+    that is a file, or a parent directory not writable. Nothing is created."""
+    if directory:
+        if path.exists() and not path.is_dir():
+            raise ValueError(f"{option} {path}: exists and is not a directory")
+    elif path.is_dir():
+        raise ValueError(f"{option} {path}: is a directory; give a file name")
+    for parent in path.parents:  # (a relative path ends at ".", which exists)
+        if parent.exists():
+            if not parent.is_dir():
+                raise ValueError(f"{option} {path}: {parent} is not a directory")
+            if not os.access(parent, os.W_OK | os.X_OK):
+                raise ValueError(f"{option} {path}: cannot write in {parent} (permission denied)")
+            break
+
+
+def check_dataset_out(out, force):
+    """Refuse an --out that synth or a command like it must not write to, before anything is made: one that
+    exists without --force, exists and is not a directory, holds the current directory, or cannot be made."""
+    here = Path.cwd()
+    if out.resolve() == here or out.resolve() in here.parents:  # (--force would remove it)
+        raise ValueError(f"--out {out}: is the current directory or holds it; give a new directory")
+    check_output_path(out, "--out", directory=True)
     if out.exists() and not force:
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
+
+
+def staging_directory(out, force):
+    """A fresh hidden directory next to ``out`` to write into (renamed onto ``out`` when complete)."""
+    check_dataset_out(out, force)
     staging = out.with_name(f".{out.name}.partial-{os.getpid()}")
     if staging.exists():
         shutil.rmtree(staging)
@@ -159,51 +193,81 @@ def publish(staging, out):
     os.replace(staging, out)
 
 
+@contextmanager
+def staged(out, force):
+    """``with staged(out, force) as staging:`` write into ``staging`` (``staging_directory``); published onto
+    ``out`` when the block ends, removed on any error (with the parent directories made for it)."""
+    made = [p for p in out.absolute().parents if not p.exists()]  # deepest first
+    staging = staging_directory(out, force)
+    try:
+        yield staging
+        publish(staging, out)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        for parent in made:  # only the empty ones made here
+            try:
+                parent.rmdir()
+            except OSError:
+                break
+        raise
+
+
+def check_options(args):
+    """Refuse bad numbers before anything is made (a ValueError naming the option)."""
+    if args.fps is not None and not (math.isfinite(args.fps) and 1.0 <= args.fps <= MAX_FPS):
+        raise ValueError(f"--fps must be between 1 and {MAX_FPS:g} frames per second, got {args.fps:g}")
+    if args.noise_mm is not None and not (math.isfinite(args.noise_mm) and 0 <= args.noise_mm <= MAX_NOISE_MM):
+        raise ValueError(f"--noise-mm must be between 0 and {MAX_NOISE_MM:g}, got {args.noise_mm:g}")
+    if args.vertices is not None and not MIN_VERTICES <= args.vertices <= MAX_VERTICES:
+        raise ValueError(f"--vertices must be between {MIN_VERTICES} and {MAX_VERTICES}, got {args.vertices}")
+    most = max(64, os.cpu_count() or 1)
+    if not 1 <= args.workers <= most:
+        raise ValueError(f"--workers must be between 1 and {most}, got {args.workers}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer, got {args.seed}")
+    check_dataset_out(args.out, args.force)
+
+
 def run(args):
     preset = get_preset(args.preset)
+    check_options(args)
     if isinstance(preset, StudioPreset):
         from server.commands.synth_studio import run_studio
 
         return run_studio(args, preset)
     height = 1.75 if args.height is None else args.height
+    if not (math.isfinite(height) and 1.0 <= height <= 2.5):
+        raise ValueError(f"--height must be between 1.0 and 2.5 m, got {height:g}")
     consistent_format = args.consistent_format or "obj"
     vertices = args.vertices or preset.vertices
     fps = args.fps or preset.fps
     noise_mm = preset.noise_mm if args.noise_mm is None else args.noise_mm
-    if noise_mm < 0:
-        raise ValueError(f"--noise-mm must be >= 0, got {noise_mm}")
     specs = select_sequences(preset, args.only)
     out = args.out
-    staging = staging_directory(out, args.force)
 
     started = time.perf_counter()
-    body = _body(vertices, height)
-    write_capture_template(staging, body)
-    jobs = [dict(spec=spec, vertices=vertices, height=height, fps=fps, noise_mm=noise_mm,
-                 seed=args.seed * 1000 + i, unstructured=not args.no_unstructured, root=str(staging),
-                 consistent_format=consistent_format, unstructured_format=args.unstructured_format,
-                 textured=args.textured, previews=not args.no_previews)
-            for i, spec in enumerate(specs)]
-    metas = {}
-    try:
+    with staged(out, args.force) as staging:
+        body = _body(vertices, height)
+        write_capture_template(staging, body)
+        jobs = [dict(spec=spec, vertices=vertices, height=height, fps=fps, noise_mm=noise_mm,
+                     seed=args.seed * 1000 + i, unstructured=not args.no_unstructured, root=str(staging),
+                     consistent_format=consistent_format, unstructured_format=args.unstructured_format,
+                     textured=args.textured, previews=not args.no_previews)
+                for i, spec in enumerate(specs)]
         with worker_pool(args.workers) as pool:
             results = run_jobs(pool, _generate, jobs)
         metas = {job["spec"].name: meta for job, meta in zip(jobs, results)}
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    manifest = {
-        "preset": preset.name, "seed": args.seed, "fps": fps, "noise_mm": noise_mm,
-        "body": {"vertices": int(len(body.V)), "faces": int(len(body.F)), "height": height,
-                 "model_size": body.size, "up": "+Y", "forward": "+Z", "units": "m"},
-        "skeleton": body.skeleton.to_dict(),
-        "consistent_format": consistent_format,
-        "unstructured_format": None if args.no_unstructured else args.unstructured_format,
-        "unstructured_textured": bool(args.textured and not args.no_unstructured),
-        "sequences": [metas[s.name] for s in specs],
-    }
-    write_capture_manifest(staging, manifest)
-    publish(staging, out)
+        manifest = {
+            "preset": preset.name, "seed": args.seed, "fps": fps, "noise_mm": noise_mm,
+            "body": {"vertices": int(len(body.V)), "faces": int(len(body.F)), "height": height,
+                     "model_size": body.size, "up": "+Y", "forward": "+Z", "units": "m"},
+            "skeleton": body.skeleton.to_dict(),
+            "consistent_format": consistent_format,
+            "unstructured_format": None if args.no_unstructured else args.unstructured_format,
+            "unstructured_textured": bool(args.textured and not args.no_unstructured),
+            "sequences": [metas[s.name] for s in specs],
+        }
+        write_capture_manifest(staging, manifest)
     frames = sum(m["frames"] for m in manifest["sequences"])
     print(f"wrote {len(specs)} sequences, {frames} frames, body of {len(body.V)} vertices "
           f"to {out} in {time.perf_counter() - started:.1f} s")

@@ -39,11 +39,10 @@ from engine.synthetic.studio import (
     truth_to_file,
 )
 from server.commands.synth import (
-    publish,
     report,
     run_jobs,
     select_sequences,
-    staging_directory,
+    staged,
     worker_pool,
 )
 
@@ -131,32 +130,27 @@ def _write_json(path, payload):
 
 
 def run_studio(args, preset):
-    """``morphspace synth --preset studio|studio-tiny``."""
+    """``morphspace synth --preset studio|studio-tiny`` (the options checked by ``synth.check_options``)."""
     if args.height is not None:
         raise ValueError("--height applies to the procedural presets; the studio body is the MakeHuman base "
                          "mesh as it is (1.67 m)")
     camera = preset.camera
-    if args.vertices is not None:
-        if not 1_000 <= args.vertices <= 50_000:
-            raise ValueError(f"--vertices must be between 1000 and 50000, got {args.vertices}")
+    if args.vertices is not None:  # (1000 to 50000: synth.check_options)
         camera = replace(camera, vertices=int(args.vertices))
     if args.noise_mm is not None:
-        if args.noise_mm < 0:
-            raise ValueError(f"--noise-mm must be >= 0, got {args.noise_mm}")
         camera = replace(camera, noise=args.noise_mm / 1000.0)
     fps = args.fps or preset.fps
     specs = select_sequences(preset, args.only)
     consistent_format = args.consistent_format or "ply"
     unstructured_format = None if args.no_unstructured else args.unstructured_format
     out = args.out
-    staging = staging_directory(out, args.force)
     started = time.perf_counter()
-    body = _body(preset.body_vertices, preset.garment_detail)
-    common = dict(body=(preset.body_vertices, preset.garment_detail), fps=fps, camera=camera, root=str(staging),
-                  consistent_format=consistent_format, unstructured_format=unstructured_format,
-                  textured=bool(args.textured))
-    jobs = [dict(common, spec=spec, seed=args.seed * 1000 + i) for i, spec in enumerate(specs)]
-    try:
+    with staged(out, args.force) as staging:  # removed on any error
+        body = _body(preset.body_vertices, preset.garment_detail)
+        common = dict(body=(preset.body_vertices, preset.garment_detail), fps=fps, camera=camera, root=str(staging),
+                      consistent_format=consistent_format, unstructured_format=unstructured_format,
+                      textured=bool(args.textured))
+        jobs = [dict(common, spec=spec, seed=args.seed * 1000 + i) for i, spec in enumerate(specs)]
         write_capture_template(staging, body)
         with worker_pool(args.workers) as pool:
             metas = run_jobs(pool, _animate, jobs, desc="animate")
@@ -190,10 +184,6 @@ def run_studio(args, preset):
             "sequences": metas,
         }
         write_capture_manifest(staging, manifest)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        raise
-    publish(staging, out)
     frames = sum(m["frames"] for m in metas)
     print(f"wrote {len(specs)} studio sequences, {frames} frames, template of {len(body.V)} vertices "
           f"to {out} in {time.perf_counter() - started:.1f} s")

@@ -115,3 +115,100 @@ def test_eval_errors_are_one_line(dataset, tmp_path, capsys):
     assert "no such motion space" in capsys.readouterr().err
     assert main(["eval", str(space), "--out", str(tmp_path), "--weights", "1", "2", "3"]) == 2
     assert "expected 2 weights" in capsys.readouterr().err
+
+
+def _refused(capsys, argv, *expected):
+    assert main([str(a) for a in argv]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and len(captured.err.strip().splitlines()) == 1, captured.err
+    for text in expected:
+        assert text in captured.err, captured.err
+    return captured.err
+
+
+def test_eval_bad_input_is_refused_before_anything_is_written(dataset, tmp_path, capsys, monkeypatch):
+    space, _ = dataset
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a.obj").write_text("v 0 0 0\n")
+    (tmp_path / "dir").mkdir()
+    renamed = tmp_path / "renamed.mspace"  # built as walk_run.mspace: its name inside is walk_run
+    renamed.write_bytes(space.read_bytes())
+    before = sorted(p.name for p in tmp_path.iterdir())
+    _refused(capsys, ["eval", "dir"], "dir: is a directory, not a motion space file")
+    _refused(capsys, ["eval", space, "--out", "a.obj"], "--out a.obj: exists and is not a directory")
+    _refused(capsys, ["eval", space, "--out", "ev", "--sweep", "--epsilons-mm", "nan"],
+             "--epsilons-mm must be positive numbers of millimetres, got nan")
+    _refused(capsys, ["eval", space, "--out", "ev", "--weights", "nan", "1"], "--weights must be finite")
+    _refused(capsys, ["eval", space, "--out", "ev", "--seed", "-1"], "--seed must be a non-negative integer, got -1")
+    _refused(capsys, ["eval", space, "--out", "ev", "--timing-calls", "1000000000"],
+             "--timing-calls must be between 1 and 100000")
+    err = _refused(capsys, ["eval", "renamed.mspace", "--out", "ev", "--weights", "1", "2", "3"],
+                   "--weights: expected 2 weights (walk, run) for renamed.mspace, got 3")
+    assert "walk_run" not in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # no ev/
+
+
+def test_eval_huge_weights_are_normalised_without_overflow(dataset, tmp_path, capsys):
+    space, _ = dataset
+    result = run_json(capsys, ["eval", str(space), "--json", "--out", str(tmp_path / "ev"), "--timing-calls", "5",
+                               "--weights", "1e308", "1e308", "--phase", "0.5"])
+    assert result["heatmap"]["weights"] == [0.5, 0.5]
+    assert_picture(tmp_path / "ev" / "heatmap.png")
+
+
+def test_eval_removes_the_out_directory_it_made_when_it_fails(dataset, tmp_path, capsys, monkeypatch):
+    from engine import evaluation
+
+    def fail(*args, **kwargs):
+        raise ValueError("blend errors failed")
+
+    space, _ = dataset
+    monkeypatch.setattr(evaluation, "blend_errors", fail)
+    _refused(capsys, ["eval", space, "--out", tmp_path / "new" / "ev"], "blend errors failed")
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["--per-axis", "0"], "--per-axis must be between 2 and 201, got 0"),
+    (["--per-axis", "-2"], "--per-axis must be between 2 and 201, got -2"),
+    (["--per-axis", "1000"], "--per-axis must be between 2 and 201, got 1000"),
+])
+def test_eval_params_bad_per_axis_is_refused(built_spaces, capsys, argv, message):
+    _refused(capsys, ["eval-params", built_spaces / "speed.mspace", *argv], message)
+
+
+def test_eval_params_names_a_renamed_space_by_its_file(dataset, tmp_path, capsys):
+    space, _ = dataset
+    renamed = tmp_path / "renamed.mspace"
+    renamed.write_bytes(space.read_bytes())
+    err = _refused(capsys, ["eval-params", renamed], f"{renamed}: the space has no parameter map")
+    assert "walk_run" not in err
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["--calls", "1000000000"], "--calls must be between 10 and 1000000, got 1000000000"),
+    (["--calls", "5"], "--calls must be between 10 and 1000000, got 5"),
+    (["--nonlinear-calls", "1000000000"], "--nonlinear-calls must be between 5 and 100000, got 1000000000"),
+    (["--seed", "-1"], "--seed must be a non-negative integer, got -1"),
+])
+def test_bench_bad_options_are_refused(dataset, capsys, argv, message):
+    space, _ = dataset
+    _refused(capsys, ["bench", space, *argv], message)
+
+
+def test_bench_requests_are_the_engines_draws_in_little_memory():
+    import tracemalloc
+
+    from engine.bench import blend_requests
+    from server.commands.bench import Requests
+
+    ours, engine = Requests(3, 200, seed=4), blend_requests(3, 200, seed=4)
+    assert len(ours) == len(engine) == 200
+    for (w, p), (v, q) in zip(ours, engine):
+        np.testing.assert_array_equal(w, v)
+        assert p == q
+    tracemalloc.start()
+    Requests(3, 100_000)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert peak < 100_000 * 48  # (3 + 1) float64 a call and the generator's scratch, not ~250 bytes a call

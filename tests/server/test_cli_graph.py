@@ -211,3 +211,73 @@ def test_eval_graph_errors_name_the_problem(graph_file, capsys, argv, message):
 def test_eval_graph_refuses_a_file_that_is_not_a_graph(built_spaces, capsys):
     assert main(["eval-graph", str(built_spaces / "speed.mspace")]) == 2
     assert "not a" in capsys.readouterr().err
+
+
+TINY_SPEC = """
+name = "g"
+spaces = "."
+edges = [["a", "b"], ["b", "a"]]
+
+[[nodes]]
+name = "a"
+space = "a.mspace"
+
+[[nodes]]
+name = "b"
+space = "b.mspace"
+"""
+
+
+@pytest.fixture
+def tiny_spec(tmp_path):
+    """A graph spec over two stand-in space files: every check here runs before a space is opened."""
+    for name in ("a", "b"):
+        (tmp_path / f"{name}.mspace").write_bytes(b"not opened")
+    (tmp_path / "g.toml").write_text(TINY_SPEC)
+    return tmp_path / "g.toml"
+
+
+def _graph_refused(capsys, argv, *expected):
+    assert main(["build-graph", *map(str, argv)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    for text in expected:
+        assert text in err, err
+    return err
+
+
+@pytest.mark.parametrize("change,message", [
+    (lambda s: s.replace('spaces = "."', "spaces = 4"), "spaces must be a directory (a non-empty string), got 4"),
+    (lambda s: s.replace('name = "g"', "name = 3"), "name must be a non-empty string"),
+    (lambda s: s.replace('name = "g"', 'name = "g"\ncolour = 1'), "unknown key(s) colour; known: name, spaces"),
+    (lambda s: s.replace("[[nodes]]", "[window]\nper_axis = 0\n\n[[nodes]]", 1),
+     "[window] per_axis must be an integer from 1 to 21, got 0"),
+    (lambda s: s.replace("[[nodes]]", '[window]\nwindow_step = "x"\n\n[[nodes]]', 1),
+     "[window] window_step must be a number above 0 and at most 0.5, got 'x'"),
+    (lambda s: s.replace("[[nodes]]", "[window]\nphases = 1000\n\n[[nodes]]", 1),
+     "[window] phases must be an integer from 4 to 256, got 1000"),
+    (lambda s: s.replace("[[nodes]]", "[window]\nvelocity_weight = nan\n\n[[nodes]]", 1),
+     "[window] velocity_weight must be a number from 0 to 10, got nan"),
+    (lambda s: s.replace('edges = [["a", "b"], ["b", "a"]]', 'edges = [["a", "b"], ["b", "a"]]\nwindow = 5'),
+     "window must be a table ([window]), got 5"),
+    (lambda s: s + "return_to = 5\n", "node 'b': return_to must be a node name, got 5"),
+])
+def test_bad_graph_spec_keys_are_named_with_their_range(tiny_spec, capsys, change, message):
+    tiny_spec.write_text(change(TINY_SPEC))
+    err = _graph_refused(capsys, [tiny_spec, "--out", tiny_spec.with_name("o.mgraph")], message)
+    assert f"{tiny_spec}: " in err
+    assert not tiny_spec.with_name("o.mgraph").exists()
+
+
+def test_directories_as_the_graph_spec_or_output_and_an_input_as_output_are_refused(tiny_spec, capsys):
+    directory = tiny_spec.parent
+    _graph_refused(capsys, [directory], f"{directory} is a directory, not a graph spec file")
+    (directory / "out").mkdir()
+    _graph_refused(capsys, [tiny_spec, "--out", directory / "out", "--force"],
+                   f"--out {directory / 'out'} is a directory, not a file")
+    (directory / "g.mgraph").mkdir()  # the spec's default output
+    _graph_refused(capsys, [tiny_spec, "--force"], f"{directory / 'g.mgraph'} is a directory, not a file")
+    _graph_refused(capsys, [tiny_spec, "--out", directory / "a.mspace", "--force"],
+                   f"--out {directory / 'a.mspace'} is the input")
+    assert (directory / "a.mspace").read_bytes() == b"not opened" and list((directory / "out").iterdir()) == []
+    assert not list(directory.glob(".*.tmp"))

@@ -1,7 +1,11 @@
 """`morphspace play` on a motion space: the clip played, and requests outside the reachable domain
-said, whether they come from --set or from a scripted --at."""
+said, whether they come from --set or from a scripted --at; bad input (numbers, paths, recordings,
+of a space or a graph) refused in one line before anything is played."""
 
 import json
+
+import numpy as np
+import pytest
 
 from server.cli import main
 
@@ -32,3 +36,108 @@ def test_a_request_after_the_play_ends_is_said_not_dropped(built_spaces, capsys)
     report = _play(capsys, built_spaces / "speed.mspace", "--set", "speed=1", "--at", 0.8, "speed=1.5",
                    "--seconds", 0.5, "--fps", 20)
     assert report["notes"] == ["t=0.80 s: speed=1.5 not applied: --seconds ended the play at 0.50 s"]
+
+
+# Bad input: one line naming the option or file, exit status 2, nothing played or written.
+
+
+def _refused(capsys, argv, *expected):
+    assert main([str(a) for a in argv]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and len(captured.err.strip().splitlines()) == 1, captured.err
+    for text in expected:
+        assert text in captured.err, captured.err
+    return captured.err
+
+
+@pytest.fixture(scope="module")
+def renamed_space(tmp_path_factory):
+    """A space without parameters built as o.mspace (its name inside stays "o"), then renamed cube.mspace."""
+    from engine.motion_space import SourceClip, build_motion_space
+
+    root = tmp_path_factory.mktemp("renamed")
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0, 0, 1], [1, 0, 1], [1, 1, 1], [0, 1, 1]]) * 0.8
+    F = np.array([[0, 2, 1], [0, 3, 2], [4, 5, 6], [4, 6, 7], [0, 1, 5], [0, 5, 4], [2, 3, 7], [2, 7, 6], [1, 2, 6],
+                  [1, 6, 5], [0, 4, 7], [0, 7, 3]])
+    clips = [SourceClip(name, np.stack([V * s + [0.0, 0.0, 0.03 * i] for i in range(3)]), 15.0, False)
+             for name, s in (("a", 1.0), ("b", 1.05))]
+    build_motion_space(root / "o.mspace", clips, F, name="o")
+    (root / "o.mspace").rename(root / "cube.mspace")
+    return root / "cube.mspace"
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["--seconds", "inf"], "--seconds must be a positive number, got inf"),
+    (["--seconds", "nan"], "--seconds must be a positive number, got nan"),
+    (["--seconds", "1e9"], "--seconds 1e+09 at --fps 60 is 60000000001 frames; at most 100000 per play"),
+    (["--fps", "1e9"], "10 s (the default --seconds) at --fps 1e+09 is 10000000001 frames; at most 100000 per play"),
+    (["--fps", "nan"], "--fps must be a positive number of frames per second, got nan"),
+    (["--fps", "1e308", "--seconds", "1e308"], "is more than 100000 frames; at most 100000 per play"),
+    (["--at", "nan", "speed=1.2"], "--at nan: the time must be a finite number of seconds >= 0"),
+    (["--at", "-1", "speed=1.2"], "--at -1: the time must be a finite number of seconds >= 0"),
+    (["--trail-every", "0"], "--trail-every must be a positive number of seconds, got 0"),
+    (["--trail-every", "-1"], "--trail-every must be a positive number of seconds, got -1"),
+    (["--smoothing", "nan"], "--smoothing must be a non-negative number of seconds, got nan"),
+    (["--set", "speed=nan"], "speed: 'nan' is not a finite number"),
+])
+def test_bad_numbers_of_a_space_play_are_refused(built_spaces, capsys, argv, message):
+    _refused(capsys, ["play", built_spaces / "speed.mspace", *argv], message)
+
+
+def test_bad_output_paths_of_a_space_play_are_refused_up_front(built_spaces, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a.obj").write_text("v 0 0 0\n")
+    (tmp_path / "dir").mkdir()
+    space = built_spaces / "speed.mspace"
+    for argv, message in [(["--frames", "a.obj"], "--frames a.obj: exists and is not a directory"),
+                          (["--frames", "a.obj/f"], "--frames a.obj/f: a.obj is not a directory"),
+                          (["--trail", "dir"], "--trail dir: is a directory; give a file name"),
+                          (["--trail", "t.nope"], "--trail t.nope: not a picture file name")]:
+        _refused(capsys, ["play", space, "--seconds", 0.2, *argv], message)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.obj", "dir"] and not any((tmp_path / "dir").iterdir())
+
+
+def test_a_renamed_space_is_named_by_its_file(renamed_space, capsys):
+    err = _refused(capsys, ["play", renamed_space, "--seconds", 0.2],
+                   f"{renamed_space}: the space has no parameter map")
+    assert "error: o:" not in err
+
+
+@pytest.fixture()
+def graph_recording(built_graph, tmp_path, capsys):
+    """A short recording of the tiny graph (and the graph's path)."""
+    graph = built_graph / "tiny.mgraph"
+    assert main(["play", str(graph), "--seconds", "0.2", "--fps", "15", "--record", str(tmp_path / "r.json")]) == 0
+    capsys.readouterr()
+    return graph, tmp_path / "r.json"
+
+
+def test_bad_input_of_a_graph_play_is_refused(graph_recording, tmp_path, capsys, monkeypatch):
+    graph, recording = graph_recording
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "binary.json").write_bytes(bytes(range(128, 256)))
+    (tmp_path / "a.obj").write_text("v 0 0 0\n")
+    (tmp_path / "dir").mkdir()
+    huge = json.loads(recording.read_text())
+    huge["steps"] = 10 ** 12
+    (tmp_path / "huge.json").write_text(json.dumps(huge))
+    before = sorted(p.name for p in tmp_path.iterdir())
+    _refused(capsys, ["play", graph, "--replay", "missing.json"], "--replay missing.json: no such file")
+    _refused(capsys, ["play", graph, "--replay", "dir"], "--replay dir: is a directory, not a recording")
+    _refused(capsys, ["play", graph, "--replay", "binary.json"], "--replay binary.json: not a text file")
+    _refused(capsys, ["play", graph, "--replay", "huge.json"],
+             "--replay huge.json: recording: 1000000000001 frames; at most 100000 per play")
+    _refused(capsys, ["play", graph, "--seconds", 0.2, "--record", "dir"], "--record dir: is a directory")
+    _refused(capsys, ["play", graph, "--seconds", 0.2, "--frames", "a.obj"], "--frames a.obj: exists and is not a")
+    _refused(capsys, ["play", graph, "--seconds", 0.2, "--trail", "t.png"], "--trail is for motion spaces")
+    _refused(capsys, ["play", graph, "--at", "nan", "jump"], "--at nan: the time must be a finite number")
+    _refused(capsys, ["play", graph, "--at", "1e300", "jump"], "at most 100000 per play")
+    _refused(capsys, ["play", graph, "--fps", "inf"], "--fps must be a positive number")
+    assert sorted(p.name for p in tmp_path.iterdir()) == before and not any((tmp_path / "dir").iterdir())
+
+
+def test_a_graph_request_after_the_play_ends_is_said_not_dropped(built_graph, capsys):
+    report = _play(capsys, built_graph / "tiny.mgraph", "--at", 5, "jump", "--seconds", 1, "--fps", 15)
+    assert report["notes"] == ["t=5.00 s: jump not applied: --seconds ended the play at 1.00 s"]
+    assert main(["play", str(built_graph / "tiny.mgraph"), "--at", "5", "jump", "--seconds", "1", "--fps", "15"]) == 0
+    assert "  note: t=5.00 s: jump not applied: --seconds ended the play at 1.00 s" in capsys.readouterr().out

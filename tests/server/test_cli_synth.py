@@ -72,3 +72,55 @@ def test_unknown_sequence_is_a_clear_error(tmp_path, capsys):
     assert main(["synth", "--preset", "tiny", "--out", str(tmp_path / "x"), "--only", "moonwalk"]) == 2
     assert "unknown sequence(s) moonwalk" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+QUICK = ["--preset", "tiny", "--only", "walk", "--no-previews", "--no-unstructured", "--workers", "1"]
+
+
+def _refused(capsys, argv, *expected):
+    assert main(["synth", *map(str, argv)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    for text in expected:
+        assert text in err, err
+    return err
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["--fps", "inf"], "--fps must be between 1 and 240 frames per second, got inf"),
+    (["--fps", "nan"], "--fps must be between 1 and 240 frames per second, got nan"),
+    (["--fps", "0"], "--fps must be between 1 and 240 frames per second, got 0"),
+    (["--noise-mm", "nan"], "--noise-mm must be between 0 and 100, got nan"),
+    (["--noise-mm", "-1"], "--noise-mm must be between 0 and 100, got -1"),
+    (["--workers", "0"], "--workers must be between 1 and"),
+    (["--workers", "-2"], "--workers must be between 1 and"),
+    (["--seed", "-1"], "--seed must be a non-negative integer, got -1"),
+    (["--vertices", "10"], "--vertices must be between 1000 and 50000, got 10"),
+    (["--height", "0"], "--height must be between 1.0 and 2.5 m, got 0"),
+    (["--height", "nan"], "--height must be between 1.0 and 2.5 m, got nan"),
+])
+def test_bad_options_are_refused_before_anything_is_written(tmp_path, capsys, monkeypatch, argv, message):
+    monkeypatch.chdir(tmp_path)
+    _refused(capsys, [*QUICK, "--out", "x", *argv], message)
+    assert list(tmp_path.iterdir()) == []  # no x, no .x.partial-<pid>
+
+
+def test_an_out_that_is_a_file_or_holds_the_current_directory_is_refused(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "a.obj").write_text("v 0 0 0\n")
+    _refused(capsys, [*QUICK, "--out", "a.obj", "--force"], "--out a.obj: exists and is not a directory")
+    _refused(capsys, [*QUICK, "--out", "a.obj/x"], "--out a.obj/x: a.obj is not a directory")
+    _refused(capsys, [*QUICK, "--out", ".", "--force"], "--out .: is the current directory or holds it")
+    assert [p.name for p in tmp_path.iterdir()] == ["a.obj"] and (tmp_path / "a.obj").read_text() == "v 0 0 0\n"
+
+
+def test_a_failure_while_writing_leaves_no_staging_directory(tmp_path, capsys, monkeypatch):
+    from server.commands import synth
+
+    def fail(vertices, height):
+        raise OSError("disk full")
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(synth, "_body", fail)
+    _refused(capsys, [*QUICK, "--out", "new/deeper/x"], "disk full")
+    assert list(tmp_path.iterdir()) == []  # neither .x.partial-<pid> nor the parents made for it
