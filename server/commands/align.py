@@ -47,6 +47,7 @@ from engine.mesh_io import MESH_EXTENSIONS, read_frames, write_obj, write_sequen
 from engine.mesh_io.frames import left_out_frames, list_frames
 from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
 from engine.mesh_io.errors import MeshFormatError, MeshSequenceError
+from server.commands.checks import MAX_FPS, read_meta
 from engine.mesh_io.npz import savez_stable
 from engine.mesh_io.units import Convention
 from engine.surface import model_size
@@ -205,19 +206,7 @@ def resolve_inputs(inputs, only=None):
 
 
 def _sequence_entry(path, body=None):
-    meta = None
-    if (path / "meta.json").is_file():
-        try:
-            meta = json.loads((path / "meta.json").read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise MeshFormatError(f"{path / 'meta.json'}: unreadable: {exc}") from None
-        if not isinstance(meta, dict):
-            raise MeshFormatError(f"{path / 'meta.json'}: not a JSON object")
-        fps = meta.get("fps")
-        if fps is not None and (isinstance(fps, bool) or not isinstance(fps, (int, float))
-                                or not (math.isfinite(fps) and 0 < fps <= MAX_FPS)):
-            raise MeshFormatError(f"{path / 'meta.json'}: fps must be a number above 0 and at most {MAX_FPS:g}, "
-                                  f"got {fps!r}")
+    meta = read_meta(path) if (path / "meta.json").is_file() else None
     frames = path / "unstructured" if (path / "unstructured").is_dir() else path
     name = (meta or {}).get("name") or (path.stem if path.suffix.lower() == ".zip" else path.name)
     if body is None and (path.parent.parent / "manifest.json").is_file():  # a sequence of a dataset
@@ -256,7 +245,6 @@ def parse_root(text, sequences, lengths):
 
 
 DEFAULT_FPS = 30.0  # the frame rate of inputs without a meta.json, unless --fps says
-MAX_FPS = 1000.0    # frame rates are in (0, MAX_FPS], as uploads take them (docs/rest.md)
 
 
 def read_inputs(sequences, progress=None, *, say=None):

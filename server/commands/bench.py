@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.bench import blend_speed, single_core
+from engine.bench import blend_requests, blend_speed, single_core
 from engine.motion_space import MotionSpace
 
 MAX_CALLS, MAX_NONLINEAR_CALLS = 1_000_000, 100_000
@@ -30,25 +30,6 @@ def add_arguments(parser):
     parser.add_argument("--nonlinear-calls", type=int, default=100,
                         help=f"calls for non-linear, 5 to {MAX_NONLINEAR_CALLS:,} (default 100)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the random weights and phases (default 0)")
-
-
-class Requests:
-    """The random (weights, phase) requests of ``engine.bench.blend_requests`` (the same draws for a seed), kept
-    as two arrays, (sources + 1) floats a call, rather than a tuple and an array object a call (~250 bytes)."""
-
-    def __init__(self, n_sources, count, seed=0):
-        rng = np.random.default_rng(seed)
-        self.weights = rng.dirichlet(np.ones(n_sources), count)
-        self.phases = rng.uniform(0, 1, count)
-
-    def __len__(self):
-        return len(self.phases)
-
-    def __getitem__(self, k):
-        return self.weights[k], float(self.phases[k])
-
-    def __iter__(self):
-        return ((w, float(p)) for w, p in zip(self.weights, self.phases))
 
 
 def run(args):
@@ -69,7 +50,7 @@ def run(args):
         for mode, calls, out in (("linear", args.calls, out32), ("hybrid", args.calls, out32),
                                  ("nonlinear", args.nonlinear_calls, out64)):
             blender = space.blender(mode)
-            requests = Requests(space.n_sources, calls, seed=args.seed)
+            requests = blend_requests(space.n_sources, calls, seed=args.seed)
             blender.blend(*requests[0], out=out)  # warm up (page in the mapped arrays)
             results["modes"][mode] = blend_speed(blender, requests, out=out)
     c = space.container

@@ -19,7 +19,6 @@ default, and said on stderr); the space is in metres, +Y up.
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 import tomllib
@@ -33,13 +32,13 @@ from engine.mesh_io import read_mesh, read_sequence, to_metres_y_up
 from engine.motion_space import SourceClip, build_motion_space
 from engine.parameters import MEASURES, Layout
 from server.progress import StageBars
+from server.commands.checks import MAX_FPS, check_number, check_output_file, read_meta
 from server.units import add_units_arguments, decide_convention, declared_convention, say_conventions, source_metadata
 
 LAYOUT_KEYS = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}
 SPEC_KEYS = ("name", "captures", "epsilon_mm", "phases", "rest", "sources", "parameters")
 PARAMETER_KEYS = ("layout", "chain", "corners", "left", "right", "measures", "resolution")
 SOURCE_KEYS = ("name", "path")
-MAX_FPS = 1000.0            # frame rates are in (0, MAX_FPS], as uploads take them (docs/rest.md)
 EPSILON_MM = (0.0, 100.0)   # the hybrid's error bound: above the first, at most the second (as the REST job)
 PHASES = (2, 512)           # phase samples (the REST job's range is 4..512; the engine needs 2)
 RESOLUTION = (2, 41)        # samples per layout axis of the parameter map (as the REST job)
@@ -64,56 +63,6 @@ def add_arguments(parser):
                         "not say) are cyclic")
     add_units_arguments(parser)
     parser.add_argument("--force", action="store_true", help="replace an existing output file")
-
-
-def check_number(value, what, low, high, *, integer=False, above=False, unit=""):
-    """``value`` if it is a number (an int when ``integer``; never a bool) from ``low`` to ``high``
-    (above ``low`` when ``above``) and finite, else a ValueError: "``what`` must be ..., got ..."."""
-    if integer:
-        good = isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
-        accepted = f"an integer from {low} to {high}"
-    else:
-        good = (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-                and (low < value if above else low <= value) and value <= high)
-        accepted = f"a number {'above' if above else 'from'} {low:g} {'and at most' if above else 'to'} {high:g}"
-    if not good:
-        raise ValueError(f"{what} must be {accepted}{' ' + unit if unit else ''}, got {value!r}")
-    return value
-
-
-def check_output_file(out, option="--out", inputs=()):
-    """Refuse an output file path before any work: an existing directory, a path below a file, or
-    one of the ``inputs`` (replacing it would destroy what the output is made from)."""
-    out = Path(out)
-    named = f"{option} {out}" if option else str(out)
-    if out.is_dir():
-        raise ValueError(f"{named} is a directory, not a file: name the file to write")
-    parent = next((p for p in out.parents if p.exists()), None)
-    if parent is not None and not parent.is_dir():
-        raise ValueError(f"{named}: {parent} is a file, not a directory")
-    target = out.resolve()
-    for path in inputs:
-        if path is not None and Path(path).resolve() == target:
-            raise ValueError(f"{named} is the input {path}: name another output file")
-
-
-def read_meta(directory):
-    """A sequence directory's meta.json as a dict, checked: an object with an optional ``name``
-    (a string), ``fps`` (a number in (0, MAX_FPS]) and ``cyclic`` (a boolean)."""
-    meta_path = Path(directory) / "meta.json"
-    try:
-        meta = json.loads(meta_path.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{meta_path}: not valid JSON: {exc}") from None
-    if not isinstance(meta, dict):
-        raise ValueError(f"{meta_path}: not a JSON object")
-    if "name" in meta and (not isinstance(meta["name"], str) or not meta["name"]):
-        raise ValueError(f"{meta_path}: name must be a non-empty string, got {meta['name']!r}")
-    if "fps" in meta:
-        check_number(meta["fps"], f"{meta_path}: fps", 0.0, MAX_FPS, above=True, unit="frames/s")
-    if "cyclic" in meta and not isinstance(meta["cyclic"], bool):
-        raise ValueError(f"{meta_path}: cyclic must be true or false, got {meta['cyclic']!r}")
-    return meta
 
 
 def load_source(directory, *, fps, cyclic):

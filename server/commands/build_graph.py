@@ -14,15 +14,12 @@ import sys
 from pathlib import Path
 
 from engine.graph import GraphError, NodeSpec, WindowOptions, build_graph
-from server.commands.build import check_file_name, check_keys, check_number, check_output_file, read_toml
+from server.commands.build import check_file_name, check_keys, read_toml
+from server.commands.checks import check_number, check_output_file
 from server.progress import StageBars
 
 WINDOW_KEYS = {"window_frames": "frames", "window_step": "step", "vertices": "vertices",
                "velocity_weight": "velocity_weight", "phases": "phases", "per_axis": "per_axis"}
-# each [window] key's range, (low, high, integer, above low): WindowOptions' and the REST job's (GraphWindow)
-WINDOW_LIMITS = {"window_frames": (2, 60, True, False), "window_step": (0.0, 0.5, False, True),
-                 "vertices": (10, 100_000, True, False), "velocity_weight": (0.0, 10.0, False, False),
-                 "phases": (4, 256, True, False), "per_axis": (1, 21, True, False)}
 GRAPH_KEYS = ("name", "spaces", "edges", "window", "nodes")
 
 
@@ -31,6 +28,19 @@ def add_arguments(parser):
     parser.add_argument("--out", type=Path, help="output .mgraph file (default: the spec's name in its spaces "
                         "directory, beside the spaces)")
     parser.add_argument("--force", action="store_true", help="replace an existing output file")
+
+
+def window_limits():
+    """Each [window] key's range, {key: (low, high, integer, above low)}, as the REST graph job's
+    ``GraphWindow`` declares it (the bounds ``WindowOptions`` checks; its fields are the keys)."""
+    from server.jobs.models import GraphWindow
+
+    limits = {}
+    for key, field in GraphWindow.model_fields.items():
+        bounds = {name: getattr(m, name) for m in field.metadata for name in ("ge", "gt", "le") if hasattr(m, name)}
+        above = "gt" in bounds
+        limits[key] = (bounds["gt"] if above else bounds["ge"], bounds["le"], field.annotation is int, above)
+    return limits
 
 
 def read_graph_spec(path):
@@ -73,8 +83,9 @@ def read_graph_spec(path):
     unknown = sorted(set(window) - set(WINDOW_KEYS))
     if unknown:
         raise ValueError(f"{path}: [window] has unknown key(s) {', '.join(unknown)}; known: {', '.join(WINDOW_KEYS)}")
+    limits = window_limits() if window else {}
     for key, value in window.items():
-        low, high, integer, above = WINDOW_LIMITS[key]
+        low, high, integer, above = limits[key]
         check_number(value, f"{path}: [window] {key}", low, high, integer=integer, above=above)
     try:
         options = WindowOptions(**{WINDOW_KEYS[k]: v for k, v in window.items()})

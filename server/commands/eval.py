@@ -25,7 +25,7 @@ from server.progress import StageBars
 from engine.mesh_io.dataset import read_capture_manifest, sequence_dir
 from engine.motion_space import MotionSpace
 from engine.synthetic import build_body
-from server.commands.synth import check_output_path
+from server.commands.checks import check_output_path
 
 MAX_TIMING_CALLS = 100_000  # the timing draws its random requests up front: memory grows with the calls
 

@@ -25,7 +25,7 @@ from engine.export.clip import MAX_FRAMES
 from engine.mesh_io import write_obj
 from engine.motion_space import MotionSpace
 from engine.player import Player
-from server.commands.synth import check_output_path
+from server.commands.checks import check_output_path
 
 
 def add_arguments(parser):

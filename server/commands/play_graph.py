@@ -71,7 +71,7 @@ def run_graph(args):
                 steps = frame_steps(last + 4.0, fps, f"{last + 4.0:g} s (4 s after the last --at; --seconds to "
                                     "change it)")
             # a request past the end keeps a frame past it (its time * fps may not even be a number of frames)
-            requests = [{"frame": min(int(round(min(when * fps, steps + 1.0))), steps + 1), **request}
+            requests = [{"frame": int(round(min(when * fps, steps + 1.0))), **request}
                         for when, request in script]
             dts = None
             times, why = [when for when, _ in script], "--seconds ended the play"

@@ -35,6 +35,7 @@ from engine.mesh_io.dataset import (
 from engine.synthetic import PRESETS, build_body, generate_sequence_data, get_preset
 from engine.synthetic.body import MAX_VERTICES, MIN_VERTICES
 from engine.synthetic.studio import StudioPreset
+from server.commands.checks import check_output_path
 
 MAX_FPS = 240.0  # frames per second of a synthetic capture (a fast studio camera)
 MAX_NOISE_MM = 100.0
@@ -146,24 +147,6 @@ def select_sequences(preset, only):
     return specs
 
 
-def check_output_path(path, option, *, directory=False):
-    """Refuse (a ValueError naming ``option`` and ``path``) an output that cannot be written where the user
-    said: a directory where a file is wanted, something else where a directory is (``directory``), a parent
-    that is a file, or a parent directory not writable. Nothing is created."""
-    if directory:
-        if path.exists() and not path.is_dir():
-            raise ValueError(f"{option} {path}: exists and is not a directory")
-    elif path.is_dir():
-        raise ValueError(f"{option} {path}: is a directory; give a file name")
-    for parent in path.parents:  # (a relative path ends at ".", which exists)
-        if parent.exists():
-            if not parent.is_dir():
-                raise ValueError(f"{option} {path}: {parent} is not a directory")
-            if not os.access(parent, os.W_OK | os.X_OK):
-                raise ValueError(f"{option} {path}: cannot write in {parent} (permission denied)")
-            break
-
-
 def check_dataset_out(out, force):
     """Refuse an --out that synth or a command like it must not write to, before anything is made: one that
     exists without --force, exists and is not a directory, holds the current directory, or cannot be made."""
@@ -175,9 +158,9 @@ def check_dataset_out(out, force):
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
 
 
-def staging_directory(out, force):
-    """A fresh hidden directory next to ``out`` to write into (renamed onto ``out`` when complete)."""
-    check_dataset_out(out, force)
+def staging_directory(out):
+    """A fresh hidden directory next to ``out`` to write into (renamed onto ``out`` when complete);
+    ``out`` was checked first (``check_dataset_out``)."""
     staging = out.with_name(f".{out.name}.partial-{os.getpid()}")
     if staging.exists():
         shutil.rmtree(staging)
@@ -194,11 +177,12 @@ def publish(staging, out):
 
 
 @contextmanager
-def staged(out, force):
-    """``with staged(out, force) as staging:`` write into ``staging`` (``staging_directory``); published onto
-    ``out`` when the block ends, removed on any error (with the parent directories made for it)."""
+def staged(out):
+    """``with staged(out) as staging:`` write into ``staging`` (``staging_directory``; ``out`` checked by
+    ``check_options``); published onto ``out`` when the block ends, removed on any error (with the parent
+    directories made for it)."""
     made = [p for p in out.absolute().parents if not p.exists()]  # deepest first
-    staging = staging_directory(out, force)
+    staging = staging_directory(out)
     try:
         yield staging
         publish(staging, out)
@@ -246,7 +230,7 @@ def run(args):
     out = args.out
 
     started = time.perf_counter()
-    with staged(out, args.force) as staging:
+    with staged(out) as staging:
         body = _body(vertices, height)
         write_capture_template(staging, body)
         jobs = [dict(spec=spec, vertices=vertices, height=height, fps=fps, noise_mm=noise_mm,

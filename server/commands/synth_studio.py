@@ -145,7 +145,7 @@ def run_studio(args, preset):
     unstructured_format = None if args.no_unstructured else args.unstructured_format
     out = args.out
     started = time.perf_counter()
-    with staged(out, args.force) as staging:  # removed on any error
+    with staged(out) as staging:  # removed on any error
         body = _body(preset.body_vertices, preset.garment_detail)
         common = dict(body=(preset.body_vertices, preset.garment_detail), fps=fps, camera=camera, root=str(staging),
                       consistent_format=consistent_format, unstructured_format=unstructured_format,

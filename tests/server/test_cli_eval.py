@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 from PIL import Image
+from cli_refused import refused
 
 from engine.mesh_io.dataset import DATASET_FORMAT, DATASET_VERSION
 from engine.motion_space import SourceClip, build_motion_space
@@ -117,15 +118,6 @@ def test_eval_errors_are_one_line(dataset, tmp_path, capsys):
     assert "expected 2 weights" in capsys.readouterr().err
 
 
-def _refused(capsys, argv, *expected):
-    assert main([str(a) for a in argv]) == 2
-    captured = capsys.readouterr()
-    assert captured.out == "" and len(captured.err.strip().splitlines()) == 1, captured.err
-    for text in expected:
-        assert text in captured.err, captured.err
-    return captured.err
-
-
 def test_eval_bad_input_is_refused_before_anything_is_written(dataset, tmp_path, capsys, monkeypatch):
     space, _ = dataset
     monkeypatch.chdir(tmp_path)
@@ -134,15 +126,15 @@ def test_eval_bad_input_is_refused_before_anything_is_written(dataset, tmp_path,
     renamed = tmp_path / "renamed.mspace"  # built as walk_run.mspace: its name inside is walk_run
     renamed.write_bytes(space.read_bytes())
     before = sorted(p.name for p in tmp_path.iterdir())
-    _refused(capsys, ["eval", "dir"], "dir: is a directory, not a motion space file")
-    _refused(capsys, ["eval", space, "--out", "a.obj"], "--out a.obj: exists and is not a directory")
-    _refused(capsys, ["eval", space, "--out", "ev", "--sweep", "--epsilons-mm", "nan"],
+    refused(capsys, ["eval", "dir"], "dir: is a directory, not a motion space file")
+    refused(capsys, ["eval", space, "--out", "a.obj"], "--out a.obj: exists and is not a directory")
+    refused(capsys, ["eval", space, "--out", "ev", "--sweep", "--epsilons-mm", "nan"],
              "--epsilons-mm must be positive numbers of millimetres, got nan")
-    _refused(capsys, ["eval", space, "--out", "ev", "--weights", "nan", "1"], "--weights must be finite")
-    _refused(capsys, ["eval", space, "--out", "ev", "--seed", "-1"], "--seed must be a non-negative integer, got -1")
-    _refused(capsys, ["eval", space, "--out", "ev", "--timing-calls", "1000000000"],
+    refused(capsys, ["eval", space, "--out", "ev", "--weights", "nan", "1"], "--weights must be finite")
+    refused(capsys, ["eval", space, "--out", "ev", "--seed", "-1"], "--seed must be a non-negative integer, got -1")
+    refused(capsys, ["eval", space, "--out", "ev", "--timing-calls", "1000000000"],
              "--timing-calls must be between 1 and 100000")
-    err = _refused(capsys, ["eval", "renamed.mspace", "--out", "ev", "--weights", "1", "2", "3"],
+    err = refused(capsys, ["eval", "renamed.mspace", "--out", "ev", "--weights", "1", "2", "3"],
                    "--weights: expected 2 weights (walk, run) for renamed.mspace, got 3")
     assert "walk_run" not in err
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no ev/
@@ -164,7 +156,7 @@ def test_eval_removes_the_out_directory_it_made_when_it_fails(dataset, tmp_path,
 
     space, _ = dataset
     monkeypatch.setattr(evaluation, "blend_errors", fail)
-    _refused(capsys, ["eval", space, "--out", tmp_path / "new" / "ev"], "blend errors failed")
+    refused(capsys, ["eval", space, "--out", tmp_path / "new" / "ev"], "blend errors failed")
     assert list(tmp_path.iterdir()) == []
 
 
@@ -174,14 +166,14 @@ def test_eval_removes_the_out_directory_it_made_when_it_fails(dataset, tmp_path,
     (["--per-axis", "1000"], "--per-axis must be between 2 and 201, got 1000"),
 ])
 def test_eval_params_bad_per_axis_is_refused(built_spaces, capsys, argv, message):
-    _refused(capsys, ["eval-params", built_spaces / "speed.mspace", *argv], message)
+    refused(capsys, ["eval-params", built_spaces / "speed.mspace", *argv], message)
 
 
 def test_eval_params_names_a_renamed_space_by_its_file(dataset, tmp_path, capsys):
     space, _ = dataset
     renamed = tmp_path / "renamed.mspace"
     renamed.write_bytes(space.read_bytes())
-    err = _refused(capsys, ["eval-params", renamed], f"{renamed}: the space has no parameter map")
+    err = refused(capsys, ["eval-params", renamed], f"{renamed}: the space has no parameter map")
     assert "walk_run" not in err
 
 
@@ -193,22 +185,24 @@ def test_eval_params_names_a_renamed_space_by_its_file(dataset, tmp_path, capsys
 ])
 def test_bench_bad_options_are_refused(dataset, capsys, argv, message):
     space, _ = dataset
-    _refused(capsys, ["bench", space, *argv], message)
+    refused(capsys, ["bench", space, *argv], message)
 
 
 def test_bench_requests_are_the_engines_draws_in_little_memory():
     import tracemalloc
 
     from engine.bench import blend_requests
-    from server.commands.bench import Requests
 
-    ours, engine = Requests(3, 200, seed=4), blend_requests(3, 200, seed=4)
+    # the draws as a list of (weights, phase) tuples made them (before 2026-11-30), from the same generator
+    rng = np.random.default_rng(4)
+    engine = [(w, float(p)) for w, p in zip(rng.dirichlet(np.ones(3), 200), rng.uniform(0, 1, 200))]
+    ours = blend_requests(3, 200, seed=4)
     assert len(ours) == len(engine) == 200
     for (w, p), (v, q) in zip(ours, engine):
         np.testing.assert_array_equal(w, v)
         assert p == q
     tracemalloc.start()
-    Requests(3, 100_000)
+    blend_requests(3, 100_000)
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     assert peak < 100_000 * 48  # (3 + 1) float64 a call and the generator's scratch, not ~250 bytes a call

@@ -9,6 +9,7 @@ import time
 
 import httpx
 import pytest
+from cli_refused import refused
 from live_server import LiveServer
 
 from engine.graph import MotionGraph
@@ -238,12 +239,7 @@ def tiny_spec(tmp_path):
 
 
 def _graph_refused(capsys, argv, *expected):
-    assert main(["build-graph", *map(str, argv)]) == 2
-    err = capsys.readouterr().err
-    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
-    for text in expected:
-        assert text in err, err
-    return err
+    return refused(capsys, ["build-graph", *argv], *expected)
 
 
 @pytest.mark.parametrize("change,message", [

@@ -6,6 +6,7 @@ import json
 
 import numpy as np
 import pytest
+from cli_refused import refused
 
 from server.cli import main
 
@@ -41,15 +42,6 @@ def test_a_request_after_the_play_ends_is_said_not_dropped(built_spaces, capsys)
 # Bad input: one line naming the option or file, exit status 2, nothing played or written.
 
 
-def _refused(capsys, argv, *expected):
-    assert main([str(a) for a in argv]) == 2
-    captured = capsys.readouterr()
-    assert captured.out == "" and len(captured.err.strip().splitlines()) == 1, captured.err
-    for text in expected:
-        assert text in captured.err, captured.err
-    return captured.err
-
-
 @pytest.fixture(scope="module")
 def renamed_space(tmp_path_factory):
     """A space without parameters built as o.mspace (its name inside stays "o"), then renamed cube.mspace."""
@@ -81,7 +73,7 @@ def renamed_space(tmp_path_factory):
     (["--set", "speed=nan"], "speed: 'nan' is not a finite number"),
 ])
 def test_bad_numbers_of_a_space_play_are_refused(built_spaces, capsys, argv, message):
-    _refused(capsys, ["play", built_spaces / "speed.mspace", *argv], message)
+    refused(capsys, ["play", built_spaces / "speed.mspace", *argv], message)
 
 
 def test_bad_output_paths_of_a_space_play_are_refused_up_front(built_spaces, tmp_path, capsys, monkeypatch):
@@ -93,12 +85,12 @@ def test_bad_output_paths_of_a_space_play_are_refused_up_front(built_spaces, tmp
                           (["--frames", "a.obj/f"], "--frames a.obj/f: a.obj is not a directory"),
                           (["--trail", "dir"], "--trail dir: is a directory; give a file name"),
                           (["--trail", "t.nope"], "--trail t.nope: not a picture file name")]:
-        _refused(capsys, ["play", space, "--seconds", 0.2, *argv], message)
+        refused(capsys, ["play", space, "--seconds", 0.2, *argv], message)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.obj", "dir"] and not any((tmp_path / "dir").iterdir())
 
 
 def test_a_renamed_space_is_named_by_its_file(renamed_space, capsys):
-    err = _refused(capsys, ["play", renamed_space, "--seconds", 0.2],
+    err = refused(capsys, ["play", renamed_space, "--seconds", 0.2],
                    f"{renamed_space}: the space has no parameter map")
     assert "error: o:" not in err
 
@@ -122,17 +114,17 @@ def test_bad_input_of_a_graph_play_is_refused(graph_recording, tmp_path, capsys,
     huge["steps"] = 10 ** 12
     (tmp_path / "huge.json").write_text(json.dumps(huge))
     before = sorted(p.name for p in tmp_path.iterdir())
-    _refused(capsys, ["play", graph, "--replay", "missing.json"], "--replay missing.json: no such file")
-    _refused(capsys, ["play", graph, "--replay", "dir"], "--replay dir: is a directory, not a recording")
-    _refused(capsys, ["play", graph, "--replay", "binary.json"], "--replay binary.json: not a text file")
-    _refused(capsys, ["play", graph, "--replay", "huge.json"],
+    refused(capsys, ["play", graph, "--replay", "missing.json"], "--replay missing.json: no such file")
+    refused(capsys, ["play", graph, "--replay", "dir"], "--replay dir: is a directory, not a recording")
+    refused(capsys, ["play", graph, "--replay", "binary.json"], "--replay binary.json: not a text file")
+    refused(capsys, ["play", graph, "--replay", "huge.json"],
              "--replay huge.json: recording: 1000000000001 frames; at most 100000 per play")
-    _refused(capsys, ["play", graph, "--seconds", 0.2, "--record", "dir"], "--record dir: is a directory")
-    _refused(capsys, ["play", graph, "--seconds", 0.2, "--frames", "a.obj"], "--frames a.obj: exists and is not a")
-    _refused(capsys, ["play", graph, "--seconds", 0.2, "--trail", "t.png"], "--trail is for motion spaces")
-    _refused(capsys, ["play", graph, "--at", "nan", "jump"], "--at nan: the time must be a finite number")
-    _refused(capsys, ["play", graph, "--at", "1e300", "jump"], "at most 100000 per play")
-    _refused(capsys, ["play", graph, "--fps", "inf"], "--fps must be a positive number")
+    refused(capsys, ["play", graph, "--seconds", 0.2, "--record", "dir"], "--record dir: is a directory")
+    refused(capsys, ["play", graph, "--seconds", 0.2, "--frames", "a.obj"], "--frames a.obj: exists and is not a")
+    refused(capsys, ["play", graph, "--seconds", 0.2, "--trail", "t.png"], "--trail is for motion spaces")
+    refused(capsys, ["play", graph, "--at", "nan", "jump"], "--at nan: the time must be a finite number")
+    refused(capsys, ["play", graph, "--at", "1e300", "jump"], "at most 100000 per play")
+    refused(capsys, ["play", graph, "--fps", "inf"], "--fps must be a positive number")
     assert sorted(p.name for p in tmp_path.iterdir()) == before and not any((tmp_path / "dir").iterdir())
 
 

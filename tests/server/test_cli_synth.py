@@ -5,6 +5,7 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from cli_refused import refused
 
 from engine.mesh_io import read_frames, read_sequence
 from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
@@ -78,12 +79,7 @@ QUICK = ["--preset", "tiny", "--only", "walk", "--no-previews", "--no-unstructur
 
 
 def _refused(capsys, argv, *expected):
-    assert main(["synth", *map(str, argv)]) == 2
-    err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1, err
-    for text in expected:
-        assert text in err, err
-    return err
+    return refused(capsys, ["synth", *argv], *expected)
 
 
 @pytest.mark.parametrize("argv,message", [
