@@ -9,13 +9,16 @@ ticks of the scheduler's batch size and produced by ``FrameScheduler._produce``;
 each frame's message. It reports the process CPU (``time.process_time``) of the ticks per frame.
 The parameter requests themselves (a cold solve each) are not timed.
 
-With ``--offline-grid`` the ticks are the online scheduler's instead: each session's grid starts
-at its own point of the first period (spread evenly, as connections arriving at random times
-are), and the simulated ticks follow the tree's ``server.scheduler`` rule (a tick half a tick
-(``TICK``) before the next frame falls due, at least a tick after the last; every frame due
-within half a tick of it, in batches of ``MAX_BATCH``). The frames per tick are then what the
-tree's tick length gives 200 clients online, and their per-tick cost counts as it does there;
-the loop's sleeps and wake-ups between ticks are still not in the figure.
+With ``--offline-grid`` the ticks are the online scheduler's instead: the sessions say hello at
+points spread evenly over the first period (as connections arriving at random times do), so
+their first frames are urgent; after that each session's next frame falls due where the tree's
+own rule puts it (``FrameOutput.due_step``: a grid per connection in trees before session 33,
+one grid shared by every connection at a rate since), and the simulated ticks follow the tree's
+``server.scheduler`` rule (a tick half a tick (``TICK``) before the next frame falls due, at
+least a tick after the last; every frame due within half a tick of it, in batches of
+``MAX_BATCH``). The frames per tick are then what the tree gives 200 clients online, and their
+per-tick cost counts as it does there; the loop's sleeps and wake-ups between ticks are still
+not in the figure.
 
 Run as a script in a tree (``python _offline.py --json ...`` with that tree first on the path),
 so ``--baseline DIR`` measures DIR's scheduler the same way, in alternating rounds.
@@ -137,7 +140,9 @@ async def _measure(space_path, clients, seconds, share, seed, grid=False):
 def _grid_ticks(scheduler, sessions, seconds, period, next_request, rng, domain, tick, max_batch):
     """``--offline-grid``'s ticks (see the module docstring): returns (process CPU, ticks)."""
     start_at = 1000.0 + period
-    due = [start_at + k * period / len(sessions) for k in range(len(sessions))]  # each grid's next frame
+    due = [start_at + k * period / len(sessions) for k in range(len(sessions))]  # each one's hello
+    for session in sessions:
+        session.urgent = True  # a hello's frame: urgent (FrameOutput.due_step sets the grid from it)
     end, now, cpu, ticks = start_at + seconds, start_at - 0.5 * tick, 0.0, 0
     while now < end:
         taken = sorted((d, k) for k, d in enumerate(due) if d <= now + 0.5 * tick)
@@ -148,15 +153,12 @@ def _grid_ticks(scheduler, sessions, seconds, period, next_request, rng, domain,
                 next_request[k] += 0.5
         start = time.process_time()
         for first in range(0, len(taken), max_batch):
-            batch = [sessions[k] for _, k in taken[first:first + max_batch]]
-            for session in batch:
-                session.next_due = now
-            scheduler._produce(batch, now)
+            scheduler._produce([sessions[k] for _, k in taken[first:first + max_batch]], now)
         cpu += time.process_time() - start
-        scheduler._heap.clear()  # (the frames the sessions asked for next: kept in ``due`` here)
+        scheduler._heap.clear()  # (the frames the sessions asked for next: their next_due, read below)
         ticks += 1 if taken else 0
         for _, k in taken:
-            due[k] += period
+            due[k] = sessions[k].next_due
         now = max(min(due) - 0.5 * tick, now + tick)
     return cpu, ticks
 

@@ -64,7 +64,7 @@ source tree ``DIR`` (another checkout), one worker each, ``--repeat`` rounds eac
 (benchmarks/_offline.py): ``--clients`` sessions, ``--update-share`` of them steering, ``--seconds``
 of frames at 60 fps produced by the scheduler's ticks with the sockets replaced by a counter, the
 process CPU per frame (``--repeat`` rounds; with ``--baseline``, DIR's scheduler too, alternating);
-``--tiny`` runs it too, on its 4 clients. The server always binds 127.0.0.1 and is stopped (its whole process group) at
+``--tiny`` runs it too, on its 4 clients, plain and with ``--offline-grid``. The server always binds 127.0.0.1 and is stopped (its whole process group) at
 the end, whatever happens.
 """
 
@@ -233,8 +233,8 @@ def main(argv=None):
                         help="hash every frame of a deterministic scheduler run, here and in --baseline's tree "
                              "(benchmarks/_load_hash.py)")
     parser.add_argument("--offline-grid", action="store_true",
-                        help="with --offline: the sessions' grids spread over a period and served in the tree's "
-                             "own ticks (server.scheduler.TICK), as online, instead of full batches")
+                        help="with --offline: the sessions say hello spread over a period, then are served on the "
+                             "tree's own grids and ticks (server.scheduler.TICK), as online, instead of full batches")
     parser.add_argument("--soak", type=float, default=0.0, help="seconds of connect/leave soak (0: none)")
     parser.add_argument("--soak-clients", type=int, default=50)
     parser.add_argument("--tiny", action="store_true",
@@ -274,8 +274,10 @@ def main(argv=None):
             result = serve_and_measure(args, data, space_path)
             if args.compare_workers:  # --tiny: the smoke run tries both
                 result["workers_comparison"] = measure_workers(args, data, space_path)
-            if args.tiny:  # and the offline measure
+            if args.tiny:  # and the offline measures, plain and on the online grids
                 result["offline"] = offline_rounds(args, space_path, ROOT)
+                args.offline_grid = True
+                result["offline_grid"] = offline_rounds(args, space_path, ROOT)
     finally:
         shutil.rmtree(data, ignore_errors=True)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -1,6 +1,10 @@
 """One task produces the frames of every streaming connection: ``FrameScheduler``.
 
-Connections wait in a heap keyed by the time their next frame is due. A tick takes every
+Connections wait in a heap keyed by the time their next frame is due: for a streaming
+connection, a multiple of its period (``1 / rate``), on a grid every connection at that rate
+shares (``FrameOutput.due_step``), so that the frames of a tick are as many as can be made
+together (the per-tick work, the compiled calls and the wake-up, is shared by more frames, and
+the clients' processes are woken by bursts, not by every frame). A tick takes every
 connection due within half a tick (``TICK``), steps its player, blends, encodes and hands the
 frame to its transport, then sleeps until the next one falls due (at least a tick later, unless a
 client message makes a frame urgent). Per tick:
@@ -53,7 +57,7 @@ from server.frames import row_views, streamed_heads
 
 log = logging.getLogger("morphspace.stream")
 TICK = 0.002      # seconds: ticks come at most this often (urgent frames excepted)
-MAX_BATCH = 32    # frames per tick at most; then the loop reads sockets before the next tick
+MAX_BATCH = 64    # frames per tick at most; then the loop reads sockets before the next tick
 URGENT = -math.inf
 
 

@@ -121,6 +121,9 @@ def check_stream_load(result, stdout):
     assert record["clients"] == 4 and record["steering"] == 4 and record["frames"] == 4 * 240
     assert record["batched_frames"] > 0 and positive(offline["us_per_frame_median"]["this tree"])
     assert "offline CPU per frame" in stdout
+    (record,) = result["offline_grid"]["rounds"]["this tree"]  # the online ticks: hellos spread over a period
+    assert record["clients"] == 4 and record["frames"] >= 4 * 235 and record["ticks"] > 0
+    assert record["frames"] / record["ticks"] > 3  # one grid: the four served in the same ticks
 
 
 def check_stream_stall(result, stdout):

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 
 import numpy as np
@@ -80,9 +81,11 @@ class FrameOutput:
             self.urgent = False
             return 0.0
         period = 1.0 / rate
-        if urgent:  # an extra frame now; the grid restarts from it
+        if urgent:  # an extra frame now; the next one back on the grid every connection at this
+            # rate shares (multiples of the period, half a period to one and a half away), so
+            # that one tick serves them all
             self.urgent = False
-            self.next_due = now + period
+            self.next_due = math.floor(now / period + 1.5) * period
         else:       # stay on the grid; ticks missed by a whole period are dropped, not caught up
             late = now - self.next_due
             if late >= period:

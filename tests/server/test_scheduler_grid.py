@@ -1,0 +1,123 @@
+"""Connections at one rate share one grid of due times, so one tick serves them all (issue 13).
+
+Sessions over a real space, their transport a recorder that notes the loop time of each write,
+driven by the scheduler's own loop: connections that said hello at different moments, and one
+whose parameters changed mid-stream (an urgent frame), must come back to the shared grid
+(multiples of 1 / rate of loop time) and be written in the same ticks.
+"""
+
+import asyncio
+import concurrent.futures
+import math
+
+from engine.player import Player
+from server.registry import SpaceRegistry
+from server.scheduler import TICK, FrameScheduler
+from server.settings import Settings
+from server.stream.session import StreamSession, StreamStats
+from server.transport import GAUGE
+
+RATE = 50.0
+
+
+class TimedRecorder:
+    """A transport that takes every message at once and notes the loop time it was written at."""
+
+    def __init__(self):
+        self.times = []
+
+    def ready(self):
+        return True
+
+    def held(self):
+        return 0
+
+    def held_above(self, floor):
+        return None
+
+    def write_message(self, parts):
+        self.times.append(asyncio.get_running_loop().time())
+        return True
+
+
+class Socket:
+    def __init__(self):
+        self.scope = {"extensions": {GAUGE: TimedRecorder()}}
+
+
+def run(main):
+    with concurrent.futures.ThreadPoolExecutor(1) as pool:
+        return pool.submit(asyncio.run, main()).result(timeout=60)
+
+
+def _session(registry, scheduler, space, speed):
+    session = StreamSession(Socket(), registry, Settings(), StreamStats(), scheduler)
+    session.player = Player(space, mode="linear", params={"speed": speed})
+    session.space_name, session.rate, session.codec = "speed", RATE, "f32"
+    session.ready = True
+    return session
+
+
+def test_due_times_after_an_urgent_frame_land_on_the_shared_grid(built_spaces):
+    registry = SpaceRegistry(built_spaces)
+    space = registry.get("speed")
+    period = 1.0 / RATE
+
+    async def main():
+        scheduler = FrameScheduler()
+        for now in (100.0, 100.0031, 100.0109, 100.0199, 100.0200):
+            session = _session(registry, scheduler, space, 1.5)
+            session.urgent = True
+            assert session.due_step(now) == 0.0  # the first step
+            k = round(session.next_due / period)
+            assert math.isclose(session.next_due, k * period, abs_tol=1e-9)  # on the grid
+            assert now + 0.5 * period <= session.next_due + 1e-9 < now + 1.5 * period
+
+    run(main)
+
+
+def test_connections_started_apart_are_served_in_the_same_ticks(built_spaces):
+    registry = SpaceRegistry(built_spaces)
+    space = registry.get("speed")
+    period = 1.0 / RATE
+
+    async def main():
+        loop = asyncio.get_running_loop()
+        scheduler = FrameScheduler()
+        sessions = []
+        for k in range(6):  # hellos 7 ms apart: each one's first frame is urgent, off the grid
+            session = _session(registry, scheduler, space, 1.0 + 0.2 * k)
+            scheduler.add(session)
+            session.poke()
+            sessions.append(session)
+            await asyncio.sleep(0.007)
+        await asyncio.sleep(0.25)
+        sessions[2].player.set_params({"speed": 2.2})
+        poked = loop.time()
+        sessions[2].poke(1)  # a client message: an urgent frame now, then back on the grid
+        await asyncio.sleep(0.3)
+        for session in sessions:
+            scheduler.remove(session)
+        await asyncio.sleep(0.01)
+        start = sessions[-1].gauge.times[0] + 0.5 * period  # every one on the grid from here
+        by_point = {}
+        for session in sessions:
+            times = [t for t in session.gauge.times if t >= start]
+            if session is sessions[2]:
+                urgent = [t for t in times if poked <= t < poked + 0.45 * period]
+                assert len(urgent) == 1  # the urgent frame, off the grid
+                times.remove(urgent[0])
+            assert len(times) >= 15
+            # at most half a tick early; late only as far as the loop is (a few ms on a busy machine)
+            offsets = [t - round(t / period) * period for t in times]
+            assert min(offsets) >= -0.5 * TICK - 1e-6
+            assert sum(offset <= 0.005 for offset in offsets) >= 0.8 * len(offsets), offsets
+            for t in times:
+                by_point.setdefault(round(t / period), []).append(t)
+        shared = [ts for ts in by_point.values() if len(ts) == len(sessions)]
+        assert len(shared) >= 12
+        # one tick wrote every connection's frame of a grid point (started 7 ms apart, they would be 35 ms apart)
+        assert sum(max(ts) - min(ts) < 0.002 for ts in shared) >= 0.8 * len(shared)
+        assert scheduler.ticks <= scheduler.frames / 3
+
+    run(main)
