@@ -40,7 +40,7 @@ SPEC_KEYS = ("name", "captures", "epsilon_mm", "phases", "rest", "sources", "par
 PARAMETER_KEYS = ("layout", "chain", "corners", "left", "right", "measures", "resolution")
 SOURCE_KEYS = ("name", "path")
 EPSILON_MM = (0.0, 100.0)   # the hybrid's error bound: above the first, at most the second (as the REST job)
-PHASES = (2, 512)           # phase samples (the REST job's range is 4..512; the engine needs 2)
+PHASES = (2, 512)           # phase samples (as the REST job)
 RESOLUTION = (2, 41)        # samples per layout axis of the parameter map (as the REST job)
 MAX_MEASURES = 3
 

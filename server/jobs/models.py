@@ -56,7 +56,7 @@ class BuildSpec(_Body):
     sources: list[Name] = Field(min_length=2, max_length=16, description="sequence names in the dataset")
     parameters: ParameterSpec | None = Field(None, description="omit for a space without parameters")
     epsilon_mm: float | None = Field(None, gt=0, le=100, description="hybrid error bound (default 5 mm)")
-    phases: int | None = Field(None, ge=4, le=512, description="phase samples (default: the longest source)")
+    phases: int | None = Field(None, ge=2, le=512, description="phase samples (default: the longest source)")
     rest: str | None = Field(None, max_length=300, pattern=r"^[A-Za-z0-9_][A-Za-z0-9_./-]*$",
                              description="rest mesh inside the dataset, e.g. template/body.obj "
                                          "(default: template/body.obj if present, else the first frame)")

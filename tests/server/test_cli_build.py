@@ -152,3 +152,18 @@ def test_a_meta_json_without_name_fps_or_cyclic_takes_them_from_the_directory_an
     (directory / "meta.json").write_text(json.dumps({"units": "m"}))
     clip, _ = load_source(directory, fps=24.0, cyclic=True)
     assert (clip.name, clip.fps, clip.cyclic) == ("take", 24.0, True)
+
+
+def test_the_cli_and_the_rest_build_job_take_the_same_phases():
+    """``--phases`` / the spec's ``phases`` and the REST job's ``phases``: one range, 2..512."""
+    import pydantic
+    from server.commands.build import PHASES
+    from server.jobs.models import BuildSpec
+
+    field = BuildSpec.model_fields["phases"]
+    bounds = {name: getattr(m, name) for m in field.metadata for name in ("ge", "le") if hasattr(m, name)}
+    assert (bounds["ge"], bounds["le"]) == PHASES == (2, 512)
+    assert BuildSpec(sources=["a", "b"], phases=2).phases == 2
+    for bad in (1, 513):
+        with pytest.raises(pydantic.ValidationError):
+            BuildSpec(sources=["a", "b"], phases=bad)
