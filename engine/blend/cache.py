@@ -9,7 +9,8 @@ table B (P, n, 3) is built (P blends) and every later frame at those weights cos
 multiply-add of two rows. This is exact (float32 rounding), not a cache of approximations.
 A player whose parameters have settled, or many viewers at the same parameters, hit the table;
 moving weights fall through to the blender. At most ``capacity`` tables are kept (each is
-2 x P x n x 3 float32 with its differences: 2.3 MB for 32 phases of 3,000 vertices); a new one
+P x n x 3 float32: 1.15 MB for 32 phases of 3,000 vertices; the differences between samples are
+taken as a frame is made, not stored); a new one
 replaces the least recently used only if that one has been idle for ``idle`` seconds, so more
 recurring weights than tables (hundreds of viewers at different settings) never thrash: the
 tables serve the first ``capacity`` of them and the rest blend as if there were none.
@@ -26,12 +27,12 @@ from collections import OrderedDict
 
 import numpy as np
 
-from engine.blend.compiled import interpolate_at, interpolate_rows
+from engine.blend.compiled import interpolate_at
 from engine.blend.phase import phase_of_sample, phase_samples
 
 
 class PhaseTable:
-    """The blends at every phase sample for one weight vector, with forward differences.
+    """The blends at every phase sample for one weight vector.
 
     Parameters
     ----------
@@ -40,7 +41,8 @@ class PhaseTable:
 
     Attributes
     ----------
-    rows, delta : (P, n * 3) float32   B[p] and B[p1(p)] - B[p] (0 after a clip's last sample)
+    rows : (P, n * 3) float32   B[p]; a frame between samples p0 and p1 is B[p0] + a (B[p1] - B[p0]),
+                                the difference taken when the frame is made (none stored)
     """
 
     def __init__(self, rows, cyclic):
@@ -48,24 +50,17 @@ class PhaseTable:
         self.n_phases, self.cyclic = P, bool(cyclic)
         self.n_vertices = rows.shape[1]
         self.rows = np.ascontiguousarray(rows, dtype=np.float32).reshape(P, -1)
-        self.delta = np.empty_like(self.rows)
-        np.subtract(self.rows[1:], self.rows[:-1], out=self.delta[:-1])
-        if cyclic:
-            np.subtract(self.rows[0], self.rows[-1], out=self.delta[-1])
-        else:
-            self.delta[-1] = 0.0
         self._scaled = {}
 
     def at(self, phase, out=None):
         """(n, 3) float32 vertices at ``phase`` in [0, 1]: the row ``rows_at`` gives (the same
         float32 steps, one compiled pass)."""
-        p0, _, a = phase_samples(phase, self.n_phases, self.cyclic)
         V = np.empty((self.n_vertices, 3), dtype=np.float32) if out is None else out
         if V.dtype == np.float32 and V.flags.c_contiguous:
-            interpolate_rows(self.rows, self.delta, np.array([p0], dtype=np.int64), np.array([a], dtype=np.float32),
-                             V.reshape(1, -1))
+            interpolate_at(self.rows, np.array([phase], dtype=np.float64), self.cyclic, V.reshape(1, -1))
         else:
-            V[...] = (self.rows[p0] + self.delta[p0] * np.float32(a)).reshape(V.shape)
+            p0, p1, a = phase_samples(phase, self.n_phases, self.cyclic)
+            V[...] = ((self.rows[p1] - self.rows[p0]) * np.float32(a) + self.rows[p0]).reshape(V.shape)
         return V
 
     def rows_at(self, phases, out=None):
@@ -75,8 +70,10 @@ class PhaseTable:
         """
         samples = [phase_samples(t, self.n_phases, self.cyclic) for t in phases]
         p0 = np.fromiter((s[0] for s in samples), dtype=np.intp, count=len(samples))
+        p1 = np.fromiter((s[1] for s in samples), dtype=np.intp, count=len(samples))
         a = np.fromiter((s[2] for s in samples), dtype=np.float32, count=len(samples))
-        R = np.take(self.delta, p0, axis=0, out=out)
+        R = np.take(self.rows, p1, axis=0, out=out)
+        R -= self.rows[p0]
         R *= a[:, None]
         R += self.rows[p0]
         return R
@@ -85,7 +82,7 @@ class PhaseTable:
         """(K, n * 3) ``dtype`` rows at K phases: ``rows_at(phases).astype(dtype)``, the same
         numbers, each row made in one compiled pass, its phase sample found there too
         (engine/blend/compiled.py; a q16 table's rows cast to "<u2" are the encoded frames)."""
-        return interpolate_at(self.rows, self.delta, np.array(phases, dtype=np.float64), self.cyclic,
+        return interpolate_at(self.rows, np.array(phases, dtype=np.float64), self.cyclic,
                               np.empty((len(phases), self.rows.shape[1]), dtype=dtype))
 
     def scaled(self, scale, offset, lo=None, hi=None, key=None):

@@ -6,21 +6,32 @@ import math
 import numpy as np
 import pytest
 
-from engine.blend.compiled import combine_rows, interpolate_rows, warm_up
+from engine.blend.compiled import combine_rows, interpolate_at, warm_up
 from engine.blend.many import aligned_rows
 
 
-def test_interpolate_rows_is_numpys_take_multiply_add_and_cast():
+@pytest.mark.parametrize("cyclic", [True, False])
+def test_interpolate_at_is_numpys_difference_multiply_add_and_cast(cyclic):
+    """A frame between samples p0 and p1: rows[p0] + a (rows[p1] - rows[p0]) in float32, the
+    difference taken in the pass; the bytes numpy's formulation gives (the float32 subtraction a
+    table of stored differences held: the frames of the tables before this one)."""
+    from engine.blend.phase import phase_samples
+
     rng = np.random.default_rng(1)
     rows = (250 + rng.random((9, 5000)) * 64500).astype(np.float32)  # a q16 table: codes stay in range
-    delta = ((rng.random((9, 5000)) - 0.5) * 500).astype(np.float32)
-    p0 = rng.integers(0, 9, 13)
-    a = rng.random(13).astype(np.float32)
-    expected = np.take(delta, p0, axis=0)
+    phases = np.concatenate([rng.random(13), [0.0, 1.0, 8 / 9, 1 - 1e-17, -0.2, 1.3]])
+    samples = [phase_samples(t, 9, cyclic) for t in phases]
+    p0, p1 = [s[0] for s in samples], [s[1] for s in samples]
+    a = np.array([s[2] for s in samples], dtype=np.float32)
+    stored = np.empty_like(rows)  # the differences the tables used to store
+    np.subtract(rows[1:], rows[:-1], out=stored[:-1])
+    stored[-1] = rows[0] - rows[-1] if cyclic else 0.0
+    expected = np.take(stored, p0, axis=0)
     expected *= a[:, None]
     expected += rows[p0]
+    assert np.array_equal(np.take(rows, p1, axis=0) - rows[p0], np.take(stored, p0, axis=0))
     for dtype in ("<f4", "<u2"):
-        out = interpolate_rows(rows, delta, p0.astype(np.int64), a, np.empty((13, 5000), dtype=dtype))
+        out = interpolate_at(rows, phases, cyclic, np.empty((len(phases), 5000), dtype=dtype))
         assert out.tobytes() == expected.astype(dtype).tobytes()
 
 
@@ -147,7 +158,7 @@ def test_warm_up_compiles_every_signature_the_stream_uses():
     from engine.parameters import parameter_map
 
     warm_up()
-    kernels = (compiled._interpolate_rows, compiled._interpolate_at, compiled._combine_rows, compiled._encode_q16, compiled._hybrid_terms,
+    kernels = (compiled._interpolate_at, compiled._combine_rows, compiled._encode_q16, compiled._hybrid_terms,
                parameter_map._newton_square_compiled, parameter_map._nearest_scaled)
     before = [len(kernel.signatures) for kernel in kernels]
     assert all(before)
@@ -158,9 +169,8 @@ def test_warm_up_compiles_every_signature_the_stream_uses():
         combine_rows(stack, *terms, out)
     combine_rows(stack, *terms, np.empty((5, 30), dtype=np.uint16), (np.ones(30, np.float32), np.zeros(30, np.float32)))
     for dtype in ("<f4", "<u2"):
-        interpolate_rows(stack[0], stack[1], np.zeros(2, np.int64), np.zeros(2, np.float32), np.empty((2, 30), dtype))
         for cyclic in (True, False):
-            compiled.interpolate_at(stack[0], stack[1], rng.random(2), cyclic, np.empty((2, 30), dtype))
+            compiled.interpolate_at(stack[0], rng.random(2), cyclic, np.empty((2, 30), dtype))
     parameter_map._newton_square_compiled(rng.random((3, 3, 2)), 2, 1.0, 1.0, 0.2, 0.3, 0.1, 0.9)
     parameter_map._nearest_scaled(rng.random((5, 2)), rng.random(2), np.ones(2))
     # a space's parameter map holds mapped, read-only arrays: its solves compile nothing new either
