@@ -57,7 +57,7 @@ from server.frames import row_views, streamed_heads
 
 log = logging.getLogger("morphspace.stream")
 TICK = 0.002      # seconds: ticks come at most this often (urgent frames excepted)
-MAX_BATCH = 256   # frames per tick at most; then the loop reads sockets before the next tick
+MAX_BATCH = 64    # frames per tick at most; then the loop reads sockets before the next tick
 URGENT = -math.inf
 
 
