@@ -121,6 +121,7 @@ async def on_pause(session, m):
 async def on_resume(session, m):
     session.paused = False
     session.last_step = session.stalled_since = None
+    session.next_due = asyncio.get_running_loop().time()  # the pause dropped no ticks: the grid from now
     session.poke(m.seq)
 
 

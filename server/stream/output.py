@@ -81,19 +81,19 @@ class FrameOutput:
             self.urgent = False
             return 0.0
         period = 1.0 / rate
+        late = now - self.next_due
+        if late >= period:  # ticks missed by a whole period (waiting for acks, an overloaded
+            # loop): dropped, not caught up, whether this frame is urgent or not
+            missed = int(late / period)
+            self.dropped += missed
+            self.next_due += missed * period
         if urgent:  # an extra frame now; the next one back on the grid every connection at this
             # rate shares (multiples of the period, half a period to one and a half away), so
             # that one tick serves them all
             self.urgent = False
             self.next_due = math.floor(now / period + 1.5) * period
-        else:       # stay on the grid; ticks missed by a whole period are dropped, not caught up
-            late = now - self.next_due
-            if late >= period:
-                missed = int(late / period)
-                self.dropped += missed
-                self.next_due += (missed + 1) * period
-            else:
-                self.next_due += period
+        else:       # stay on the grid
+            self.next_due += period
         last = self.last_step
         self.last_step = now
         if last is None:

@@ -111,7 +111,7 @@ def test_connections_started_apart_are_served_in_the_same_ticks(built_spaces):
             # at most half a tick early; late only as far as the loop is (a few ms on a busy machine)
             offsets = [t - round(t / period) * period for t in times]
             assert min(offsets) >= -0.5 * TICK - 1e-6
-            assert sum(offset <= 0.005 for offset in offsets) >= 0.8 * len(offsets), offsets
+            assert sum(offset <= 0.008 for offset in offsets) >= 0.8 * len(offsets), offsets
             for t in times:
                 by_point.setdefault(round(t / period), []).append(t)
         shared = [ts for ts in by_point.values() if len(ts) == len(sessions)]
@@ -119,5 +119,52 @@ def test_connections_started_apart_are_served_in_the_same_ticks(built_spaces):
         # one tick wrote every connection's frame of a grid point (started 7 ms apart, they would be 35 ms apart)
         assert sum(max(ts) - min(ts) < 0.002 for ts in shared) >= 0.8 * len(shared)
         assert scheduler.ticks <= scheduler.frames / 3
+
+    run(main)
+
+
+def test_an_urgent_frame_counts_the_ticks_missed_before_it(built_spaces):
+    """Ticks missed by a whole period (a window waiting for acks, an overloaded loop) are counted in
+    ``dropped`` by the next frame, an urgent one too (a params message while the window was full:
+    the docs-only audit of session 33 found them uncounted)."""
+    registry = SpaceRegistry(built_spaces)
+    space = registry.get("speed")
+    period = 1.0 / RATE
+
+    async def main():
+        scheduler = FrameScheduler()
+        for urgent in (False, True):
+            session = _session(registry, scheduler, space, 1.5)
+            session.next_due, session.last_step, session.urgent = 100.0, 99.99, urgent
+            session.due_step(100.0 + 10.5 * period)   # the ticks at 100.0 + 0 .. 9 periods missed
+            assert session.dropped == 10, (urgent, session.dropped)
+            k = round(session.next_due / period)
+            assert math.isclose(session.next_due, k * period, abs_tol=1e-9) and session.next_due > 100.0 + 10.5 * period
+
+    run(main)
+
+
+def test_a_resume_after_a_pause_counts_no_dropped_ticks(built_spaces):
+    """A paused connection misses no ticks: resuming restarts its grid, and ``dropped`` stays 0."""
+    import types
+
+    from server.stream.messages import on_pause, on_resume
+
+    registry = SpaceRegistry(built_spaces)
+    space = registry.get("speed")
+
+    async def main():
+        loop = asyncio.get_running_loop()
+        scheduler = FrameScheduler()
+        session = _session(registry, scheduler, space, 1.5)
+        session.next_due = loop.time()
+        assert session.due_step(loop.time()) == 0.0
+        await on_pause(session, types.SimpleNamespace(seq=1))
+        session.due_step(loop.time())  # the pause's answer: a frame, then none while paused
+        assert session.due_step(loop.time() + 5.0) is None
+        session.next_due -= 5.0  # as if the pause had lasted 5 s
+        await on_resume(session, types.SimpleNamespace(seq=2))
+        assert session.due_step(loop.time()) is not None and session.dropped == 0
+        scheduler.remove(session)
 
     run(main)
