@@ -59,8 +59,7 @@ class PhaseTable:
         if V.dtype == np.float32 and V.flags.c_contiguous:
             interpolate_at(self.rows, np.array([phase], dtype=np.float64), self.cyclic, V.reshape(1, -1))
         else:
-            p0, p1, a = phase_samples(phase, self.n_phases, self.cyclic)
-            V[...] = ((self.rows[p1] - self.rows[p0]) * np.float32(a) + self.rows[p0]).reshape(V.shape)
+            V[...] = self.rows_at([phase])[0].reshape(V.shape)
         return V
 
     def rows_at(self, phases, out=None):

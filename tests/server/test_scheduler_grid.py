@@ -7,7 +7,6 @@ whose parameters changed mid-stream (an urgent frame), must come back to the sha
 """
 
 import asyncio
-import concurrent.futures
 import math
 
 from engine.player import Player
@@ -15,43 +14,25 @@ from server.registry import SpaceRegistry
 from server.scheduler import TICK, FrameScheduler
 from server.settings import Settings
 from server.stream.session import StreamSession, StreamStats
-from server.transport import GAUGE
+from test_scheduler_batch import Recorder, Socket, run
 
 RATE = 50.0
 
 
-class TimedRecorder:
+class TimedRecorder(Recorder):
     """A transport that takes every message at once and notes the loop time it was written at."""
 
     def __init__(self):
+        super().__init__()
         self.times = []
-
-    def ready(self):
-        return True
-
-    def held(self):
-        return 0
-
-    def held_above(self, floor):
-        return None
 
     def write_message(self, parts):
         self.times.append(asyncio.get_running_loop().time())
         return True
 
 
-class Socket:
-    def __init__(self):
-        self.scope = {"extensions": {GAUGE: TimedRecorder()}}
-
-
-def run(main):
-    with concurrent.futures.ThreadPoolExecutor(1) as pool:
-        return pool.submit(asyncio.run, main()).result(timeout=60)
-
-
 def _session(registry, scheduler, space, speed):
-    session = StreamSession(Socket(), registry, Settings(), StreamStats(), scheduler)
+    session = StreamSession(Socket(TimedRecorder()), registry, Settings(), StreamStats(), scheduler)
     session.player = Player(space, mode="linear", params={"speed": speed})
     session.space_name, session.rate, session.codec = "speed", RATE, "f32"
     session.ready = True
