@@ -1,7 +1,5 @@
 """Tests for engine.deform: the prefactored soft-constrained Laplacian solve (paper eq. 2)."""
 
-from itertools import permutations
-
 import numpy as np
 import pytest
 import scipy.sparse as sp
@@ -11,27 +9,9 @@ from engine import deform
 from engine.deform import DeformationSolver, stacked_gradients
 from engine.rotations import axis_angle_matrix
 from engine.tetmesh import deformation_gradients, tet_volumes
+from test_tetmesh import grid_tets
 
 BACKENDS = ["scipy"] + (["cholespy"] if deform.cholespy is not None else [])
-
-
-def grid_tets(n, size=1.0):
-    """A cube of n^3 cells, each split into 6 positively oriented tets (Kuhn subdivision)."""
-    ticks = np.linspace(0.0, size, n + 1)
-    V = np.stack(np.meshgrid(ticks, ticks, ticks, indexing="ij"), axis=-1).reshape(-1, 3)
-    index = np.arange((n + 1) ** 3).reshape(n + 1, n + 1, n + 1)
-    tets = []
-    for i, j, k in np.ndindex(n, n, n):
-        for order in permutations(range(3)):
-            corner, path = np.array([i, j, k]), [index[i, j, k]]
-            for axis in order:
-                corner[axis] += 1
-                path.append(index[tuple(corner)])
-            tets.append(path)
-    T = np.array(tets)
-    negative = tet_volumes(V, T) < 0
-    T[negative] = T[negative][:, [0, 1, 3, 2]]
-    return V, T
 
 
 @pytest.fixture(scope="module")
