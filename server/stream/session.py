@@ -86,6 +86,7 @@ class StreamSession(FrameOutput):
         self.dropped = 0
         self.urgent = False
         self.closed = False
+        self.closing = None  # the task writing the server's close frame (shut)
         self.ready = False      # the topology has gone out: frames may follow
         self.version = 0        # the scheduler's bookkeeping
         self.payload = None     # encoded vertices the scheduler prepared for the next frame
@@ -130,7 +131,7 @@ class StreamSession(FrameOutput):
         if self.closed:
             return
         self.closed = True
-        asyncio.get_running_loop().create_task(self._close_socket(code, reason))
+        self.closing = asyncio.get_running_loop().create_task(self._close_socket(code, reason))
 
     async def _close_socket(self, code, reason):
         try:
@@ -175,6 +176,11 @@ class StreamSession(FrameOutput):
         self.scheduler.add(self)
         try:
             await self._receive_loop()
+            if self.closing is not None:
+                # shut() from a message's handler (a pull that waited out the stall timeout) ends
+                # the receive loop at once; returning now would let the server close the TCP
+                # connection before the close frame is written (it waits behind the unread bytes)
+                await self.closing
         finally:
             self.scheduler.remove(self)
             self.stats.connections -= 1
