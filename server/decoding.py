@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import sys
 
 import msgpack
 
@@ -38,9 +39,14 @@ def _check(kind, name, value, ref, seq):
     if kind == "float":
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             bad(f"expected a number, got {type(value).__name__}")
+        if isinstance(value, int):  # any integer is a number; one past a double's range is out of every range
+            try:
+                value = float(value)
+            except OverflowError:
+                bad(f"an integer of {len(str(abs(value)))} digits is out of range")
         if not math.isfinite(value):
             bad(f"must be finite, got {value}")
-        return float(value)
+        return value
     if kind == "params":
         if not isinstance(value, dict):
             bad(f"expected a map of name -> number, got {type(value).__name__}")
@@ -52,8 +58,11 @@ def _check(kind, name, value, ref, seq):
                 bad("parameter names must be strings")
             if isinstance(number, bool) or not isinstance(number, (int, float)):
                 bad(f"{key!r} must be a number, got {type(number).__name__}")
-            if isinstance(number, int) and not -INT_LIMIT <= number <= INT_LIMIT:
-                bad(f"{key!r}: integer out of range")
+            if isinstance(number, int):  # any integer is a number and clamps; past a double's range, as its end
+                try:
+                    number = float(number)
+                except OverflowError:
+                    number = sys.float_info.max if number > 0 else -sys.float_info.max
             if not math.isfinite(number):
                 raise ProtocolError("invalid_params", f"{ref}.{name}: {key} must be finite, got {number}",
                                     ref=ref, seq=seq)
@@ -77,7 +86,9 @@ def _in_range(f, name, value, ref, seq, limits):
 
 
 def _number(x):
-    return x if isinstance(x, str) or x is None else f"{x:g}"
+    """A bound or a value as an error message shows it: up to 15 significant digits (86400.01, not
+    86400; 120, not 120.0)."""
+    return x if isinstance(x, str) or x is None else f"{x:.15g}"
 
 
 def decode_client(data, max_bytes=None, limits=None):
