@@ -93,7 +93,8 @@ class Hello:
     type = "hello"
     space: str = wire("str", "motion space name (GET /v1/spaces lists them)", optional=True, one_of="stream")
     graph: str = wire("str", "or a motion graph name (GET /v1/graphs lists them)", optional=True, one_of="stream")
-    node: str = wire("str", "with graph: the start node (default: the graph's first cyclic node)", optional=True)
+    node: str = wire("str", "with graph: the start node (default: the graph's first cyclic node); with space: invalid_field",
+                     optional=True)
     codec: str = wire("str", "vertex codec: 'f32' (float32) or 'q16' (16-bit quantised over bounds)", default="f32",
                       choices=CODECS)
     rate: float = wire("float", "frames per second wanted; 0 = pull only (no streamed frames at all)", default=60.0,
