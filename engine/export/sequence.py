@@ -77,5 +77,17 @@ def write_sequence_zip(path, frames, format="obj", progress=None):
         files = write_mesh_sequence(Path(scratch) / "clip", frames, format, progress)
         with atomic_write(path) as out, zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED, compresslevel=6) as archive:
             for file in files:
-                archive.write(file, file.name)
+                write_member(archive, file.name, file.read_bytes())
     return path
+
+
+ZIP_TIME = (1980, 1, 1, 0, 0, 0)  # every member's timestamp: the same clip gives the same archive, byte for byte
+
+
+def write_member(archive, name, data):
+    """Add ``data`` to the open ``archive`` as ``name``, stamped ``ZIP_TIME`` (not the time of
+    writing) with mode 0644, compressed as the archive is."""
+    info = zipfile.ZipInfo(name, date_time=ZIP_TIME)
+    info.compress_type = archive.compression
+    info.external_attr = 0o644 << 16
+    archive.writestr(info, data, compresslevel=archive.compresslevel)

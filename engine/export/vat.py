@@ -31,6 +31,7 @@ import numpy as np
 
 from engine.export.glb_container import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, FLOAT, UNSIGNED_INT, UNSIGNED_SHORT, \
     GlbBuffer
+from engine.export.sequence import write_member
 from engine.mesh_io.atomic import atomic_write
 
 MAX_WIDTH = 8192  # what Unity and Unreal import on every platform
@@ -115,7 +116,7 @@ def write_vat(path, frames, progress=None):
     if path.suffix.lower() == ".zip":
         with atomic_write(path) as out, zipfile.ZipFile(out, "w", zipfile.ZIP_STORED) as archive:
             for name, data in files.items():
-                archive.writestr(name, data)
+                write_member(archive, name, data)
     else:
         if path.exists() and not path.is_dir():
             raise ValueError(f"{path}: exists and is not a directory")
