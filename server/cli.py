@@ -1,12 +1,16 @@
 """The ``morphspace`` command line.
 
 Subcommands register themselves in ``COMMANDS``; each has an ``add_arguments(parser)`` and a
-``run(args) -> int``. Errors in user input end with a one-line message and exit status 2.
+``run(args) -> int``. Errors in user input end with a one-line message and exit status 2; Ctrl-C
+ends a command with status 130 and SIGTERM with 143 (``serve`` stops gracefully on either), each
+after the command's own clean-up (temporary files removed, nothing half-written left).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 
 from server.commands import bench, blend, build, eval_params, play, synth
@@ -43,17 +47,38 @@ def build_parser():
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised like Ctrl-C so that clean-ups (``finally``, atomic writes) run."""
+
+
+def _on_sigterm(main_pid):
+    def handler(signum, frame):
+        if os.getpid() != main_pid:  # a forked worker: die as SIGTERM would have it
+            signal.signal(signal.SIGTERM, signal.SIG_DFL)
+            os.kill(os.getpid(), signal.SIGTERM)
+            return
+        raise Terminated()
+    return handler
+
+
 def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
+    previous = None
+    if args.command != "serve" and os.name == "posix":  # (uvicorn handles its own signals)
+        previous = signal.signal(signal.SIGTERM, _on_sigterm(os.getpid()))
     try:
         return COMMANDS[args.command].run(args)
     except (ValueError, OSError) as exc:
         print(f"morphspace {args.command}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"morphspace {args.command}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        terminated = isinstance(exc, Terminated)
+        print(f"morphspace {args.command}: {'terminated' if terminated else 'interrupted'}", file=sys.stderr)
+        return 143 if terminated else 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ writes the same files into one zip archive (deflated) instead of a directory.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import tempfile
 import zipfile
@@ -55,19 +56,28 @@ def write_mesh_sequence(directory, frames, format="obj", progress=None):
         if stale:
             raise ValueError(f"{directory}: already holds {len(stale)} other mesh files (e.g. {stale[0]}); export "
                              f"into an empty directory")
+    created = not directory.exists()
     directory.mkdir(parents=True, exist_ok=True)
     F = frames.faces
     paths = []
-    for k, name in enumerate(names):
-        if format == "obj":
-            write_obj(directory / name, frames.world(k), F, precision=OBJ_DECIMALS)
-        else:
-            write_ply(directory / name, frames.world(k), F)
-        paths.append(directory / name)
-        if progress is not None and (k % 16 == 15 or k == len(frames) - 1):
-            progress(k + 1, len(frames))
-    with atomic_write(directory / "clip.json") as file:
-        file.write(json.dumps(clip_record(frames), indent=1).encode())
+    try:
+        for k, name in enumerate(names):
+            if format == "obj":
+                write_obj(directory / name, frames.world(k), F, precision=OBJ_DECIMALS)
+            else:
+                write_ply(directory / name, frames.world(k), F)
+            paths.append(directory / name)
+            if progress is not None and (k % 16 == 15 or k == len(frames) - 1):
+                progress(k + 1, len(frames))
+        with atomic_write(directory / "clip.json") as file:
+            file.write(json.dumps(clip_record(frames), indent=1).encode())
+    except BaseException:  # interrupted or failed: no half-written sequence stays behind
+        for path in paths:
+            path.unlink(missing_ok=True)
+        if created:
+            with contextlib.suppress(OSError):
+                directory.rmdir()
+        raise
     return paths + [directory / "clip.json"]
 
 

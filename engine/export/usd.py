@@ -37,7 +37,7 @@ def write_usd(path, frames, progress=None):
     ``progress(done, total)`` is called as frames are written. Returns ``{"frames", "prim"}``.
     """
     try:
-        from pxr import Usd  # usd-core: imported only when exporting USD
+        from pxr import Tf, Usd  # usd-core: imported only when exporting USD
     except ImportError:
         raise ValueError("USD export needs usd-core (pip install usd-core; scripts/setup-env installs it)") from None
 
@@ -47,9 +47,15 @@ def write_usd(path, frames, progress=None):
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(f".{path.stem}.{secrets.token_hex(6)}{path.suffix}")  # renamed when complete
     try:
-        stage = Usd.Stage.CreateNew(str(temporary))
-        prim = _fill(stage, frames, progress)
-        stage.GetRootLayer().Save()
+        try:
+            stage = Usd.Stage.CreateNew(str(temporary))
+            prim = _fill(stage, frames, progress)
+            if not stage.GetRootLayer().Save():
+                raise OSError(f"cannot write {path}: USD could not save the stage")
+        except Tf.ErrorException as exc:  # USD's own errors (a directory it cannot write, a full disk)
+            text = " ".join(str(exc).split())  # "Error in '<function>' at line N in file F : '<reason>'"
+            reason = text.rsplit(" : ", 1)[-1].strip("'\" ")
+            raise OSError(f"cannot write {path}: {reason.replace(str(temporary), str(path))}") from None
         del stage
         os.replace(temporary, path)
     finally:

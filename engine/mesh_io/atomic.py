@@ -50,3 +50,5 @@ def create_temporary(path):
             return os.open(name, flags, 0o666), name
         except FileExistsError:
             continue
+        except OSError as exc:  # name the file asked for, not the hidden temporary one
+            raise type(exc)(f"cannot write {path}: {exc.strerror or exc}") from None

@@ -63,3 +63,36 @@ def test_an_existing_output_needs_force(built_spaces, tmp_path):
                  cwd=tmp_path)
     assert run.returncode == 0 and (tmp_path / "clip.glb").read_bytes()[:4] == b"glTF"
     assert np.frombuffer((tmp_path / "clip.glb").read_bytes()[8:12], "<u4")[0] == (tmp_path / "clip.glb").stat().st_size
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc refuses new files on Linux only")
+@pytest.mark.parametrize("name", ["clip.usd", "clip.usda", "clip.glb"])
+def test_an_unwritable_output_is_a_one_line_error_naming_it(built_spaces, tmp_path, name):
+    """A docs-only user found USD's own error as a 19-line traceback (exit 1), and the other
+    formats naming the hidden temporary file instead of --out (/proc takes no new file, even from root)."""
+    run = export(built_spaces / "speed.mspace", "--out", f"/proc/{name}", "--seconds", 1, "--quiet", cwd=tmp_path)
+    assert run.returncode == 2 and run.stderr.count("\n") == 1, run.stderr
+    assert run.stderr.startswith(f"morphspace export: error: cannot write /proc/{name}: "), run.stderr
+    assert ".tmp" not in run.stderr and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("out", ["frames.zip", "frames"])
+def test_sigterm_leaves_nothing_half_written(built_spaces, tmp_path, out):
+    """SIGTERM while writing: exit 143 and nothing in the output's directory (a docs-only user found
+    a 7.5 MB temporary zip and a scratch directory, and on Ctrl-C a directory of 472 frames without
+    clip.json that then blocked a rerun)."""
+    import signal
+    import time
+
+    where = tmp_path / "out"
+    where.mkdir()
+    command = [sys.executable, "-m", "server.cli", "export", built_spaces / "speed.mspace", "--out", where / out,
+               "--format", "obj", "--seconds", 120, "--quiet"]
+    process = subprocess.Popen(list(map(str, command)), cwd=tmp_path, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not any(where.iterdir()) and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)  # until it has started writing
+    process.send_signal(signal.SIGTERM)
+    _, stderr = process.communicate(timeout=60)
+    assert process.returncode == 143 and stderr == "morphspace export: terminated\n", (process.returncode, stderr)
+    assert list(where.iterdir()) == []
