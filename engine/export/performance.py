@@ -111,6 +111,8 @@ def play_performance(graph, document, progress=None):
     times, heading = np.empty(n), np.empty(n)
     root, params = np.empty((n, 3)), np.full((n, len(names)), np.nan)
     nodes, notes, digest = [], [], hashlib.sha256()
+    if player.start_clamped:  # the start's parameters out of reach: said, as any request's are
+        notes.append(f"frame 0: {player.start_clamped}")
     for k in range(n):
         while pending and pending[0]["frame"] <= player.frames:
             r = pending.pop(0)

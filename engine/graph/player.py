@@ -93,7 +93,8 @@ class GraphPlayer:
         self._params = {n.name: {} for n in graph.nodes}  # what each node was last asked for
         self._params[start.name] = dict(params or {})
         self.asked = 0           # bumped whenever a node's asked-for parameters change (params_of)
-        weights, self._realised, _, _ = start.solve(self._params[start.name])
+        weights, self._realised, clamped, message = start.solve(self._params[start.name])
+        self.start_clamped = message if clamped else None  # the start parameters' clamp, if any
         self.node = start
         self.tables = bool(tables)
         self.clock = NodeClock(start.space, weights, 0.0, tables=self.tables)

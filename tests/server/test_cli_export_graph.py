@@ -83,3 +83,14 @@ def test_bad_recordings_are_one_line_errors(built_graph, tmp_path, change, messa
 def test_bad_scripts_are_one_line_errors(built_graph, tmp_path, args, message):
     run = cli("export", built_graph / "tiny.mgraph", "--out", tmp_path / "x.glb", *args, cwd=tmp_path)
     assert run.returncode == 2 and message in run.stderr, run.stderr
+
+
+def test_start_parameters_out_of_reach_are_noted(built_graph, tmp_path):
+    """Clamped and said, as a request's are (a docs-only user found them clamped silently)."""
+    run = cli("export", built_graph / "tiny.mgraph", "--set", "speed=99", "--seconds", "1", "--out",
+              tmp_path / "a.zip", "--format", "obj", "--quiet", cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert "note: frame 0: " in run.stdout and "speed 99" in run.stdout, run.stdout
+    with zipfile.ZipFile(tmp_path / "a.zip") as archive:
+        notes = json.loads(archive.read("clip.json"))["notes"]
+    assert len(notes) == 1 and notes[0].startswith("frame 0: ")
