@@ -144,10 +144,15 @@ def _blend(args, w, progress):
         progress("tetrahedralise", 1, 1)
         frames = sources[0]
         progress("decompose", 0, N)
-        q, s, d = decompose_frames(FrameDecomposer(embedding), frames,
-                                   progress=lambda done, total: progress("decompose", done, total))
-        progress("solve", 0, 1)
-        nonlinear = PhasedNonlinearBlender(NonlinearBlender(embedding, q, s, d, frames), 1, N, cyclic=True)
+        try:
+            q, s, d = decompose_frames(FrameDecomposer(embedding), frames,
+                                       progress=lambda done, total: progress("decompose", done, total))
+            progress("solve", 0, 1)
+            nonlinear = PhasedNonlinearBlender(NonlinearBlender(embedding, q, s, d, frames), 1, N, cyclic=True)
+        except ValueError as exc:  # e.g. a floating fragment filled as a solid of its own
+            raise ValueError(f"{args.rest or args.meshes[0]}: cannot blend this surface non-linearly ({exc}); a "
+                             f"floating piece of surface makes a solid of its own: remove it, or use --mode "
+                             f"linear") from None
         result["nonlinear"] = nonlinear.blend(w, 0.0)
         result["linear"] = linear.blend(w, 0.0)
         progress("solve", 1, 1)
