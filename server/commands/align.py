@@ -475,6 +475,9 @@ def check_output(out, inputs, force):
     if out.exists() and not out.is_dir():
         raise ValueError(f"{out} is a file, not a directory: name a directory for the output")
     target = out.resolve()
+    here = Path.cwd()
+    if target == here or target in here.parents:  # (--force would remove it, as synth refuses too)
+        raise ValueError(f"--out {out}: is the current directory or holds it; give a new directory")
     for path in inputs:
         source = Path(path).resolve()
         if target == source or target in source.parents:
@@ -488,7 +491,8 @@ def run(args):
     check_output(out, args.inputs, args.force)
     for name, value, low in (("--window", args.window, 0), ("--patches", args.patches, 1),
                              ("--levels", args.levels, 1), ("--retries", args.retries, 0),
-                             ("--workers", args.workers, 1), ("--repair-budget", args.repair_budget, 0)):
+                             ("--workers", args.workers, 1), ("--repair-budget", args.repair_budget, 0),
+                             ("--seed", args.seed, 0)):
         if not value >= low or not math.isfinite(value):  # (NaN fails both)
             raise ValueError(f"{name} must be a number >= {low}, got {value}")
     if args.fps is not None and not (math.isfinite(args.fps) and 0 < args.fps <= MAX_FPS):

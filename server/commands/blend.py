@@ -32,6 +32,7 @@ from engine.blend import (
 from engine.mesh_io import read_mesh, write_mesh
 from engine.mesh_io.units import from_metres_y_up, to_metres_y_up
 from engine.surface import model_size
+from server.commands.build import EPSILON_MM
 from server.progress import StageBars
 from server.units import add_units_arguments, length_text, meshes_to_metres, say_conventions
 
@@ -86,8 +87,9 @@ def run(args):
     if not np.all(np.isfinite(w)) or np.any(w < 0) or w.max() <= 0:
         raise ValueError(f"weights must be finite, non-negative and not all zero, got {args.weights}")
     w = w / w.max()  # (then their sum cannot overflow: 1e308 and 1e308 blend half and half)
-    if not (np.isfinite(args.epsilon_mm) and args.epsilon_mm > 0):
-        raise ValueError(f"--epsilon-mm must be a finite number > 0, got {args.epsilon_mm}")
+    if not (np.isfinite(args.epsilon_mm) and 0 < args.epsilon_mm <= EPSILON_MM[1]):  # (build's range)
+        raise ValueError(f"--epsilon-mm must be above {EPSILON_MM[0]:g} and at most {EPSILON_MM[1]:g} (mm), "
+                         f"got {args.epsilon_mm}")
     if args.out.is_dir():
         raise ValueError(f"--out {args.out} is a directory: name the output mesh file (.obj, .ply or .off)")
     bars = StageBars()

@@ -312,6 +312,8 @@ def run(args):
         raise ValueError(f"--repair-budget must be >= 0, got {args.repair_budget}")
     if args.retries < 0:
         raise ValueError(f"--retries must be >= 0, got {args.retries}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be >= 0, got {args.seed}")
     for name, value in (("--patches", args.patches), ("--levels", args.levels)):
         if value < 1:
             raise ValueError(f"{name} must be >= 1, got {value}")
