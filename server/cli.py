@@ -12,6 +12,7 @@ import argparse
 import os
 import signal
 import sys
+import threading
 
 from server.commands import bench, blend, build, eval_params, play, synth
 from server.commands import eval as eval_command
@@ -65,7 +66,8 @@ def main(argv=None):
     parser = build_parser()
     args = parser.parse_args(argv)
     previous = None
-    if args.command != "serve" and os.name == "posix":  # (uvicorn handles its own signals)
+    if args.command != "serve" and os.name == "posix" and threading.current_thread() is threading.main_thread():
+        # (uvicorn handles its own signals; only the main thread may set a handler)
         previous = signal.signal(signal.SIGTERM, _on_sigterm(os.getpid()))
     try:
         return COMMANDS[args.command].run(args)

@@ -218,6 +218,8 @@ def load_sources(directories, *, fps, cyclic, progress=None, log=None):
         if faces is not None and (F.shape != faces.shape or not np.array_equal(F, faces)):
             raise ValueError(f"{directory}: its faces differ from {directories[0]}'s; "
                              "all sources need the same mesh structure")
+        if len(clip.vertices) < 2:  # (root motion and phases need at least two)
+            raise ValueError(f"{directory}: {len(clip.vertices)} frame; a source needs at least 2")
         faces = F
         clips.append(clip)
         if log:

@@ -167,3 +167,13 @@ def test_the_cli_and_the_rest_build_job_take_the_same_phases():
     for bad in (1, 513):
         with pytest.raises(pydantic.ValidationError):
             BuildSpec(sources=["a", "b"], phases=bad)
+
+
+def test_a_source_of_one_frame_is_refused_by_name(capsys, tmp_path):
+    """(a docs-only user got only the root motion's own message, naming no source)"""
+    one = tmp_path / "one"
+    one.mkdir()
+    (one / "frame_0000.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    _refused(capsys, ["--source", one, "--source", one, "--out", tmp_path / "s.mspace"],
+             f"{one}: 1 frame; a source needs at least 2")
+    _nothing_written(tmp_path)
