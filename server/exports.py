@@ -74,13 +74,15 @@ class ExportBlenders:
         with entry[2]:
             started = time.perf_counter()
             if entry[1] is None:
-                blender = space.new_blender(spec["mode"])
-                if spec["mode"] != "nonlinear":
-                    blender = PhaseTableBlender(blender, space.n_phases, space.cyclic)
-                entry[1] = blender
+                entry[1] = space.new_blender(spec["mode"])
+            blender = entry[1]
+            if spec["mode"] != "nonlinear":
+                # phase tables afresh for each export, as the CLI's player starts: a table kept from an
+                # earlier export would make this one's frames differ from it in the last float bit
+                blender = PhaseTableBlender(blender, space.n_phases, space.cyclic)
             with tempfile.TemporaryDirectory(prefix="export-", dir=scratch) as directory:
                 path = Path(directory) / f"{space.name}{SUFFIX[spec['format']]}"
-                stats, notes = export_file(space, spec, path, blender=entry[1])
+                stats, notes = export_file(space, spec, path, blender=blender)
                 data = path.read_bytes()
         return data, stats, notes, time.perf_counter() - started
 
