@@ -19,6 +19,7 @@ A motion graph (``.mgraph``) exports a recorded performance (server/commands/exp
 from __future__ import annotations
 
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -115,10 +116,24 @@ class _Bar:
             self.bar = None
 
 
+EXPORT_FILES = re.compile(r"frame_\d+\.(obj|ply)|clip\.json|vat\.json|mesh\.glb|positions\.png")  # what exports write
+
+
+def clear_export(directory):
+    """Remove from ``directory`` the files an earlier sequence or VAT export wrote there (its frames,
+    ``clip.json``; ``vat.json``, ``mesh.glb``, ``positions.png``), so that ``--force`` replaces it; other
+    files stay (a sequence export then refuses other mesh files)."""
+    for path in sorted(directory.iterdir()):
+        if path.is_file() and EXPORT_FILES.fullmatch(path.name):
+            path.unlink()
+
+
 def run(args):
     fmt = output_format(args.out, args.format)
     if args.out.exists() and not args.force:
         raise ValueError(f"--out {args.out} exists; pass --force to replace it")
+    if args.force and args.out.is_dir():
+        clear_export(args.out)
     if args.space.suffix == ".mgraph":
         from server.commands.export_graph import run_graph
 

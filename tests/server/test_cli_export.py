@@ -96,3 +96,17 @@ def test_sigterm_leaves_nothing_half_written(built_spaces, tmp_path, out):
     _, stderr = process.communicate(timeout=60)
     assert process.returncode == 143 and stderr == "morphspace export: terminated\n", (process.returncode, stderr)
     assert list(where.iterdir()) == []
+
+
+def test_force_replaces_an_earlier_sequence_export(built_spaces, tmp_path):
+    """(a docs-only user found --force refused: the longer earlier export's frames were 'other mesh
+    files'); files an export does not write stay, and other mesh files are still refused."""
+    space, out = built_spaces / "speed.mspace", tmp_path / "frames"
+    assert export(space, "--out", out, "--format", "ply", "--seconds", 1, "--fps", 20, "--quiet", cwd=tmp_path).returncode == 0
+    (out / "notes.txt").write_text("mine")
+    run = export(space, "--out", out, "--format", "obj", "--seconds", 0.5, "--fps", 20, "--force", "--quiet", cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["clip.json"] + [f"frame_{k:04d}.obj" for k in range(11)] + ["notes.txt"]
+    (out / "other.ply").write_text("ply\n")
+    run = export(space, "--out", out, "--format", "obj", "--seconds", 0.5, "--force", "--quiet", cwd=tmp_path)
+    assert run.returncode == 2 and "already holds 1 other mesh files (e.g. other.ply)" in run.stderr, run.stderr
