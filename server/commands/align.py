@@ -486,15 +486,29 @@ def check_output(out, inputs, force):
             raise ValueError(f"--out {out} is inside the input {path}: name a directory outside it")
 
 
+def job_range(field):
+    """(low, high) of the align job's ``field`` (server/jobs/models.py): the CLI takes what REST takes."""
+    from server.jobs.models import AlignJob
+
+    metadata = AlignJob.model_fields[field].metadata
+    return (next(m.ge for m in metadata if hasattr(m, "ge")), next(m.le for m in metadata if hasattr(m, "le")))
+
+
+def check_job_ranges(args, fields=("window", "patches", "levels", "retries", "repair_budget")):
+    """Refuse ``fields`` (--window, --patches, ...) outside the align job's ranges."""
+    for field in fields:
+        value, (low, high) = getattr(args, field), job_range(field)
+        if not low <= value <= high:  # (NaN fails too)
+            raise ValueError(f"--{field.replace('_', '-')} must be from {low:g} to {high:g}, got {value}")
+
+
 def run(args):
     out = args.out
     check_output(out, args.inputs, args.force)
-    for name, value, low in (("--window", args.window, 0), ("--patches", args.patches, 1),
-                             ("--levels", args.levels, 1), ("--retries", args.retries, 0),
-                             ("--workers", args.workers, 1), ("--repair-budget", args.repair_budget, 0),
-                             ("--seed", args.seed, 0)):
+    for name, value, low in (("--workers", args.workers, 1), ("--seed", args.seed, 0)):
         if not value >= low or not math.isfinite(value):  # (NaN fails both)
             raise ValueError(f"{name} must be a number >= {low}, got {value}")
+    check_job_ranges(args)
     if args.fps is not None and not (math.isfinite(args.fps) and 0 < args.fps <= MAX_FPS):
         raise ValueError(f"--fps must be above 0 and at most {MAX_FPS:g} frames/s, got {args.fps}")
     sequences = resolve_inputs(args.inputs, args.only)

@@ -39,7 +39,8 @@ from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
 from engine.mesh_io.units import UNITS_PER_METRE, resolve_convention, to_metres_y_up
 from engine.surface import model_size
-from server.commands.align import COLOUR_MODES, Progress, convert_inputs, parse_root, read_inputs, resolve_inputs
+from server.commands.align import (COLOUR_MODES, Progress, check_job_ranges, convert_inputs, parse_root, read_inputs,
+                                    resolve_inputs)
 from server.units import (
     DISPLAY_PER_METRE,
     add_units_arguments,
@@ -308,15 +309,9 @@ def run(args):
         raise ValueError(f"--max-frames must be >= 2, got {args.max_frames}")
     if args.every < 1:
         raise ValueError(f"--every must be >= 1, got {args.every}")
-    if not args.repair_budget >= 0:
-        raise ValueError(f"--repair-budget must be >= 0, got {args.repair_budget}")
-    if args.retries < 0:
-        raise ValueError(f"--retries must be >= 0, got {args.retries}")
+    check_job_ranges(args, ("patches", "levels", "retries", "repair_budget"))
     if args.seed < 0:
         raise ValueError(f"--seed must be >= 0, got {args.seed}")
-    for name, value in (("--patches", args.patches), ("--levels", args.levels)):
-        if value < 1:
-            raise ValueError(f"{name} must be >= 1, got {value}")
     if args.every > 1 and args.aligned is not None:
         raise ValueError("--every picks the frames to align; it does not apply to --aligned")
     progress = Progress()

@@ -263,9 +263,11 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
     assert main(["eval-align", str(dataset), "--levels", "0"]) == 2
     assert main(["eval-align", str(dataset), "--every", "0"]) == 2
     assert main(["eval-align", str(dataset), "--retries", "-1"]) == 2
-    assert "--retries must be >= 0, got -1" in capsys.readouterr().err
+    assert "--retries must be from 0 to 10, got -1" in capsys.readouterr().err
     assert main(["eval-align", str(dataset), "--repair-budget", "-1"]) == 2
-    assert "--repair-budget must be >= 0, got -1" in capsys.readouterr().err
+    assert "--repair-budget must be from 0 to 10, got -1" in capsys.readouterr().err
+    assert main(["eval-align", str(dataset), "--levels", "9"]) == 2
+    assert "--levels must be from 1 to 8, got 9" in capsys.readouterr().err
 
 
 def test_eval_align_passes_retries_to_the_tree(dataset, tmp_path, capsys, monkeypatch):
@@ -572,7 +574,7 @@ def test_bad_frame_rates_and_metadata_are_named(dataset, tmp_path, capsys):
         assert main(["align", str(copy), "--out", str(tmp_path / "o"), "--fps", fps]) == 2
         assert "--fps must be above 0 and at most 1000" in capsys.readouterr().err
     assert main(["align", str(copy), "--out", str(tmp_path / "o"), "--repair-budget", "nan"]) == 2
-    assert "--repair-budget must be a number >= 0, got nan" in capsys.readouterr().err
+    assert "--repair-budget must be from 0 to 10, got nan" in capsys.readouterr().err
     for meta, words in (("[1, 2]", "meta.json: not a JSON object"), ('{"fps": "fast"}', "meta.json: fps must be"),
                         ('{"fps": NaN}', "meta.json: fps must be")):
         (copy / "meta.json").write_text(meta)
