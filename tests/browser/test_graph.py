@@ -149,3 +149,24 @@ def test_a_space_recording_ends_when_the_page_switches_to_a_graph(graph_web_serv
     assert page.page.locator("#record").get_attribute("aria-pressed") == "false"
     page.wait_status(lambda s: s["topologySpace"] == "graph:tiny" and s["recording"] is None, what="the graph")
     assert page.errors() == []
+
+
+def test_a_graph_turns_the_heatmap_off_and_disables_its_controls(graph_web_server, open_page):
+    """(a docs-only user found the heatmap still checked on a graph, its legend over a grey mesh and
+    its scale, auto and compare-mode controls enabled)"""
+    page = open_page(graph_web_server.url + "/app/?space=walk&heatmap=1")
+    page.wait_status(lambda s: s["topologySpace"] == "walk" and s["heatmap"] and s["framesDrawn"] > 2, what="the heatmap on")
+    assert page.page.locator("#legend").is_visible()
+    page.page.locator("#space").select_option("graph:tiny")
+    page.wait_status(lambda s: s["topologySpace"] == "graph:tiny" and s["frame"] and s["frame"]["node"] == "walk",
+                     what="the graph")
+    assert not page.status()["heatmap"] and not page.page.is_checked("#heatmap")
+    assert not page.page.locator("#legend").is_visible()
+    for control in ("#heatmap", "#heat-scale", "#heat-auto", "#compare-mode", "#compare"):
+        assert page.page.is_disabled(control), control
+    page.page.wait_for_function("!location.search.includes('heatmap=1')", polling=50, timeout=5000)
+    page.page.locator("#space").select_option("walk")
+    page.wait_status(lambda s: s["topologySpace"] == "walk" and s["frame"] and s["frame"]["node"] is None, what="walk again")
+    for control in ("#heatmap", "#heat-scale", "#heat-auto", "#compare-mode"):
+        assert page.page.is_enabled(control), control
+    assert page.errors() == []

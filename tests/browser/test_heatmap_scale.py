@@ -31,3 +31,19 @@ def test_auto_scale_recolours_the_paused_frame(web_server, open_page):
     changed = np.abs(image_after.astype(int) - image_before.astype(int)).max(axis=2) > 30
     assert changed.mean() > 0.002, f"only {changed.mean():.3%} of the pixels changed"
     assert paused["paused"] and page.errors() == []
+
+
+def test_a_scale_that_is_not_millimetres_above_0_is_refused(web_server, open_page):
+    """(a docs-only user found -5 kept in the field and written to the address, the legend silently
+    staying at 20 mm)"""
+    page = open_page(web_server.url + "/app/?space=speed&heatmap=1&scale=7")
+    page.wait_status(lambda s: s["frame"] and s["heatmap"], timeout=20, what="the heatmap on")
+    field = page.page.locator("#heat-scale")
+    field.fill("-5")
+    field.press("Enter")
+    page.page.wait_for_function("document.getElementById('messages').textContent.includes('red at: give millimetres')",
+                                polling=50, timeout=5000)
+    assert field.input_value() == "7" and page.status()["heatScale"] == pytest.approx(0.007)
+    page.page.wait_for_timeout(400)  # the URL is written at most every 250 ms
+    assert "scale=7" in page.page.url and "scale=-5" not in page.page.url
+    assert page.errors() == []

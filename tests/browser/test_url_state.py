@@ -73,3 +73,20 @@ def test_the_share_link_opens_the_same_view(steer_server, open_page):
     assert status["targets"]["speed"] == pytest.approx(1.1, abs=0.01)
     assert status["targets"]["turn_rate"] == pytest.approx(20, abs=0.1)
     assert page.errors() == [] and other.errors() == []
+
+
+def test_a_refused_rate_or_smoothing_in_the_link_falls_back_to_the_defaults(steer_server, open_page):
+    """(a docs-only user found rate=1000 or smoothing=-1 leaving the page dead: the server refused the
+    hello, and every later hello repeated it)"""
+    page = open_page(steer_server.url + "/app/?space=steer&rate=1000&smoothing=-1")
+    status = settled(page, "steer")
+    assert status["frame"]["ack"] >= 0 and page.errors() == []  # streaming: the hello was accepted
+
+
+def test_a_space_the_server_cannot_play_is_said_and_replaced(steer_server, open_page):
+    """(a docs-only user found an unknown space in the link replaced without a word)"""
+    page = open_page(steer_server.url + "/app/?space=nosuch")
+    page.wait_status(lambda s: s["topologySpace"] not in (None, "nosuch") and s["frame"] is not None, what="another space")
+    page.page.wait_for_function("document.getElementById('messages').textContent.includes('space \"nosuch\" is not on "
+                                "this server')", polling=50, timeout=5000)
+    assert page.errors() == []

@@ -2,6 +2,7 @@
 // largest distance in recent frames), the legend. A change recolours the frame on screen at once,
 // even while paused (no new frame comes then).
 import { cssGradient } from "./colormap.js";
+import { say } from "./overlay.js";
 
 const $ = (id) => document.getElementById(id);
 
@@ -22,6 +23,18 @@ export class HeatmapControls {
       this.updateLegend();
       url.changed();
     });
+    this.lastScale = this.validScale($("heat-scale").value) ? $("heat-scale").value : "20";
+    $("heat-scale").addEventListener("change", () => {
+      // a scale that is not a number of millimetres above 0: said, and the last good one back
+      if (this.validScale($("heat-scale").value)) this.lastScale = $("heat-scale").value;
+      else {
+        say(`red at: give millimetres above 0 (kept ${this.lastScale} mm)`, "error");
+        $("heat-scale").value = this.lastScale;
+        viewer.setHeatmap(state.heatmap, this.scale());
+        this.updateLegend();
+        url.changed();
+      }
+    });
     for (const id of ["heat-scale", "heat-auto"]) {
       $(id).addEventListener("input", () => {
         // auto starts from the largest distance of the frame on screen, and the mesh is
@@ -35,16 +48,35 @@ export class HeatmapControls {
     this.updateLegend();
   }
 
+  validScale(text) {
+    const mm = Number(text);
+    return text !== "" && Number.isFinite(mm) && mm > 0;
+  }
+
   /** Metres at the red end. */
   scale() {
     if ($("heat-auto").checked) return Math.max(this.autoMax, 1e-4);
-    const mm = Number($("heat-scale").value);
-    return (Number.isFinite(mm) && mm > 0 ? mm : 20) / 1000;
+    const text = $("heat-scale").value;
+    return Number(this.validScale(text) ? text : this.lastScale ?? 20) / 1000;
   }
 
-  /** The scale as the URL keeps it: "auto" or millimetres. */
+  /** The scale as the URL keeps it: "auto" or millimetres (the last good value while one is typed). */
   urlScale() {
-    return $("heat-auto").checked ? "auto" : $("heat-scale").value;
+    if ($("heat-auto").checked) return "auto";
+    return this.validScale($("heat-scale").value) ? $("heat-scale").value : this.lastScale;
+  }
+
+  /** A graph streams (no heatmap there): the heatmap goes off, its controls are disabled and the
+   * legend hidden; back on a space the controls come back (the heatmap stays off until asked). */
+  forGraph(isGraph) {
+    if (isGraph && this.state.heatmap) {
+      this.state.heatmap = false;
+      $("heatmap").checked = false;
+      this.viewer.setHeatmap(false, this.scale());
+    }
+    this.updateLegend();  // (it enables the scale unless auto: disabled after it on a graph)
+    for (const id of ["heat-scale", "heat-auto", "compare-mode"]) $(id).disabled = isGraph;
+    if (!isGraph) $("heat-scale").disabled = $("heat-auto").checked;
   }
 
   /** A streamed frame arrived: the auto scale follows its largest distance. */

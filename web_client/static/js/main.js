@@ -25,6 +25,7 @@ const fromUrl = readUrl();
 const state = {
   spaces: [],                 // GET /v1/spaces entries
   graphs: [],                 // GET /v1/graphs entries
+  unreadable: [],             // both listings' unreadable entries: {name, error}
   action: null,               // the last action asked on a graph: {node, seq, sentAt, entered (s) or null}
   space: fromUrl.space,
   codec: fromUrl.codec ?? "q16",
@@ -183,7 +184,8 @@ function describeGraph(graph) {
 
 function fillPicker() {
   const select = $("space");
-  const names = [...state.spaces.map((s) => s.name), ...state.graphs.map((g) => GRAPH + g.name)];
+  const names = [...state.spaces.map((s) => s.name), ...state.graphs.map((g) => GRAPH + g.name),
+    ...state.unreadable.map((bad) => `unreadable:${bad.name}`)];
   const current = [...select.querySelectorAll("option")].map((o) => o.value);
   if (current.join("\n") !== names.join("\n")) {
     const options = state.spaces.map((s) => {
@@ -194,18 +196,27 @@ function fillPicker() {
     const group = document.createElement("optgroup");
     group.label = "motion graphs";
     group.append(...state.graphs.map((g) => new Option(`${g.name} (graph)`, GRAPH + g.name)));
-    select.replaceChildren(...options, ...(state.graphs.length ? [group] : []));
+    // what the server lists as unreadable: shown, not choosable, the reason on hover
+    const broken = state.unreadable.map((bad) => {
+      const option = new Option(`${bad.name} (unreadable)`, `unreadable:${bad.name}`);
+      option.disabled = true;
+      option.title = bad.error;
+      return option;
+    });
+    select.replaceChildren(...options, ...(state.graphs.length ? [group] : []), ...broken);
   }
   if (state.space) select.value = state.space;
 }
 
 const reported = new Set();
+let askedReported = false;  // the URL's space, when unknown, is reported once
 async function refreshSpaces() {
   try {
     const [listing, graphs] = await Promise.all([api.spaces(), api.graphs()]);
     state.spaces = listing.spaces;
     state.graphs = graphs.graphs;
-    for (const bad of [...(listing.unreadable || []), ...(graphs.unreadable || [])]) {
+    state.unreadable = [...(listing.unreadable || []), ...(graphs.unreadable || [])];
+    for (const bad of state.unreadable) {
       if (!reported.has(bad.name)) console.info(`morphspace: ${bad.name} is unreadable: ${bad.error}`);
       reported.add(bad.name);
     }
@@ -217,6 +228,14 @@ async function refreshSpaces() {
     : playable.some((s) => s.name === state.space);
   if (!state.space || !known) {
     const preferred = playable.find((s) => s.name === "locomotion") ?? playable[0];
+    if (state.space && !askedReported && preferred) {  // the URL named something this server cannot play
+      const name = graphName(state.space) ?? state.space;
+      const bad = state.unreadable.find((b) => b.name === name);
+      const why = bad ? `unreadable (${bad.error})` : state.spaces.some((s) => s.name === name) ? "not playable"
+        : `not on this server`;
+      say(`${graphName(state.space) ? "graph" : "space"} "${name}" is ${why}; showing ${preferred.name}`, "error", 10000);
+    }
+    askedReported = true;
     if (preferred) chooseSpace(preferred.name);
   } else if (connection.state === "idle") {
     chooseSpace(state.space);  // named in the URL
@@ -274,6 +293,7 @@ function onTopology(topology) {
   $("graph-section").hidden = !isGraph;
   for (const id of ["heatmap", "compare"]) $(id).disabled = isGraph;  // pulls and heatmaps are for spaces
   if (isGraph && comparison.on) $("compare").click();
+  heat.forGraph(isGraph);
   const names = steering.keys().length ? [steering.forward, steering.turn].filter(Boolean).map((d) => d.name.replace(/_/g, " ")) : [];
   $("steer-keys").textContent = steering.centre ? "arrows / WASD: steer" : names.length ? `arrows / WASD: ${names.join(", ")}` : "";
   state.mode = topology.mode;

@@ -7,11 +7,15 @@ import { MODES, CODECS } from "../protocol.js";
 import { PRESETS } from "./camera.js";
 
 const WRITE_MS = 250;
+const MAX_RATE = 120;       // frames/s: the server's default max_fps
+const MAX_SMOOTHING = 10;   // seconds: the protocol's range (0 to 10)
 
 /** What the URL asks for: {space, mode, codec, rate, smoothing, heatmap, scale, camera, trail, params}. */
 export function readUrl(search = location.search) {
   const query = new URLSearchParams(search);
   const number = (key) => (query.has(key) && Number.isFinite(Number(query.get(key))) ? Number(query.get(key)) : null);
+  // a value the server would refuse falls back to the default (a refused hello would leave the page dead)
+  const within = (value, low, high) => (value !== null && value >= low && value <= high ? value : null);
   const params = {};
   for (const [key, value] of query) {
     if (key.startsWith("p.") && value !== "" && Number.isFinite(Number(value))) params[key.slice(2)] = Number(value);
@@ -21,10 +25,10 @@ export function readUrl(search = location.search) {
     space: query.get("graph") ? `graph:${query.get("graph")}` : query.get("space") || null,
     mode: MODES.includes(query.get("mode")) ? query.get("mode") : null,
     codec: CODECS.includes(query.get("codec")) ? query.get("codec") : null,
-    rate: number("rate"),
-    smoothing: number("smoothing"),
+    rate: within(number("rate"), 0.5, MAX_RATE),
+    smoothing: within(number("smoothing"), 0, MAX_SMOOTHING),
     heatmap: query.get("heatmap") === "1",
-    scale: scale === "auto" ? "auto" : number("scale"),
+    scale: scale === "auto" ? "auto" : within(number("scale"), 1e-3, 1e6),
     camera: PRESETS.includes(query.get("camera")) ? query.get("camera") : null,
     trail: query.get("trail") === "1",
     params,
