@@ -162,6 +162,7 @@ def test_a_graph_turns_the_heatmap_off_and_disables_its_controls(graph_web_serve
                      what="the graph")
     assert not page.status()["heatmap"] and not page.page.is_checked("#heatmap")
     assert not page.page.locator("#legend").is_visible()
+    assert page.page.inner_text("#status-space").startswith("tiny (graph) · ")  # as the picker names it
     for control in ("#heatmap", "#heat-scale", "#heat-auto", "#compare-mode", "#compare"):
         assert page.page.is_disabled(control), control
     page.page.wait_for_function("!location.search.includes('heatmap=1')", polling=50, timeout=5000)

@@ -39,7 +39,9 @@ export function renderStatus(state, stats, framesDrawn, targets) {
   const pill = $("conn");
   pill.textContent = LABELS[state.connection] ?? state.connection;
   pill.className = `pill ${state.connection}`;
-  $("status-space").textContent = state.space ? `${state.space} · ${state.codec}` : "no playable space";
+  // a graph as the picker lists it ("demo (graph)"), not by the picker's value ("graph:demo")
+  const shown = state.space?.startsWith("graph:") ? `${state.space.slice(6)} (graph)` : state.space;
+  $("status-space").textContent = state.space ? `${shown} · ${state.codec}` : "no playable space";
   const s = stats.snapshot();
   $("stat-fps").textContent = state.paused ? `${s.fps.toFixed(0)} (paused)` : s.fps.toFixed(0);
   const lat = s.latency;
