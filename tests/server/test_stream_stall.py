@@ -115,12 +115,18 @@ def stall_past_the_timeout(port, codec, window, stall, pause=False):
         time.sleep(stall)
         if pause:
             client.send({"type": "resume", "seq": 2})
-        try:
-            return client.frames(1.5)
-        except (EOFError, ConnectionResetError) as exc:
-            return [], exc
+        return read_again(client)
     finally:
         client.close()
+
+
+def read_again(client):
+    """What a client that resumes reading gets in 1.5 s: (frames, close), or ([], the error) when
+    the server has dropped the TCP connection."""
+    try:
+        return client.frames(1.5)
+    except (EOFError, ConnectionResetError) as exc:
+        return [], exc
 
 
 def stall_with_pulls(port, rate, pulls, stall):
@@ -130,10 +136,7 @@ def stall_with_pulls(port, rate, pulls, stall):
         for k in range(pulls):
             client.send({"type": "pull", "id": k, "time": 0.01 * k})
         time.sleep(stall)
-        try:
-            return client.frames(1.5)
-        except (EOFError, ConnectionResetError) as exc:
-            return [], exc
+        return read_again(client)
     finally:
         client.close()
 

@@ -12,8 +12,10 @@ export class HeatmapControls {
     this.state = state;
     this.viewer = viewer;
     this.autoMax = 0;  // metres: a slowly decaying maximum of the frames' error_max (auto scale)
+    this.lastScale = "20";  // the last good "red at" (mm): put back when one that is not is typed
     if (scale === "auto") $("heat-auto").checked = true;
     else if (scale !== null && scale > 0) $("heat-scale").value = String(scale);
+    if (this.validScale($("heat-scale").value)) this.lastScale = $("heat-scale").value;
     $("heatmap").checked = state.heatmap;
     viewer.setHeatmap(state.heatmap, this.scale());
     $("heatmap").addEventListener("change", (event) => {
@@ -23,7 +25,6 @@ export class HeatmapControls {
       this.updateLegend();
       url.changed();
     });
-    this.lastScale = this.validScale($("heat-scale").value) ? $("heat-scale").value : "20";
     $("heat-scale").addEventListener("change", () => {
       // a scale that is not a number of millimetres above 0: said, and the last good one back
       if (this.validScale($("heat-scale").value)) this.lastScale = $("heat-scale").value;
@@ -57,7 +58,7 @@ export class HeatmapControls {
   scale() {
     if ($("heat-auto").checked) return Math.max(this.autoMax, 1e-4);
     const text = $("heat-scale").value;
-    return Number(this.validScale(text) ? text : this.lastScale ?? 20) / 1000;
+    return Number(this.validScale(text) ? text : this.lastScale) / 1000;
   }
 
   /** The scale as the URL keeps it: "auto" or millimetres (the last good value while one is typed). */

@@ -1,5 +1,6 @@
 // The overlay over the 3D view: the status box (connection, frame rate, latency, drops, the
 // parameter table) and the messages top right.
+import { graphName } from "./graphplay.js";
 import { formatValue } from "./params.js";
 
 const $ = (id) => document.getElementById(id);
@@ -40,7 +41,8 @@ export function renderStatus(state, stats, framesDrawn, targets) {
   pill.textContent = LABELS[state.connection] ?? state.connection;
   pill.className = `pill ${state.connection}`;
   // a graph as the picker lists it ("demo (graph)"), not by the picker's value ("graph:demo")
-  const shown = state.space?.startsWith("graph:") ? `${state.space.slice(6)} (graph)` : state.space;
+  const graph = graphName(state.space);
+  const shown = graph ? `${graph} (graph)` : state.space;
   $("status-space").textContent = state.space ? `${shown} · ${state.codec}` : "no playable space";
   const s = stats.snapshot();
   $("stat-fps").textContent = state.paused ? `${s.fps.toFixed(0)} (paused)` : s.fps.toFixed(0);
