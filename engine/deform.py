@@ -58,8 +58,9 @@ class DeformationSolver:
     constraints : (c,) int array of vertex indices, or (c, k) scipy.sparse matrix, or None
         Rows of ``B``: constrained vertices, or linear combinations of them (e.g. the rows
         of ``embed_barycentric`` to constrain surface points). ``None`` gives the
-        unconstrained variant: the solution is unique up to translation, which
-        :meth:`solve` fixes by placing the volume centroid.
+        unconstrained variant: the solution is unique up to a translation of each connected
+        part, which :meth:`solve` fixes by placing the volume centroids (one part: its
+        centroid; several: each part's centroid where it rests, all moved as one).
     constraint_weight : float or (c,) float array
         The diagonal of ``W``, > 0. ``L``'s diagonal is of the order of the local edge
         length (metres); a weight whose square is much larger than ``L.diagonal().mean()``
@@ -75,12 +76,14 @@ class DeformationSolver:
     volumes : (t,) float array  tet volumes, the diagonal of ``D`` (each repeated 3 times)
     backend : str              the factorisation in use, "cholespy" or "scipy"
     n_vertices, n_tets, n_constraints : int
+    n_parts : int              connected parts of the tet mesh (an unused vertex counts as one)
+    part : (k,) int array      the part of each tet vertex
 
     Raises
     ------
     ValueError
         Bad shapes, indices or weights; a connected part of the tet mesh with no constraint
-        (the system would be singular); without constraints, a tet mesh in several parts.
+        (the system would be singular).
 
     Notes
     -----
@@ -114,20 +117,28 @@ class DeformationSolver:
         self._GtD = GtD.tocsc()  # CSC: the (k, 3t) @ (3t, 3) product is about 2x faster
 
         n_parts, part = connected_components(self.L, directed=False)
+        self.n_parts, self.part = int(n_parts), part.astype(np.int64)
         if constraints is None:
-            if n_parts > 1:
-                raise ValueError(f"the tet mesh has {n_parts} disconnected parts (an unused vertex "
-                                 "counts as one); without constraints only one translation can be fixed")
-            # Pin one vertex softly: it removes the translational null space without changing
-            # the shape of the minimiser (the pin term is zero after a translation).
+            # Pin one vertex of every connected part softly (its first): it removes each part's
+            # translational null space without changing the shape of the minimiser (the pin term
+            # is zero after a translation). A solid in several parts (a surface with a floating
+            # piece, a body with separate eyes) then has each part placed by its own centroid.
             self._free = True
-            self._pin_target = V_tet[:1].copy()
-            B = sp.csr_matrix(([1.0], ([0], [0])), shape=(1, k))
-            weight2 = np.array([self.L.diagonal().mean()])
+            pins = np.unique(self.part, return_index=True)[1]
+            self._pin_target = V_tet[pins].copy()
+            B = sp.csr_matrix((np.ones(len(pins)), (np.arange(len(pins)), pins)), shape=(len(pins), k))
+            weight2 = np.full(len(pins), self.L.diagonal().mean())
             lumped = np.zeros(k)
             np.add.at(lumped, T.ravel(), np.repeat(self.volumes / 4.0, 4))
             self._centroid_weights = lumped / lumped.sum()
             self._rest_centroid = self._centroid_weights @ V_tet
+            if self.n_parts > 1:
+                # each part's own centroid weights, and where its centroid rests (an unused
+                # vertex is a part of no volume: it keeps its rest place)
+                mass = np.bincount(self.part, weights=lumped, minlength=self.n_parts)
+                self._part_weights = lumped / np.where(mass > 0, mass, 1.0)[self.part]
+                self._part_weights[mass[self.part] == 0] = 1.0
+                self._part_rest = self._part_centroids(V_tet)
         else:
             self._free = False
             B = _constraint_matrix(constraints, k)
@@ -176,7 +187,8 @@ class DeformationSolver:
             ``None`` without.
         centroid : (3,) float array, optional
             Unconstrained solver only: where to put the volume centroid of the result
-            (default: the rest mesh's).
+            (default: the rest mesh's). A tet mesh in several parts keeps each part's
+            centroid where it rests relative to the others, and moves them together.
         out : (k, 3) float64 C-contiguous array, optional
             Written in place and returned (no allocation for the result).
 
@@ -220,8 +232,17 @@ class DeformationSolver:
             target = self._rest_centroid if centroid is None else np.asarray(centroid, dtype=np.float64)
             if target.shape != (3,):
                 raise ValueError(f"centroid must have shape (3,), got {target.shape}")
-            out += target - self._centroid_weights @ out
+            if self.n_parts > 1:   # every part's centroid where it rests, then all moved as one
+                out += (self._part_rest - self._part_centroids(out))[self.part]
+                out += target - self._rest_centroid
+            else:
+                out += target - self._centroid_weights @ out
         return out
+
+    def _part_centroids(self, X):
+        """(n_parts, 3) volume centroid of each connected part of X."""
+        return np.stack([np.bincount(self.part, weights=self._part_weights * X[:, c], minlength=self.n_parts)
+                         for c in range(3)], axis=1)
 
     def solve_components(self, F, *, centroid=None, out=None):
         """:meth:`solve` for the unconstrained solver with the targets given component-major.

@@ -121,11 +121,29 @@ class FrameDecomposer:
                                         constraint_weight=self.weight)
         self.iterations = int(iterations)
         self.rest_surface = np.asarray(self.B @ embedding.V_tet)
+        # a solid in several parts (a floating piece filled on its own) starts each part from
+        # its own surface's best rotation: one rotation for all would leave a piece that turns
+        # apart from the body to the ARAP steps, which do not get there
+        T = np.asarray(embedding.T)
+        self._tet_part = self.solver.part[T[:, 0]] if self.solver.n_parts > 1 else None
+        if self._tet_part is not None:
+            self._surface_part = self.solver.part[T[np.asarray(embedding.surface_tet), 0]]
+
+    def _start_rotations(self, S):
+        """Every tet's first target: the best rotation of the surface (of its part's surface)."""
+        t = len(self.embedding.T)
+        if self._tet_part is None:
+            return np.broadcast_to(_best_rotation(self.rest_surface, S), (t, 3, 3))
+        R = np.empty((self.solver.n_parts, 3, 3))
+        for part in range(self.solver.n_parts):
+            held = self._surface_part == part
+            R[part] = _best_rotation(self.rest_surface[held], S[held]) if held.sum() >= 3 else np.eye(3)
+        return R[self._tet_part]
 
     def fit(self, S):
         """Tet vertex positions (k, 3) fitted to surface frame S (n, 3)."""
         T, V_tet = self.embedding.T, self.embedding.V_tet
-        X = self.solver.solve(_stacked(np.broadcast_to(_best_rotation(self.rest_surface, S), (len(T), 3, 3))), S)
+        X = self.solver.solve(_stacked(self._start_rotations(S)), S)
         for _ in range(self.iterations):
             R, _ = polar_decomposition(deformation_gradients(V_tet, X, T))
             X = self.solver.solve(_stacked(R @ _rest_frames(len(T))), S)

@@ -136,6 +136,11 @@ class NonlinearBlender:
         self.B = embedding.B.tocsr()
         self.surface_tet = np.asarray(embedding.surface_tet, dtype=np.intp)
         t, n = len(embedding.T), len(self.surface_tet)
+        # a solid in several parts (a floating piece of surface filled on its own): each part
+        # is placed by its own anchored offset (None: one part, one offset)
+        self._surface_part = None
+        if self.solver.n_parts > 1:
+            self._surface_part = self.solver.part[np.asarray(embedding.T)[self.surface_tet, 0]]
         self.n_tets, self.n_vertices = t, n
         f32 = np.float32
         # scratch of the per-tet work
@@ -275,10 +280,31 @@ class NonlinearBlender:
         # anchored_offset(surface - linear, dispersion) without forming the difference
         weight += np.float32(1e-3)
         np.reciprocal(weight, out=weight)
+        if self._surface_part is not None:
+            return self._place_parts(surface, weight, pieces, out)
         offset = weight @ surface
         for part, share in pieces:
             offset -= share * (weight @ part.linear)
         surface -= offset / float(weight.sum(dtype=np.float64))
+        if out is not None:
+            out[...] = surface
+            return out
+        return surface
+
+    def _place_parts(self, surface, weight, pieces, out):
+        """:meth:`blend_frames`'s placement for a solid in several parts: each part's surface
+        vertices moved by their own anchored offset (the weighted mean of their difference from
+        the linear blend), so every part lands where its sources put it."""
+        label = self._surface_part
+        count = self.solver.n_parts
+        delta = surface.copy()
+        for part, share in pieces:
+            delta -= share * part.linear
+        w = weight.astype(np.float64)
+        mass = np.bincount(label, weights=w, minlength=count)
+        offset = np.stack([np.bincount(label, weights=w * delta[:, c], minlength=count) for c in range(3)], axis=1)
+        offset /= np.where(mass > 0, mass, 1.0)[:, None]
+        surface -= offset[label]
         if out is not None:
             out[...] = surface
             return out

@@ -151,10 +151,9 @@ def _blend(args, w, progress):
                                        progress=lambda done, total: progress("decompose", done, total))
             progress("solve", 0, 1)
             nonlinear = PhasedNonlinearBlender(NonlinearBlender(embedding, q, s, d, frames), 1, N, cyclic=True)
-        except ValueError as exc:  # e.g. a floating fragment filled as a solid of its own
-            raise ValueError(f"{args.rest or args.meshes[0]}: cannot blend this surface non-linearly ({exc}); a "
-                             f"floating piece of surface makes a solid of its own: remove it, or use --mode "
-                             f"linear") from None
+        except ValueError as exc:
+            raise ValueError(f"{args.rest or args.meshes[0]}: cannot blend this surface non-linearly ({exc}); "
+                             f"use --mode linear") from None
         result["nonlinear"] = nonlinear.blend(w, 0.0)
         result["linear"] = linear.blend(w, 0.0)
         progress("solve", 1, 1)

@@ -183,8 +183,28 @@ def test_disconnected_parts_need_a_constraint_each():
     V2, T2 = np.vstack([V, V + 5.0]), np.vstack([T, T + len(V)])
     with pytest.raises(ValueError, match="no constraint"):
         DeformationSolver(V2, T2, [0])
-    with pytest.raises(ValueError, match="disconnected"):
-        DeformationSolver(V2, T2)
     X = DeformationSolver(V2, T2, [0, len(V)]).solve(
         stacked_gradients(np.broadcast_to(np.eye(3), (len(T2), 3, 3))), V2[[0, len(V)]])
     np.testing.assert_allclose(X, V2, atol=1e-10)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_free_solver_places_each_part_of_a_solid_in_pieces_by_its_own_centroid(backend):
+    """A tet mesh in two parts (a body and a floating piece): without constraints each part is
+    solved on its own, its centroid kept where it rests; ``centroid`` moves them together."""
+    V, T = grid_tets(2)
+    V2, T2 = np.vstack([V, 0.5 * V + 5.0]), np.vstack([T, T + len(V)])
+    free = DeformationSolver(V2, T2, backend=backend)
+    assert free.n_parts == 2 and free.part.tolist() == [0] * len(V) + [1] * len(V)
+    np.testing.assert_allclose(free.solve(free.G @ V2), V2, atol=1e-9)
+    # each part rotated about its own centroid
+    R = axis_angle_matrix(np.array([0.2, 1.0, 0.3]), 1.1)
+    g = stacked_gradients(np.broadcast_to(R, (len(T2), 3, 3)))
+    X = free.solve(g)
+    for part, rows in ((T, slice(0, len(V))), (T, slice(len(V), None))):
+        c = volume_centroid(V2[rows], part)
+        np.testing.assert_allclose(X[rows], c + (V2[rows] - c) @ R.T, atol=1e-8)
+    # ``centroid`` moves both parts as one: the whole's volume centroid lands there
+    whole = volume_centroid(V2, T2)
+    moved = free.solve(g, centroid=whole + [1.0, -2.0, 0.5])
+    np.testing.assert_allclose(moved - X, np.broadcast_to([1.0, -2.0, 0.5], X.shape), atol=1e-8)

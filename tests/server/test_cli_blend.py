@@ -127,6 +127,30 @@ def test_open_surfaces_blend_non_linearly_and_a_flat_one_is_explained(tmp_path, 
     assert "flat.obj" in err and "encloses no lattice cell" in err
 
 
+def test_a_surface_with_a_floating_piece_blends_non_linearly(arms, tmp_path):
+    """A reconstruction fragment (a closed blob beside the arm, turning and moving on its own)
+    fills as a solid part of its own: the blend keeps both parts' volumes, and the blob lands
+    where the linear blend puts it."""
+    folder, V0, V1, F = arms
+    blob = trimesh.creation.icosphere(subdivisions=2, radius=0.06)
+    B0, BF = np.asarray(blob.vertices) * [1.5, 1.0, 1.0] + [0.3, 0.1, 0.0], np.asarray(blob.faces)
+    c, s = np.cos(np.radians(80)), np.sin(np.radians(80))
+    B1 = (B0 - B0.mean(axis=0)) @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T + B0.mean(axis=0) + [0.05, 0.1, 0.0]
+    F2 = np.vstack([F, BF + len(V0)])
+    write_obj(tmp_path / "a.obj", np.vstack([V0, B0]), F2)
+    write_obj(tmp_path / "b.obj", np.vstack([V1, B1]), F2)
+    for mode in ("nonlinear", "hybrid"):
+        out = tmp_path / f"{mode}.obj"
+        assert main(["blend", str(tmp_path / "a.obj"), str(tmp_path / "b.obj"), "--weights", "1", "1",
+                     "--mode", mode, "--out", str(out)]) == 0
+        half = read_mesh(out).vertices
+        piece = half[len(V0):]
+        np.testing.assert_allclose(piece.mean(axis=0), 0.5 * (B0 + B1).mean(axis=0), atol=2e-3)
+        assert enclosed_volume(piece, BF) == pytest.approx(enclosed_volume(B0, BF), rel=0.03)
+        assert enclosed_volume(0.5 * (B0 + B1), BF) < 0.9 * enclosed_volume(B0, BF)  # linear squeezes it
+        assert enclosed_volume(half[:len(V0)], F) == pytest.approx(enclosed_volume(V0, F), rel=0.03)
+
+
 def test_meshes_in_millimetres_z_up_blend_as_in_metres_and_come_back_in_their_units(arms, tmp_path, capsys):
     """--units/--up (or detection) put the meshes in metres, +Y up for the blend; the output is
     written in the inputs' units and axes, and equals the metres blend converted."""
