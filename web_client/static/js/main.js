@@ -209,6 +209,7 @@ function fillPicker() {
 }
 
 const reported = new Set();
+let listingError = null;  // why the last listing of spaces and graphs failed (null: it did not)
 let askedReported = false;  // the URL's space, when unknown, is reported once
 async function refreshSpaces() {
   try {
@@ -221,8 +222,10 @@ async function refreshSpaces() {
       reported.add(bad.name);
     }
   } catch (err) {
+    listingError = err;
     return false;
   }
+  listingError = null;
   const playable = state.spaces.filter((s) => s.playable);
   const known = graphName(state.space) ? state.graphs.some((g) => g.name === graphName(state.space))
     : playable.some((s) => s.name === state.space);
@@ -501,8 +504,19 @@ new JobsPanel({ onSpaceReady: async (name, select) => {
 requestAnimationFrame(animate);
 refreshSpaces().then((ok) => {
   if (!ok) {
-    say("Cannot reach the server's REST API; retrying…", "error");
-    const retry = setInterval(async () => { if (await refreshSpaces()) clearInterval(retry); }, 1000);
+    // said again at every failed retry (the same key replaces it), with the server's reason
+    const tell = () => say(`Cannot list the server's motion spaces (${listingError?.message || listingError}); `
+      + "retrying every second…", "error", 1500, "listing");
+    tell();
+    const retry = setInterval(async () => {
+      if (await refreshSpaces()) {
+        clearInterval(retry);
+        say("The server's motion spaces are listed again.", "info", 4000, "listing");
+        if (!state.space) say("No playable motion space on this server yet: build one (Jobs panel).", "warn", 10000);
+      } else {
+        tell();
+      }
+    }, 1000);
   }
-  if (!state.space) say("No playable motion space on this server yet: build one (Jobs panel).", "warn", 10000);
+  if (ok && !state.space) say("No playable motion space on this server yet: build one (Jobs panel).", "warn", 10000);
 });
