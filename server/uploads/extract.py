@@ -165,7 +165,7 @@ def extract_multipart(body, content_type, root, limits):
         raise UploadError(400, "multipart/form-data without a boundary")
     out = Extracted(root)
     state = {"headers": {}, "field": b"", "value": b"", "file": None, "parts": None, "name": None, "count": 0,
-             "zip": None}
+             "zip": None, "ended": False}
 
     def on_part_begin():
         state["headers"], state["file"], state["parts"] = {}, None, None
@@ -218,10 +218,13 @@ def extract_multipart(body, content_type, root, limits):
             state["file"].close()
             state["file"] = None
 
+    def on_end():
+        state["ended"] = True
+
     parser = MultipartParser(boundary, {
         "on_part_begin": on_part_begin, "on_header_field": on_header_field, "on_header_value": on_header_value,
         "on_header_end": on_header_end, "on_headers_finished": on_headers_finished,
-        "on_part_data": on_part_data, "on_part_end": on_part_end})
+        "on_part_data": on_part_data, "on_part_end": on_part_end, "on_end": on_end})
     try:
         with open(body, "rb") as src:
             while chunk := src.read(CHUNK):
@@ -234,8 +237,12 @@ def extract_multipart(body, content_type, root, limits):
     finally:
         if state["file"] is not None:
             state["file"].close()
-    if state["zip"] is not None:
-        return extract_zip(state["zip"], root, limits)
     if state["count"] == 0:
         raise UploadError(400, "the multipart body has no parts")
+    if not state["ended"]:   # a body cut short: its last part may be cut anywhere, even at a line's end
+        last = f" (its last part, {state['name']}, may be cut short)" if state["name"] else ""
+        raise UploadError(400, f"malformed multipart/form-data body: it ends before its closing boundary "
+                               f"--{boundary.decode('latin-1')}--{last}; send the whole body")
+    if state["zip"] is not None:
+        return extract_zip(state["zip"], root, limits)
     return out

@@ -4,6 +4,7 @@ assembles and validates the dataset, and publishes it (or removes the staging di
 from __future__ import annotations
 
 import asyncio
+import os
 import shutil
 import uuid
 
@@ -73,7 +74,9 @@ async def receive_dataset(request, settings, *, name, fps=30.0, cyclic=False, re
         raise UploadError(409, f"dataset {name!r} is used by a queued or running job; it cannot be written now")
     limits = Limits.from_settings(settings)
     settings.datasets_dir.mkdir(parents=True, exist_ok=True)
-    staging = settings.datasets_dir / f"{STAGING_PREFIX}{uuid.uuid4().hex[:12]}"
+    # the receiving process's id in the name: a server started after a crash removes the staging
+    # of processes that are gone (server.uploads.store.clean_stale)
+    staging = settings.datasets_dir / f"{STAGING_PREFIX}{os.getpid()}-{uuid.uuid4().hex[:12]}"
     staging.mkdir()
     try:
         await receive_body(request, staging / "body", limits)

@@ -44,19 +44,36 @@ def remove_dir(path):
 
 
 def clean_stale(settings, older_than=3600.0):
-    """Remove upload staging and trash directories left by a crashed server."""
+    """Remove upload staging and trash directories left by a crashed server: trash always, the
+    staging of a receiving process that no longer runs (its id is in the name), and any staging
+    older than ``older_than`` seconds (a process id the system gave to another process since)."""
     if not settings.datasets_dir.is_dir():
         return 0
     removed, now = 0, time.time()
     for entry in settings.datasets_dir.iterdir():
         if entry.name.startswith((STAGING_PREFIX, TRASH_PREFIX)):
             try:
-                if now - entry.stat().st_mtime > older_than or entry.name.startswith(TRASH_PREFIX):
+                if (entry.name.startswith(TRASH_PREFIX) or not _receiver_alive(entry.name)
+                        or now - entry.stat().st_mtime > older_than):
                     shutil.rmtree(entry, ignore_errors=True)
                     removed += 1
             except FileNotFoundError:
                 pass
     return removed
+
+
+def _receiver_alive(name):
+    """Whether the process whose id a staging directory's name carries (``.upload-PID-ID``) runs."""
+    pid, sep, _ = name[len(STAGING_PREFIX):].partition("-")
+    if not sep or not pid.isdigit():
+        return False   # a name without a process id: made before ids were kept, so by a process now gone
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:   # another user's process of that id: running
+        return True
+    return True
 
 
 def _mesh_count(directory):

@@ -309,3 +309,46 @@ def test_bad_names_and_content_types(client):
                     headers={**AUTH, "Content-Type": "text/plain"})
     assert r.status_code == 415 and "Content-Type" in r.json()["detail"]
     assert client.get("/v1/datasets/..%2Fspaces").status_code == 404
+
+
+def test_a_multipart_body_cut_short_is_refused_even_at_a_line_end(client, live):
+    """A body without its closing boundary (a client or proxy that stopped sending) is 400: its
+    last part may be cut anywhere, and a cut at a line's end still parses as a smaller mesh."""
+    before = datasets_state(live)
+    whole = tetra_obj(0.0, "".join(f"v {k} 1 1\nf 1 2 {5 + k}\n" for k in range(40)))
+    cut = whole[:whole.index("f 1 2 25")]   # at a line's end, inside the faces
+    parts = [("walk/frame_0.obj", tetra_obj()), ("walk/frame_1.obj", cut)]
+    body = b"".join(b"--XYZ\r\nContent-Disposition: form-data; name=\"files\"; filename=\"" + name.encode()
+                    + b"\"\r\nContent-Type: text/plain\r\n\r\n" + text.encode() + b"\r\n" for name, text in parts)
+    body = body[:-2]   # no closing --XYZ--: the body ends inside the last part
+    r = client.post("/v1/datasets", params={"name": "cutshort"}, content=body,
+                    headers={**AUTH, "Content-Type": "multipart/form-data; boundary=XYZ"})
+    assert r.status_code == 400, r.text
+    assert "closing boundary" in r.json()["detail"] and "walk/frame_1.obj" in r.json()["detail"]
+    assert datasets_state(live) == before
+    # the same parts with their closing boundary are a dataset
+    r = client.post("/v1/datasets", params={"name": "cutshort"}, content=body + b"\r\n--XYZ--\r\n",
+                    headers={**AUTH, "Content-Type": "multipart/form-data; boundary=XYZ"})
+    assert r.status_code == 201, r.text
+    assert client.delete("/v1/datasets/cutshort", headers=AUTH).status_code == 204
+
+
+def test_staging_of_a_server_that_died_is_removed_at_the_next_start(tmp_path):
+    """An upload interrupted by a crash (kill -9) leaves its staging directory; the next start
+    removes it at once, however young, and keeps the staging of a process still running."""
+    import subprocess
+    import sys
+
+    datasets = tmp_path / "data" / "datasets"
+    datasets.mkdir(parents=True)
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    dead = datasets / f".upload-{int(gone.stdout)}-0123456789ab"
+    running = datasets / f".upload-{os.getpid()}-ba9876543210"
+    old_style = datasets / ".upload-0123456789ab"
+    for staging in (dead, running, old_style):
+        staging.mkdir()
+        (staging / "body").write_bytes(b"PK" + bytes(1000))
+    with LiveServer(tmp_path / "data", env=LIMITS) as server:
+        assert httpx.get(server.url + "/v1/datasets", timeout=10).status_code == 200
+        assert not dead.exists() and not old_style.exists()
+        assert running.exists()
