@@ -10,14 +10,17 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import gc
+import json
 import logging
 import time
 from contextlib import asynccontextmanager
 from pathlib import Path
 
 from fastapi import FastAPI, Request, WebSocket
+from fastapi.encoders import jsonable_encoder
+from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
-from fastapi.responses import RedirectResponse
+from fastapi.responses import JSONResponse, RedirectResponse
 from fastapi.staticfiles import StaticFiles
 
 from engine.blend.compiled import warm_up as warm_up_blends
@@ -47,6 +50,19 @@ def warm_up_stream():
     warm_up_steps()
     warm_up_heads()
     warm_up_graphs()
+
+
+INPUT_ECHO = 200  # characters of a refused value's JSON that a 422 repeats
+
+
+def short_input(error):
+    """A validation error (a dict) whose ``input``, when its JSON is longer than ``INPUT_ECHO``
+    characters, is replaced by that much of it and the full length."""
+    value = error.get("input")
+    text = json.dumps(value, separators=(",", ":"), default=str)
+    if len(text) > INPUT_ECHO:
+        error = {**error, "input": f"{text[:INPUT_ECHO]}... ({len(text)} characters)"}
+    return error
 
 
 def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
@@ -105,6 +121,12 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
     if settings.cors_origins:
         app.add_middleware(CORSMiddleware, allow_origins=settings.cors_origins, allow_methods=["*"],
                            allow_headers=["Authorization", "Content-Type"])
+
+    @app.exception_handler(RequestValidationError)
+    async def invalid_request(request, exc):
+        # FastAPI's 422, with each error's ``input`` cut to its first INPUT_ECHO characters of JSON:
+        # a request of 200,000 sources is not sent back whole
+        return JSONResponse(status_code=422, content={"detail": [short_input(e) for e in jsonable_encoder(exc.errors())]})
 
     app.include_router(spaces.router, prefix="/v1")
     app.include_router(graphs.router, prefix="/v1")

@@ -28,7 +28,8 @@ SUFFIX = ".mspace"
 def named_path(directory, name, suffix, error, what):
     """``directory / (name + suffix)`` for a valid file-stem name, else ``error`` naming ``what``."""
     if not isinstance(name, str) or not NAME.match(name) or ".." in name:
-        raise error(f"{name!r} is not a {what} name (letters, digits, '_', '-', '.')")
+        raise error(f"{name!r} is not a {what} name (letters, digits, '_', '-', '.'; not starting with '.', "
+                    "no '..')")
     return Path(directory) / f"{name}{suffix}"
 
 

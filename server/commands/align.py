@@ -217,8 +217,8 @@ def _sequence_entry(path, body=None):
     return {"name": str(name), "frames": frames, "meta": meta, "declared": [meta, body]}
 
 
-def parse_root(text, sequences, lengths):
-    """Global frame index from "SEQUENCE:FRAME" or an integer."""
+def parse_root(text, sequences, lengths, label="--root"):
+    """Global frame index from "SEQUENCE:FRAME" or an integer (``label`` names it in errors)."""
     if text is None:
         return None
     total = int(np.sum(lengths))
@@ -226,21 +226,21 @@ def parse_root(text, sequences, lengths):
         name, _, frame = text.rpartition(":")
         names = [s["name"] for s in sequences]
         if name not in names:
-            raise ValueError(f"--root {text}: no sequence {name!r}; sequences are {', '.join(names)}")
+            raise ValueError(f"{label} {text}: no sequence {name!r}; sequences are {', '.join(names)}")
         k = names.index(name)
         try:
             frame = int(frame)
         except ValueError:
-            raise ValueError(f"--root {text}: frame must be an integer") from None
+            raise ValueError(f"{label} {text}: frame must be an integer") from None
         if not 0 <= frame < lengths[k]:
-            raise ValueError(f"--root {text}: sequence {name} has frames 0..{lengths[k] - 1}")
+            raise ValueError(f"{label} {text}: sequence {name} has frames 0..{lengths[k] - 1}")
         return int(np.sum(lengths[:k]) + frame)
     try:
         index = int(text)
     except ValueError:
-        raise ValueError(f"--root {text}: expected SEQUENCE:FRAME or a frame index") from None
+        raise ValueError(f"{label} {text}: expected SEQUENCE:FRAME or a frame index") from None
     if not 0 <= index < total:
-        raise ValueError(f"--root {text}: there are {total} frames (0..{total - 1})")
+        raise ValueError(f"{label} {text}: there are {total} frames (0..{total - 1})")
     return index
 
 

@@ -169,6 +169,11 @@ def read_spec(path):
                 raise ValueError(f"{path}: parameters refer to {name!r}, which is not among the sources")
             return names.index(name)
 
+        foreign = [key for key in sorted({k for keys in LAYOUT_KEYS.values() for k in keys})
+                   if key in parameters and key not in LAYOUT_KEYS[kind]]
+        if foreign:
+            raise ValueError(f"{path}: parameters.{foreign[0]} is not part of a {kind} layout (it takes "
+                             f"{', '.join(LAYOUT_KEYS[kind])})")
         fields = {}
         for key in LAYOUT_KEYS[kind]:
             if key not in parameters:
@@ -186,6 +191,10 @@ def read_spec(path):
         twice = next((names[i] for i in used if used.count(i) > 1), None)
         if twice is not None:
             raise ValueError(f"{path}: parameters: the {kind} layout names {twice!r} twice; its sources must differ")
+        left_out = [repr(name) for i, name in enumerate(names) if i not in used]
+        if left_out:
+            raise ValueError(f"{path}: parameters: the {kind} layout leaves out {', '.join(left_out)}: every source "
+                             f"needs its place in the layout (add it there, or take it out of sources)")
         try:
             layout = Layout(kind=kind, n_sources=len(names), **fields)
         except ValueError as exc:

@@ -10,20 +10,25 @@ from __future__ import annotations
 from enum import Enum
 from typing import Annotated, Any, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, StringConstraints, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints, field_validator, model_validator
 
 from engine.align.captures import FINE_EDGE
 from engine.parameters import MEASURES
+from server.commands.build import LAYOUT_KEYS
 
 NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$"
-Name = Annotated[str, StringConstraints(pattern=NAME_PATTERN), Field(description="letters, digits, '_', '-', '.'; "
-                                                                                 "no leading '.' (max 128)")]
 
 
 def _no_dotdot(name):
     if ".." in name:
         raise ValueError(f"{name!r}: '..' is not allowed in names")
     return name
+
+
+# every name a job reads or writes (a dataset, space, graph, sequence or node): what the REST
+# endpoints can address, so that nothing a job writes is out of their reach
+Name = Annotated[str, StringConstraints(pattern=NAME_PATTERN), AfterValidator(_no_dotdot),
+                 Field(description="letters, digits, '_', '-', '.'; no leading '.', no '..' (max 128)")]
 
 
 class _Body(BaseModel):
@@ -44,11 +49,23 @@ class ParameterSpec(_Body):
 
     @model_validator(mode="after")
     def _layout_fields(self):
-        needed = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}[self.layout]
+        needed = LAYOUT_KEYS[self.layout]
         missing = [key for key in needed if getattr(self, key) is None]
         if missing:
             raise ValueError(f"a {self.layout} layout needs {', '.join(missing)}")
+        foreign = [key for key in ("chain", "corners", "left", "right") if getattr(self, key) is not None
+                   and key not in needed]
+        if foreign:
+            raise ValueError(f"{foreign[0]} is not part of a {self.layout} layout (it takes {', '.join(needed)})")
         return self
+
+    def placed(self):
+        """The source names the layout places, in its keys' order (repeats kept)."""
+        names = []
+        for key in LAYOUT_KEYS[self.layout]:
+            value = getattr(self, key)
+            names += value if isinstance(value, list) else [value]
+        return names
 
 
 class BuildSpec(_Body):
@@ -73,7 +90,26 @@ class BuildSpec(_Body):
     def _unique(cls, value):
         if len(set(value)) != len(value):
             raise ValueError("sources must be different sequences")
-        return [_no_dotdot(v) for v in value]
+        return value
+
+    @model_validator(mode="after")
+    def _layout_places_the_sources(self):
+        """As ``morphspace build`` reads a spec (server.commands.build.read_spec): the layout names
+        only sources, each once, and every source."""
+        if self.parameters is None:
+            return self
+        placed, kind = self.parameters.placed(), self.parameters.layout
+        unknown = next((name for name in placed if name not in self.sources), None)
+        if unknown is not None:
+            raise ValueError(f"parameters refer to {unknown!r}, which is not among the sources")
+        twice = next((name for name in placed if placed.count(name) > 1), None)
+        if twice is not None:
+            raise ValueError(f"parameters: the {kind} layout names {twice!r} twice; its sources must differ")
+        left_out = [repr(name) for name in self.sources if name not in placed]
+        if left_out:
+            raise ValueError(f"parameters: the {kind} layout leaves out {', '.join(left_out)}: every source needs "
+                             f"its place in the layout (add it there, or take it out of sources)")
+        return self
 
 
 class BuildJob(_Body):
@@ -229,8 +265,6 @@ class GraphJob(_Body):
         for edge in self.edges:
             if any(e not in names for e in edge):
                 raise ValueError(f"edge {edge}: both ends must be nodes ({', '.join(names)})")
-        for n in self.nodes:
-            _no_dotdot(n.space)
         return self
 
 

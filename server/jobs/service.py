@@ -163,6 +163,8 @@ class JobService:
             if not (datasets / name).is_dir():
                 have = ", ".join(uploads.dataset_names(self.settings)) or "none"
                 raise JobRequestError(404, f"no dataset {name!r} (have: {have})")
+        if kind == "align" and params.get("root"):
+            self._check_root(params)
         if kind == "build":
             try:
                 check_build_sources(datasets / params["dataset"], params["spec"])
@@ -194,6 +196,24 @@ class JobService:
         job = self.store.create(kind, params)
         self._kick()
         return job
+
+    def _check_root(self, params):
+        """An align job's ``root`` names a sequence of its datasets (of ``only``, when given) and a
+        frame number, or is a frame index (its range is checked when the frames are read)."""
+        text = params["root"]
+        name, sep, frame = text.rpartition(":")
+        if not sep:
+            if not text.isdigit():
+                raise JobRequestError(422, f"root {text}: expected SEQUENCE:FRAME or a frame index")
+            return
+        names = sorted({entry.name for dataset in params["datasets"]
+                        for entry in (self.settings.datasets_dir / dataset / "sequences").glob("*") if entry.is_dir()})
+        if params.get("only"):
+            names = [n for n in names if n in params["only"]]
+        if name not in names:
+            raise JobRequestError(422, f"root {text}: no sequence {name!r}; sequences are {', '.join(names) or 'none'}")
+        if not frame.isdigit():
+            raise JobRequestError(422, f"root {text}: frame must be an integer from 0")
 
     def _check_export(self, params):
         """An export job's space must exist and its clip be playable (the errors of the
@@ -239,7 +259,7 @@ class JobService:
         if job is None:
             raise JobRequestError(404, f"no job {job_id!r}")
         if job["status"] in FINAL:
-            raise JobRequestError(409, f"job {job_id} has already {job['status']}; only queued or running jobs "
+            raise JobRequestError(409, f"job {job_id} is already {job['status']}; only queued or running jobs "
                                        "can be cancelled")
         if self.store.cancel_queued(job_id):
             return self.store.get(job_id)

@@ -291,7 +291,7 @@ def run_align(payload, reporter, runner=None):
     meshes, lengths = read_inputs(sequences, reporter.progress, say=reporter.log)
     reporter.log(f"read {int(lengths.sum())} frames of {len(sequences)} sequences")
     meshes, conventions = convert_inputs(meshes, sequences, lengths, params["units"], params["up"], say=reporter.log)
-    root = parse_root(params.get("root"), sequences, lengths)
+    root = parse_root(params.get("root"), sequences, lengths, label="root")
     options = AlignmentOptions(patches=params["patches"], levels=params["levels"],
                                swing_limbs=params["swing_limbs"], reach_limbs=params["reach_limbs"])
     result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree",

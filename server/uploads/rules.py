@@ -43,7 +43,7 @@ class Limits:
 def check_name(name, what="dataset"):
     if not isinstance(name, str) or not NAME.match(name) or ".." in name:
         raise UploadError(422, f"{name!r} is not a valid {what} name: use letters, digits, '_', '-', '.' "
-                               "(at most 128, not starting with '.')")
+                               "(at most 128, not starting with '.', no '..')")
     return name
 
 

@@ -115,6 +115,14 @@ def test_the_demo_like_spec_passes_the_checks(tmp_path, captures):
     (lambda s: s.replace('sources = ["walk", "jog"]', 'sources = [{name = "walk", pth = "x"}, "jog"]'),
      "source 'walk': unknown key(s) pth"),
     (lambda s: s.replace('measures = ["speed"]', 'measures = "speed"'), "parameters.measures must list 1 to 3"),
+    (lambda s: s.replace('chain = ["walk", "jog"]', 'chain = ["walk", "jog"]\nleft = "walk"'),
+     "parameters.left is not part of a chain layout (it takes chain)"),
+    (lambda s: s.replace('chain = ["walk", "jog"]', 'chain = ["walk", "jog"]\ncorners = ["walk", "jog", "walk", "jog"]'),
+     "parameters.corners is not part of a chain layout"),
+    (lambda s: s.replace('sources = ["walk", "jog"]', 'sources = ["walk", "jog", {name = "run", path = "captures/sequences/jog"}]'),
+     "parameters: the chain layout leaves out 'run': every source needs its place in the layout"),
+    (lambda s: s.replace('chain = ["walk", "jog"]', 'chain = ["walk", "jag"]'),
+     "parameters refer to 'jag', which is not among the sources"),
 ])
 def test_bad_spec_keys_are_named(tmp_path, capsys, captures, change, message):
     (tmp_path / "s.toml").write_text(change(SPEC.format(captures=captures)))

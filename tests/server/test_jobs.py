@@ -148,13 +148,35 @@ def test_upload_build_and_the_space_appears(client, live):
 def test_bad_job_requests_name_the_problem(client):
     cases = [
         (build_request("x", dataset="nope"), 404, "no dataset 'nope'"),
-        ({**build_request("x"), "spec": {**build_request("x")["spec"], "sources": ["slow", "walk"]}}, 422, "'walk'"),
+        ({**build_request("x"), "spec": {**build_request("x")["spec"], "sources": ["slow", "walk"],
+                                         "parameters": {**build_request("x")["spec"]["parameters"],
+                                                        "chain": ["slow", "walk"]}}}, 422, "'walk'"),
         ({**build_request("x"), "kind": "paint"}, 422, "kind"),
         ({**build_request("../x")}, 422, "space"),
         ({**build_request("x"), "spec": {"sources": ["slow", "fast"], "parameters": {"layout": "chain",
                                                                                   "measures": ["speed"]}}},
          422, "chain"),
         ({**build_request("x"), "spec": {"sources": ["slow", "fast"], "rest": "../../etc/passwd"}}, 422, "rest"),
+        # every name a job writes is one the endpoints can address (found by a docs-only user)
+        (build_request("a..b"), 422, "'a..b': '..' is not allowed in names"),
+        ({"kind": "ingest", "dataset": "gaits", "output": "d..x"}, 422, "'..' is not allowed"),
+        ({"kind": "align", "datasets": ["gaits"], "output": "x..y"}, 422, "'..' is not allowed"),
+        ({"kind": "graph", "graph": "g..h", "nodes": [{"name": "a", "space": "s"}, {"name": "b", "space": "t"}],
+          "edges": [["a", "b"]]}, 422, "'..' is not allowed"),
+        # the layout is checked as `morphspace build` checks a spec, before anything is queued
+        ({**build_request("x"), "spec": {"sources": ["slow", "fast"], "parameters": {
+            "layout": "chain", "chain": ["slow", "jog"], "measures": ["speed"]}}}, 422,
+         "parameters refer to 'jog', which is not among the sources"),
+        ({**build_request("x"), "spec": {"sources": ["slow", "fast", "walk"], "parameters": {
+            "layout": "chain", "chain": ["slow", "fast"], "measures": ["speed"]}}}, 422,
+         "the chain layout leaves out 'walk'"),
+        ({**build_request("x"), "spec": {"sources": ["slow", "fast"], "parameters": {
+            "layout": "chain", "chain": ["slow", "fast"], "left": "slow", "measures": ["speed"]}}}, 422,
+         "left is not part of a chain layout"),
+        ({"kind": "align", "datasets": ["gaits"], "output": "aligned", "root": "zzz:9"}, 422,
+         "root zzz:9: no sequence 'zzz'; sequences are "),
+        ({"kind": "align", "datasets": ["gaits"], "output": "aligned", "root": "slow:x"}, 422,
+         "root slow:x: frame must be an integer"),
     ]
     for body, status, words in cases:
         r = client.post("/v1/jobs", json=body, headers=AUTH)
@@ -398,3 +420,16 @@ def test_a_build_of_looping_and_one_shot_sources_is_refused_when_queued(client, 
     assert r.status_code == 422, r.text
     assert "sources must be all cyclic or all non-cyclic" in r.json()["detail"], r.text
     assert "fast" in r.json()["detail"] and "slow" in r.json()["detail"]
+
+
+def test_a_refused_request_is_not_sent_back_whole(client):
+    """A 422 repeats each refused value, cut to 200 characters of its JSON (a request of 200,000
+    sources got back a 20 MB answer; found by a docs-only user)."""
+    sources = [f"s{k}" for k in range(200_000)]
+    r = client.post("/v1/jobs", json={**build_request("x"), "spec": {"sources": sources}}, headers=AUTH)
+    assert r.status_code == 422 and len(r.content) < 2000, len(r.content)
+    (error,) = r.json()["detail"]
+    assert error["loc"] == ["body", "build", "spec", "sources"] and "at most 16" in error["msg"]
+    assert error["input"].startswith('["s0","s1",') and error["input"].endswith(" characters)")
+    r = client.post("/v1/jobs", json={**build_request("x"), "space": "../x"}, headers=AUTH)
+    assert r.status_code == 422 and r.json()["detail"][0]["input"] == "../x"   # short values as they were
