@@ -14,7 +14,7 @@ from pathlib import Path
 
 from engine.graph import GraphError, MotionGraph
 from engine.motion_space.space import MotionSpace
-from server.registry import BrokenSpace, UnknownSpace, named_files, named_path
+from server.registry import BrokenSpace, UnknownSpace, named_files, named_path, within
 
 SUFFIX = ".mgraph"
 
@@ -85,7 +85,7 @@ class GraphRegistry:
         try:
             graph = MotionGraph.open(path, open_space=self._space_opener(used))
         except (GraphError, OSError, ValueError, KeyError) as exc:
-            raise BrokenGraph(f"motion graph {name!r} cannot be used: {exc}") from None
+            raise BrokenGraph(f"motion graph {name!r} cannot be used: {within(exc, self.directory)}") from None
         with self._lock:
             # an older version stays open for connections already streaming it (mapped memory)
             self._entries[name] = (stamp, graph, used)

@@ -25,6 +25,12 @@ NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
 SUFFIX = ".mspace"
 
 
+def within(exc, directory):
+    """``str(exc)`` with ``directory`` taken off the paths in it: a client is told the file by its
+    name in the data directory, never where the server keeps it."""
+    return str(exc).replace(f"{Path(directory)}/", "")
+
+
 def named_path(directory, name, suffix, error, what):
     """``directory / (name + suffix)`` for a valid file-stem name, else ``error`` naming ``what``."""
     if not isinstance(name, str) or not NAME.match(name) or ".." in name:
@@ -104,7 +110,7 @@ class SpaceRegistry:
         try:
             space = MotionSpace.open(path, derived=self.derived)
         except (MotionSpaceError, OSError, ValueError, KeyError) as exc:
-            raise BrokenSpace(f"motion space {name!r} cannot be read: {exc}") from exc
+            raise BrokenSpace(f"motion space {name!r} cannot be read: {within(exc, self.directory)}") from exc
         entry = _Entry(stamp=stamp, space=space, bounds=quantisation_box(space))
         gc.freeze()  # a space lives as long as it is served: out of the collector's full passes
         with self._lock:

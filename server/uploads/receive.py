@@ -25,14 +25,19 @@ async def receive_body(request, path, limits):
         if declared > limits.max_bytes:
             raise UploadError(413, f"the upload is {declared} bytes; the limit is {limits.max_bytes} bytes "
                                    "(MORPHSPACE_MAX_UPLOAD_BYTES)")
+    from starlette.requests import ClientDisconnect
+
     size = 0
     with open(path, "xb") as out:
-        async for chunk in request.stream():
-            size += len(chunk)
-            if size > limits.max_bytes:
-                raise UploadError(413, f"the upload passed the limit of {limits.max_bytes} bytes "
-                                       "(MORPHSPACE_MAX_UPLOAD_BYTES)")
-            out.write(chunk)
+        try:
+            async for chunk in request.stream():
+                size += len(chunk)
+                if size > limits.max_bytes:
+                    raise UploadError(413, f"the upload passed the limit of {limits.max_bytes} bytes "
+                                           "(MORPHSPACE_MAX_UPLOAD_BYTES)")
+                out.write(chunk)
+        except ClientDisconnect:   # an answer nobody reads, and one log line instead of a traceback
+            raise UploadError(400, f"the client disconnected after {size} bytes of the upload") from None
     if size == 0:
         raise UploadError(400, "the upload is empty: send a zip archive or multipart/form-data files")
     return size

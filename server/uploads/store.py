@@ -115,7 +115,8 @@ def describe_dataset(settings, name):
         if not isinstance(manifest, dict) or manifest.get("format") != DATASET_FORMAT:
             raise ValueError(f"format {manifest.get('format') if isinstance(manifest, dict) else None!r}")
     except (OSError, ValueError) as exc:
-        raise UploadError(409, f"dataset {name!r} has no readable manifest.json ({exc})") from None
+        raise UploadError(409, f"dataset {name!r} has no readable manifest.json "
+                               f"({str(exc).replace(f'{settings.datasets_dir}/', '')})") from None
     sequences = []
     seq_root = root / "sequences"
     names = sorted((p.name for p in seq_root.iterdir() if p.is_dir() and NAME.match(p.name)), key=natural_key) \

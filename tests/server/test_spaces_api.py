@@ -41,7 +41,9 @@ def test_a_broken_file_is_listed_as_unreadable_not_fatal(server):
         listing = httpx.get(server.url + "/v1/spaces").json()
         assert [u["name"] for u in listing["unreadable"]] == ["broken"]
         assert "broken" in listing["unreadable"][0]["error"]
-        assert httpx.get(server.url + "/v1/spaces/broken").status_code == 409
+        r = httpx.get(server.url + "/v1/spaces/broken")
+        assert r.status_code == 409 and "broken.mspace" in r.text
+        assert str(server.data_dir) not in r.text and str(server.data_dir) not in str(listing)  # no server paths
         assert httpx.get(server.url + "/v1/spaces/speed").status_code == 200
     finally:
         bad.unlink()

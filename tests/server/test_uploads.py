@@ -352,3 +352,27 @@ def test_staging_of_a_server_that_died_is_removed_at_the_next_start(tmp_path):
         assert httpx.get(server.url + "/v1/datasets", timeout=10).status_code == 200
         assert not dead.exists() and not old_style.exists()
         assert running.exists()
+
+
+def test_a_client_that_disconnects_mid_upload_leaves_nothing_and_no_traceback(live):
+    """The client goes away after 100 KB of a 300 KB body: the staging is removed, and the server
+    log gets no 'Exception in ASGI application' traceback for it."""
+    import socket
+    import time
+
+    before = datasets_state(live)
+    log_before = live.log.read_text(errors="replace")
+    host, port = live.url.removeprefix("http://").split(":")
+    with socket.create_connection((host, int(port)), timeout=10) as conn:
+        conn.sendall((f"POST /v1/datasets?name=gone HTTP/1.1\r\nHost: {host}\r\nAuthorization: Bearer {TOKEN}\r\n"
+                      "Content-Type: application/zip\r\nContent-Length: 300000\r\n\r\n").encode() + bytes(100_000))
+        time.sleep(0.5)
+    for _ in range(100):   # the server notices the disconnect and cleans up
+        if not list((live.data_dir / "datasets").glob(".upload-*")):
+            break
+        time.sleep(0.1)
+    assert not list((live.data_dir / "datasets").glob(".upload-*"))
+    assert datasets_state(live) == before
+    time.sleep(0.3)
+    new = live.log.read_text(errors="replace")[len(log_before):]
+    assert "Traceback" not in new and "Exception in ASGI" not in new, new
