@@ -40,11 +40,13 @@ def build_parser():
         prog="morphspace",
         description="Parametric real-time animation of performance-captured mesh sequences.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    parser.commands = {}  # name -> the command's own parser (its usage goes with its errors)
     for name, module in COMMANDS.items():
         doc = (module.__doc__ or "").strip().splitlines()
         p = sub.add_parser(name, help=doc[0] if doc else None, description=(module.__doc__ or "").strip(),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_arguments(p)
+        parser.commands[name] = p
     return parser
 
 
@@ -64,13 +66,20 @@ def _on_sigterm(main_pid):
 
 def main(argv=None):
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # the command's usage, not the top level's (exit status 2)
+        parser.commands[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     previous = None
     if args.command != "serve" and os.name == "posix" and threading.current_thread() is threading.main_thread():
         # (uvicorn handles its own signals; only the main thread may set a handler)
         previous = signal.signal(signal.SIGTERM, _on_sigterm(os.getpid()))
     try:
         return COMMANDS[args.command].run(args)
+    except BrokenPipeError:
+        # the reader went away (`morphspace play ... | head`): nothing more to say to it, no error;
+        # stdout is pointed at /dev/null so that the flush at exit does not fail again
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except (ValueError, OSError) as exc:
         print(f"morphspace {args.command}: error: {exc}", file=sys.stderr)
         return 2

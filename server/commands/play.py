@@ -46,6 +46,7 @@ def add_arguments(parser):
     parser.add_argument("--trail", type=Path, help="write a PNG of every n-th frame along the path")
     parser.add_argument("--trail-every", type=float, default=0.4, help="seconds between trail frames")
     parser.add_argument("--frames", type=Path, help="write every played frame as OBJ into this directory")
+    parser.add_argument("--force", action="store_true", help="replace the frames of an earlier play in --frames")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
 
 
@@ -109,6 +110,10 @@ def check_arguments(args, graph=False):
             raise ValueError(f"--trail {args.trail}: not a picture file name; give one ending in .png")
     if args.frames:
         check_output_path(args.frames, "--frames", directory=True)
+        if args.frames.is_dir() and any(args.frames.glob("frame_*.obj")) and not args.force:
+            # a shorter play would leave the earlier one's last frames behind, one sequence to the eye
+            raise ValueError(f"--frames {args.frames}: holds the frames of an earlier play; pass --force to "
+                             "replace them")
     if getattr(args, "record", None):
         check_output_path(args.record, "--record")
     if getattr(args, "replay", None):
@@ -116,6 +121,14 @@ def check_arguments(args, graph=False):
             raise ValueError(f"--replay {args.replay}: is a directory, not a recording")
         if not args.replay.is_file():
             raise ValueError(f"--replay {args.replay}: no such file")
+
+
+def open_frames(directory):
+    """Make ``--frames`` ready for a play: created, and an earlier play's ``frame_*.obj`` removed
+    (``check_arguments`` refused it without ``--force``); other files are left alone."""
+    directory.mkdir(parents=True, exist_ok=True)
+    for old in directory.glob("frame_*.obj"):
+        old.unlink()
 
 
 def note_time(seconds):
@@ -166,7 +179,7 @@ def run(args):
     log, trail = [], []
     every = max(1, int(round(min(args.trail_every * args.fps, steps + 1))))
     if args.frames:
-        args.frames.mkdir(parents=True, exist_ok=True)  # (checked by check_arguments)
+        open_frames(args.frames)  # (checked by check_arguments)
     frame = player.frame()
     for k in range(steps + 1):
         while script and script[0][0] <= k * dt + 1e-9:
@@ -175,7 +188,8 @@ def run(args):
                 notes.append(f"t={k * dt:.2f} s: {solution.message}")
         frame = player.step(dt) if k else frame
         log.append({"time": round(frame.time, 4), "phase": round(frame.phase, 4),
-                    "requested": frame.requested.round(4).tolist(), "realised": frame.realised.round(4).tolist(),
+                    "asked": player.asked.round(4).tolist(), "requested": frame.requested.round(4).tolist(),
+                    "realised": frame.realised.round(4).tolist(),
                     "root": frame.root_position.round(4).tolist(), "heading_deg": round(np.degrees(frame.heading), 3)})
         if args.trail and k % every == 0:
             trail.append(frame.vertices.copy())
@@ -210,8 +224,9 @@ def run(args):
         return 0
     print(f"{space.name}: played {report['seconds']:.2f} s ({report['frames']} frames, {args.mode}), "
           f"travelled {travelled:.2f} m")
-    for entry in log[:: max(1, len(log) // 10)] + [log[-1]]:
-        values = ", ".join(f"{n} {r:.3f} (asked {q:.3f})" for n, q, r in zip(names, entry["requested"], entry["realised"]))
+    rows = log[:: max(1, len(log) // 10)]
+    for entry in rows + ([log[-1]] if rows[-1] is not log[-1] else []):
+        values = ", ".join(f"{n} {r:.3f} (asked {q:g})" for n, q, r in zip(names, entry["asked"], entry["realised"]))
         print(f"  t {entry['time']:6.2f} s  phase {entry['phase']:.2f}  {values}  root {entry['root'][0]:+.2f}, "
               f"{entry['root'][2]:+.2f} m  heading {entry['heading_deg']:+.1f} deg")
     for note in notes:

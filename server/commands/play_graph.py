@@ -18,7 +18,7 @@ from engine.export.clip import MAX_FRAMES
 from engine.graph import GraphError, MotionGraph
 from engine.graph.recording import perform, read_recording, recording
 from engine.mesh_io import write_obj
-from server.commands.play import at_time, check_arguments, finite_number, frame_steps, note_time
+from server.commands.play import at_time, check_arguments, finite_number, frame_steps, note_time, open_frames
 
 
 def node_assignments(items, node):
@@ -76,7 +76,7 @@ def run_graph(args):
             dts = None
             times, why = [when for when, _ in script], "--seconds ended the play"
         if args.frames:
-            args.frames.mkdir(parents=True, exist_ok=True)
+            open_frames(args.frames)
         faces = graph.nodes[0].space.faces
         log = []
 
@@ -96,7 +96,8 @@ def run_graph(args):
         root = np.array([entry["root"] for entry in log])
         travelled = float(np.sum(np.linalg.norm(np.diff(root[:, [0, 2]], axis=0), axis=1)))
         events = [{"time": e["time"], "event": ev} for e in log for ev in e["events"]]
-        notes = []
+        # the start's parameters out of reach: clamped and said, as any request's are
+        notes = [f"{note_time(0.0)}: start {start}: {player.start_clamped}"] if player.start_clamped else []
         # requests the play never reached (perform answers them in frame order): said, not dropped silently
         for i in sorted(range(len(requests)), key=lambda i: requests[i]["frame"])[len(answers):]:
             r = requests[i]

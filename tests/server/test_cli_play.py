@@ -133,3 +133,37 @@ def test_a_graph_request_after_the_play_ends_is_said_not_dropped(built_graph, ca
     assert report["notes"] == ["t=5.00 s: jump not applied: --seconds ended the play at 1.00 s"]
     assert main(["play", str(built_graph / "tiny.mgraph"), "--at", "5", "jump", "--seconds", "1", "--fps", "15"]) == 0
     assert "  note: t=5.00 s: jump not applied: --seconds ended the play at 1.00 s" in capsys.readouterr().out
+
+
+def test_a_play_says_what_was_asked_and_a_graph_its_clamped_start(built_spaces, built_graph, capsys):
+    """The report's 'asked' is the request as given (not the smoothed, clamped value the player
+    moves towards); a graph's start parameters out of reach are noted as a space's are."""
+    report = _play(capsys, built_spaces / "speed.mspace", "--set", "speed=10", "--seconds", 0.5, "--fps", 20)
+    assert report["end"]["asked"] == [10.0] and report["end"]["requested"][0] < 10.0
+    assert main(["play", str(built_spaces / "speed.mspace"), "--set", "speed=10", "--seconds", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "(asked 10)" in out
+    timeline = [line for line in out.splitlines() if line.startswith("  t ")]
+    assert len(timeline) == len(set(timeline))   # the last row once
+    report = _play(capsys, built_graph / "tiny.mgraph", "--set", "speed=10", "--seconds", 0.5, "--fps", 15)
+    assert len(report["notes"]) == 1 and report["notes"][0].startswith("t=0.00 s: start ")
+    assert "clamped: speed 10" in report["notes"][0]
+
+
+def test_frames_of_an_earlier_play_are_not_mixed_with_a_new_one(built_spaces, built_graph, tmp_path, capsys):
+    """A second play into the same --frames directory is refused; with --force the earlier
+    frames go (a shorter play left the first one's last frames behind: one sequence to the eye)."""
+    frames = tmp_path / "frames"
+    (tmp_path / "frames").mkdir()
+    (frames / "notes.txt").write_text("mine")
+    for target in (built_spaces / "speed.mspace", built_graph / "tiny.mgraph"):
+        assert main(["play", str(target), "--seconds", "1", "--fps", "10", "--frames", str(frames), "--force"]) == 0
+        assert len(list(frames.glob("frame_*.obj"))) == 11
+        capsys.readouterr()
+        refused(capsys, ["play", target, "--seconds", "0.5", "--fps", "10", "--frames", frames],
+                f"--frames {frames}: holds the frames of an earlier play; pass --force")
+        assert len(list(frames.glob("frame_*.obj"))) == 11
+        capsys.readouterr()
+        assert main(["play", str(target), "--seconds", "0.5", "--fps", "10", "--frames", str(frames), "--force"]) == 0
+        assert sorted(p.name for p in frames.glob("frame_*.obj")) == [f"frame_{k:05d}.obj" for k in range(6)]
+        assert (frames / "notes.txt").read_text() == "mine"   # only frames are replaced
