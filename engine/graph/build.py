@@ -11,6 +11,7 @@ checksummed, written atomically, memory-mapped, never unpickled.
 from __future__ import annotations
 
 import os
+import re
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -43,20 +44,28 @@ class NodeSpec:
     return_to: str | None = None
 
 
+NODE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")  # as every name the server takes
+
+
 def check_graph(nodes, edges, spaces):
     """Validate nodes, edges and their spaces; returns the edges as (from, to) index pairs and
     each node's return node index (-1 for cyclic nodes)."""
     names = [n.name for n in nodes]
     if len(nodes) < 2:
         raise GraphError(f"a motion graph needs at least 2 nodes, got {len(nodes)}")
+    for name in names:   # a node's name names its arrays in the file (node/<name>/...)
+        if not isinstance(name, str) or not NODE_NAME.match(name) or ".." in name:
+            raise GraphError(f"node name {name!r}: use letters, digits, '_', '-', '.' (at most 128, starting "
+                             "with a letter or digit, no '..')")
     if len(set(names)) != len(names):
         raise GraphError(f"node names must differ, got {names}")
     first = spaces[0]
     for node, space in zip(nodes, spaces):
         if space.n_vertices != first.n_vertices or not np.array_equal(space.faces, first.faces):
+            how = (f"{space.n_vertices} vs {first.n_vertices} vertices" if space.n_vertices != first.n_vertices
+                   else f"the same {space.n_vertices} vertices, joined by other faces")
             raise GraphError(f"node {node.name!r}: its space {node.space} has a different mesh structure from "
-                             f"{nodes[0].name!r}'s ({space.n_vertices} vs {first.n_vertices} vertices); the spaces "
-                             "of a graph share one mesh structure")
+                             f"{nodes[0].name!r}'s ({how}); the spaces of a graph share one mesh structure")
     pairs = []
     for edge in edges:
         if len(edge) != 2 or any(e not in names for e in edge):
@@ -84,7 +93,27 @@ def check_graph(nodes, edges, spaces):
             returns.append(targets[0])
         else:
             raise GraphError(f"one-shot node {node.name!r} has no edge to a cyclic node to return to")
+    check_connected(names, pairs)
     return pairs, returns
+
+
+def check_connected(names, pairs):
+    """Every node can be reached from every other along the edges: a player asked for a node it
+    cannot reach from where it is has no answer (a graph in pieces, a node no edge leads to)."""
+    n = len(names)
+    for start in range(n):
+        seen, todo = {start}, [start]
+        while todo:
+            a = todo.pop()
+            for x, b in pairs:
+                if x == a and b not in seen:
+                    seen.add(b)
+                    todo.append(b)
+        if len(seen) < n:
+            missing = [names[k] for k in range(n) if k not in seen]
+            raise GraphError(f"node {missing[0]!r} cannot be reached from {names[start]!r} along the edges"
+                             + (f" (nor {', '.join(repr(m) for m in missing[1:])})" if len(missing) > 1 else "")
+                             + "; every node must be reachable from every other: add edges")
 
 
 def build_graph(path, nodes, edges, *, name, options=None, open_space=None, progress=None, relative_to=None):
@@ -114,7 +143,12 @@ def build_graph(path, nodes, edges, *, name, options=None, open_space=None, prog
     report = progress or (lambda stage, done, total: None)
     started = time.perf_counter()
     path = Path(path)
-    spaces = [open_space(node.space) for node in nodes]
+    spaces = []
+    for node in nodes:   # a node's space that is not one (a spec, a graph, a truncated file) is named by its node
+        try:
+            spaces.append(open_space(node.space))
+        except (ValueError, OSError) as exc:
+            raise GraphError(f"node {node.name!r}: its space cannot be opened: {exc}") from None
     pairs, returns = check_graph(nodes, edges, spaces)
     vertices = compared_vertices(spaces[0].n_vertices, options.vertices)
     home = Path(relative_to or path.parent).resolve()

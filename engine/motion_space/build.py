@@ -293,7 +293,10 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
                              f"needs (frames, {n}, 3) like {clips[0].name}")
     cyclic = {clip.cyclic for clip in clips}
     if len(cyclic) != 1:
-        raise ValueError("sources must be all cyclic or all non-cyclic")
+        loops = [clip.name for clip in clips if clip.cyclic]
+        once = [clip.name for clip in clips if not clip.cyclic]
+        raise ValueError(f"sources must be all cyclic or all non-cyclic: {', '.join(loops)} cyclic, "
+                         f"{', '.join(once)} not (meta.json's cyclic, or --cyclic for sources without one)")
     cyclic = cyclic.pop()
     faces = np.asarray(faces, dtype=np.int64)
     if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= n:

@@ -210,9 +210,11 @@ def read_spec(path):
             check_number(resolution, f"{path}: parameters.resolution", *RESOLUTION, integer=True)
         parameters = {"layout": layout, "names": list(measures), "resolution": resolution}
     rest = spec.get("rest")
+    rest = (captures / rest if captures is not None else base / rest) if rest else None
+    if rest is not None and not rest.is_file():
+        raise ValueError(f"{path}: rest: {rest} is not a file")
     return {"name": name, "directories": directories, "names": names,
-            "epsilon_mm": spec.get("epsilon_mm"), "phases": spec.get("phases"),
-            "rest": (captures / rest if captures is not None else base / rest) if rest else None,
+            "epsilon_mm": spec.get("epsilon_mm"), "phases": spec.get("phases"), "rest": rest,
             "captures": captures, "parameters": parameters}
 
 
@@ -307,6 +309,13 @@ def run(args):
     else:
         if len(args.source) < 2:
             raise ValueError("a motion space needs at least 2 --source sequences")
+        seen = {}
+        for source in args.source:   # the same take twice is no blend (a spec refuses it too)
+            key = source.resolve()
+            if key in seen:
+                raise ValueError(f"--source {source}: given twice (also as {seen[key]}); sources must be "
+                                 "different sequences")
+            seen[key] = source
         if args.out is None:
             raise ValueError("--out is required with --source")
         spec = {"epsilon_mm": None, "phases": None, "rest": None, "parameters": None, "captures": None}
@@ -315,6 +324,8 @@ def run(args):
     epsilon_mm = next((e for e in (args.epsilon_mm, spec["epsilon_mm"]) if e is not None), 5.0)
     n_phases = next((p for p in (args.phases, spec["phases"]) if p is not None), None)
     rest_path = args.rest or spec["rest"]
+    if args.rest is not None and not args.rest.is_file():
+        raise ValueError(f"--rest {args.rest}: not a file")
     check_output_file(out, "--out" if args.out else None, inputs=[args.spec, *directories, rest_path])
     if out.exists() and not args.force:
         raise FileExistsError(f"{out} already exists; pass --force to replace it")

@@ -265,6 +265,13 @@ class GraphJob(_Body):
         for edge in self.edges:
             if any(e not in names for e in edge):
                 raise ValueError(f"edge {edge}: both ends must be nodes ({', '.join(names)})")
+        from engine.graph import GraphError
+        from engine.graph.build import check_connected
+
+        try:   # as build-graph checks it, before anything is queued
+            check_connected(names, [(names.index(a), names.index(b)) for a, b in self.edges])
+        except GraphError as exc:
+            raise ValueError(str(exc)) from None
         return self
 
 

@@ -4,6 +4,8 @@ trial). The sources here are empty directories: every check runs before a mesh i
 
 import json
 
+import numpy as np
+
 import pytest
 from cli_refused import refused
 
@@ -182,6 +184,31 @@ def test_a_source_of_one_frame_is_refused_by_name(capsys, tmp_path):
     one = tmp_path / "one"
     one.mkdir()
     (one / "frame_0000.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
-    _refused(capsys, ["--source", one, "--source", one, "--out", tmp_path / "s.mspace"],
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "frame_0000.obj").write_text((one / "frame_0000.obj").read_text())
+    (other / "frame_0001.obj").write_text((one / "frame_0000.obj").read_text())
+    _refused(capsys, ["--source", one, "--source", other, "--out", tmp_path / "s.mspace"],
              f"{one}: 1 frame; a source needs at least 2")
     _nothing_written(tmp_path)
+
+
+def test_the_same_source_twice_and_a_missing_rest_are_refused_before_any_work(tmp_path, capsys, sources, captures):
+    a = sources[1]
+    _refused(capsys, ["--source", a, "--source", tmp_path / "x" / ".." / "a", "--out", tmp_path / "o.mspace"],
+             f"--source {tmp_path / 'x' / '..' / 'a'}: given twice (also as {a}); sources must be different")
+    _refused(capsys, [*sources, "--out", tmp_path / "o.mspace", "--rest", tmp_path / "nope.obj"],
+             f"--rest {tmp_path / 'nope.obj'}: not a file")
+    (tmp_path / "s.toml").write_text(SPEC.format(captures=captures).replace('name = "s"', 'name = "s"\nrest = "nope.obj"'))
+    _refused(capsys, [tmp_path / "s.toml", "--out", tmp_path / "o.mspace"],
+             f"{tmp_path / 's.toml'}: rest: {captures / 'nope.obj'} is not a file")
+    _nothing_written(tmp_path)
+
+
+def test_sources_that_mix_cyclic_and_one_shot_are_named():
+    from engine.motion_space import SourceClip, build_motion_space
+
+    V = np.zeros((3, 4, 3))
+    clips = [SourceClip("walk", V, 30.0, True), SourceClip("jump", V, 30.0, False), SourceClip("jog", V, 30.0, True)]
+    with pytest.raises(ValueError, match=r"walk, jog cyclic, jump not \(meta.json's cyclic"):
+        build_motion_space("/nonexistent/x.mspace", clips, np.array([[0, 1, 2], [0, 2, 3]]), name="x")

@@ -58,11 +58,18 @@ def test_build_graph_writes_a_graph_file(graph_file, capsys):
     (lambda s: s.replace('["leap", "run"]', '["leap", "walk"]'), "both ends must be nodes"),
     (lambda s: s.replace("per_axis = 3", "per_axis = 0"), "window"),
     (lambda s: s.replace("[[nodes]]", "[[nodes]]\ncolour = 1", 1), "unknown key"),
+    # found by a docs-only user: each failed only later, or named neither the spec nor the node
+    (lambda s: s.replace('name = "leap"', 'name = "le ap/x"').replace('"leap"', '"le ap/x"'),
+     "node name 'le ap/x': use letters, digits"),
+    (lambda s: s + '\n[[nodes]]\nname = "idle"\nspace = "speed.mspace"\n',
+     "node 'idle' cannot be reached from 'run' along the edges; every node must be reachable from every other"),
+    (lambda s: s.replace('space = "jump.mspace"', 'space = "{spec}"'), "node 'leap': its space cannot be opened: "),
 ])
 def test_bad_specs_name_the_problem(built_spaces, tmp_path, capsys, change, message):
-    (tmp_path / "g.toml").write_text(change(SPEC.format(spaces=built_spaces)))
+    (tmp_path / "g.toml").write_text(change(SPEC.format(spaces=built_spaces)).replace("{spec}", str(tmp_path / "g.toml")))
     assert main(["build-graph", str(tmp_path / "g.toml"), "--out", str(tmp_path / "g.mgraph")]) == 2
-    assert message in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert message in err and f"{tmp_path / 'g.toml'}: " in err, err
     assert not (tmp_path / "g.mgraph").exists()
 
 

@@ -173,6 +173,9 @@ def test_bad_job_requests_name_the_problem(client):
         ({**build_request("x"), "spec": {"sources": ["slow", "fast"], "parameters": {
             "layout": "chain", "chain": ["slow", "fast"], "left": "slow", "measures": ["speed"]}}}, 422,
          "left is not part of a chain layout"),
+        ({"kind": "graph", "graph": "g", "nodes": [{"name": "a", "space": "s"}, {"name": "b", "space": "t"},
+                                                   {"name": "c", "space": "s"}],
+          "edges": [["a", "b"], ["b", "a"]]}, 422, "node 'c' cannot be reached from 'a' along the edges"),
         ({"kind": "align", "datasets": ["gaits"], "output": "aligned", "root": "zzz:9"}, 422,
          "root zzz:9: no sequence 'zzz'; sequences are "),
         ({"kind": "align", "datasets": ["gaits"], "output": "aligned", "root": "slow:x"}, 422,
