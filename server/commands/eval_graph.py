@@ -17,6 +17,7 @@ docs/evaluation.md, "Motion graph". Example:
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 
@@ -30,9 +31,12 @@ def _seeds(text):
     try:
         seeds = [int(x) for x in text.split(",")]
     except ValueError:
-        raise ValueError(f"--seeds: expected integers separated by commas, got {text!r}") from None
-    if not seeds:
-        raise ValueError("--seeds: give at least one seed")
+        raise ValueError(f"--seeds: expected integers from 0 separated by commas, got {text!r}") from None
+    if any(seed < 0 for seed in seeds):
+        raise ValueError(f"--seeds: seeds are integers from 0, got {text!r}")
+    twice = next((seed for seed in seeds if seeds.count(seed) > 1), None)
+    if twice is not None:   # the same requests twice would count twice
+        raise ValueError(f"--seeds: seed {twice} is given twice, got {text!r}")
     return seeds
 
 
@@ -48,8 +52,15 @@ def add_arguments(parser):
 
 
 def run(args):
-    if args.requests < 1 or not args.fps > 0:
-        raise ValueError("--requests must be at least 1 and --fps positive")
+    if args.requests < 1:
+        raise ValueError(f"--requests must be at least 1, got {args.requests}")
+    if not (math.isfinite(args.fps) and args.fps > 0):
+        raise ValueError(f"--fps must be a positive number of frames per second, got {args.fps:g}")
+    if args.latency_weight is not None and not (math.isfinite(args.latency_weight) and args.latency_weight >= 0):
+        raise ValueError(f"--latency-weight must be a number from 0 (cost per second of latency), "
+                         f"got {args.latency_weight:g}")
+    if args.candidates is not None and not 0 <= args.candidates <= 1000:
+        raise ValueError(f"--candidates must be an integer from 0 to 1000, got {args.candidates}")
     seeds = _seeds(args.seeds)
     try:
         graph = MotionGraph.open(args.graph)

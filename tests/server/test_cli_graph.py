@@ -209,11 +209,17 @@ def test_eval_graph_measures_the_search_and_the_baselines_on_the_same_requests(g
 
 @pytest.mark.parametrize("argv,message", [
     (["--seeds", "a,b"], "--seeds: expected integers"),
-    (["--requests", "0"], "--requests must be at least 1"),
+    (["--requests", "0"], "--requests must be at least 1, got 0"),
+    (["--fps", "0"], "--fps must be a positive number of frames per second, got 0"),
+    (["--seeds", "-1"], "--seeds: seeds are integers from 0, got '-1'"),
+    (["--seeds", "0,0"], "--seeds: seed 0 is given twice"),
+    (["--latency-weight", "-1"], "--latency-weight must be a number from 0 (cost per second of latency), got -1"),
+    (["--candidates", "-1"], "--candidates must be an integer from 0 to 1000, got -1"),
 ])
 def test_eval_graph_errors_name_the_problem(graph_file, capsys, argv, message):
     assert main(["eval-graph", str(graph_file), *argv]) == 2
-    assert message in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert message in err and "SearchOptions(" not in err, err
 
 
 def test_eval_graph_refuses_a_file_that_is_not_a_graph(built_spaces, capsys):
