@@ -82,5 +82,10 @@ def read_recording(document, graph):
             isinstance(r, dict) and isinstance(r.get("frame"), int) and isinstance(r.get("node"), str)
             and isinstance(r.get("params", {}), dict) for r in requests):
         raise GraphError("recording: requests must be a list of {frame, node, params, budget}")
+    frames = [r["frame"] for r in requests]
+    late = next((k for k in range(1, len(frames)) if frames[k] < frames[k - 1]), None)
+    if late is not None:   # a replay does not reorder what it replays
+        raise GraphError(f"recording: requests must be in frame order; request {late} (frame {frames[late]}) "
+                         f"comes after one at frame {frames[late - 1]}")
     graph.node(document.get("start"))
     return document

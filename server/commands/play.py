@@ -38,16 +38,20 @@ def add_arguments(parser):
     parser.add_argument("--record", type=Path, help="graphs: write the session's requests as a JSON recording")
     parser.add_argument("--replay", type=Path, help="graphs: replay a JSON recording (its own start, clock, mode "
                         "and requests) and check the frames are identical (exit status 1 if not)")
-    parser.add_argument("--seconds", type=float, help="how long to play (default: 10 s, or one clip)")
+    parser.add_argument("--seconds", type=float, help="how long to play (default: a space 10 s, or its one-shot "
+                        "clip once; a graph 4 s after the last --at)")
     parser.add_argument("--fps", type=float, default=60.0, help="player clock rate (default 60)")
     parser.add_argument("--mode", choices=("linear", "hybrid", "nonlinear"), default="hybrid")
-    parser.add_argument("--smoothing", type=float, default=0.25, help="parameter time constant, s")
-    parser.add_argument("--loop", action="store_true", help="loop one-shot clips")
+    parser.add_argument("--smoothing", type=float, help="spaces: parameter time constant, s (default 0.25)")
+    parser.add_argument("--loop", action="store_true", help="spaces: loop one-shot clips")
     parser.add_argument("--trail", type=Path, help="write a PNG of every n-th frame along the path")
     parser.add_argument("--trail-every", type=float, default=0.4, help="seconds between trail frames")
     parser.add_argument("--frames", type=Path, help="write every played frame as OBJ into this directory")
     parser.add_argument("--force", action="store_true", help="replace the frames of an earlier play in --frames")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
+
+
+DEFAULT_SMOOTHING = 0.25  # s, the player's parameter time constant unless --smoothing
 
 
 def _assignments(items, names):
@@ -58,6 +62,8 @@ def _assignments(items, names):
         name, value = item.split("=", 1)
         if name not in names:
             raise ValueError(f"unknown parameter {name!r}; this space has {', '.join(names)}")
+        if name in out:
+            raise ValueError(f"{name} is given twice ({name}={out[name]:g}, {item}); give each parameter once")
         out[name] = finite_number(name, value)
     return out
 
@@ -97,7 +103,13 @@ def check_arguments(args, graph=False):
     if graph:
         if args.trail:
             raise ValueError("--trail is for motion spaces (.mspace); a graph's play writes its frames with --frames")
+        for option, given in (("--smoothing", args.smoothing is not None), ("--loop", args.loop)):
+            if given:   # a graph's nodes play as the graph player has them: said, not ignored
+                raise ValueError(f"{option} is for motion spaces (.mspace): a graph's nodes smooth their "
+                                 "parameters and play their one-shots as the graph player does")
     else:
+        if args.smoothing is None:
+            args.smoothing = DEFAULT_SMOOTHING
         if not (math.isfinite(args.smoothing) and args.smoothing >= 0):
             raise ValueError(f"--smoothing must be a non-negative number of seconds, got {args.smoothing:g}")
         if not (math.isfinite(args.trail_every) and args.trail_every > 0):

@@ -29,6 +29,8 @@ def node_assignments(items, node):
             raise ValueError(f"expected NAME=VALUE, got {item!r}")
         name, value = item.split("=", 1)
         number = finite_number(name, value)
+        if name in out or (name == "budget" and budget is not None):
+            raise ValueError(f"{name} is given twice ({item} and before it); give each once")
         if name == "budget":
             budget = number
         elif name not in node.parameters:
@@ -131,6 +133,8 @@ def run_graph(args):
                 print(f"  t {answer['frame'] / fps:6.2f} s  request {answer['node']}: {answer['status']}")
             if answer.get("clamped"):
                 print(f"    note: {answer['message']}")
+            if answer.get("dropped"):   # as the stream's `superseded` notice
+                print(f"    note: replaces the request {answer['dropped']} before it (dropped before it was carried out)")
         for event in events:
             print(f"  t {event['time']:6.2f} s  {event['event']}")
         for note in notes:
@@ -141,7 +145,8 @@ def run_graph(args):
         print(f"  frames sha256 {digest[:16]}...")
         if args.replay:
             said = {True: "identical frames", False: "DIFFERENT frames",
-                    None: "no frames digest recorded (a browser recording), nothing to compare"}
+                    None: "no frames digest recorded (a browser recording, or one written without it), nothing "
+                          "to compare"}
             print(f"  replay of {args.replay}: {said[report['identical']]}")
         if args.record:
             print(f"  recorded: {args.record}")

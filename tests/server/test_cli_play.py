@@ -113,6 +113,10 @@ def test_bad_input_of_a_graph_play_is_refused(graph_recording, tmp_path, capsys,
     huge = json.loads(recording.read_text())
     huge["steps"] = 10 ** 12
     (tmp_path / "huge.json").write_text(json.dumps(huge))
+    unordered = json.loads(recording.read_text())
+    unordered["requests"] = [{"frame": 2, "node": "stand", "params": {}, "budget": None},
+                             {"frame": 1, "node": "walk", "params": {}, "budget": None}]
+    (tmp_path / "unordered.json").write_text(json.dumps(unordered))
     before = sorted(p.name for p in tmp_path.iterdir())
     refused(capsys, ["play", graph, "--replay", "missing.json"], "--replay missing.json: no such file")
     refused(capsys, ["play", graph, "--replay", "dir"], "--replay dir: is a directory, not a recording")
@@ -125,6 +129,13 @@ def test_bad_input_of_a_graph_play_is_refused(graph_recording, tmp_path, capsys,
     refused(capsys, ["play", graph, "--at", "nan", "jump"], "--at nan: the time must be a finite number")
     refused(capsys, ["play", graph, "--at", "1e300", "jump"], "at most 100000 per play")
     refused(capsys, ["play", graph, "--fps", "inf"], "--fps must be a positive number")
+    # found by a docs-only user: each was ignored or reordered without a word
+    refused(capsys, ["play", graph, "--replay", "unordered.json"],
+            "--replay unordered.json: recording: requests must be in frame order; request 1 (frame 1) comes after")
+    refused(capsys, ["play", graph, "--smoothing", "0.1"], "--smoothing is for motion spaces (.mspace)")
+    refused(capsys, ["play", graph, "--loop"], "--loop is for motion spaces (.mspace)")
+    refused(capsys, ["play", graph, "--at", "1", "jump", "jump_height=0.3", "jump_height=0.4"],
+            "jump_height is given twice")
     assert sorted(p.name for p in tmp_path.iterdir()) == before and not any((tmp_path / "dir").iterdir())
 
 
@@ -167,3 +178,13 @@ def test_frames_of_an_earlier_play_are_not_mixed_with_a_new_one(built_spaces, bu
         assert main(["play", str(target), "--seconds", "0.5", "--fps", "10", "--frames", str(frames), "--force"]) == 0
         assert sorted(p.name for p in frames.glob("frame_*.obj")) == [f"frame_{k:05d}.obj" for k in range(6)]
         assert (frames / "notes.txt").read_text() == "mine"   # only frames are replaced
+
+
+def test_a_request_that_replaces_an_earlier_one_says_so(built_graph, capsys):
+    """Two requests at once: the second replaces the first before it was carried out, and the play
+    says so, as the stream's `superseded` notice does (the first's plan was printed, then nothing)."""
+    assert main(["play", str(built_graph / "tiny.mgraph"), "--at", "0.5", "stand", "--at", "0.5", "jump",
+                 "--seconds", "1", "--fps", "15"]) == 0
+    out = capsys.readouterr().out
+    assert "request stand" in out and "request jump" in out
+    assert "    note: replaces the request planned before it (dropped before it was carried out)" in out
