@@ -94,3 +94,22 @@ def test_the_same_graph_build_gives_the_same_bytes(graph_spaces, tmp_path):
     build_graph(copy / "b.mgraph", nodes, [("walk", "jump"), ("jump", "walk")], name="g")
     assert (copy / "a.mgraph").read_bytes() == (copy / "b.mgraph").read_bytes()
     assert first["build_s"] > 0 and "build_s" not in MotionGraph.open(copy / "a.mgraph").metadata
+
+
+def test_a_different_mesh_structure_says_what_differs():
+    """Spaces with the same vertex count but other faces (the body's vertices renumbered): the
+    message says the faces differ (it showed '1000 vs 1000 vertices')."""
+    from types import SimpleNamespace
+
+    from engine.graph.build import check_graph
+
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    a = SimpleNamespace(n_vertices=4, faces=faces, cyclic=True)
+    b = SimpleNamespace(n_vertices=4, faces=faces[:, ::-1], cyclic=True)
+    c = SimpleNamespace(n_vertices=5, faces=faces, cyclic=True)
+    nodes = [NodeSpec("a", "a.mspace"), NodeSpec("b", "b.mspace")]
+    with pytest.raises(GraphError, match=r"\(the same 4 vertices, joined by other faces\)"):
+        check_graph(nodes, [("a", "b"), ("b", "a")], [a, b])
+    with pytest.raises(GraphError, match=r"\(5 vs 4 vertices\)"):
+        check_graph(nodes, [("a", "b"), ("b", "a")], [a, c])
+    assert check_graph(nodes, [("a", "b"), ("b", "a")], [a, a]) == ([(0, 1), (1, 0)], [-1, -1])
