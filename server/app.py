@@ -28,6 +28,7 @@ from engine.graph.compiled import warm_up as warm_up_graphs
 from engine.player_steps import warm_up as warm_up_steps
 from server import __version__
 from server.api import datasets, exports, graphs, jobs, spaces
+from server.body_limit import BodyLimit
 from server.frames import warm_up as warm_up_heads
 from server.jobs import JobService
 from server.graphs import GraphRegistry
@@ -116,6 +117,7 @@ def create_app(settings: Settings | None = None, worker=None) -> FastAPI:
     app.state.frame_scheduler = FrameScheduler()
     app.state.jobs = JobService(settings, app.state.registry, runs_jobs=worker is None or worker.runs_jobs,
                                 wake_owner=worker.wake_jobs if worker is not None else None)
+    app.add_middleware(BodyLimit, limit=settings.max_json_bytes)
     if worker is not None:
         app.add_middleware(WorkerHeader, index=worker.index)
     if settings.cors_origins:

@@ -32,6 +32,7 @@ class Settings(BaseSettings):
     max_upload_bytes: int = Field(512 * 2**20, ge=1, description="largest accepted upload")
     max_upload_files: int = Field(20000, ge=1, description="most files in one dataset")
     max_unpacked_bytes: int = Field(4 * 2**30, ge=1, description="largest dataset once unpacked")
+    max_json_bytes: int = Field(16 * 2**20, ge=1024, description="largest request body other than an upload")
     # streaming
     stream_max_message: int = Field(64 * 1024, ge=256, description="largest client message (bytes)")
     stream_max_rate: float = Field(120.0, gt=0, description="client messages per second (sustained)")

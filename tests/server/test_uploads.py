@@ -376,3 +376,29 @@ def test_a_client_that_disconnects_mid_upload_leaves_nothing_and_no_traceback(li
     time.sleep(0.3)
     new = live.log.read_text(errors="replace")[len(log_before):]
     assert "Traceback" not in new and "Exception in ASGI" not in new, new
+
+
+def test_request_bodies_other_than_uploads_are_bounded(tmp_path):
+    """A JSON body over MORPHSPACE_MAX_JSON_BYTES is 413 naming it, declared or chunked, before the
+    application parses it; uploads keep their own limit (found by a docs-only user: a 20 MB job
+    request was parsed whole)."""
+    env = {**LIMITS, "MORPHSPACE_MAX_JSON_BYTES": "4096"}
+    with LiveServer(tmp_path / "data", env=env) as server, httpx.Client(base_url=server.url, timeout=30) as client:
+        big = {"kind": "build", "dataset": "x", "space": "y", "spec": {"sources": ["a" * 5000, "b"]}}
+        r = client.post("/v1/jobs", json=big, headers=AUTH)
+        assert r.status_code == 413 and "the limit is 4096 bytes (MORPHSPACE_MAX_JSON_BYTES)" in r.json()["detail"]
+
+        def chunks():
+            for _ in range(10):
+                yield b" " * 1000
+        r = client.post("/v1/jobs", content=chunks(), headers={**AUTH, "Content-Type": "application/json"})
+        assert r.status_code == 413 and "at least" in r.json()["detail"]
+        small = {"kind": "build", "dataset": "x", "space": "y", "spec": {"sources": ["a", "b"]}}
+        r = client.post("/v1/jobs", json=small, headers=AUTH)
+        assert r.status_code == 404 and "no dataset 'x'" in r.text   # reached the application
+        files = {f"walk/frame_{k:02d}.obj": tetra_obj(0.01 * k) for k in range(30)}
+        data = zip_bytes(files, compression=zipfile.ZIP_STORED)
+        assert len(data) > 4096
+        r = post_zip(client, "bigger", data)
+        assert r.status_code == 201, r.text
+        assert client.get("/v1/health").status_code == 200
