@@ -221,9 +221,11 @@ def open_page(browser):
     """``open_page(url)``: a fresh page at ``url`` (closed after the test)."""
     pages = []
 
-    def make(url, viewport=None, touch=False):
+    def make(url, viewport=None, touch=False, routes=()):
         options = {"has_touch": True, "is_mobile": True, "device_scale_factor": 2} if touch else {}
         context = browser.new_context(viewport=viewport or VIEWPORT, **options)
+        for pattern, handler in routes:  # (glob, handler(route)): requests answered before the page loads
+            context.route(pattern, handler)
         page = Page(context.new_page())
         page.page.set_default_timeout(15000)
         pages.append(context)

@@ -59,13 +59,10 @@ def test_the_page_leaves_a_server_that_went_silent(restartable_server, open_page
     assert unexpected == []
 
 
-def test_a_failing_listing_of_spaces_is_said_with_its_reason_until_it_lists_again(restartable_server, browser):
+def test_a_failing_listing_of_spaces_is_said_with_its_reason_until_it_lists_again(restartable_server, open_page):
     """The page's first GET /v1/spaces fails (a proxy in front of the server answers 503 three
     times): the page says why and that it retries, keeps saying so, then says the spaces are
     listed again and plays; it never claims the server has no space."""
-    from conftest import VIEWPORT, Page
-
-    context = browser.new_context(viewport=VIEWPORT)
     failures = []
 
     def listing(route):
@@ -75,17 +72,12 @@ def test_a_failing_listing_of_spaces_is_said_with_its_reason_until_it_lists_agai
         else:
             route.continue_()
 
-    try:
-        context.route("**/v1/spaces", listing)
-        page = Page(context.new_page())
-        page.page.goto(restartable_server.url + "/app/?space=speed", wait_until="load")
-        messages = page.page.locator("#messages")
-        messages.locator(".message", has_text="upstream down for maintenance").wait_for(timeout=15000)
-        assert "retrying every second" in messages.inner_text()
-        messages.locator(".message", has_text="listed again").wait_for(timeout=15000)
-        page.wait_frames(5)
-        assert len(failures) == 3 and page.status()["space"] == "speed"
-        assert "No playable motion space" not in messages.inner_text()
-        assert page.errors(ignore=("Failed to load resource",)) == []
-    finally:
-        context.close()
+    page = open_page(restartable_server.url + "/app/?space=speed", routes=[("**/v1/spaces", listing)])
+    messages = page.page.locator("#messages")
+    messages.locator(".message", has_text="upstream down for maintenance").wait_for(timeout=15000)
+    assert "retrying every second" in messages.inner_text()
+    messages.locator(".message", has_text="listed again").wait_for(timeout=15000)
+    page.wait_frames(5)
+    assert len(failures) == 3 and page.status()["space"] == "speed"
+    assert "No playable motion space" not in messages.inner_text()
+    assert page.errors(ignore=("Failed to load resource",)) == []
