@@ -84,18 +84,27 @@ def epsilon_sweep(space, epsilons_mm=EPSILONS_MM, *, weights_list=None, test_wei
     """
     progress = progress or _noop
     cache = cache or BlendCache(space, progress)
-    W = weight_grid(space.n_sources) if weights_list is None else np.asarray(weights_list, dtype=np.float64)
+    sheet = cache.sheet()   # a layout of 3 or more sources: rebuilt and measured on its sheet, as `build` builds it
+    if weights_list is not None:
+        W = np.asarray(weights_list, dtype=np.float64)
+    else:
+        W = weight_grid(space.n_sources) if sheet is None else sheet
     if test_weights is None:
-        test = np.full(space.n_sources, 1.0 / space.n_sources)
+        if sheet is None:
+            test = np.full(space.n_sources, 1.0 / space.n_sources)
+        else:   # a quarter along each layout axis: between sources (the sheet's middle may be a source)
+            layout = space.parameter_map.layout
+            test = np.asarray(layout.weights([0.25] * layout.dims), dtype=np.float64)
     else:
         test = space.check_weights(test_weights)
     area = vertex_areas(_rest(space), space.faces)
     rows = []
+    progress("epsilon sweep", 0, len(epsilons_mm))   # shown from the start: a build may take minutes
     for i, eps in enumerate(epsilons_mm):
         if eps <= 0:
             raise ValueError(f"epsilon must be positive, got {eps} mm")
         t0 = time.perf_counter()
-        blender, tree, corrections, report = cache.build_hybrid(epsilon=eps / 1000.0)
+        blender, tree, corrections, report = cache.build_hybrid(epsilon=eps / 1000.0, test_weights=sheet)
         build_s = time.perf_counter() - t0
         e = _grid_errors(cache, blender, W)
         share = [area[corrected_vertices(tree, corrections, test, p, space.n_vertices)].sum() / area.sum()
@@ -108,7 +117,7 @@ def epsilon_sweep(space, epsilons_mm=EPSILONS_MM, *, weights_list=None, test_wei
             "leaves": report.leaves, "correction_bytes": nbytes, "correction_mb": nbytes / 1e6,
             "correction_percent": 100.0 * nbytes / cache.sources.nbytes,
             "corrected_area_percent": 100.0 * float(np.mean(share)), "test_weights": test.tolist(),
-            "build_s": build_s,
+            "build_s": build_s, "on": "simplex" if sheet is None else "sheet", "weights": len(W),
         })
         progress("epsilon sweep", i + 1, len(epsilons_mm))
     return rows

@@ -52,6 +52,9 @@ def weight_grid(n_sources, level=None):
     return np.asarray(points, dtype=np.float64)[::-1] / level
 
 
+SHEET_RESOLUTION = {1: 17, 2: 5}  # points per layout axis where blend_errors also measures the sheet
+
+
 def _single_thread():
     """Context that limits BLAS/OpenMP pools to one thread, and whether it could."""
     try:
@@ -90,6 +93,18 @@ class BlendCache:
                 self.space.blender("nonlinear").blend_all_phases(np.array(key)), dtype=np.float64)
         return self._exact[key]
 
+    @property
+    def blends_kept(self):
+        """How many weights' non-linear blends the cache holds (those ``exact`` was asked for)."""
+        return len(self._exact)
+
+    def _exact_unkept(self, weights):
+        """``exact(weights)`` from the cache when it is there, else computed and not kept."""
+        key = _key(weights)
+        if key in self._exact:
+            return self._exact[key]
+        return np.asarray(self.space.blender("nonlinear").blend_all_phases(np.array(key)), dtype=np.float64)
+
     def exact_at(self, weights, phase):
         """(n, 3) non-linear blend at any phase (from the cache at phase samples)."""
         p0, _, a = phase_samples(phase, self.space.n_phases, self.space.cyclic)
@@ -102,7 +117,18 @@ class BlendCache:
         """(P, n, 3) float64 linear blend at every phase sample."""
         return self.space.blender("linear").blend_all_phases(weights)
 
-    def build_hybrid(self, *, epsilon=None, uniform_depth=None):
+    def sheet(self):
+        """(M, N) weights on the layout's sheet for a space of 3 or more sources with a layout (where
+        parameters lead, and where ``build`` bounds its hybrid), else None (two sources: the sheet
+        is every blend)."""
+        pmap = self.space.parameter_map
+        if pmap is None or self.space.n_sources <= 2:
+            return None
+        from engine.motion_space.build import sheet_weights
+
+        return sheet_weights(pmap.layout, SHEET_RESOLUTION[pmap.layout.dims])
+
+    def build_hybrid(self, *, epsilon=None, uniform_depth=None, test_weights=None):
         """A hybrid of this space rebuilt in memory (``engine.blend.build_hybrid``).
 
         Returns
@@ -115,8 +141,11 @@ class BlendCache:
         s = self.space
         if epsilon is None:
             epsilon = s.metadata["epsilon"]
-        tree, corrections, report = build_hybrid(self.linear, self.exact, s.n_sources, s.n_phases, s.n_vertices,
-                                                 epsilon=epsilon, uniform_depth=uniform_depth)
+        # the bisection's many test weights are not kept here: build_hybrid holds its own blends in a
+        # bounded cache (this unbounded one held 22 GB of them on a 3-source space)
+        tree, corrections, report = build_hybrid(self.linear, self._exact_unkept, s.n_sources, s.n_phases,
+                                                 s.n_vertices, epsilon=epsilon, uniform_depth=uniform_depth,
+                                                 test_weights=test_weights)
         return HybridBlender(self.sources, tree, corrections, s.cyclic), tree, corrections, report
 
     def blender(self, method):
@@ -252,7 +281,17 @@ def blend_errors(space, weights_list=None, phases=None, *, cache=None, timing_ca
             "time_per_frame_ms": 1000.0 * seconds, "frames_per_second": 1.0 / seconds,
         }
         progress("methods", i + 1, len(METHODS))
+    sheet, S = None, cache.sheet()
+    if S is not None:
+        # where the player goes: the layout's sheet, where the space's hybrid was built to its
+        # epsilon (the grid above also holds blends no parameter reaches)
+        sheet = {"weights": len(S)}
+        for method in ("linear", "hybrid"):
+            e = max(float(np.linalg.norm(cache.blend(method, w) - cache.exact(w), axis=2).max()) for w in S)
+            sheet[method] = {"max_error_mm": 1000.0 * e, "max_error_percent": 100.0 * e / space.model_size}
+        progress("layout's sheet", 1, 1)
     return {
+        "sheet": sheet,
         "space": space.name, "n_sources": space.n_sources, "n_phases": space.n_phases,
         "n_vertices": space.n_vertices, "model_size_m": space.model_size,
         "epsilon_mm": 1000.0 * space.metadata["epsilon"], "source_bytes": int(cache.sources.nbytes),

@@ -107,10 +107,19 @@ def _print_report(result):
                      f"{m['correction_bytes'] / 1e6:.2f}" if refs else "",
                      f"{m['time_per_frame_ms']:.3f}", f"{m['frames_per_second']:,.0f}"])
     print(_table(["method", "refs", "max mm", "max %", "mean mm", "MB", "ms/frame", "frames/s"], rows))
+    sheet = errors.get("sheet")
+    if sheet:   # the grid holds blends of sources no parameter reaches; the hybrid's bound is on the sheet
+        print(f"(the weights above span every blend of the {errors['n_sources']} sources; on the layout's sheet, "
+              f"where parameters lead ({sheet['weights']} weight vectors), the hybrid is within "
+              f"{sheet['hybrid']['max_error_mm']:.2f} mm of non-linear blending (epsilon "
+              f"{errors['epsilon_mm']:g} mm) and linear blending {sheet['linear']['max_error_mm']:.2f} mm)")
     print(f"heatmap: {result['heatmap']['path']}")
     if "sweep" in result:
-        print("\nepsilon sweep (hybrid rebuilt per epsilon; corrected area at weights "
-              f"{result['sweep']['rows'][0]['test_weights']})")
+        first = result['sweep']['rows'][0]
+        where = ("" if first.get("on") != "sheet" else
+                 f" for the layout's sheet, as build builds it, errors over its {first['weights']} weight vectors")
+        print(f"\nepsilon sweep (hybrid rebuilt per epsilon{where}; corrected area at weights "
+              f"{[round(x, 4) for x in first['test_weights']]})")
         rows = [[f"{r['epsilon_mm']:g}", f"{r['max_error_mm']:.2f}", f"{r['mean_error_mm']:.3f}", r["references"],
                  r["depth"], f"{r['correction_mb']:.3f}", f"{r['correction_percent']:.1f}",
                  f"{r['corrected_area_percent']:.1f}"] for r in result["sweep"]["rows"]]

@@ -165,3 +165,11 @@ def test_ground_truth_rejects_a_foreign_body(space):
     other = build_body(1500)
     with pytest.raises(ValueError, match="vertices"):
         evaluation.ground_truth_comparison(space, other, evaluation.gait_truth(other, SPEEDS))
+
+
+def test_the_bisection_blends_are_not_kept_by_the_cache(space):
+    """A hybrid rebuilt for the sweep tests many weights; the cache keeps only those asked for (it
+    kept them all: 22 GB on a 3-source space, found by a docs-only user)."""
+    cache = evaluation.BlendCache(space)
+    evaluation.epsilon_sweep(space, (2,), cache=cache)
+    assert cache.blends_kept == len(evaluation.weight_grid(space.n_sources))

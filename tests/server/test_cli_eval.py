@@ -206,3 +206,33 @@ def test_bench_requests_are_the_engines_draws_in_little_memory():
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     assert peak < 100_000 * 48  # (3 + 1) float64 a call and the generator's scratch, not ~250 bytes a call
+
+
+def test_eval_of_a_space_with_a_layout_gives_the_hybrid_error_on_its_sheet(tmp_path, capsys):
+    """A chain of three gaits: the grid spans every blend of the sources, the space's hybrid is
+    bounded where parameters lead, and eval says so (a docs-only user saw a 20 mm maximum for a 5
+    mm epsilon, unexplained)."""
+    from engine.motion_space import SourceClip, build_motion_space
+    from engine.parameters import Layout
+    from engine.synthetic import animate, build_body, gait
+
+    body = build_body(1000)
+    clips = [SourceClip(f"gait_{v}", animate(body, gait(body.skeleton, v, cycles=2.0, fps=15.0)), 15.0, True)
+             for v in (0.8, 1.6, 2.8)]
+    build_motion_space(tmp_path / "gaits.mspace", clips, body.F, name="gaits", epsilon=0.01, rest=body.V, n_phases=8,
+                       parameters={"layout": Layout("chain", 3, chain=(0, 1, 2)), "names": ["speed"], "resolution": 5})
+    out = tmp_path / "gaits-eval"
+    assert main(["eval", str(tmp_path / "gaits.mspace"), "--out", str(out), "--sweep", "--epsilons-mm", "5", "20"]) == 0
+    printed = capsys.readouterr().out
+    assert "on the layout's sheet, where parameters lead (17 weight vectors), the hybrid is within" in printed
+    # the sweep rebuilds the hybrid for the sheet, as build does (on the whole simplex it held 22 GB of
+    # blends and ran for more than 15 minutes on the demo's 3-source reach space)
+    assert "hybrid rebuilt per epsilon for the layout's sheet, as build builds it, errors over its 17" in printed
+    results = json.loads((out / "results.json").read_text())
+    for row in results["sweep"]["rows"]:
+        assert row["on"] == "sheet" and row["weights"] == 17 and row["max_error_mm"] <= row["epsilon_mm"] + 0.01
+    assert results["sweep"]["rows"][0]["corrected_area_percent"] > 0   # measured between sources
+    errors = results["errors"]
+    assert errors["sheet"]["weights"] == 17
+    assert errors["sheet"]["hybrid"]["max_error_mm"] <= 1.01 * errors["epsilon_mm"]
+    assert errors["sheet"]["linear"]["max_error_mm"] > errors["sheet"]["hybrid"]["max_error_mm"]
