@@ -157,7 +157,7 @@ def _print_report(result):
 def _write_png(path, image):
     from PIL import Image
 
-    Image.fromarray(image).save(path)
+    Image.fromarray(image).save(path, format="PNG")
 
 
 def heatmap_weights(weights):
@@ -192,6 +192,7 @@ def run(args):
     space = MotionSpace.open(args.space)
     progress = StageBars(leave=False)
     result = {"space": str(args.space)}
+    staged = []   # (temporary, final) pictures: put in place with results.json when the run has finished
     try:
         if weights is not None and len(weights) != space.n_sources:
             raise ValueError(f"--weights: expected {space.n_sources} weights ({', '.join(space.source_names)}) for "
@@ -207,7 +208,8 @@ def run(args):
         weights = weights if weights is not None else worst["worst_weights"]
         phase = args.phase if args.phase is not None else worst["worst_phase"]
         path = out / "heatmap.png"
-        _write_png(path, evaluation.heatmap_figure(space, weights, phase, cache=cache))
+        staged.append((out / ".heatmap.png.part", path))
+        _write_png(staged[-1][0], evaluation.heatmap_figure(space, weights, phase, cache=cache))
         poses = evaluation.pose_errors(space, weights, phase, cache=cache)
         result["heatmap"] = {"path": str(path), "weights": list(map(float, weights)), "phase": float(phase),
                              "max_error_mm": {m: 1000.0 * float(e.max()) for m, (_, e) in poses.items()}}
@@ -215,7 +217,8 @@ def run(args):
             rows = evaluation.epsilon_sweep(space, args.epsilons_mm, cache=cache, progress=progress)
             uniform = evaluation.uniform_subdivision(space, cache=cache)
             path = out / "epsilon_sweep.png"
-            _write_png(path, evaluation.sweep_figure(rows, uniform=uniform, title=f"{space.name}: hybrid blending "
+            staged.append((out / ".epsilon_sweep.png.part", path))
+            _write_png(staged[-1][0], evaluation.sweep_figure(rows, uniform=uniform, title=f"{space.name}: hybrid blending "
                                                      "against its error threshold epsilon"))
             result["sweep"] = {"path": str(path), "rows": rows, "uniform": uniform}
         if truth is not None:
@@ -225,10 +228,17 @@ def run(args):
                 s.update(info)
             result["ground_truth"] = gt
         result["results"] = str(out / "results.json")
-        (out / "results.json").write_text(json.dumps(result, indent=1, default=_json_default))
+        (out / ".results.json.part").write_text(json.dumps(result, indent=1, default=_json_default))
+        staged.append((out / ".results.json.part", out / "results.json"))
+        for part, final in staged:   # the run's files replace an earlier run's only once all are written
+            part.replace(final)
+        staged = []
     except BaseException:
         if made is not None:  # an --out made for this run: nothing left behind
             shutil.rmtree(made, ignore_errors=True)
+        else:   # an --out of the user's: an earlier run's files stay as they were
+            for part, _ in staged:
+                part.unlink(missing_ok=True)
         raise
     finally:
         progress.close()

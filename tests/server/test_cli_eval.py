@@ -236,3 +236,26 @@ def test_eval_of_a_space_with_a_layout_gives_the_hybrid_error_on_its_sheet(tmp_p
     assert errors["sheet"]["weights"] == 17
     assert errors["sheet"]["hybrid"]["max_error_mm"] <= 1.01 * errors["epsilon_mm"]
     assert errors["sheet"]["linear"]["max_error_mm"] > errors["sheet"]["hybrid"]["max_error_mm"]
+
+
+def test_an_eval_that_fails_leaves_an_earlier_runs_files_in_its_out_as_they_were(dataset, tmp_path, capsys,
+                                                                                 monkeypatch):
+    """The run's pictures and results.json replace an earlier run's only once all are written (an
+    interrupted eval left its heatmap beside the earlier results.json; found by a docs-only user)."""
+    from engine import evaluation
+
+    space, _ = dataset
+    out = tmp_path / "ev"
+    assert main(["eval", str(space), "--out", str(out), "--timing-calls", "5"]) == 0
+    capsys.readouterr()
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    (out / "notes.txt").write_text("mine")
+
+    def fail(*args, **kwargs):
+        raise KeyboardInterrupt()
+
+    monkeypatch.setattr(evaluation, "epsilon_sweep", fail)
+    assert main(["eval", str(space), "--out", str(out), "--timing-calls", "5", "--weights", "0.3", "0.7",
+                 "--sweep"]) == 130
+    after = {p.name: p.read_bytes() for p in out.iterdir() if p.name != "notes.txt"}
+    assert after == before and (out / "notes.txt").read_text() == "mine"
