@@ -73,9 +73,15 @@ def output_format(out, chosen):
     if chosen in ("glb", "usd") and inferred != chosen:
         wanted = ".glb" if chosen == "glb" else ".usd, .usdc or .usda"
         raise ValueError(f"--out {out}: a {chosen} export must be a file ending in {wanted}")
-    if chosen in ("obj", "ply", "vat") and inferred is not None:
-        raise ValueError(f"--out {out}: an {chosen} export is a directory or a .zip file")
+    if chosen in ("obj", "ply", "vat") and (inferred is not None or out.suffix.lower() in FRAME_SUFFIXES):
+        # (frame_0000.obj would become a directory of that name, holding the frames)
+        article = "an" if chosen == "obj" else "a"
+        raise ValueError(f"--out {out}: {article} {chosen} export is a directory or a .zip file, not a file of its "
+                         f"({out.suffix}); give the directory to write it into")
     return chosen
+
+
+FRAME_SUFFIXES = (".obj", ".ply", ".png", ".json")  # names of the files a directory export holds
 
 
 def clip_from_arguments(args, names):

@@ -47,6 +47,10 @@ def test_export_writes_glb_usd_and_sequences(built_spaces, tmp_path):
     (["--out", "x.zip"], "cannot tell the format from the name; give --format"),
     (["--out", "x.glb", "--format", "usd"], "a usd export must be a file ending in .usd, .usdc or .usda"),
     (["--out", "x.glb", "--seconds", "-1"], "duration must be a positive number of seconds"),
+    # (it made a directory frame_0000.obj holding the frames; found by a docs-only user)
+    (["--out", "seq/frame_0000.obj", "--format", "obj"],
+     "an obj export is a directory or a .zip file, not a file of its (.obj); give the directory"),
+    (["--out", "v.png", "--format", "vat"], "a vat export is a directory or a .zip file"),
 ])
 def test_bad_input_is_a_one_line_error(built_spaces, tmp_path, args, message):
     run = export(built_spaces / "speed.mspace", *args, cwd=tmp_path)
