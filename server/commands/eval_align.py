@@ -429,7 +429,7 @@ def run(args):
     if args.json:
         print(json.dumps(report))
     else:
-        _print_report(report, out)
+        _print_report(report, out, args)
     return 0
 
 
@@ -443,14 +443,21 @@ def _units_report(names, conventions):
             "display_unit": display_unit(common_convention(conventions))}
 
 
-def _print_report(report, out):
+def _print_report(report, out, args):
+    from engine.align.root_trial import TRIAL_MIN_FRAMES
+
     unit = report["display_unit"]
     scale = DISPLAY_PER_METRE[unit] / 1000.0  # from the records' mm
     inputs = sorted({f"{r['units']}, {r['up']} up" for r in report["input"].values()})
     print(f"{report['frames']} frames of {len(report['sequences'])} sequences, model size "
           f"{report['model_size_m']:.3f} m; input in {' / '.join(inputs)}; lengths in {unit}")
     trial = report.get("root_trial")
-    print(f"root frame {report['root']}" + ("" if not trial else (
+    if trial is None:   # said, as align says it
+        why = (" (given: --root)" if args.root is not None else
+               f" (the spread's choice, `apart`: no trial or race on fewer than {TRIAL_MIN_FRAMES} frames)"
+               if args.root_choice in ("race", "trial") and report["frames"] < TRIAL_MIN_FRAMES else
+               f" (--root-choice {args.root_choice})" if args.root_choice in ("apart", "central") else "")
+    print(f"root frame {report['root']}" + (why if not trial else (
         f" (tried: candidates {trial['candidates']}, mean badness {trial['mean']}"
         + (f"; raced: {trial['race']['finalists']}, mean confidence {trial['race']['confidence']}" if "race" in trial else "")
         + ")")))
@@ -477,5 +484,7 @@ def _print_report(report, out):
                                                      for name, p in parts.items()))
     if "sequential_over_tree_mean" in report:
         print(f"sequential / tree mean error: {report['sequential_over_tree_mean']:.2f}x")
-    pictures = [name for name in ("aligned_pattern.png", "similarity.png", "tree.png") if (out / name).is_file()]
+    names = ("aligned_pattern.png",) + (("aligned_pattern_sequential.png",) if report.get("sequential") else ()) + (
+        "similarity.png", "tree.png")
+    pictures = [name for name in names if (out / name).is_file()]
     print(f"wrote {out / 'results.json'}, {out / 'frames.csv'} and " + ", ".join(str(out / name) for name in pictures))

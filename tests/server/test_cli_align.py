@@ -222,9 +222,16 @@ def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
     assert main(["eval-align", str(dataset), "--max-frames", "3", "--out", str(tmp_path / "printed"), "--no-sequential",
                  "--workers", "1"]) == 0
     printed = capsys.readouterr().out
-    assert f"root frame {json.loads((tmp_path / 'printed' / 'results.json').read_text())['root']}\n" in printed
+    root = json.loads((tmp_path / 'printed' / 'results.json').read_text())['root']
+    # why no trial or race ran, as align says it (found by a docs-only user)
+    assert f"root frame {root} (the spread's choice, `apart`: no trial or race on fewer than 24 frames)\n" in printed
     assert printed.rstrip().endswith(", ".join(str(tmp_path / "printed" / name) for name in
                                                ("aligned_pattern.png", "similarity.png", "tree.png")))
+    # the sequential alignment's picture is among those written when it was made
+    assert main(["eval-align", str(dataset), "--max-frames", "3", "--out", str(out), "--workers", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert printed.rstrip().endswith(", ".join(str(out / name) for name in ("aligned_pattern.png",
+                                     "aligned_pattern_sequential.png", "similarity.png", "tree.png")))
 
 
 def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsys):
