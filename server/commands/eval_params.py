@@ -46,7 +46,7 @@ def run(args):
           f"outside the reachable part, measured on {args.mode} blends")
     for name, r in report["parameters"].items():
         lo, hi = r["domain"]
-        print(f"  {name:<14} domain {lo:.3g}..{hi:.3g} {r['unit']}: max error {r['max_error']:.4g} "
-              f"({r['max_error_percent_of_range']:.2f}% of range), mean {r['mean_error']:.4g} "
+        print(f"  {name:<14} domain {lo:.3g}..{hi:.3g} {r['unit']}: max error {r['max_error']:.4g} {r['unit']} "
+              f"({r['max_error_percent_of_range']:.2f}% of range), mean {r['mean_error']:.4g} {r['unit']} "
               f"({r['mean_error_percent_of_range']:.2f}%)")
     return 0
