@@ -1,5 +1,6 @@
-"""Export a clip of a motion space, or a performance of a motion graph: binary glTF, USD, an OBJ /
-PLY sequence or a vertex-animation texture (docs/exports.md).
+"""Export a clip of a motion space, or a graph's performance: glTF, USD, OBJ/PLY frames, a VAT.
+
+Formats: binary glTF, USD, an OBJ / PLY sequence or a vertex-animation texture (docs/exports.md).
 
 The clip is played by the real-time player (the frames a stream at that rate shows): start at
 --set parameters, request others --at later times (or from a --track JSON file), for --seconds

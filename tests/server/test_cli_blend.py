@@ -204,6 +204,10 @@ def test_bad_weights_epsilon_outputs_and_units_are_named(arms, tmp_path, capsys)
         assert "--epsilon-mm must be above 0 and at most 100 (mm)" in capsys.readouterr().err
     assert main(["blend", *inputs, "--weights", "1", "1", "--out", str(tmp_path)]) == 2
     assert "is a directory: name the output mesh file" in capsys.readouterr().err
+    # an output type that cannot be written is named before the meshes are read (no progress shown)
+    assert main(["blend", *inputs, "--weights", "1", "1", "--out", str(tmp_path / "o.txt")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("morphspace blend: error: --out ") and "cannot write this file type (writable: .obj" in err
     write_obj(tmp_path / "mm.obj", 1000.0 * V1, F)  # the same arm in millimetres
     assert main(["blend", inputs[0], str(tmp_path / "mm.obj"), "--weights", "1", "1", "--out", str(out)]) == 2
     assert re.search(r"mm\.obj is \d+ times the size of .*straight\.obj: blend meshes in the same units",
