@@ -24,6 +24,7 @@ import numpy as np
 from engine.blend.phase import phase_samples
 
 MODES = ("linear", "hybrid", "nonlinear")
+SMOOTHING = 0.25  # s, the parameter spring's time constant unless asked otherwise
 # A player's clock in one float64 array (``Player.clock``), so that a server steps many players'
 # clocks in one compiled pass and frames their headers from them (engine/player_steps.py): the
 # time, phase, heading, the root (x, y, z), finished, loop and cyclic (1.0 or 0.0) at these indices
@@ -95,7 +96,7 @@ class Player:
     params : mapping or sequence or None   initial request (default: the middle of the domain)
     """
 
-    def __init__(self, space, *, mode="hybrid", smoothing=0.25, loop=None, params=None):
+    def __init__(self, space, *, mode="hybrid", smoothing=SMOOTHING, loop=None, params=None):
         if space.parameter_map is None:
             raise ValueError(f"{space.name}: the space has no parameter map (build it from a spec)")
         self.space = space

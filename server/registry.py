@@ -9,7 +9,6 @@ can be named.
 from __future__ import annotations
 
 import gc
-import re
 import threading
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,9 +18,9 @@ import numpy as np
 from engine.motion_space.container import MotionSpaceError
 from engine.motion_space.derived import DerivedStore
 from engine.motion_space.space import MotionSpace
+from engine.names import NAME, is_name
 from engine.player import MODES
 
-NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
 SUFFIX = ".mspace"
 
 
@@ -33,7 +32,7 @@ def within(exc, directory):
 
 def named_path(directory, name, suffix, error, what):
     """``directory / (name + suffix)`` for a valid file-stem name, else ``error`` naming ``what``."""
-    if not isinstance(name, str) or not NAME.match(name) or ".." in name:
+    if not is_name(name):
         raise error(f"{name!r} is not a {what} name (letters, digits, '_', '-', '.'; not starting with '.', "
                     "no '..')")
     return Path(directory) / f"{name}{suffix}"

@@ -84,7 +84,7 @@ def epsilon_sweep(space, epsilons_mm=EPSILONS_MM, *, weights_list=None, test_wei
     """
     progress = progress or _noop
     cache = cache or BlendCache(space, progress)
-    sheet = cache.sheet()   # a layout of 3 or more sources: rebuilt and measured on its sheet, as `build` builds it
+    sheet = cache.sheet   # a layout of 3 or more sources: rebuilt and measured on its sheet, as `build` builds it
     if weights_list is not None:
         W = np.asarray(weights_list, dtype=np.float64)
     else:

@@ -5,6 +5,7 @@ exact non-linear blend and its time per frame, and the ``BlendCache`` the other 
 from __future__ import annotations
 
 import contextlib
+import functools
 import itertools
 import time
 
@@ -86,12 +87,14 @@ class BlendCache:
         self.info = {}  # method -> {"references", "depth", "correction_bytes", "epsilon_mm"}
 
     def exact(self, weights):
-        """(P, n, 3) float64 non-linear blend at every phase sample."""
+        """(P, n, 3) float64 non-linear blend at every phase sample (kept for the whole run)."""
         key = _key(weights)
         if key not in self._exact:
-            self._exact[key] = np.asarray(
-                self.space.blender("nonlinear").blend_all_phases(np.array(key)), dtype=np.float64)
+            self._exact[key] = self._nonlinear(key)
         return self._exact[key]
+
+    def _nonlinear(self, key):
+        return np.asarray(self.space.blender("nonlinear").blend_all_phases(np.array(key)), dtype=np.float64)
 
     @property
     def blends_kept(self):
@@ -101,9 +104,7 @@ class BlendCache:
     def _exact_unkept(self, weights):
         """``exact(weights)`` from the cache when it is there, else computed and not kept."""
         key = _key(weights)
-        if key in self._exact:
-            return self._exact[key]
-        return np.asarray(self.space.blender("nonlinear").blend_all_phases(np.array(key)), dtype=np.float64)
+        return self._exact[key] if key in self._exact else self._nonlinear(key)
 
     def exact_at(self, weights, phase):
         """(n, 3) non-linear blend at any phase (from the cache at phase samples)."""
@@ -117,6 +118,7 @@ class BlendCache:
         """(P, n, 3) float64 linear blend at every phase sample."""
         return self.space.blender("linear").blend_all_phases(weights)
 
+    @functools.cached_property
     def sheet(self):
         """(M, N) weights on the layout's sheet for a space of 3 or more sources with a layout (where
         parameters lead, and where ``build`` bounds its hybrid), else None (two sources: the sheet
@@ -281,7 +283,7 @@ def blend_errors(space, weights_list=None, phases=None, *, cache=None, timing_ca
             "time_per_frame_ms": 1000.0 * seconds, "frames_per_second": 1.0 / seconds,
         }
         progress("methods", i + 1, len(METHODS))
-    sheet, S = None, cache.sheet()
+    sheet, S = None, cache.sheet
     if S is not None:
         # where the player goes: the layout's sheet, where the space's hybrid was built to its
         # epsilon (the grid above also holds blends no parameter reaches)

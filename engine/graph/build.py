@@ -11,7 +11,6 @@ checksummed, written atomically, memory-mapped, never unpickled.
 from __future__ import annotations
 
 import os
-import re
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -20,6 +19,7 @@ import numpy as np
 
 from engine.graph.features import WindowOptions, compared_vertices, dissimilarity, node_samples, node_windows
 from engine.motion_space.container import write_container
+from engine.names import is_name
 
 GRAPH_FORMAT = "morphspace-motion-graph"
 GRAPH_VERSION = 1
@@ -44,9 +44,6 @@ class NodeSpec:
     return_to: str | None = None
 
 
-NODE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")  # as every name the server takes
-
-
 def check_graph(nodes, edges, spaces):
     """Validate nodes, edges and their spaces; returns the edges as (from, to) index pairs and
     each node's return node index (-1 for cyclic nodes)."""
@@ -54,7 +51,7 @@ def check_graph(nodes, edges, spaces):
     if len(nodes) < 2:
         raise GraphError(f"a motion graph needs at least 2 nodes, got {len(nodes)}")
     for name in names:   # a node's name names its arrays in the file (node/<name>/...)
-        if not isinstance(name, str) or not NODE_NAME.match(name) or ".." in name:
+        if not is_name(name):
             raise GraphError(f"node name {name!r}: use letters, digits, '_', '-', '.' (at most 128, starting "
                              "with a letter or digit, no '..')")
     if len(set(names)) != len(names):

@@ -148,10 +148,16 @@ def write_mesh(path, V, F, colors=None):
     -----
     PLY is written binary with float32 coordinates (see `write_ply` for other options).
     """
+    return WRITERS[writable_type(path)](path, V, F, colors=colors)
+
+
+def writable_type(path):
+    """The mesh file type ``write_mesh`` would write at ``path`` (from its extension); a
+    MeshFormatError naming the path and the writable types when there is none."""
     kind = mesh_file_type(path)
     if kind not in WRITERS:
         raise MeshFormatError(
             f"{path}: cannot write this file type (writable: "
             f"{', '.join('.' + k for k in WRITERS)})"
         )
-    return WRITERS[kind](path, V, F, colors=colors)
+    return kind

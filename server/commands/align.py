@@ -218,20 +218,25 @@ def _sequence_entry(path, body=None):
 
 
 def parse_root(text, sequences, lengths, label="--root"):
-    """Global frame index from "SEQUENCE:FRAME" or an integer (``label`` names it in errors)."""
+    """Global frame index from "SEQUENCE:FRAME" or an integer (``label`` names it in errors).
+    With ``lengths`` None (the frames not counted yet) only the form, the sequence and a frame
+    number from 0 are checked, and None is returned."""
     if text is None:
         return None
-    total = int(np.sum(lengths))
     if ":" in text:
         name, _, frame = text.rpartition(":")
         names = [s["name"] for s in sequences]
         if name not in names:
-            raise ValueError(f"{label} {text}: no sequence {name!r}; sequences are {', '.join(names)}")
+            raise ValueError(f"{label} {text}: no sequence {name!r}; sequences are {', '.join(names) or 'none'}")
         k = names.index(name)
         try:
             frame = int(frame)
         except ValueError:
             raise ValueError(f"{label} {text}: frame must be an integer") from None
+        if lengths is None:
+            if frame < 0:
+                raise ValueError(f"{label} {text}: frame must be an integer from 0")
+            return None
         if not 0 <= frame < lengths[k]:
             raise ValueError(f"{label} {text}: sequence {name} has frames 0..{lengths[k] - 1}")
         return int(np.sum(lengths[:k]) + frame)
@@ -239,6 +244,11 @@ def parse_root(text, sequences, lengths, label="--root"):
         index = int(text)
     except ValueError:
         raise ValueError(f"{label} {text}: expected SEQUENCE:FRAME or a frame index") from None
+    if lengths is None:
+        if index < 0:
+            raise ValueError(f"{label} {text}: a frame index is an integer from 0")
+        return None
+    total = int(np.sum(lengths))
     if not 0 <= index < total:
         raise ValueError(f"{label} {text}: there are {total} frames (0..{total - 1})")
     return index

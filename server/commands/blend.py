@@ -92,11 +92,12 @@ def run(args):
                          f"got {args.epsilon_mm}")
     if args.out.is_dir():
         raise ValueError(f"--out {args.out} is a directory: name the output mesh file (.obj, .ply or .off)")
-    from engine.mesh_io.mesh_file import WRITERS, mesh_file_type
+    from engine.mesh_io.mesh_file import writable_type
 
-    if mesh_file_type(args.out) not in WRITERS:   # before the meshes are read and blended
-        raise ValueError(f"--out {args.out}: cannot write this file type (writable: "
-                         f"{', '.join('.' + k for k in WRITERS)})")
+    try:   # before the meshes are read and blended
+        writable_type(args.out)
+    except ValueError as exc:
+        raise ValueError(f"--out {exc}") from None
     bars = StageBars()
     try:
         (meshes, convention), result, elapsed = _blend(args, w, bars)

@@ -36,6 +36,7 @@ from server.commands.checks import MAX_FPS, check_number, check_output_file, rea
 from server.units import add_units_arguments, decide_convention, declared_convention, say_conventions, source_metadata
 
 LAYOUT_KEYS = {"chain": ("chain",), "grid": ("corners",), "fan": ("chain", "left", "right")}
+LAYOUT_FIELDS = ("chain", "corners", "left", "right")  # every layout's keys naming sources
 SPEC_KEYS = ("name", "captures", "epsilon_mm", "phases", "rest", "sources", "parameters")
 PARAMETER_KEYS = ("layout", "chain", "corners", "left", "right", "measures", "resolution")
 SOURCE_KEYS = ("name", "path")
@@ -112,6 +113,30 @@ def check_file_name(path, value, key):
     return value
 
 
+def foreign_layout_key(kind, given):
+    """``"KEY is not part of a KIND layout (it takes ...)"`` for the first key of another layout
+    among ``given`` (keys of a parameters table), else None."""
+    key = next((k for k in LAYOUT_FIELDS if k in given and k not in LAYOUT_KEYS[kind]), None)
+    return None if key is None else f"{key} is not part of a {kind} layout (it takes {', '.join(LAYOUT_KEYS[kind])})"
+
+
+def layout_sources_problem(kind, placed, sources):
+    """What is wrong with the source names a ``kind`` layout places (``placed``, in its keys'
+    order) among a spec's ``sources``: a name that is not a source, a source placed twice, a
+    source left out; None when nothing is (``read_spec`` and the REST build job ask alike)."""
+    unknown = next((name for name in placed if name not in sources), None)
+    if unknown is not None:
+        return f"parameters refer to {unknown!r}, which is not among the sources"
+    twice = next((name for name in placed if placed.count(name) > 1), None)
+    if twice is not None:
+        return f"parameters: the {kind} layout names {twice!r} twice; its sources must differ"
+    left_out = [repr(name) for name in sources if name not in placed]
+    if left_out:
+        return (f"parameters: the {kind} layout leaves out {', '.join(left_out)}: every source needs its place in "
+                "the layout (add it there, or take it out of sources)")
+    return None
+
+
 def read_spec(path):
     """Parse and check a space spec; returns a dict with resolved source directories.
 
@@ -163,18 +188,10 @@ def read_spec(path):
         kind = parameters.get("layout")
         if kind not in LAYOUT_KEYS:
             raise ValueError(f"{path}: parameters.layout must be one of {', '.join(LAYOUT_KEYS)}, got {kind!r}")
-
-        def index(name):
-            if name not in names:
-                raise ValueError(f"{path}: parameters refer to {name!r}, which is not among the sources")
-            return names.index(name)
-
-        foreign = [key for key in sorted({k for keys in LAYOUT_KEYS.values() for k in keys})
-                   if key in parameters and key not in LAYOUT_KEYS[kind]]
-        if foreign:
-            raise ValueError(f"{path}: parameters.{foreign[0]} is not part of a {kind} layout (it takes "
-                             f"{', '.join(LAYOUT_KEYS[kind])})")
-        fields = {}
+        foreign = foreign_layout_key(kind, parameters)
+        if foreign is not None:
+            raise ValueError(f"{path}: parameters.{foreign}")
+        placed = []
         for key in LAYOUT_KEYS[kind]:
             if key not in parameters:
                 raise ValueError(f"{path}: a {kind} layout needs parameters.{key}")
@@ -182,19 +199,14 @@ def read_spec(path):
             if key in ("chain", "corners"):
                 if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
                     raise ValueError(f"{path}: parameters.{key} must be a list of source names, got {value!r}")
-                fields[key] = tuple(index(v) for v in value)
-            else:
-                if not isinstance(value, str):
-                    raise ValueError(f"{path}: parameters.{key} must be a source name, got {value!r}")
-                fields[key] = index(value)
-        used = [v for key in LAYOUT_KEYS[kind] for v in (fields[key] if key in ("chain", "corners") else [fields[key]])]
-        twice = next((names[i] for i in used if used.count(i) > 1), None)
-        if twice is not None:
-            raise ValueError(f"{path}: parameters: the {kind} layout names {twice!r} twice; its sources must differ")
-        left_out = [repr(name) for i, name in enumerate(names) if i not in used]
-        if left_out:
-            raise ValueError(f"{path}: parameters: the {kind} layout leaves out {', '.join(left_out)}: every source "
-                             f"needs its place in the layout (add it there, or take it out of sources)")
+            elif not isinstance(value, str):
+                raise ValueError(f"{path}: parameters.{key} must be a source name, got {value!r}")
+            placed += value if isinstance(value, list) else [value]
+        problem = layout_sources_problem(kind, placed, names)
+        if problem is not None:
+            raise ValueError(f"{path}: {problem}")
+        fields = {key: tuple(names.index(v) for v in parameters[key]) if key in ("chain", "corners")
+                  else names.index(parameters[key]) for key in LAYOUT_KEYS[kind]}
         try:
             layout = Layout(kind=kind, n_sources=len(names), **fields)
         except ValueError as exc:

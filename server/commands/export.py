@@ -28,6 +28,7 @@ from pathlib import Path
 from engine.export import Clip, check_clip, parse_track, play_clip, write_export
 from engine.export.gltf import INTERPOLATIONS, PRECISIONS
 from engine.motion_space import MotionSpace
+from engine.player import SMOOTHING
 from server.commands.play import _assignments, scripted
 
 SUFFIXES = {".glb": "glb", ".usd": "usd", ".usdc": "usd", ".usda": "usd"}
@@ -96,7 +97,7 @@ def clip_from_arguments(args, names):
     params.update(_assignments(args.set, names))
     track.extend(scripted(args.at, names))
     return Clip(params=params, track=tuple(track), duration=10.0 if args.seconds is None else args.seconds,
-                rate=args.fps, mode=args.mode, smoothing=0.25 if args.smoothing is None else args.smoothing)
+                rate=args.fps, mode=args.mode, smoothing=SMOOTHING if args.smoothing is None else args.smoothing)
 
 
 class _Bar:

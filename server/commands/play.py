@@ -24,7 +24,7 @@ import numpy as np
 from engine.export.clip import MAX_FRAMES
 from engine.mesh_io import write_obj
 from engine.motion_space import MotionSpace
-from engine.player import Player
+from engine.player import SMOOTHING, Player
 from server.commands.checks import check_output_path
 
 
@@ -49,9 +49,6 @@ def add_arguments(parser):
     parser.add_argument("--frames", type=Path, help="write every played frame as OBJ into this directory")
     parser.add_argument("--force", action="store_true", help="replace the frames of an earlier play in --frames")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
-
-
-DEFAULT_SMOOTHING = 0.25  # s, the player's parameter time constant unless --smoothing
 
 
 def _assignments(items, names):
@@ -109,7 +106,7 @@ def check_arguments(args, graph=False):
                                  "parameters and play their one-shots as the graph player does")
     else:
         if args.smoothing is None:
-            args.smoothing = DEFAULT_SMOOTHING
+            args.smoothing = SMOOTHING
         if not (math.isfinite(args.smoothing) and args.smoothing >= 0):
             raise ValueError(f"--smoothing must be a non-negative number of seconds, got {args.smoothing:g}")
         if not (math.isfinite(args.trail_every) and args.trail_every > 0):

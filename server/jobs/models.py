@@ -13,10 +13,11 @@ from typing import Annotated, Any, Literal, Union
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, StringConstraints, field_validator, model_validator
 
 from engine.align.captures import FINE_EDGE
+from engine.names import NAME
 from engine.parameters import MEASURES
-from server.commands.build import LAYOUT_KEYS
+from server.commands.build import LAYOUT_FIELDS, LAYOUT_KEYS, foreign_layout_key, layout_sources_problem
 
-NAME_PATTERN = r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$"
+NAME_PATTERN = NAME.pattern
 
 
 def _no_dotdot(name):
@@ -53,10 +54,9 @@ class ParameterSpec(_Body):
         missing = [key for key in needed if getattr(self, key) is None]
         if missing:
             raise ValueError(f"a {self.layout} layout needs {', '.join(missing)}")
-        foreign = [key for key in ("chain", "corners", "left", "right") if getattr(self, key) is not None
-                   and key not in needed]
-        if foreign:
-            raise ValueError(f"{foreign[0]} is not part of a {self.layout} layout (it takes {', '.join(needed)})")
+        foreign = foreign_layout_key(self.layout, {k for k in LAYOUT_FIELDS if getattr(self, k) is not None})
+        if foreign is not None:
+            raise ValueError(foreign)
         return self
 
     def placed(self):
@@ -96,19 +96,10 @@ class BuildSpec(_Body):
     def _layout_places_the_sources(self):
         """As ``morphspace build`` reads a spec (server.commands.build.read_spec): the layout names
         only sources, each once, and every source."""
-        if self.parameters is None:
-            return self
-        placed, kind = self.parameters.placed(), self.parameters.layout
-        unknown = next((name for name in placed if name not in self.sources), None)
-        if unknown is not None:
-            raise ValueError(f"parameters refer to {unknown!r}, which is not among the sources")
-        twice = next((name for name in placed if placed.count(name) > 1), None)
-        if twice is not None:
-            raise ValueError(f"parameters: the {kind} layout names {twice!r} twice; its sources must differ")
-        left_out = [repr(name) for name in self.sources if name not in placed]
-        if left_out:
-            raise ValueError(f"parameters: the {kind} layout leaves out {', '.join(left_out)}: every source needs "
-                             f"its place in the layout (add it there, or take it out of sources)")
+        if self.parameters is not None:
+            problem = layout_sources_problem(self.parameters.layout, self.parameters.placed(), self.sources)
+            if problem is not None:
+                raise ValueError(problem)
         return self
 
 

@@ -199,21 +199,17 @@ class JobService:
 
     def _check_root(self, params):
         """An align job's ``root`` names a sequence of its datasets (of ``only``, when given) and a
-        frame number, or is a frame index (its range is checked when the frames are read)."""
-        text = params["root"]
-        name, sep, frame = text.rpartition(":")
-        if not sep:
-            if not text.isdigit():
-                raise JobRequestError(422, f"root {text}: expected SEQUENCE:FRAME or a frame index")
-            return
+        frame number, or is a frame index (their ranges are checked when the frames are read)."""
+        from server.commands.align import parse_root
+
         names = sorted({entry.name for dataset in params["datasets"]
                         for entry in (self.settings.datasets_dir / dataset / "sequences").glob("*") if entry.is_dir()})
         if params.get("only"):
             names = [n for n in names if n in params["only"]]
-        if name not in names:
-            raise JobRequestError(422, f"root {text}: no sequence {name!r}; sequences are {', '.join(names) or 'none'}")
-        if not frame.isdigit():
-            raise JobRequestError(422, f"root {text}: frame must be an integer from 0")
+        try:
+            parse_root(params["root"], [{"name": n} for n in names], None, label="root")
+        except ValueError as exc:
+            raise JobRequestError(422, str(exc)) from None
 
     def _check_export(self, params):
         """An export job's space must exist and its clip be playable (the errors of the

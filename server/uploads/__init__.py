@@ -28,9 +28,10 @@ multipart bodies to checked files), ``assemble.py`` (files to a validated datase
 (the whole upload).
 """
 
+from engine.names import NAME
 from server.uploads.assemble import FrameStats, assemble_dataset, sequence_meta
 from server.uploads.receive import receive_dataset
-from server.uploads.rules import KINDS, NAME, Limits, UploadError, check_name, dataset_path
+from server.uploads.rules import KINDS, Limits, UploadError, check_name, dataset_path
 from server.uploads.store import (
     PICTURES,
     clean_stale,

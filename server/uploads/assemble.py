@@ -17,7 +17,8 @@ from engine.mesh_io import MeshError, natural_key, read_mesh
 from engine.mesh_io.texture import RESOURCE_SUFFIXES, directory_resources
 from engine.mesh_io.dataset import write_capture_manifest
 from engine.mesh_io.units import UNITS_PER_METRE, UP_AXES
-from server.uploads.rules import KINDS, META_MAX_BYTES, NAME, UploadError
+from engine.names import is_name
+from server.uploads.rules import KINDS, META_MAX_BYTES, UploadError
 
 
 @dataclass
@@ -46,7 +47,7 @@ def plan_dataset(extracted, dataset_name):
     sequences, templates = {}, []
 
     def sequence(seq, name):
-        if not NAME.match(seq) or ".." in seq:
+        if not is_name(seq):
             raise UploadError(422, f"{name}: sequence name {seq!r} must be letters, digits, '_', '-', '.'")
         return sequences.setdefault(seq, SequencePlan(seq))
 

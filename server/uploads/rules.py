@@ -9,7 +9,8 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
-NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,127}$")
+from engine.names import is_name
+
 PART = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.@+=,() -]{0,127}$")
 KINDS = ("consistent", "unstructured")
 MAX_DEPTH = 5
@@ -41,7 +42,7 @@ class Limits:
 
 
 def check_name(name, what="dataset"):
-    if not isinstance(name, str) or not NAME.match(name) or ".." in name:
+    if not is_name(name):
         raise UploadError(422, f"{name!r} is not a valid {what} name: use letters, digits, '_', '-', '.' "
                                "(at most 128, not starting with '.', no '..')")
     return name

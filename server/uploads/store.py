@@ -12,7 +12,8 @@ from pathlib import Path, PurePosixPath
 
 from engine.mesh_io import MESH_EXTENSIONS, natural_key
 from engine.mesh_io.dataset import DATASET_FORMAT
-from server.uploads.rules import KINDS, NAME, STAGING_PREFIX, TRASH_PREFIX, UploadError, dataset_path
+from engine.names import NAME, is_name
+from server.uploads.rules import KINDS, STAGING_PREFIX, TRASH_PREFIX, UploadError, dataset_path
 
 
 def publish_dir(staging, target, *, replace=False):
@@ -104,7 +105,7 @@ def dataset_names(settings):
 
 def describe_dataset(settings, name):
     """JSON-ready description read from disk: sequences (frames, topology, fps), templates, bytes."""
-    if not isinstance(name, str) or not NAME.match(name) or ".." in name:
+    if not is_name(name):
         raise UploadError(404, f"no dataset {name!r}")
     root = settings.datasets_dir / name
     if not root.is_dir():
