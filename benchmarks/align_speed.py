@@ -97,6 +97,8 @@ def main(argv=None):
     parser.add_argument("--levels", type=int, default=None, help="AlignmentOptions.levels (default: its own)")
     parser.add_argument("--subdivide", type=int, default=0, metavar="N",
                         help="split every frame's triangles into four N times first (a denser capture)")
+    parser.add_argument("--root-choice", default="auto", choices=("auto", "race", "trial", "apart", "central"),
+                        help="how the root is chosen (align_captures' root_choice; default auto)")
     parser.add_argument("--tiny", action="store_true", help="the test suite's smoke run (no dataset)")
     parser.add_argument("--out", type=Path, help="write the JSON here too")
     args = parse_arguments(parser, argv, TINY)
@@ -125,7 +127,7 @@ def main(argv=None):
     vertices = float(np.mean([len(f.vertices) for f in frames]))
     load_before = os.getloadavg()
     cpu_started, wall_started = time.process_time(), time.perf_counter()
-    run = align_captures(frames, np.array([len(frames)]), workers=1, options=options)
+    run = align_captures(frames, np.array([len(frames)]), workers=1, options=options, root_choice=args.root_choice)
     cpu, wall = time.process_time() - cpu_started, time.perf_counter() - wall_started
     aligned = run.aligned
     errors, _ = score_alignment(aligned.vertices, aligned.root, aligned.root_vertices, truth, faces, size)
@@ -134,7 +136,8 @@ def main(argv=None):
     n = len(frames)
     judged = TARGET_VERTICES[0] <= vertices <= TARGET_VERTICES[1]
     record = {"dataset": "tiny" if args.tiny else str(args.dataset), "sequence": "run" if args.tiny else args.sequence,
-              "start": args.start, "frames": n, "subdivide": args.subdivide, "vertices_mean": round(vertices, 1), "root": int(aligned.root),
+              "start": args.start, "frames": n, "subdivide": args.subdivide, "root_choice": args.root_choice,
+              "vertices_mean": round(vertices, 1), "root": int(aligned.root),
               "cpu_seconds_per_frame": round(cpu / n, 3), "wall_seconds_per_frame": round(wall / n, 3),
               "aligner_cpu_seconds_per_frame": round(float(np.sum(aligned.cpu_seconds)) / n, 3),
               "stages_wall_s": {k: round(v, 2) for k, v in run.timings.items()},

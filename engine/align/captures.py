@@ -17,8 +17,8 @@ from engine.align.pairwise import AlignmentOptions
 from engine.align.propagation import AlignedFrames, align_tree
 from engine.align.repair import alignment_confidence, colour_terms, repair_alignment, tail_reference
 from engine.align.root_choice import ROOT_SLACK, choose_root
-from engine.align.root_race import finalists, race_frames, race_score, sub_similarity
-from engine.align.root_trial import TRIAL_MIN_FRAMES, root_setup, trial_candidates, trial_probes, try_roots
+from engine.align.root_race import finalists, no_race_reason, no_trial_reason, race_frames, race_score, sub_similarity
+from engine.align.root_trial import root_setup, trial_candidates, trial_probes, try_roots
 from engine.align.similarity import shape_dissimilarity
 from engine.align.similarity_tree import DEFAULT_TREE, chain_tree, similarity_tree
 from engine.surface import orient_outward, surface_area
@@ -42,11 +42,15 @@ class CaptureAlignment:
     colour_cues : bool  whether vertex colours were used as local matching cues
     turned : dict       frame index -> faces whose winding was reversed so that the frame faces
                         outward (:func:`engine.surface.orient_outward`); frames as read are absent
-    root_trial : dict or None   with ``root_choice="trial"`` or ``"race"``: the candidate roots
+    root_trial : dict or None   with ``root_choice`` "trial", "race" or "auto": the candidate roots
                         tried, the probe frames, each candidate's badness per probe and mean, and
-                        the spread's choice (:func:`engine.align.root_trial.try_roots`); with
-                        "race" also ``race``: ``finalists``, ``frames`` (how many each aligned),
+                        the spread's choice (:func:`engine.align.root_trial.try_roots`); when
+                        raced also ``race``: ``finalists``, ``frames`` (how many each aligned),
                         ``confidence`` (each finalist's mean) and ``winner``; None when no trial ran
+    root_reason : str or None   when no trial or no race ran although ``root_choice`` asked for it,
+                        why (fewer than ``TRIAL_MIN_FRAMES`` frames: neither; with "auto" a densely
+                        tracked take, :func:`engine.align.root_race.neighbour_share`: no race); one
+                        line for a summary
     """
 
     similarity: object
@@ -58,6 +62,7 @@ class CaptureAlignment:
     colour_cues: bool = False
     turned: dict = field(default_factory=dict)
     root_trial: dict = None
+    root_reason: str = None
 
 
 COLOUR_WEIGHT = 1.0   # AlignmentOptions.colour_weight when colour cues are on and the options leave it 0
@@ -85,10 +90,10 @@ def colours_carry_texture(vertices, faces):
     return median < FINE_EDGE * np.sqrt(surface_area(V, F))
 
 
-ROOT_CHOICES = ("race", "trial", "apart", "central")
+ROOT_CHOICES = ("auto", "race", "trial", "apart", "central")
 
 
-def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, root_choice="race",
+def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, root=None, root_choice="auto",
                    options=None, window=2,
                    workers=1, retries=3, tets=None, use_colors="auto", seed=0, similarity=None, repair=True,
                    repair_budget=0.25, progress=None, runner=None):
@@ -106,7 +111,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                 the paper's minimum spanning tree, or cheapest paths from the
                                 root with big steps penalised
     root : int or None          root frame (default: chosen by ``root_choice``)
-    root_choice : {"race", "trial", "apart", "central"}
+    root_choice : {"auto", "race", "trial", "apart", "central"}
                                 without ``root``: "central" is the paper's, the minimum spanning
                                 tree's most central frame; "apart" a frame nearly as central whose
                                 limbs are apart, so no merged contact (a hand on a hip, a sleeve
@@ -116,9 +121,12 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                 probe frames, and the one that aligns them best is the root
                                 (:mod:`engine.align.root_trial`; captures of fewer than
                                 ``TRIAL_MIN_FRAMES`` frames, or with ``tets`` given: "apart");
-                                "race" (default) the trial's two best each align the capture (or
-                                64 frames of one over 128), the more confident alignment wins
-                                (:mod:`engine.align.root_race`; with the tree only)
+                                "race" the trial's two best each align the capture (or 64 frames
+                                of one over 128), the more confident alignment wins
+                                (:mod:`engine.align.root_race`; with the tree only); "auto"
+                                (default) "race", except on a densely tracked take (a tree whose
+                                steps join neighbours in time, ``TRACKED_SHARE`` of them or
+                                more: :func:`engine.align.root_race.neighbour_share`): "trial"
     options : AlignmentOptions
     window : int                temporal filter half-width
     workers : int               processes for the dissimilarity matrix and for aligning
@@ -163,7 +171,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                          runner=runner)
     timings["similarity"] = time.perf_counter() - started
     started = time.perf_counter()
-    chooser = _apart(meshes, progress) if root is None and root_choice in ("apart", "trial", "race") else None
+    chooser = _apart(meshes, progress) if root is None and root_choice != "central" else None
     tree = similarity_tree(similarity.dissimilarity, root=root, kind=tree_kind, choose_root=chooser, lengths=lengths)
     timings["tree"] = time.perf_counter() - started
     # colours, when every frame has them, always settle front-back ambiguities (PairwiseAligner
@@ -172,7 +180,9 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     options = options or AlignmentOptions()
     trial = None
     tried = {}
-    if chooser is not None and root_choice in ("trial", "race") and len(meshes) >= TRIAL_MIN_FRAMES and tets is None:
+    tries = chooser is not None and root_choice in ("auto", "trial", "race")
+    reason = no_trial_reason(len(meshes)) if tries else None
+    if tries and reason is None and tets is None:
         started = time.perf_counter()
         candidates = trial_candidates(similarity.dissimilarity, chooser.centrality, tree.root, slack=ROOT_SLACK)
         if len(candidates) > 1:
@@ -189,7 +199,9 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     settings = dict(options=options, use_colors=use_colors, colours=colours, seed=seed, workers=workers,
                     retries=retries, runner=runner, repair=repair, repair_budget=repair_budget)
     run = None
-    if trial is not None and root_choice == "race" and method == "tree" and len(finalists(trial)) > 1:
+    races = trial is not None and root_choice in ("auto", "race") and method == "tree" and len(finalists(trial)) > 1
+    reason = no_race_reason(tree.parent, lengths, root_choice) if races else reason
+    if races and reason is None:
         started = time.perf_counter()
         tree, run = _race(meshes, lengths, similarity, trial, tried, tree_kind, settings, progress)
         tets = tried[int(tree.root)]
@@ -204,7 +216,7 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                                  progress=progress, **settings)
     timings.update(spent)
     return CaptureAlignment(similarity=similarity, tree=tree, aligned=aligned, timings=timings, method=method,
-                            tets=tets, colour_cues=bool(cues), turned=turned, root_trial=trial)
+                            tets=tets, colour_cues=bool(cues), turned=turned, root_trial=trial, root_reason=reason)
 
 
 def _align_from(meshes, lengths, similarity, tree, method, *, options, use_colors, colours, seed, tets, workers,

@@ -25,6 +25,8 @@ import numpy as np
 
 RACE_FINALISTS = 2   # the trial's best candidates that align the capture
 RACE_FRAMES = 64     # a capture of more than twice this races an evenly spaced subset of this many frames
+TRACKED_SHARE = 0.8  # a tree with at least this share of its steps between neighbours in time is a tracked take:
+                     # no trial or race (dense takes 0.90-1.00, one frame in 9 or 14 of one: 0.05-0.16)
 
 
 def finalists(trial, count=RACE_FINALISTS):
@@ -51,6 +53,56 @@ def race_frames(n, keep, limit=None):
     return sorted(keep + trial_probes(n, keep, max(limit - len(keep), 0)))
 
 
+def neighbour_share(parent, lengths):
+    """The share of a tree's steps that join frames next to each other in one sequence.
+
+    A densely captured take aligns as a chain (docs/evaluation.md, "A long take is a chain"):
+    every frame from its neighbour in time, whatever the root, and there the trial and the race
+    buy little for what they cost (the studio's dense dance and strikes slices: 0.07 and -0.02
+    points of mean error for 2.3-2.4 times the CPU). Frames far apart in time (a few of a long
+    take re-meshed) make a tree of jumps between poses, where the root's choice matters most.
+
+    Parameters
+    ----------
+    parent : (N,) int array    each frame's parent in the tree, -1 for the root
+    lengths : (S,) int array or None   frames per sequence (global indices run through them in
+                                       order); None: one sequence
+
+    Returns
+    -------
+    float in [0, 1]   (0 for a tree of one frame)
+    """
+    parent = np.asarray(parent, dtype=np.int64)
+    n = len(parent)
+    sequence = np.repeat(np.arange(len(lengths)), lengths) if lengths is not None else np.zeros(n, dtype=np.int64)
+    child = np.flatnonzero(parent >= 0)
+    if len(child) == 0:
+        return 0.0
+    near = (np.abs(child - parent[child]) == 1) & (sequence[child] == sequence[parent[child]])
+    return float(near.mean())
+
+
+def no_trial_reason(frames):
+    """Why no trial (or race) runs on a capture of ``frames`` frames, or None when one may: fewer
+    than ``TRIAL_MIN_FRAMES``. One line for a summary; the spread's choice (``apart``) stands."""
+    from engine.align.root_trial import TRIAL_MIN_FRAMES
+
+    if frames < TRIAL_MIN_FRAMES:
+        return f"the spread's choice, `apart`: no trial or race on fewer than {TRIAL_MIN_FRAMES} frames"
+    return None
+
+
+def no_race_reason(parent, lengths, root_choice):
+    """Why ``root_choice`` "auto" does not race the trial's finalists on this tree, or None when it
+    does (and always None for "race"): a densely tracked take, :func:`neighbour_share` at least
+    ``TRACKED_SHARE``, where the trial's choice stands. One line for a summary."""
+    share = neighbour_share(parent, lengths)
+    if root_choice == "auto" and share >= TRACKED_SHARE:
+        return (f"the trial's choice: no race on a densely tracked take ({100 * share:.0f}% of the tree's steps join "
+                "neighbours in time; `race` races it anyway)")
+    return None
+
+
 def race_score(confidence, root):
     """The mean confidence of the frames other than ``root`` (higher is better)."""
     confidence = np.asarray(confidence, dtype=np.float64)
@@ -70,4 +122,5 @@ def sub_similarity(similarity, frames):
                    lengths=np.array([len(frames)]))
 
 
-__all__ = ["RACE_FINALISTS", "RACE_FRAMES", "finalists", "race_frames", "race_score", "sub_similarity"]
+__all__ = ["RACE_FINALISTS", "RACE_FRAMES", "TRACKED_SHARE", "finalists", "neighbour_share", "no_race_reason", "no_trial_reason",
+           "race_frames", "race_score", "sub_similarity"]

@@ -41,7 +41,6 @@ from tqdm import tqdm
 from engine.align import AlignmentOptions, align_captures
 from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
 from engine.align.captures import FINE_EDGE, ROOT_CHOICES
-from engine.align.root_trial import TRIAL_MIN_FRAMES
 from engine.align.repair import TRUSTED
 from engine.mesh_io import MESH_EXTENSIONS, read_frames, write_obj, write_sequence
 from engine.mesh_io.frames import left_out_frames, list_frames
@@ -74,8 +73,10 @@ def add_arguments(parser):
     parser.add_argument("--only", nargs="+", metavar="NAME", help="with a capture dataset: only these sequences")
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global frame index "
                         "(default: chosen by --root-choice)")
-    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="race",
-                        help="without --root: race (default) runs the trial, then its two best candidates each align "
+    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="auto",
+                        help="without --root: auto (default) is race, except on a densely tracked take (80%% of the "
+                             "tree's steps or more join neighbours in time), where it is apart; "
+                             "race runs the trial, then its two best candidates each align "
                              "the capture (a capture of more than 128 frames: 64 frames of it, evenly spaced) and the "
                              "root of the alignment with the higher mean confidence wins; "
                              "trial lets the apart choice and up to 3 other central frames "
@@ -459,6 +460,7 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
     write_capture_manifest(out, {
         "aligned": True, "alignment": {"method": result.method, "root": root_label,
                                        "options": options_record, "root_trial": result.root_trial,
+                                       "root_reason": result.root_reason,
                                        "input": {s["name"]: c.to_metadata() for s, c in zip(sequences, conventions)},
                                        "display_unit": display_unit(common)},
         "body": {"vertices": int(len(aligned.root_vertices)), "faces": int(len(aligned.faces)),
@@ -583,8 +585,8 @@ def run(args):
     print(f"  colour cues {colour_cues_text(args.colors, result.colour_cues, meshes)}")
     if result.root_trial:
         print(f"  {root_trial_text(result.root_trial, int(aligned.root), sequences, lengths)}")
-    elif args.root is None and args.root_choice in ("race", "trial") and frames < TRIAL_MIN_FRAMES:
-        print(f"  root: the spread's choice (`apart`): no trial or race on fewer than {TRIAL_MIN_FRAMES} frames")
+    if result.root_reason:
+        print(f"  root: {result.root_reason}")
     if result.turned:
         shown = [frame_label(i, sequences, lengths) for i in sorted(result.turned)]
         print(f"  faces wound inward (or mixed) turned outward in {len(shown)} frames: {', '.join(shown[:6])}"

@@ -64,8 +64,9 @@ def add_arguments(parser):
                         help=f"the similarity tree: mst, paths or steps (see `morphspace align --help`; default {DEFAULT_TREE})")
     parser.add_argument("--no-sequential", action="store_true", help="skip the frame-to-frame baseline")
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global index (default: the tree's)")
-    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="race",
-                        help="without --root: race (default), trial, apart or central (see `morphspace align --help`)")
+    parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="auto",
+                        help="without --root: auto (default), race, trial, apart or central (see `morphspace align "
+                             "--help`)")
     parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
                         help="vertex colours as local matching cues (see `morphspace align --help`; default auto)")
     parser.add_argument("--swing-limbs", action="store_true",
@@ -365,6 +366,7 @@ def run(args):
             root = tree_run.aligned.root
             report["root"] = int(root)
             report["root_trial"] = tree_run.root_trial
+            report["root_reason"] = tree_run.root_reason
             report["colour_cues"] = bool(tree_run.colour_cues)
             report["similarity_seconds"] = round(tree_run.timings["similarity"], 3)
             report["tree_seconds"] = round(tree_run.timings["tree"], 4)
@@ -444,8 +446,6 @@ def _units_report(names, conventions):
 
 
 def _print_report(report, out, args):
-    from engine.align.root_trial import TRIAL_MIN_FRAMES
-
     unit = report["display_unit"]
     scale = DISPLAY_PER_METRE[unit] / 1000.0  # from the records' mm
     inputs = sorted({f"{r['units']}, {r['up']} up" for r in report["input"].values()})
@@ -454,13 +454,12 @@ def _print_report(report, out, args):
     trial = report.get("root_trial")
     if trial is None:   # said, as align says it
         why = (" (given: --root)" if args.root is not None else
-               f" (the spread's choice, `apart`: no trial or race on fewer than {TRIAL_MIN_FRAMES} frames)"
-               if args.root_choice in ("race", "trial") and report["frames"] < TRIAL_MIN_FRAMES else
+               f" ({report['root_reason']})" if report.get("root_reason") else
                f" (--root-choice {args.root_choice})" if args.root_choice in ("apart", "central") else "")
     print(f"root frame {report['root']}" + (why if not trial else (
         f" (tried: candidates {trial['candidates']}, mean badness {trial['mean']}"
         + (f"; raced: {trial['race']['finalists']}, mean confidence {trial['race']['confidence']}" if "race" in trial else "")
-        + ")")))
+        + (f"; {report['root_reason']}" if report.get("root_reason") else "") + ")")))
     if "similarity_seconds" in report:
         print(f"similarity {report['similarity_seconds']:.1f} s, tree {report['tree_seconds']:.3f} s "
               f"(depth max {report['tree']['depth_max']}, mean {report['tree']['depth_mean']})"

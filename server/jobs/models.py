@@ -119,8 +119,10 @@ class AlignJob(_Body):
     output: Name = Field(description="name of the aligned dataset to write")
     only: list[Name] | None = Field(None, max_length=256, description="only these sequences")
     root: str | None = Field(None, max_length=200, description="root frame as SEQUENCE:FRAME or a global index")
-    root_choice: Literal["race", "trial", "apart", "central"] = Field(
-        "race", description="without root: race, the trial's two best candidates each align the capture (or 64 "
+    root_choice: Literal["auto", "race", "trial", "apart", "central"] = Field(
+        "auto", description="without root: auto, race except on a densely tracked take (80% of the tree's steps or "
+                            "more join neighbours in time), where it is apart; "
+                            "race, the trial's two best candidates each align the capture (or 64 "
                             "frames of one over 128) and the more confident alignment's root wins; "
                             "trial, the apart choice and up to 3 other central frames each align 6 "
                              "probe frames and the one that aligns them best is the root (24 frames or more); "

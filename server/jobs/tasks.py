@@ -263,7 +263,7 @@ def run_graph(payload, reporter):
 
 # --- align ----------------------------------------------------------------------------------------
 # what a job record made before these parameters existed runs with (the AlignJob model's defaults)
-ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "race", "colors": "auto", "repair_budget": 0.25, "units": "auto",
+ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "auto", "colors": "auto", "repair_budget": 0.25, "units": "auto",
                   "up": "auto", "swing_limbs": False, "reach_limbs": True}
 
 
@@ -311,6 +311,8 @@ def run_align(payload, reporter, runner=None):
     reporter.log(f"aligned {int(lengths.sum())} frames in {time.perf_counter() - started:.1f} s")
     if result.root_trial:
         reporter.log(root_trial_text(result.root_trial, int(result.aligned.root), sequences, lengths))
+    if result.root_reason:
+        reporter.log(f"root: {result.root_reason}")
     confidence = confidence_summary(aligned, sequences, lengths)
     reporter.log(f"confidence: {confidence['repaired_frames']} frames repaired, {confidence['flagged_frames']} of "
                  f"{int(lengths.sum())} still below {TRUSTED} (the summary's flagged lists them per sequence), "
@@ -324,7 +326,7 @@ def run_align(payload, reporter, runner=None):
                         "residual_max_pct": float(100 * aligned.residual_max.max() / size),
                         "input": {s["name"]: c.to_metadata() for s, c in zip(sequences, conventions)},
                         "display_unit": display_unit(common_convention(conventions)), **confidence,
-                        "root_trial": result.root_trial,
+                        "root_trial": result.root_trial, "root_reason": result.root_reason,
                         "seconds": round(time.perf_counter() - started, 2)}}
 
 

@@ -6,7 +6,16 @@ import pytest
 
 from engine.align import align_captures, root_race
 from engine.align.options import AlignmentOptions
-from engine.align.root_race import finalists, race_frames, race_score, sub_similarity
+from engine.align.root_race import (
+    TRACKED_SHARE,
+    finalists,
+    neighbour_share,
+    no_race_reason,
+    no_trial_reason,
+    race_frames,
+    race_score,
+    sub_similarity,
+)
 from engine.mesh_io import Mesh
 from engine.synthetic import SequenceSpec, build_body, generate_sequence_data
 
@@ -50,9 +59,9 @@ def test_race_score_is_the_mean_confidence_of_the_other_frames():
 
 @pytest.fixture(scope="module")
 def raced(walk30):
-    """walk30 aligned with the race, one worker."""
+    """walk30 aligned with the race, one worker (asked for: a dense take is not raced by default)."""
     frames, lengths = walk30
-    return align_captures(frames, lengths, options=OPTIONS, workers=1)
+    return align_captures(frames, lengths, options=OPTIONS, workers=1, root_choice="race")
 
 
 def test_the_race_keeps_the_more_confident_finalist_and_its_alignment_is_that_roots_own(walk30, raced):
@@ -78,7 +87,7 @@ def test_the_race_keeps_the_more_confident_finalist_and_its_alignment_is_that_ro
 def test_a_long_capture_races_a_subset_then_the_winner_aligns_it_all(walk30, monkeypatch):
     frames, lengths = walk30
     monkeypatch.setattr(root_race, "RACE_FRAMES", 12)  # 30 frames: over twice 12
-    run = align_captures(frames, lengths, options=OPTIONS, workers=1)
+    run = align_captures(frames, lengths, options=OPTIONS, workers=1, root_choice="race")
     race = run.root_trial["race"]
     assert race["frames"] == 12 and int(run.aligned.root) == race["winner"]
     assert run.aligned.vertices.shape[0] == len(frames)
@@ -104,7 +113,7 @@ def test_finalists_raced_side_by_side_in_two_processes_give_the_same_alignment(w
     frames, lengths = walk30
     serial = raced
     seen = []
-    both = align_captures(frames, lengths, options=OPTIONS, workers=2,
+    both = align_captures(frames, lengths, options=OPTIONS, workers=2, root_choice="race",
                           progress=lambda stage, done, total: seen.append((stage, done, total)))
     assert both.root_trial["race"] == serial.root_trial["race"]
     assert np.array_equal(both.aligned.vertices, serial.aligned.vertices)
@@ -112,3 +121,39 @@ def test_finalists_raced_side_by_side_in_two_processes_give_the_same_alignment(w
     race = [(done, total) for stage, done, total in seen if stage == "race"]
     assert race and race[-1] == (2 * len(frames), 2 * len(frames))  # every frame of both finalists counted
     assert [done for done, _ in race] == sorted(done for done, _ in race)
+
+
+def test_neighbour_share_counts_the_steps_between_neighbours_in_time_within_a_sequence():
+    chain = np.array([-1, 0, 1, 2, 3])
+    assert neighbour_share(chain, None) == 1.0 and neighbour_share(chain, np.array([5])) == 1.0
+    # frames 2 and 3 are neighbours in the global numbering but not in time: different sequences
+    assert neighbour_share(chain, np.array([3, 2])) == pytest.approx(3 / 4)
+    jumps = np.array([-1, 0, 0, 1, 1])  # 1 <- 0 is a neighbour step; 2 <- 0, 3 <- 1, 4 <- 1 are not
+    assert neighbour_share(jumps, None) == pytest.approx(1 / 4)
+    assert neighbour_share(np.array([-1]), None) == 0.0
+
+
+def test_auto_does_not_race_a_densely_tracked_take_and_race_does():
+    chain = np.concatenate([[-1], np.arange(29)])        # 30 frames, every one from its neighbour
+    jumps = np.concatenate([[-1], np.zeros(29, dtype=np.int64)])   # every frame from frame 0
+    assert neighbour_share(chain, None) >= TRACKED_SHARE > neighbour_share(jumps, None)
+    reason = no_race_reason(chain, None, "auto")
+    assert reason.startswith("the trial's choice: no race on a densely tracked take (100% of the tree's steps")
+    assert no_race_reason(jumps, None, "auto") is None and no_race_reason(chain, None, "race") is None
+    assert no_trial_reason(23) == "the spread's choice, `apart`: no trial or race on fewer than 24 frames"
+    assert no_trial_reason(24) is None
+
+
+def test_auto_keeps_the_trials_choice_on_a_tracked_take_and_says_why(walk30, raced, monkeypatch):
+    """A tree whose steps join neighbours in time (TRACKED_SHARE of them or more) is tried but not
+    raced by default: the trial's choice aligns it, exactly as root_choice="trial" does.
+    walk30's tree is not a chain (a walk's frames a stride apart look alike: 39% of its steps
+    join neighbours), so the share asked for is lowered to make it one."""
+    frames, lengths = walk30
+    monkeypatch.setattr(root_race, "TRACKED_SHARE", 0.3)
+    auto = align_captures(frames, lengths, options=OPTIONS, workers=1)
+    assert "race" not in auto.root_trial and "race" not in auto.timings and "trial" in auto.timings
+    assert "no race on a densely tracked take" in auto.root_reason
+    assert int(auto.aligned.root) == raced.root_trial["race"]["finalists"][0]   # the trial's best
+    # unchanged: the default on a tree that is not a chain races, as "race" does
+    assert raced.root_reason is None

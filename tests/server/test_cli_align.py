@@ -480,7 +480,7 @@ def test_the_summary_says_whether_colours_were_cues_and_why(aligned_run):
     # the 1,000-vertex body is too coarse for its colours to carry a texture
     assert "colour cues off (--colors auto: the root's median edge is not under 1.6% of" in aligned_run[2]
     # 6 frames: too few to try roots, and the summary says so; the manifest records no trial
-    assert "root: the spread's choice (`apart`): no trial or race on fewer than 24 frames" in aligned_run[2]
+    assert "root: the spread's choice, `apart`: no trial or race on fewer than 24 frames" in aligned_run[2]
     assert json.loads((aligned_run[0] / "manifest.json").read_text())["alignment"]["root_trial"] is None
     frames = [types.SimpleNamespace(colors=None)]
     assert colour_cues_text("auto", False, frames) == "off (--colors auto: not every frame has vertex colours)"
@@ -521,9 +521,10 @@ def longer_dataset(tmp_path_factory):
     return root
 
 
-def test_the_root_is_tried_and_raced_on_a_capture_of_24_frames_or_more(longer_dataset, tmp_path, capsys):
+def test_the_root_is_tried_and_raced_on_a_capture_of_24_frames_or_more(longer_dataset, tmp_path, capsys, monkeypatch):
     out = tmp_path / "tried"
-    assert main(["align", str(longer_dataset), "--out", str(out), "--workers", "2", "--levels", "2"]) == 0
+    assert main(["align", str(longer_dataset), "--out", str(out), "--workers", "2", "--levels", "2",
+                 "--root-choice", "race"]) == 0
     captured = capsys.readouterr()
     assert "try roots: 100%" in captured.err and "race roots: 100%" in captured.err
     assert ", root trial " in captured.out and ", root race " in captured.out
@@ -553,6 +554,18 @@ def test_the_root_is_tried_and_raced_on_a_capture_of_24_frames_or_more(longer_da
                  "--root-choice", "apart"]) == 0
     captured = capsys.readouterr()
     assert "root tried" not in captured.out and "try roots" not in captured.err
+    # the default on a tracked take: the trial's choice, no race, and the summary says why (this walk's tree is not a
+    # chain: a stride's frames look alike, so 39% of its steps join neighbours; the share asked for is lowered)
+    from engine.align import root_race
+
+    monkeypatch.setattr(root_race, "TRACKED_SHARE", 0.3)
+    assert main(["align", str(longer_dataset), "--out", str(tmp_path / "auto"), "--workers", "1", "--levels", "2"]) == 0
+    captured = capsys.readouterr()
+    assert "root tried:" in captured.out and "try roots: 100%" in captured.err and "race roots" not in captured.err
+    assert "  root: the trial's choice: no race on a densely tracked take (" in captured.out
+    record = json.loads((tmp_path / "auto" / "manifest.json").read_text())["alignment"]
+    assert "race" not in record["root_trial"] and "densely tracked take" in record["root_reason"]
+    assert record["options"]["root_choice"] == "auto"
 
 
 def test_an_output_that_would_destroy_the_input_is_refused_before_any_work(dataset, tmp_path, capsys):
