@@ -278,13 +278,19 @@ class worker_pool:
         return False
 
 
-def run_jobs(pool, function, jobs, desc="synth", total=None):
+def run_jobs(pool, function, jobs, desc="synth", total=None, per_job=False):
     """Run ``function(job)`` for every job on the pool with one progress bar; results in job order.
 
     Jobs report progress through ``report(name, done, total)``; the bar sums over the names
-    (its length is ``total`` when known beforehand, else the sum of the reported totals).
+    (its length is ``total`` when known beforehand, else the sum of the reported totals). With
+    ``per_job`` the bar counts finished jobs instead (its length known from the start, where the
+    jobs' own totals are not: a sequence's frame count is known once its motion is made), and the
+    reports show as the bar's note.
     """
-    bar = tqdm(total=total or 0, unit="frame", desc=desc, dynamic_ncols=True, mininterval=0.5)
+    if per_job:
+        total = len(jobs)
+    bar = tqdm(total=total or 0, unit="sequence" if per_job else "frame", desc=desc, dynamic_ncols=True,
+               mininterval=0.5)
     seen = {}
     futures = {pool.pool.submit(function, job): i for i, job in enumerate(jobs)}
     results = [None] * len(jobs)
@@ -294,16 +300,19 @@ def run_jobs(pool, function, jobs, desc="synth", total=None):
             try:
                 name, done, reported = pool.queue.get(timeout=0.2)
                 old_done, old_total = seen.get(name, (0, 0))
-                if total is None:
-                    bar.total += reported - old_total
-                bar.update(done - old_done)
+                if not per_job:
+                    if total is None:
+                        bar.total += reported - old_total
+                    bar.update(done - old_done)
                 seen[name] = (done, reported)
-                bar.set_postfix_str(name)
+                bar.set_postfix_str(f"{name} {done}/{reported}" if per_job else name)
             except queue.Empty:
                 pass
             for future in [f for f in pending if f.done()]:
                 pending.discard(future)
                 results[futures[future]] = future.result()
+                if per_job:
+                    bar.update(1)
     finally:
         bar.close()
     return results

@@ -153,7 +153,7 @@ def run_studio(args, preset):
         jobs = [dict(common, spec=spec, seed=args.seed * 1000 + i) for i, spec in enumerate(specs)]
         write_capture_template(staging, body)
         with worker_pool(args.workers) as pool:
-            metas = run_jobs(pool, _animate, jobs, desc="animate")
+            metas = run_jobs(pool, _animate, jobs, desc="animate", per_job=True)
             if unstructured_format:
                 chunks = [dict(job, start=start, stop=min(start + CHUNK, meta["frames"]))
                           for job, meta in zip(jobs, metas) for start in range(0, meta["frames"], CHUNK)]

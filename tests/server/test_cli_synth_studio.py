@@ -1,6 +1,9 @@
 """`morphspace synth --preset studio-tiny`: the studio dataset on disk, in the units it declares."""
 
+import contextlib
+import io
 import json
+import re
 
 import numpy as np
 import pytest
@@ -13,10 +16,25 @@ from server.cli import main
 
 
 @pytest.fixture(scope="module")
-def studio(tmp_path_factory):
+def studio_run(tmp_path_factory):
+    """The studio-tiny dataset written by `morphspace synth`, and what it wrote to stderr."""
     out = tmp_path_factory.mktemp("captures") / "studio-tiny"
-    assert main(["synth", "--preset", "studio-tiny", "--out", str(out), "--workers", "2"]) == 0
-    return out
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["synth", "--preset", "studio-tiny", "--out", str(out), "--workers", "2"]) == 0
+    return out, err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def studio(studio_run):
+    return studio_run[0]
+
+
+def test_the_animate_bar_counts_sequences_and_its_length_never_changes(studio_run):
+    """The bar counted frames and grew as each sequence's count came in (11, 22, 33 ...)."""
+    shown = re.findall(r"animate:\s+\d+%\|[^|]*\|\s*(\d+)/(\d+)", studio_run[1])
+    assert shown, studio_run[1][-2000:]
+    assert {total for _, total in shown} == {"3"} and shown[-1] == ("3", "3"), shown
 
 
 def test_layout_manifest_and_declared_units(studio):
