@@ -255,6 +255,18 @@ def parse_root(text, sequences, lengths, label="--root"):
     return index
 
 
+def check_root_early(text, sequences, label="--root"):
+    """:func:`parse_root` against the frame files listed, before any frame is read (a root past a
+    sequence's end was refused only after reading every frame). Where a listing fails or finds no
+    frames, the reading names the problem; the root is parsed again against the frames read."""
+    if text is None:
+        return
+    with contextlib.suppress(MeshFormatError, MeshSequenceError, OSError):
+        counts = np.array([len(list_frames(s["frames"])) for s in sequences], dtype=np.int64)
+        if len(counts) and counts.min() > 0:
+            parse_root(text, sequences, counts, label=label)
+
+
 DEFAULT_FPS = 30.0  # the frame rate of inputs without a meta.json, unless --fps says
 
 
@@ -524,6 +536,7 @@ def run(args):
     if args.fps is not None and not (math.isfinite(args.fps) and 0 < args.fps <= MAX_FPS):
         raise ValueError(f"--fps must be above 0 and at most {MAX_FPS:g} frames/s, got {args.fps}")
     sequences = resolve_inputs(args.inputs, args.only)
+    check_root_early(args.root, sequences)
     progress = Progress()
     started = time.perf_counter()
     try:
@@ -597,5 +610,5 @@ def run(args):
     return 0
 
 
-__all__ = ["add_arguments", "confidence_summary", "convert_inputs", "flagged_by_sequence", "frame_label", "parse_root",
+__all__ = ["add_arguments", "check_root_early", "confidence_summary", "convert_inputs", "flagged_by_sequence", "frame_label", "parse_root",
            "read_inputs", "resolve_inputs", "run", "write_alignment"]

@@ -326,6 +326,10 @@ def test_bad_input_gives_a_clear_error(tmp_path, capsys, dataset):
     assert "missing: no such file or directory" in capsys.readouterr().err
     assert main(["align", str(dataset), "--out", str(tmp_path / "o"), "--root", "nope:3"]) == 2
     assert "no sequence 'nope'" in capsys.readouterr().err
+    # a frame past a sequence's end is refused from the files listed, before any frame is read
+    assert main(["align", str(dataset), "--out", str(tmp_path / "o"), "--root", "walk:999"]) == 2
+    err = capsys.readouterr().err
+    assert "--root walk:999: sequence walk has frames 0.." in err and "read frames" not in err, err
     empty = tmp_path / "empty"
     empty.mkdir()
     assert main(["align", str(empty), "--out", str(tmp_path / "o2")]) == 2
