@@ -62,10 +62,15 @@ def test_blend_compare_reports_errors(arms, capsys):
     folder, *_ = arms
     assert main(["blend", str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "0.5", "0.5",
                  "--mode", "hybrid", "--compare", "--out", str(folder / "cmp.obj")]) == 0
-    out = capsys.readouterr().out
+    captured = capsys.readouterr()
+    out = captured.out
     for mode in ("linear ", "hybrid "):  # max and mean, each in the data's unit and in % of the model size
         assert re.search(rf"{mode} vs non-linear: max \d+\.\d\d mm \([\d.e+-]+% of model size\), "
                          rf"mean \d+\.\d\d mm \([\d.e+-]+% of model size\)", out), out
+    # the % are of the model size the units line states (the straight arm alone is longer than the bent one)
+    stated = float(re.search(r"the model is ([\d.]+) m across", captured.err).group(1))
+    mm, pct = re.search(r"linear  vs non-linear: max (\d+\.\d\d) mm \(([\d.e+-]+)% of model size\)", out).groups()
+    assert float(mm) / 1000 / (float(pct) / 100) == pytest.approx(stated, rel=0.02)
 
 
 def test_blend_shows_its_stages_on_stderr_and_keeps_stdout_and_output(arms, capsys):
