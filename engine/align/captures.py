@@ -48,9 +48,9 @@ class CaptureAlignment:
                         raced also ``race``: ``finalists``, ``frames`` (how many each aligned),
                         ``confidence`` (each finalist's mean) and ``winner``; None when no trial ran
     root_reason : str or None   when no trial or no race ran although ``root_choice`` asked for it,
-                        why (fewer than ``TRIAL_MIN_FRAMES`` frames: neither; with "auto" a densely
-                        tracked take, :func:`engine.align.root_race.neighbour_share`: no race); one
-                        line for a summary
+                        why (``root`` given, or fewer than ``TRIAL_MIN_FRAMES`` frames: neither;
+                        with "auto" a densely tracked take,
+                        :func:`engine.align.root_race.neighbour_share`: no race); one line
     """
 
     similarity: object
@@ -181,7 +181,8 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
     trial = None
     tried = {}
     tries = chooser is not None and root_choice in ("auto", "trial", "race")
-    reason = no_trial_reason(len(meshes)) if tries else None
+    reason = no_trial_reason(len(meshes)) if tries else \
+        "the root given: no trial or race" if root is not None and root_choice in ("auto", "race", "trial") else None
     if tries and reason is None and tets is None:
         started = time.perf_counter()
         candidates = trial_candidates(similarity.dissimilarity, chooser.centrality, tree.root, slack=ROOT_SLACK)

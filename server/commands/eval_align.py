@@ -39,8 +39,8 @@ from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
 from engine.mesh_io.units import UNITS_PER_METRE, resolve_convention, to_metres_y_up
 from engine.surface import model_size
-from server.commands.align import (COLOUR_MODES, Progress, check_job_ranges, convert_inputs, parse_root, read_inputs,
-                                    resolve_inputs)
+from server.commands.align import (COLOUR_MODES, Progress, check_job_ranges, check_root_early, convert_inputs,
+                                   parse_root, read_inputs, resolve_inputs)
 from server.units import (
     DISPLAY_PER_METRE,
     add_units_arguments,
@@ -91,6 +91,43 @@ def add_arguments(parser):
     parser.add_argument("--levels", type=int, default=4, help="coarse-to-fine levels, patches doubling (default 4; "
                         "as `morphspace align`'s: 2 costs about half the CPU, docs/evaluation.md)")
     add_units_arguments(parser)
+
+
+ALIGNING_OPTIONS = ("max_frames", "every", "tree", "root", "root_choice", "colors", "swing_limbs", "reach_limbs",
+                    "repair_budget", "retries", "seed", "patches", "levels")
+
+
+def _refuse_alignment_options(args):
+    """With --aligned nothing is aligned here: options that only steer an alignment are refused
+    (they were accepted and did nothing; --root was even printed as given)."""
+    defaults = argparse.ArgumentParser()
+    add_arguments(defaults)
+    given = [name for name in ALIGNING_OPTIONS if getattr(args, name) != defaults.get_default(name)]
+    if given:
+        shown = ", ".join("--" + name.replace("_", "-") if getattr(args, name) is not False else
+                          "--no-" + name.replace("_", "-") for name in given)
+        raise ValueError(f"{shown}: with --aligned the output of `morphspace align` is scored as it is; these options "
+                         "steer an alignment eval-align runs itself (give them to `morphspace align`)")
+
+
+def _kept_root(text, sequences, counts, picks):
+    """The global index among the kept frames of ``--root``: SEQUENCE:FRAME in the files' own
+    numbering (as frames.csv and `align` name frames), which must be a kept frame; an integer
+    counts the kept frames, as the report's ``root`` does. None without ``--root``."""
+    if text is None:
+        return None
+    kept = np.array([len(pick) for pick in picks], dtype=np.int64)
+    if ":" not in text:
+        return parse_root(text, sequences, kept)
+    whole = parse_root(text, sequences, counts)
+    k = int(np.searchsorted(np.cumsum(counts), whole, side="right"))
+    frame = whole - int(np.sum(counts[:k]))
+    at = np.flatnonzero(picks[k] == frame)
+    if len(at) == 0:
+        shown = ", ".join(str(int(f)) for f in picks[k][:6]) + (", ..." if len(picks[k]) > 6 else "")
+        raise ValueError(f"--root {text}: frame {frame} of {sequences[k]['name']} is not among the frames kept "
+                         f"({shown}; --every and --max-frames pick them)")
+    return int(np.sum(kept[:k]) + at[0])
 
 
 def _truth(dataset, sequences, picks, counts):
@@ -205,6 +242,13 @@ def _frame_rows(method, errors, size, names, picks, *, depth=None, parent=None, 
     return rows
 
 
+def _frame_label(index, names, lengths, picks):
+    """``SEQUENCE:FRAME`` (the capture's own frame numbering, as frames.csv's) of the ``index``-th
+    frame aligned."""
+    k = int(np.searchsorted(np.cumsum(lengths), index, side="right"))
+    return f"{names[k]}:{int(picks[k][index - int(np.sum(lengths[:k]))])}"
+
+
 def _part_counts(manifest):
     """The template's parts and their vertex counts (``body.parts``), or None."""
     parts = manifest.get("body", {}).get("parts")
@@ -313,8 +357,8 @@ def run(args):
     check_job_ranges(args, ("patches", "levels", "retries", "repair_budget"))
     if args.seed < 0:
         raise ValueError(f"--seed must be >= 0, got {args.seed}")
-    if args.every > 1 and args.aligned is not None:
-        raise ValueError("--every picks the frames to align; it does not apply to --aligned")
+    if args.aligned is not None:
+        _refuse_alignment_options(args)
     progress = Progress()
     report = {"dataset": str(dataset)}
     started = time.perf_counter()
@@ -337,6 +381,7 @@ def run(args):
                                     part_counts=_part_counts(manifest),
                                     depth=_depth(extra, root, int(lengths.sum())))
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, root=int(root),
+                          root_frame=_frame_label(int(root), names, lengths, [np.arange(n) for n in lengths]),
                           aligned=record, **_units_report(names, conventions))
             results = {"aligned": (vertices, faces, root_vertices)}
             frame_rows = _frame_rows("aligned", errors, size, names, [np.arange(n) for n in lengths],
@@ -344,6 +389,7 @@ def run(args):
                                      confidence=extra.get("confidence"), repaired=extra.get("repaired"))
         else:
             sequences = resolve_inputs([dataset], args.only)
+            check_root_early(args.root if args.root is not None and ":" in args.root else None, sequences)
             meshes, lengths = read_inputs(sequences, progress, say=_say_line)
             picks = _picked_frames(lengths, args.every, args.max_frames)
             counts, starts = lengths, np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -354,7 +400,7 @@ def run(args):
             parts, template_faces = _truth(dataset, sequences, picks, counts)
             truth = _truth_in_metres(parts, conventions)  # in the same units and axes as the frames
             size = _model_size(manifest, conventions, truth)
-            root = parse_root(args.root, sequences, lengths)
+            root = _kept_root(args.root, sequences, counts, picks)
             options = AlignmentOptions(patches=args.patches, levels=args.levels, swing_limbs=args.swing_limbs,
                                        reach_limbs=args.reach_limbs)
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, every=args.every,
@@ -365,6 +411,7 @@ def run(args):
                                       retries=args.retries, repair_budget=args.repair_budget, progress=progress)
             root = tree_run.aligned.root
             report["root"] = int(root)
+            report["root_frame"] = _frame_label(int(root), names, lengths, picks)
             report["root_trial"] = tree_run.root_trial
             report["root_reason"] = tree_run.root_reason
             report["colour_cues"] = bool(tree_run.colour_cues)
@@ -456,7 +503,7 @@ def _print_report(report, out, args):
         why = (" (given: --root)" if args.root is not None else
                f" ({report['root_reason']})" if report.get("root_reason") else
                f" (--root-choice {args.root_choice})" if args.root_choice in ("apart", "central") else "")
-    print(f"root frame {report['root']}" + (why if not trial else (
+    print(f"root frame {report['root']}, {report['root_frame']}" + (why if not trial else (
         f" (tried: candidates {trial['candidates']}, mean badness {trial['mean']}"
         + (f"; raced: {trial['race']['finalists']}, mean confidence {trial['race']['confidence']}" if "race" in trial else "")
         + (f"; {report['root_reason']}" if report.get("root_reason") else "") + ")")))

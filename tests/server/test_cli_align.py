@@ -222,9 +222,12 @@ def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
     assert main(["eval-align", str(dataset), "--max-frames", "3", "--out", str(tmp_path / "printed"), "--no-sequential",
                  "--workers", "1"]) == 0
     printed = capsys.readouterr().out
-    root = json.loads((tmp_path / 'printed' / 'results.json').read_text())['root']
+    printed_report = json.loads((tmp_path / 'printed' / 'results.json').read_text())
+    root, label = printed_report["root"], printed_report["root_frame"]
+    assert label == ["walk:0", "walk:1", "walk:2", "jog:0", "jog:1", "jog:2"][root]
     # why no trial or race ran, as align says it (found by a docs-only user)
-    assert f"root frame {root} (the spread's choice, `apart`: no trial or race on fewer than 24 frames)\n" in printed
+    assert f"root frame {root}, {label} (the spread's choice, `apart`: no trial or race on fewer than 24 frames)\n" \
+        in printed
     assert printed.rstrip().endswith(", ".join(str(tmp_path / "printed" / name) for name in
                                                ("aligned_pattern.png", "similarity.png", "tree.png")))
     # the sequential alignment's picture is among those written when it was made
@@ -267,6 +270,14 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
                  "--json", "--workers", "1", "--repair-budget", "0", "--levels", "2", "--patches", "10"]) == 0
     coarse = json.loads(capsys.readouterr().out)
     assert coarse["tree"]["frames"] == 4 and coarse["tree"]["mean_pct"] != report["tree"]["mean_pct"]
+    # --root SEQUENCE:FRAME names a frame of the capture's own numbering (frames.csv's), which must be kept
+    assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "rooted"),
+                 "--json", "--workers", "1", "--repair-budget", "0", "--root", "jog:2"]) == 0
+    rooted = json.loads(capsys.readouterr().out)
+    assert rooted["root"] == 3 and rooted["root_frame"] == "jog:2"   # kept: walk 0, 2, jog 0, 2
+    assert main(["eval-align", str(dataset), "--every", "2", "--out", str(tmp_path / "r"), "--root", "jog:1"]) == 2
+    assert "--root jog:1: frame 1 of jog is not among the frames kept (0, 2; --every and --max-frames pick them)" \
+        in capsys.readouterr().err
     assert main(["eval-align", str(dataset), "--levels", "0"]) == 2
     assert main(["eval-align", str(dataset), "--every", "0"]) == 2
     assert main(["eval-align", str(dataset), "--retries", "-1"]) == 2
@@ -301,6 +312,15 @@ def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, cap
     report = json.loads(capsys.readouterr().out)
     assert report["aligned"]["mean_pct"] < 1.5
     assert report["root"] == int(np.load(aligned / "alignment.npz")["root"]) and "every" not in report
+    assert report["root_frame"] == ["walk:0", "walk:1", "walk:2", "jog:0", "jog:1", "jog:2"][report["root"]]
+    # options that steer an alignment do nothing here: refused, not accepted and ignored (a docs-only trial found
+    # --root printed as "given" while the alignment's own root was scored)
+    for options, named in ((["--root", "walk:1"], "--root"), (["--max-frames", "2", "--levels", "2"],
+                                                                  "--max-frames, --levels"),
+                           (["--every", "2"], "--every"), (["--no-reach-limbs"], "--no-reach-limbs")):
+        assert main(["eval-align", str(dataset), "--aligned", str(aligned), "--out", str(tmp_path), *options]) == 2
+        assert f"error: {named}: with --aligned the output of `morphspace align` is scored as it is" in \
+            capsys.readouterr().err
     # the confidence the alignment recorded, and the tree depths it aligned along (alignment.npz)
     record = np.load(aligned / "alignment.npz")
     assert report["aligned"]["flagged_frames"] == int(np.sum(record["confidence"] < 0.5))
@@ -435,7 +455,9 @@ def test_an_unwelded_root_frame_is_welded_before_its_tetrahedra(dataset, tmp_pat
     assert main(["align", str(copy), "--out", str(out), "--workers", "1", "--levels", "2", "--root", "walk:1"]) == 0
     template = read_mesh(out / "template" / "body.obj")
     assert len(template.vertices) <= len(np.unique(V, axis=0)) < len(V)
-    assert "root walk:1" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "root walk:1" in printed and "  root: the root given: no trial or race\n" in printed
+    assert json.loads((out / "manifest.json").read_text())["alignment"]["root_reason"] == "the root given: no trial or race"
     for name in ("walk", "jog"):
         assert read_sequence(out / "sequences" / name / "consistent").vertices.shape[1] == len(template.vertices)
 
