@@ -70,6 +70,10 @@ class AlignmentOptions:
     orientation_margin : float  a rigid start facing more than 90 degrees away from the best
                                 one whose fit score is within this factor of the best's is
                                 aligned from too (front-back ambiguity, see ``_rigid_starts``)
+    ring_margin : float         the best of a ring of rigid placements (the body laid along the
+                                target's long axis, turned about it: :mod:`engine.align.ring`)
+                                is aligned from too when its score is below this factor of the
+                                upright start's (0: no ring)
     patch_coupling : float      pull between adjacent patches' rigid steps, relative to their
                                 data (0: every patch steps on its own); a patch whose data
                                 leave a motion free (a plain sleeve's twist) then moves with
@@ -109,6 +113,7 @@ class AlignmentOptions:
     patch_coupling: float = 0.0
     tet_resolution: float = 48.0
     orientation_margin: float = 1.25
+    ring_margin: float = 0.93
     match_samples: int = 3000
     match_sample_levels: int = 2
     fine_match_samples: int = 12000

@@ -34,7 +34,6 @@ from engine.align.coverage import cover_uncovered, limbs_of
 from engine.align.matching import (
     correspondence_weights,
     correspondences,
-    nearest_compatible,
     point_to_mesh_distance,
     project_onto,
     reverse_correspondences,
@@ -42,14 +41,8 @@ from engine.align.matching import (
 from engine.align.options import AlignmentOptions, PairAlignment
 from engine.align.patches import border_points, farthest_point_patches, patch_adjacency, patch_samples, search_patches
 from engine.align.reach import reach_uncovered
-from engine.align.rigid import (
-    patch_rigid_steps,
-    point_to_plane_step,
-    rodrigues,
-    rotation_fit,
-    rotation_set,
-    stack_rotations,
-)
+from engine.align.rigid import patch_rigid_steps, rodrigues, rotation_fit, rotation_set, stack_rotations
+from engine.align.ring import RING_FROM, placement_fit, refine_placement, ring_start
 from engine.align.shape_histogram import is_closed, shape_centre
 from engine.deform import DeformationSolver
 from engine.rotations import rot_y
@@ -261,21 +254,8 @@ class PairwiseAligner:
         fits = []
         for angle in candidates:
             R0 = rot_y(np.radians(angle))
-            t0 = target.centre - R0 @ centre
-            R, t = R0, t0
-            for _ in range(o.rigid_iterations):
-                P = S[sample] @ R.T + t
-                N = normals @ R.T
-                q, m, d, ok = nearest_compatible(P, N, target, o)
-                limit = max(o.outlier_factor * np.median(d[ok]) if ok.any() else np.inf, 2 * target.edge_length)
-                w = (ok & (d < limit)).astype(float)
-                if w.sum() < 6:
-                    break
-                dR, dt = point_to_plane_step(P, q, m, w)
-                R, t = dR @ R, dR @ t + dt
-            P = S[sample] @ R.T + t
-            d = target.closest(P)[1]
-            fits.append((float(np.mean(np.minimum(d, np.percentile(d, 90)))), R, t))
+            R, t = refine_placement(S[sample], normals, R0, target.centre - R0 @ centre, target, o)
+            fits.append((placement_fit(S[sample] @ R.T + t, target), R, t))
         fits.sort(key=lambda fit: fit[0])
         starts = [X @ fits[0][1].T + fits[0][2]]
         if len(fits) > 1 and fits[1][0] <= o.orientation_margin * fits[0][0]:
@@ -283,6 +263,11 @@ class PairwiseAligner:
             a, b = fits[0][1] @ front, fits[1][1] @ front
             if a[0] * b[0] + a[2] * b[2] < 0.0:  # more than 90 degrees apart about +Y
                 starts.append(X @ fits[1][1].T + fits[1][2])
+        if o.ring_margin > 0 and fits[0][0] > RING_FROM * model_size(self.V):  # laid down or turned far
+            colours = self.colors[sample] if self.colors is not None and target.colors is not None else None
+            ring = ring_start(S[sample], normals, centre, target, o, colours, fits[0][1:])
+            if ring is not None:
+                starts.append(X @ ring[0].T + ring[1])
         return starts
 
     def _match_patches(self, S, target, labels, count, use_colour, level=None, coarse=True, graph=None, reach=False):

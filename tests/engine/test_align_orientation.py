@@ -49,5 +49,5 @@ def test_a_skirted_body_is_not_turned_front_to_back(studio_frames):
     size = model_size(template.vertices)
     pair_truth = np.stack([truth["contacts"][-1], truth["strikes"][0]])
     errors, _ = score_alignment(np.stack([V, result.V]), 0, V, pair_truth, template.faces, size)
-    assert result.orientations == 2  # both ways round were aligned
+    assert result.orientations >= 2  # both ways round were aligned (and the ring's best: engine.align.ring)
     assert errors[1].mean() < 0.05 * size, f"mean error {100 * errors[1].mean() / size:.1f}% of the model size"
