@@ -228,7 +228,9 @@ def parse_root(text, sequences, lengths, label="--root"):
         name, _, frame = text.rpartition(":")
         names = [s["name"] for s in sequences]
         if name not in names:
-            raise ValueError(f"{label} {text}: no sequence {name!r}; sequences are {', '.join(names) or 'none'}")
+            only = "--only" if label.startswith("--") else "only"
+            raise ValueError(f"{label} {text}: no sequence {name!r}; sequences are {', '.join(names) or 'none'}"
+                             f" (those aligned: {only} picks them)")
         k = names.index(name)
         try:
             frame = int(frame)
@@ -610,5 +612,5 @@ def run(args):
     return 0
 
 
-__all__ = ["add_arguments", "check_root_early", "confidence_summary", "convert_inputs", "flagged_by_sequence", "frame_label", "parse_root",
-           "read_inputs", "resolve_inputs", "run", "write_alignment"]
+__all__ = ["add_arguments", "check_root_early", "confidence_summary", "convert_inputs", "flagged_by_sequence",
+           "frame_label", "parse_root", "read_inputs", "resolve_inputs", "run", "write_alignment"]

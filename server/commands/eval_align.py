@@ -496,7 +496,8 @@ def _print_report(report, out, args):
     unit = report["display_unit"]
     scale = DISPLAY_PER_METRE[unit] / 1000.0  # from the records' mm
     inputs = sorted({f"{r['units']}, {r['up']} up" for r in report["input"].values()})
-    print(f"{report['frames']} frames of {len(report['sequences'])} sequences, model size "
+    count = len(report["sequences"])
+    print(f"{report['frames']} frame{'s' * (report['frames'] != 1)} of {count} sequence{'s' * (count != 1)}, model size "
           f"{report['model_size_m']:.3f} m; input in {' / '.join(inputs)}; lengths in {unit}")
     trial = report.get("root_trial")
     if trial is None:   # said, as align says it
