@@ -49,8 +49,7 @@ class CaptureAlignment:
                         ``confidence`` (each finalist's mean) and ``winner``; None when no trial ran
     root_reason : str or None   when no trial or no race ran although ``root_choice`` asked for it,
                         why (``root`` given, or fewer than ``TRIAL_MIN_FRAMES`` frames: neither;
-                        with "auto" a densely tracked take,
-                        :func:`engine.align.root_race.neighbour_share`: no race); one line
+                        "auto" on a densely tracked take, ``root_race.neighbour_share``: no race)
     """
 
     similarity: object
@@ -188,9 +187,10 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
         candidates = trial_candidates(similarity.dissimilarity, chooser.centrality, tree.root, slack=ROOT_SLACK)
         if len(candidates) > 1:
             probes = trial_probes(len(meshes), candidates)
-            chosen, trial, tried = try_roots(meshes, candidates, probes, similarity.yaw, options=options,
-                                             use_colors=use_colors, colours=colours, seed=seed, runner=runner,
-                                             workers=workers,
+            # the probes are far steps, where the ring (engine.align.ring) would run on most: without it
+            chosen, trial, tried = try_roots(meshes, candidates, probes, similarity.yaw,
+                                             options=replace(options, ring_margin=0.0), use_colors=use_colors,
+                                             colours=colours, seed=seed, runner=runner, workers=workers,
                                              progress=(lambda d, t: progress("trial", d, t)) if progress else None)
             trial["spread_choice"] = int(tree.root)
             tets = tried[chosen]
