@@ -138,7 +138,7 @@ class PairAlignment:
                                 target's where they landed (NaN when either has no colours)
     colour_mean : float         mean of those distances (NaN without colours): what the frame's
                                 confidence reads (:mod:`engine.align.appearance`)
-    orientations : int          rigid starts aligned from (2 when front and back were ambiguous)
+    orientations : int          rigid starts aligned from (2 or 3: front and back ambiguous, the ring's best)
     pulled : int                limbs pulled onto what nothing covered (``reach_limbs``) in the
                                 alignment kept
     """

@@ -7,7 +7,8 @@ partitions and prefactors the soft-constrained volumetric solves. The hot path,
 tet vertices ``X_source``) onto another frame's unstructured surface:
 
 1. rigid start: centroids, the rotation about the vertical axis suggested by the shape
-   histograms, point-to-plane ICP;
+   histograms, point-to-plane ICP; where that fits poorly, also the best of a ring of placements
+   along the target's long axis (:mod:`engine.align.ring`);
 2. coarse to fine, with about 30 patches doubling each level: every patch is matched rigidly
    to the target (closest points with compatible normals both ways, colour cues when both
    meshes carry vertex colours, robust weights, outlier rejection), and the patch-moved
