@@ -26,7 +26,7 @@ import numpy as np
 RACE_FINALISTS = 2   # the trial's best candidates that align the capture
 RACE_FRAMES = 64     # a capture of more than twice this races an evenly spaced subset of this many frames
 TRACKED_SHARE = 0.8  # a tree with at least this share of its steps between neighbours in time is a tracked take:
-                     # no trial or race (dense takes 0.90-1.00, one frame in 9 or 14 of one: 0.05-0.16)
+                     # "auto" does not race it (dense takes 0.90-1.00, one frame in 9 or 14 of one: 0.05-0.16)
 
 
 def finalists(trial, count=RACE_FINALISTS):
@@ -57,10 +57,10 @@ def neighbour_share(parent, lengths):
     """The share of a tree's steps that join frames next to each other in one sequence.
 
     A densely captured take aligns as a chain (docs/evaluation.md, "A long take is a chain"):
-    every frame from its neighbour in time, whatever the root, and there the trial and the race
-    buy little for what they cost (the studio's dense dance and strikes slices: 0.07 and -0.02
-    points of mean error for 2.3-2.4 times the CPU). Frames far apart in time (a few of a long
-    take re-meshed) make a tree of jumps between poses, where the root's choice matters most.
+    every frame from its neighbour in time, and there the race buys nothing over the trial (on the
+    studio's dense dance and strikes slices it kept the trial's root, for 1.3-2.6 CPU s a frame
+    more). Frames far apart in time (a few of a long take re-meshed) make a tree of jumps between
+    poses, where the race has overturned the trial most.
 
     Parameters
     ----------
