@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from engine.align.appearance import colour_distance
 from engine.align.matching import nearest_compatible
 from engine.align.rigid import point_to_plane_step, rodrigues
 
@@ -65,9 +66,7 @@ def placement_score(placed, colours, target):
     colours and the target's where they land, with colours on both; else :func:`placement_fit`."""
     if colours is None or target.colors is None:
         return placement_fit(placed, target)
-    face = target.closest(placed)[2]
-    there = target.colors[target.F[face]].mean(axis=1)
-    return float(np.median(np.linalg.norm(there - colours, axis=1)))
+    return colour_distance(placed, colours, target)
 
 
 def long_axis(P):

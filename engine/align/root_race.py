@@ -96,8 +96,10 @@ def no_race_reason(parent, lengths, root_choice):
     """Why ``root_choice`` "auto" does not race the trial's finalists on this tree, or None when it
     does (and always None for "race"): a densely tracked take, :func:`neighbour_share` at least
     ``TRACKED_SHARE``, where the trial's choice stands. One line for a summary."""
+    if root_choice != "auto":
+        return None
     share = neighbour_share(parent, lengths)
-    if root_choice == "auto" and share >= TRACKED_SHARE:
+    if share >= TRACKED_SHARE:
         return (f"the trial's choice: no race on a densely tracked take ({100 * share:.0f}% of the tree's steps join "
                 "neighbours in time; `race` races it anyway)")
     return None
@@ -122,5 +124,5 @@ def sub_similarity(similarity, frames):
                    lengths=np.array([len(frames)]))
 
 
-__all__ = ["RACE_FINALISTS", "RACE_FRAMES", "TRACKED_SHARE", "finalists", "neighbour_share", "no_race_reason", "no_trial_reason",
-           "race_frames", "race_score", "sub_similarity"]
+__all__ = ["RACE_FINALISTS", "RACE_FRAMES", "TRACKED_SHARE", "finalists", "neighbour_share", "no_race_reason",
+           "no_trial_reason", "race_frames", "race_score", "sub_similarity"]

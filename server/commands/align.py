@@ -75,7 +75,7 @@ def add_arguments(parser):
                         "(default: chosen by --root-choice)")
     parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="auto",
                         help="without --root: auto (default) is race, except on a densely tracked take (80%% of the "
-                             "tree's steps or more join neighbours in time), where it is apart; "
+                             "tree's steps or more join neighbours in time), where it is trial (no race); "
                              "race runs the trial, then its two best candidates each align "
                              "the capture (a capture of more than 128 frames: 64 frames of it, evenly spaced) and the "
                              "root of the alignment with the higher mean confidence wins; "

@@ -242,11 +242,10 @@ def _frame_rows(method, errors, size, names, picks, *, depth=None, parent=None, 
     return rows
 
 
-def _frame_label(index, names, lengths, picks):
+def _frame_label(index, names, picks):
     """``SEQUENCE:FRAME`` (the capture's own frame numbering, as frames.csv's) of the ``index``-th
     frame aligned."""
-    k = int(np.searchsorted(np.cumsum(lengths), index, side="right"))
-    return f"{names[k]}:{int(picks[k][index - int(np.sum(lengths[:k]))])}"
+    return [f"{name}:{int(f)}" for name, pick in zip(names, picks) for f in pick][index]
 
 
 def _part_counts(manifest):
@@ -381,7 +380,7 @@ def run(args):
                                     part_counts=_part_counts(manifest),
                                     depth=_depth(extra, root, int(lengths.sum())))
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, root=int(root),
-                          root_frame=_frame_label(int(root), names, lengths, [np.arange(n) for n in lengths]),
+                          root_frame=_frame_label(int(root), names, [np.arange(n) for n in lengths]),
                           aligned=record, **_units_report(names, conventions))
             results = {"aligned": (vertices, faces, root_vertices)}
             frame_rows = _frame_rows("aligned", errors, size, names, [np.arange(n) for n in lengths],
@@ -411,7 +410,7 @@ def run(args):
                                       retries=args.retries, repair_budget=args.repair_budget, progress=progress)
             root = tree_run.aligned.root
             report["root"] = int(root)
-            report["root_frame"] = _frame_label(int(root), names, lengths, picks)
+            report["root_frame"] = _frame_label(int(root), names, picks)
             report["root_trial"] = tree_run.root_trial
             report["root_reason"] = tree_run.root_reason
             report["colour_cues"] = bool(tree_run.colour_cues)

@@ -121,7 +121,7 @@ class AlignJob(_Body):
     root: str | None = Field(None, max_length=200, description="root frame as SEQUENCE:FRAME or a global index")
     root_choice: Literal["auto", "race", "trial", "apart", "central"] = Field(
         "auto", description="without root: auto, race except on a densely tracked take (80% of the tree's steps or "
-                            "more join neighbours in time), where it is apart; "
+                            "more join neighbours in time), where it is trial (no race); "
                             "race, the trial's two best candidates each align the capture (or 64 "
                             "frames of one over 128) and the more confident alignment's root wins; "
                             "trial, the apart choice and up to 3 other central frames each align 6 "
