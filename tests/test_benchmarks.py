@@ -169,6 +169,7 @@ def check_export(record, stdout):
 
 def check_align_speed(record, stdout):
     assert record["dataset"] == "tiny" and record["frames"] == 6 and 900 < record["vertices_mean"] < 1100
+    assert record["every"] == 1
     assert positive(record["cpu_seconds_per_frame"]) and positive(record["aligner_cpu_seconds_per_frame"])
     assert record["aligner_cpu_seconds_per_frame"] <= record["cpu_seconds_per_frame"]
     assert {"similarity", "tree", "align", "repair"} <= set(record["stages_wall_s"])
@@ -420,13 +421,14 @@ def test_export_measures_a_graph_performance(tmp_path):
 
 
 def test_align_speed_measures_a_denser_capture(tmp_path):
-    """``align_speed.py --tiny --subdivide 1``: the tiny run's frames with every triangle split in four
-    (about 4,000 vertices), aligned and scored against the same truth."""
+    """``align_speed.py --tiny --subdivide 1 --every 2``: every other frame of the tiny run, every
+    triangle split in four (about 4,000 vertices), aligned and scored against the same truth."""
     out = tmp_path / "align_speed.json"
     run = subprocess.run([sys.executable, str(BENCHMARKS / "align_speed.py"), "--tiny", "--subdivide", "1",
-                          "--out", str(out)], cwd=tmp_path, capture_output=True, text=True, timeout=180)
+                          "--every", "2", "--out", str(out)], cwd=tmp_path, capture_output=True, text=True, timeout=180)
     assert run.returncode == 0, run.stderr[-4000:]
     record = json.loads(out.read_text())
     assert record["subdivide"] == 1 and 3600 < record["vertices_mean"] < 4400
+    assert record["every"] == 2 and record["frames"] == 6 and "every 2" in run.stdout
     assert 0 < record["mean_pct"] <= record["p95_pct"] < 100 and record["target_met"] is None
     assert "not judged (4," in run.stdout

@@ -123,9 +123,10 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                 "race" the trial's two best each align the capture (or 64 frames
                                 of one over 128), the more confident alignment wins
                                 (:mod:`engine.align.root_race`; with the tree only); "auto"
-                                (default) "race", except on a densely tracked take (a tree whose
-                                steps join neighbours in time, ``TRACKED_SHARE`` of them or
-                                more: :func:`engine.align.root_race.neighbour_share`): "trial"
+                                (default) "race", except on one densely tracked take (a single
+                                sequence whose tree's steps join neighbours in time,
+                                ``TRACKED_SHARE`` of them or more:
+                                :func:`engine.align.root_race.neighbour_share`): "trial"
     options : AlignmentOptions
     window : int                temporal filter half-width
     workers : int               processes for the dissimilarity matrix and for aligning

@@ -74,8 +74,9 @@ def add_arguments(parser):
     parser.add_argument("--root", help="root frame as SEQUENCE:FRAME or a global frame index "
                         "(default: chosen by --root-choice)")
     parser.add_argument("--root-choice", choices=ROOT_CHOICES, default="auto",
-                        help="without --root: auto (default) is race, except on a densely tracked take (80%% of the "
-                             "tree's steps or more join neighbours in time), where it is trial (no race); "
+                        help="without --root: auto (default) is race, except on one densely tracked take (a single "
+                             "sequence, 80%% of the tree's steps or more join neighbours in time), where it is trial "
+                             "(no race); "
                              "race runs the trial, then its two best candidates each align "
                              "the capture (a capture of more than 128 frames: 64 frames of it, evenly spaced) and the "
                              "root of the alignment with the higher mean confidence wins; "

@@ -120,8 +120,8 @@ class AlignJob(_Body):
     only: list[Name] | None = Field(None, max_length=256, description="only these sequences")
     root: str | None = Field(None, max_length=200, description="root frame as SEQUENCE:FRAME or a global index")
     root_choice: Literal["auto", "race", "trial", "apart", "central"] = Field(
-        "auto", description="without root: auto, race except on a densely tracked take (80% of the tree's steps or "
-                            "more join neighbours in time), where it is trial (no race); "
+        "auto", description="without root: auto, race except on one densely tracked take (a single sequence, 80% of "
+                            "the tree's steps or more join neighbours in time), where it is trial (no race); "
                             "race, the trial's two best candidates each align the capture (or 64 "
                             "frames of one over 128) and the more confident alignment's root wins; "
                             "trial, the apart choice and up to 3 other central frames each align 6 "

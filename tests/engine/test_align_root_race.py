@@ -140,6 +140,12 @@ def test_auto_does_not_race_a_densely_tracked_take_and_race_does():
     reason = no_race_reason(chain, None, "auto")
     assert reason.startswith("the trial's choice: no race on a densely tracked take (100% of the tree's steps")
     assert no_race_reason(jumps, None, "auto") is None and no_race_reason(chain, None, "race") is None
+    # two sequences, each tracked frame after frame: raced all the same (the root decides which lies near it)
+    two = np.concatenate([[-1], np.arange(14), [0], np.arange(15, 29)])   # 15 + 15 frames, one step between them
+    assert neighbour_share(two, np.array([15, 15])) >= TRACKED_SHARE
+    assert no_race_reason(two, np.array([15, 15]), "auto") is None
+    assert no_race_reason(two, np.array([30]), "auto").startswith("the trial's choice")
+    assert no_race_reason(two, np.array([30, 0]), "auto") is not None   # an empty sequence is not another take
     assert no_trial_reason(23) == "the spread's choice, `apart`: no trial or race on fewer than 24 frames"
     assert no_trial_reason(24) is None
 
