@@ -184,6 +184,8 @@ def try_roots(meshes, candidates, probes, yaw, *, options, use_colors, colours, 
         V, F, C = mesh_arrays(meshes[c], colours)
         hints = [None if yaw is None else float(yaw[p, c]) for p in probes]
         jobs.append(((V, F, C, getattr(meshes[c], "source", None)), options, use_colors, colours, seed, hints))
+    if progress is not None:
+        progress(0, len(jobs))  # the stage starts now (a candidate's set-up and probes take a while)
     if runner is not None:
         outs = runner.map(trial_task, jobs, shared=shared, progress=progress)
     else:

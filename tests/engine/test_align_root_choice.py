@@ -118,8 +118,12 @@ def test_the_trial_takes_the_candidate_whose_probes_align_best():
     # every candidate's tet mesh comes back for the alignment (and the race), and a second trial,
     # in two worker processes, is the same
     assert sorted(tets) == [0, 1] and tets[1][0].shape[1] == 3 and tets[1][1].shape[1] == 4
-    again = try_roots(frames, [0, 1], [2, 3, 4], None, options=options, use_colors=False, colours=False, workers=2)
+    # (its progress starts at 0 before the first candidate's set-up, so a bar opens when the stage does)
+    seen = []
+    again = try_roots(frames, [0, 1], [2, 3, 4], None, options=options, use_colors=False, colours=False, workers=2,
+                      progress=lambda done, total: seen.append((done, total)))
     assert again[1] == report and all(np.array_equal(again[2][c][1], tets[c][1]) for c in (0, 1))
+    assert seen[0] == (0, 2) and seen[-1] == (2, 2)
 
 
 def test_a_candidate_that_cannot_be_filled_is_null_in_the_report_and_never_taken():
