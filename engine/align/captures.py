@@ -373,8 +373,6 @@ def _with_faces(mesh, faces):
     return other
 
 
-
-
 def _apart(meshes, progress):
     """``choose_root`` for :func:`similarity_tree`: central, with the limbs apart (the
     centrality it was given kept as ``.centrality``, for the root trial)."""

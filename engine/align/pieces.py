@@ -23,6 +23,7 @@ _WORKER = {}
 COLOUR_RETRY = 2.0  # colour disagreement (in units of the root's floor) beyond which a frame ...
 COLOUR_STEP = 0.5   # ... that disagrees this much more than its parent is aligned again from other frames
 RETRY_MARGIN = 0.1  # a retry's colours must agree better by this share to win on colours alone
+RETRY_HISTORY = 10  # frames aligned before retries start (their median quality sets the retry limit)
 
 
 def init_worker(state, ticks):
@@ -112,7 +113,7 @@ def align_piece(aligner, job, tick=None):
                 start = poses[p] + job["momentum_weight"] * (poses[p] - poses[behind])
             result = aligner.align(start, target, yaw=job["hints"][i])
             spent = result.seconds
-            limit = job["retry_factor"] * np.median(qualities) if len(qualities) >= 10 else np.inf
+            limit = job["retry_factor"] * np.median(qualities) if len(qualities) >= RETRY_HISTORY else np.inf
             retried = False
             if job["similarity"] is not None and job["retries"] > 0 and (
                     result.quality > limit or _colour_slipped(result, colour_of.get(p), floor)):
