@@ -189,20 +189,24 @@ class Page:
             and s["framesDrawn"] >= start["framesDrawn"] + min(count, 2),
             timeout, f"{count} new frames")
 
-    def canvas_pixels(self, name=None):
-        """(h, w, 3) uint8 RGB of the 3D view (a screenshot of the canvas; saved under artifacts/)."""
+    def canvas_pixels(self, name=None, until=None):
+        """(h, w, 3) uint8 RGB of the 3D view (a screenshot of the canvas; saved under artifacts/).
+        ``until(rgb)``: look again (up to 8 shots) until it holds, as for a blank shot; the caller
+        still asserts on what it gets."""
         from PIL import Image
 
         for _ in range(8):  # a WebGL canvas caught between drawing-buffer swaps screenshots blank (three
-            # blank shots in a row were seen once, in a full suite run)
+            # blank shots in a row were seen once, in a full suite run), or with the floor but not the
+            # body yet (once, on CI)
             png = self.page.locator("#view").screenshot(timeout=10000)
-            if np.ptp(np.asarray(Image.open(io.BytesIO(png)).convert("L"))) > 0:
+            rgb = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+            if np.ptp(rgb) > 0 and (until is None or until(rgb)):
                 break
             self.wait_frames(2)
         if name:
             ARTIFACTS.mkdir(exist_ok=True)
             (ARTIFACTS / f"{name}.png").write_bytes(png)
-        return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+        return rgb
 
     @staticmethod
     def save_pixels(rgb, name):

@@ -52,7 +52,7 @@ def test_page_loads_streams_and_draws_without_console_errors(web_server, open_pa
                               what="a topology")
     assert set(status["spaces"]) == {"jump", "speed"}
     page.wait_frames(10)
-    rgb = page.canvas_pixels("viewer-loaded")
+    rgb = page.canvas_pixels("viewer-loaded", until=lambda rgb: character_pixels(rgb).mean() > 0.003)
     luminance = rgb.mean(axis=2)
     assert luminance.std() > 12, "the canvas is (nearly) uniform"
     assert len(np.unique(rgb.reshape(-1, 3) // 16, axis=0)) > 20, "too few distinct colours"
@@ -146,7 +146,7 @@ def test_keyboard_steering_and_the_trail(web_server, open_page):
 def test_heatmap_and_blend_mode_change_the_colours(web_server, open_page):
     page = open_page(web_server.url + "/app/?space=speed")
     page.wait_frames(5)
-    plain = page.canvas_pixels("heatmap-off")
+    plain = page.canvas_pixels("heatmap-off", until=lambda rgb: character_pixels(rgb).mean() > 0.003)
     assert character_pixels(plain).mean() > 0.003
     blue_plain = heatmap_pixels(plain).mean()  # the path line and the origin's z axis are blue too
 
@@ -156,7 +156,8 @@ def test_heatmap_and_blend_mode_change_the_colours(web_server, open_page):
                               timeout=20, what="linear frames carrying the heatmap")
     assert status["heatmap"] and status["frame"]["errorMax"] > 0, "linear blending should differ from non-linear"
     page.wait_frames(3)
-    coloured = page.canvas_pixels("heatmap-linear")
+    coloured = page.canvas_pixels("heatmap-linear",
+                                  until=lambda rgb: heatmap_pixels(rgb).mean() > max(0.003, 3 * blue_plain))
     blue_heatmap = heatmap_pixels(coloured).mean()
     assert blue_heatmap > max(0.003, 3 * blue_plain), f"no heatmap colours on the mesh ({blue_heatmap:.3%})"
     assert character_pixels(coloured).mean() < 0.5 * character_pixels(plain).mean()

@@ -88,12 +88,15 @@ def test_the_repair_budget_repairs_the_worst_frames_first_and_no_more(walk_align
     assert before[2] < 0.5 and before[3] < 0.5
     worst = 2 if before[2] < before[3] else 3
     counting = _Counting(walk_aligner)
-    # 5 frames x 0.4 = two pairwise alignments: for the worst frame only, from the root and (the
-    # frames have colours) from its own alignment turned round
+    # 5 frames x 0.4 = two pairwise alignments: the worst frame's from the root and (the frames have
+    # colours) from its own alignment turned round; the other slipped frame's do not fit. Frame 4 sits
+    # at the trusted line (0.45-0.55 as the host's floating point goes): where it is flagged, the
+    # trusted frames' colours are frame 1's alone, the worst frame is not turned round and frame 4's
+    # alignment from the root is the second. So the count and frames 0-3 are asserted, not frame 4
     assert walk_aligner.colors is not None
     repair_alignment(counting, meshes, aligned, budget=0.4, strategy="together")
     assert counting.calls == 2
-    assert aligned.repaired[worst] and not aligned.repaired[5 - worst] and not aligned.repaired[[0, 1, 4]].any()
+    assert aligned.repaired[worst] and not aligned.repaired[5 - worst] and not aligned.repaired[[0, 1]].any()
     assert aligned.confidence[5 - worst] < 0.5  # left flagged, not silently passed
 
 
