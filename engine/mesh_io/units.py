@@ -220,8 +220,9 @@ class Convention:
             on, other = self.floor if self.up == "y" else self.floor[::-1]
             up += f": on a floor in {on:.0%} of the frames, against {other:.0%} along the other axis"
         elif np.isfinite(self.up_ratio) and self.up_ratio > 0:
-            ratio = max(self.up_ratio, 1 / self.up_ratio)
-            up += f": height / depth {ratio:.2g}" if ratio < 1e3 else ": the model is flat along one axis"
+            # the extent along the up axis over the other's: below 1 when a given axis is the shorter
+            ratio = self.up_ratio if self.up == "y" else 1 / self.up_ratio
+            up += f": height / depth {ratio:.2g}" if 1e-3 < ratio < 1e3 else ": the model is flat along one axis"
         return f"{units}), {up})"
 
     def to_metadata(self):

@@ -168,7 +168,7 @@ def _truth_in_metres(parts, conventions):
 
 def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, lengths, names, *, residual=None,
            residual_max=None, seconds=None, retried=None, cpu_seconds=None, confidence=None, repaired=None,
-           part_counts=None, depth=None, pulled=None):
+           part_counts=None, depth=None, pulled=None, frame_labels=None):
     errors, summary = score_alignment(aligned_vertices, root, root_vertices, truth, faces, size)
     frames = len(aligned_vertices)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -211,6 +211,9 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
                                     confidence=confidence, trusted=TRUSTED)
         breakdown.pop("mean_pct")
         breakdown.pop("p95_pct")
+        if frame_labels is not None:  # the global index and the capture's own SEQUENCE:FRAME, as frames.csv's
+            for entry in breakdown["worst_frames"]:
+                entry["label"] = frame_labels[entry["frame"]]
         record["breakdown"] = breakdown
     return record, errors
 
@@ -242,10 +245,24 @@ def _frame_rows(method, errors, size, names, picks, *, depth=None, parent=None, 
     return rows
 
 
+def _frame_labels(names, picks):
+    """``SEQUENCE:FRAME`` (the capture's own frame numbering, as frames.csv's) of every frame
+    aligned, in the global order."""
+    return [f"{name}:{int(f)}" for name, pick in zip(names, picks) for f in pick]
+
+
 def _frame_label(index, names, picks):
-    """``SEQUENCE:FRAME`` (the capture's own frame numbering, as frames.csv's) of the ``index``-th
-    frame aligned."""
-    return [f"{name}:{int(f)}" for name, pick in zip(names, picks) for f in pick][index]
+    """``SEQUENCE:FRAME`` of the ``index``-th frame aligned."""
+    return _frame_labels(names, picks)[index]
+
+
+def _recorded_root_reason(directory):
+    """The ``root_reason`` an align output's manifest records (``alignment.root_reason``), or None."""
+    try:
+        recorded = json.loads((directory / "manifest.json").read_text()).get("alignment", {}).get("root_reason")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return recorded if isinstance(recorded, str) else None
 
 
 def _part_counts(manifest):
@@ -378,10 +395,14 @@ def run(args):
                                     cpu_seconds=extra.get("cpu_seconds"), confidence=extra.get("confidence"),
                                     repaired=extra.get("repaired"), pulled=extra.get("pulled"),
                                     part_counts=_part_counts(manifest),
-                                    depth=_depth(extra, root, int(lengths.sum())))
+                                    depth=_depth(extra, root, int(lengths.sum())),
+                                    frame_labels=_frame_labels(names, [np.arange(n) for n in lengths]))
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, root=int(root),
                           root_frame=_frame_label(int(root), names, [np.arange(n) for n in lengths]),
                           aligned=record, **_units_report(names, conventions))
+            reason = _recorded_root_reason(args.aligned)
+            if reason:  # why the alignment ran no trial or race, as it recorded
+                report["root_reason"] = reason
             results = {"aligned": (vertices, faces, root_vertices)}
             frame_rows = _frame_rows("aligned", errors, size, names, [np.arange(n) for n in lengths],
                                      depth=_depth(extra, root, int(lengths.sum())), parent=extra.get("parent"),
@@ -441,7 +462,8 @@ def run(args):
                                         lengths, names, residual=a.residual, residual_max=a.residual_max,
                                         seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds,
                                         confidence=a.confidence, repaired=a.repaired, pulled=a.pulled,
-                                        part_counts=_part_counts(manifest), depth=result.tree.depth)
+                                        part_counts=_part_counts(manifest), depth=result.tree.depth,
+                                        frame_labels=_frame_labels(names, picks))
                 report[method] = {**report.get(method, {}), **record}
                 results[method] = (a.vertices, a.faces, a.root_vertices)
                 frame_rows += _frame_rows(method, errors, size, names, picks, depth=result.tree.depth, parent=a.parent,

@@ -157,3 +157,13 @@ def test_a_floor_needs_frames_and_a_subject_that_travels(walk):
     airborne = lows.copy()
     airborne[:12, 0] += 0.4  # off the floor in most frames: no floor either way
     assert detect_floor(airborne, 1.7)[0] is None
+
+
+def test_the_line_gives_the_extent_along_the_up_axis_over_the_other():
+    """A given up axis that is the shorter extent shows a ratio below 1 (it said 2 for a body
+    twice as long along Z when told Y is up: a docs-only trial found it)."""
+    from engine.mesh_io.units import Convention
+
+    assert "height / depth 0.5" in Convention(up="y", up_from="given", up_ratio=0.5).describe()
+    assert "height / depth 2" in Convention(up="z", up_from="given", up_ratio=0.5).describe()
+    assert "height / depth 3" in Convention(up="y", up_from="detected", up_ratio=3.0).describe()

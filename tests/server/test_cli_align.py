@@ -215,6 +215,10 @@ def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
         assert [(r["sequence"], int(r["frame"])) for r in mine] == [(s, f) for s in ("walk", "jog") for f in range(3)]
         worst = max(mine, key=lambda r: float(r["mean_pct"]))
         assert abs(float(worst["mean_pct"]) - report[method]["worst_frame_mean_pct"]) < 1e-3
+        for entry in report[method]["breakdown"]["worst_frames"]:  # the global index and the files' SEQUENCE:FRAME
+            row = mine[entry["frame"]]
+            assert entry["label"] == f"{row['sequence']}:{row['frame']}"
+            assert abs(float(row["mean_pct"]) - entry["mean_pct"]) < 1e-3
         roots = [r for r in mine if r["parent"] == ""]
         assert len(roots) == 1 and roots[0]["depth"] == "0" and float(roots[0]["mean_pct"]) < 0.05
         assert all(r["parent"].split(":")[0] in ("walk", "jog") for r in mine if r["parent"])
@@ -251,6 +255,8 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
                  "--json", "--workers", "1", "--repair-budget", "0"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["every"] == 2 and report["frames"] == 4 and report["tree"]["frames"] == 4
+    kept = ["walk:0", "walk:2", "jog:0", "jog:2"]  # the worst frames are named by the files' numbers, not the kept ones'
+    assert all(entry["label"] == kept[entry["frame"]] for entry in report["tree"]["breakdown"]["worst_frames"])
     assert report["root_trial"] is None and "root_trial_seconds" not in report  # 4 frames: no trial
     assert report["tree"]["mean_pct"] < 2.0
     assert report["tree"]["repair_budget"] == 0 and report["tree"]["repaired_frames"] == 0
@@ -313,6 +319,8 @@ def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, cap
     assert report["aligned"]["mean_pct"] < 1.5
     assert report["root"] == int(np.load(aligned / "alignment.npz")["root"]) and "every" not in report
     assert report["root_frame"] == ["walk:0", "walk:1", "walk:2", "jog:0", "jog:1", "jog:2"][report["root"]]
+    recorded = json.loads((aligned / "manifest.json").read_text())["alignment"]["root_reason"]
+    assert recorded and report["root_reason"] == recorded  # why no trial ran, as the align output records it
     # options that steer an alignment do nothing here: refused, not accepted and ignored (a docs-only trial found
     # --root printed as "given" while the alignment's own root was scored)
     for options, named in ((["--root", "walk:1"], "--root"), (["--max-frames", "2", "--levels", "2"],
@@ -332,9 +340,11 @@ def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, cap
     breakdown = report["aligned"]["breakdown"]
     assert set(breakdown["confidence"]) == {"over_2pct", "over_3pct"}
     assert sum(row["frames"] for row in breakdown["per_depth"]) == report["frames"] - 1
-    assert all({"depth", "confidence"} <= set(row) for row in breakdown["worst_frames"])
+    assert all({"depth", "confidence", "label"} <= set(row) for row in breakdown["worst_frames"])
     import csv
     rows = list(csv.DictReader((tmp_path / "frames.csv").open()))
+    assert all(row["label"] == f"{rows[row['frame']]['sequence']}:{rows[row['frame']]['frame']}"
+               for row in breakdown["worst_frames"])
     assert len(rows) == report["frames"] and {r["method"] for r in rows} == {"aligned"}
     assert [float(r["confidence"]) for r in rows] == pytest.approx(record["confidence"].tolist(), abs=1e-4)
     assert sum(r["repaired"] == "1" for r in rows) == report["aligned"]["repaired_frames"]
