@@ -199,6 +199,10 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         reference within margin * epsilon, or no further off than it was
         (``prune_corrections``). Same tree, fewer entries.
     progress : callable(message) or None
+        called after every cell tested (split or kept as a leaf) and, while pruning, after every
+        test point checked: the exact blends they need are the stage's cost, so a bar on it moves
+        through all of it (it moved only on splits and stood still for minutes once the
+        references' cap stopped them)
 
     Returns
     -------
@@ -307,6 +311,8 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
                          f"{len(tree.references) - n_sources} references")
         else:
             leaf_errors.append((int(node), worst))
+            if progress is not None:
+                progress(f"cell {node} kept (depth {depth}, test error {worst * 1000:.1f} mm)")
     corrections = store.finish()
     if prune and uniform_depth is None:
         # Where the bound is checked: the leaves' test points, and every reference (the bisection
@@ -314,7 +320,8 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         checked = [(node, w) for node, _ in leaf_errors for w in points_in(node)]
         checked += [(-1, w) for w in tree.references[n_sources:]]
         corrections, worst = prune_corrections(tree, corrections, [w for _, w in checked], linear, exact,
-                                               margin * epsilon, leaf=[node for node, _ in checked])
+                                               margin * epsilon, leaf=[node for node, _ in checked],
+                                               progress=progress)
         leaf_errors = [(node, worst.get(node, 0.0)) for node, _ in leaf_errors]
     new = len(tree.references) - n_sources
     report = HybridReport(
@@ -344,7 +351,7 @@ def path_weights(tree, weights):
     return out
 
 
-def prune_corrections(tree, corrections, test_weights, linear, exact, bound, leaf=None):
+def prune_corrections(tree, corrections, test_weights, linear, exact, bound, leaf=None, progress=None):
     """Drop stored entries the bound does not need.
 
     An entry (reference r, phase p, vertex v) is dropped when, without it, the hybrid is still
@@ -361,6 +368,7 @@ def prune_corrections(tree, corrections, test_weights, linear, exact, bound, lea
     bound : float
     leaf : (T,) int list or None        the leaf each test weight reports to (-1: none; default
                                         the leaf containing it)
+    progress : callable(message) or None   called after each test weight's error is measured
 
     Returns
     -------
@@ -385,6 +393,8 @@ def prune_corrections(tree, corrections, test_weights, linear, exact, bound, lea
         error[t] = np.asarray(linear(w), dtype=np.float64) - exact(w)
         for r in np.flatnonzero(phi[t]):
             error[t] += phi[t, r] * corrections.dense(r)
+        if progress is not None:
+            progress(f"pruning: test point {t + 1} of {len(test_weights)} measured")
     limit = np.maximum(np.float32(bound), np.linalg.norm(error, axis=3).max(axis=(1, 2)))
     keep = np.ones(len(corrections.vertex), dtype=bool)
     for r in range(R - 1, -1, -1):

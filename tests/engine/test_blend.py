@@ -121,6 +121,27 @@ def test_hybrid_is_within_epsilon_of_nonlinear_on_a_weight_grid(space3, n_source
                for w in weights) > 3 * epsilon
 
 
+def test_the_hybrid_reports_every_cell_tested_and_every_pruning_check(space3):
+    """The bisection's progress moves on every cell it tests, not only on splits: a build whose
+    references hit their cap tested cells for minutes with its bar standing still."""
+    sources, linear, nonlinear = space3
+    messages = []
+    tree, _, report = build_hybrid(linear.blend_all_phases, nonlinear.blend_all_phases, 3, P, sources.shape[2],
+                                   epsilon=0.008, progress=messages.append)
+    splits = [m for m in messages if m.startswith("split cell")]
+    kept = [m for m in messages if " kept " in m]
+    pruning = [m for m in messages if m.startswith("pruning")]
+    assert len(splits) >= report.references >= 1
+    assert len(kept) >= report.leaves  # every final leaf was tested once and kept
+    assert pruning and pruning[-1].endswith(f"{len(pruning)} of {len(pruning)} measured")
+    assert len(messages) == len(splits) + len(kept) + len(pruning)
+    # with the cap reached at once, no cell splits and every test still shows
+    messages.clear()
+    _, _, capped = build_hybrid(linear.blend_all_phases, nonlinear.blend_all_phases, 3, P, sources.shape[2],
+                                epsilon=0.008, max_references=0, progress=messages.append)
+    assert capped.references == 0 and any(" kept " in m for m in messages)
+
+
 def test_hierarchical_corrections_equal_nodal_interpolation(space3):
     """The hot path's sum over split nodes equals eq. 3's interpolation in the leaf."""
     sources, linear, nonlinear = space3
