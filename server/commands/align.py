@@ -578,11 +578,11 @@ def run(args):
     aligned = result.aligned
     t = result.timings
     frames = int(lengths.sum())
-    print(f"aligned {frames} frames of {len(sequences)} sequence{'s' if len(sequences) != 1 else ''} to {out} in {time.perf_counter() - started:.1f} s "
+    print(f"aligned {frames} frame{'s' * (frames != 1)} of {len(sequences)} sequence{'s' if len(sequences) != 1 else ''} to {out} in {time.perf_counter() - started:.1f} s "
           f"({result.method}, root {frame_label(aligned.root, sequences, lengths)} = frame {aligned.root}, "
           f"{len(aligned.root_vertices)} vertices)")
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
-          f"{result.tree.components} components reconnected), "
+          f"{result.tree.components} component{'s' * (result.tree.components != 1)} reconnected), "
           + (f"root trial {t['trial']:.1f} s, " if "trial" in t else "")
           + (f"root race {t['race']:.1f} s, " if "race" in t else "") + f"tetrahedralise {t['tetrahedralize']:.1f} s, "
           f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "
@@ -605,7 +605,8 @@ def run(args):
         print(f"  root: {result.root_reason}")
     if result.turned:
         shown = [frame_label(i, sequences, lengths) for i in sorted(result.turned)]
-        print(f"  faces wound inward (or mixed) turned outward in {len(shown)} frames: {', '.join(shown[:6])}"
+        print(f"  faces wound inward (or mixed) turned outward in {len(shown)} frame{'s' * (len(shown) != 1)}: "
+              f"{', '.join(shown[:6])}"
               + (", ..." if len(shown) > 6 else ""))
     print(f"  confidence: {confidence['repaired_frames']} frames repaired (aligned again from the root or trusted "
           f"frames), {confidence['flagged_frames']} of {frames} still below {TRUSTED} (listed per sequence in "

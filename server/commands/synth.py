@@ -278,18 +278,19 @@ class worker_pool:
         return False
 
 
-def run_jobs(pool, function, jobs, desc="synth", total=None, per_job=False):
+def run_jobs(pool, function, jobs, desc="synth", total=None, per_job=False, unit="frame"):
     """Run ``function(job)`` for every job on the pool with one progress bar; results in job order.
 
     Jobs report progress through ``report(name, done, total)``; the bar sums over the names
     (its length is ``total`` when known beforehand, else the sum of the reported totals). With
     ``per_job`` the bar counts finished jobs instead (its length known from the start, where the
     jobs' own totals are not: a sequence's frame count is known once its motion is made), and the
-    reports show as the bar's note.
+    reports show as the bar's note; else the bar counts ``unit`` and its note is the name last
+    reported.
     """
     if per_job:
         total = len(jobs)
-    bar = tqdm(total=total or 0, unit="sequence" if per_job else "frame", desc=desc, dynamic_ncols=True,
+    bar = tqdm(total=total or 0, unit="sequence" if per_job else unit, desc=desc, dynamic_ncols=True,
                mininterval=0.5)
     seen = {}
     futures = {pool.pool.submit(function, job): i for i, job in enumerate(jobs)}

@@ -85,7 +85,7 @@ def _reconstruct(job):
     V = np.load(f"{work}.npy", mmap_mode="r")
     heads = np.load(f"{work}-heads.npy")
     frames = range(job["start"], job["stop"])
-    label = f"{spec.name} {job['start']}"
+    label = f"{spec.name} frames {job['start']}-{job['stop'] - 1}"  # (one name per chunk: the bar sums over them)
     meshes, stats = reconstruct_frames(body, V, heads, job["camera"], seed=job["seed"], frames=frames,
                                        progress=lambda done, total: report(label, done, total))
     base = sequence_dir(job["root"], spec.name) / "unstructured"
@@ -167,7 +167,7 @@ def run_studio(args, preset):
                 meta["noise_mm"] = 1000.0 * camera.noise
                 _write_json(sequence_dir(staging, meta["name"]) / "meta.json", meta)
             if not args.no_previews:
-                run_jobs(pool, _preview, jobs, desc="previews", total=len(jobs))
+                run_jobs(pool, _preview, jobs, desc="previews", total=len(jobs), unit="preview")
         shutil.rmtree(staging / ".work", ignore_errors=True)
         manifest = {
             "preset": preset.name, "seed": args.seed, "fps": fps, "noise_mm": 1000.0 * camera.noise,

@@ -534,7 +534,7 @@ def test_a_frame_wound_inward_is_turned_outward_and_aligns_as_the_others(dataset
     write_ply(path, mesh.vertices, mesh.faces[:, ::-1], colors=mesh.colors, dtype=np.float64)
     out = tmp_path / "out"
     assert main(["align", str(copy), "--out", str(out), "--workers", "1", "--levels", "3"]) == 0
-    assert "turned outward in 1 frames: jog:2" in capsys.readouterr().out
+    assert "turned outward in 1 frame: jog:2" in capsys.readouterr().out
     for name in ("walk", "jog"):
         ours = read_sequence(out / "sequences" / name / "consistent")
         theirs = read_sequence(aligned / "sequences" / name / "consistent")

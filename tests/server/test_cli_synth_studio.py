@@ -37,6 +37,16 @@ def test_the_animate_bar_counts_sequences_and_its_length_never_changes(studio_ru
     assert {total for _, total in shown} == {"3"} and shown[-1] == ("3", "3"), shown
 
 
+def test_the_reconstruct_bar_names_the_frames_and_the_previews_bar_counts_previews(studio_run):
+    """The reconstruct bar's note named each chunk by its first frame ("walk 0" all along on a
+    short take); the previews bar counted "frames" (a docs-only trial found both)."""
+    err = studio_run[1].replace("\r", "\n")
+    notes = set(re.findall(r"reconstruct:[^\n]*\b(\w+ frames \d+-\d+)\]", err))
+    assert notes and all(int(n.split()[-1].split("-")[0]) <= int(n.split("-")[-1]) for n in notes), err[-2000:]
+    previews = re.findall(r"previews:[^\n]*\s(\d+)/(\d+) \[[^\n]*(?:s/preview|preview/s)", err)
+    assert previews and previews[-1] == ("3", "3"), err[-2000:]
+
+
 def test_layout_manifest_and_declared_units(studio):
     manifest = read_capture_manifest(studio)
     assert manifest["preset"] == "studio-tiny" and manifest["consistent_format"] == "ply"
