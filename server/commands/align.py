@@ -578,7 +578,8 @@ def run(args):
     aligned = result.aligned
     t = result.timings
     frames = int(lengths.sum())
-    print(f"aligned {frames} frame{'s' * (frames != 1)} of {len(sequences)} sequence{'s' if len(sequences) != 1 else ''} to {out} in {time.perf_counter() - started:.1f} s "
+    print(f"aligned {frames} frame{'s' * (frames != 1)} of {len(sequences)} sequence{'s' * (len(sequences) != 1)} "
+          f"to {out} in {time.perf_counter() - started:.1f} s "
           f"({result.method}, root {frame_label(aligned.root, sequences, lengths)} = frame {aligned.root}, "
           f"{len(aligned.root_vertices)} vertices)")
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "

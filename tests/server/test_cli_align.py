@@ -255,7 +255,7 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
                  "--json", "--workers", "1", "--repair-budget", "0"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["every"] == 2 and report["frames"] == 4 and report["tree"]["frames"] == 4
-    kept = ["walk:0", "walk:2", "jog:0", "jog:2"]  # the worst frames are named by the files' numbers, not the kept ones'
+    kept = ["walk:0", "walk:2", "jog:0", "jog:2"]  # worst frames: named by the files' numbers, not the kept ones'
     assert all(entry["label"] == kept[entry["frame"]] for entry in report["tree"]["breakdown"]["worst_frames"])
     assert report["root_trial"] is None and "root_trial_seconds" not in report  # 4 frames: no trial
     assert report["tree"]["mean_pct"] < 2.0
