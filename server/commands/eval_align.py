@@ -251,17 +251,19 @@ def _frame_labels(names, picks):
     return [f"{name}:{int(f)}" for name, pick in zip(names, picks) for f in pick]
 
 
-def _frame_label(index, names, picks):
-    """``SEQUENCE:FRAME`` of the ``index``-th frame aligned."""
-    return _frame_labels(names, picks)[index]
+def _read_record(path):
+    """A JSON object from ``path``; {} when the file is missing, unreadable or not an object."""
+    try:
+        record = json.loads(path.read_text()) if path.is_file() else {}
+    except (OSError, ValueError):
+        record = {}
+    return record if isinstance(record, dict) else {}
 
 
 def _recorded_root_reason(directory):
     """The ``root_reason`` an align output's manifest records (``alignment.root_reason``), or None."""
-    try:
-        recorded = json.loads((directory / "manifest.json").read_text()).get("alignment", {}).get("root_reason")
-    except (OSError, ValueError, AttributeError):
-        return None
+    alignment = _read_record(directory / "manifest.json").get("alignment")
+    recorded = alignment.get("root_reason") if isinstance(alignment, dict) else None
     return recorded if isinstance(recorded, str) else None
 
 
@@ -288,17 +290,10 @@ def _truth_conventions(dataset, manifest, aligned, names, parts, units, up):
     """Units and up axis of each sequence's ground truth, for scoring an earlier alignment: as
     given, else detected on the truth, else what the sequence's meta.json, the alignment's
     record of its input and the dataset manifest say."""
-    def read(path):
-        try:
-            record = json.loads(path.read_text()) if path.is_file() else {}
-        except (OSError, ValueError):
-            record = {}
-        return record if isinstance(record, dict) else {}
-
     conventions = []
     for name, positions in zip(names, parts):
-        recorded = read(aligned / "sequences" / name / "meta.json").get("alignment") or {}
-        declared = declared_convention([read(dataset / "sequences" / name / "meta.json"),
+        recorded = _read_record(aligned / "sequences" / name / "meta.json").get("alignment") or {}
+        declared = declared_convention([_read_record(dataset / "sequences" / name / "meta.json"),
                                         {"units": recorded.get("source_units"), "up": recorded.get("source_up")},
                                         manifest.get("body")])
         conventions.append(resolve_convention(positions, units, up, declared_units=declared[0],
@@ -383,7 +378,9 @@ def run(args):
             dataset_names = [s["name"] for s in manifest.get("sequences", [])]
             vertices, faces, root, root_vertices, names, lengths, extra = _load_aligned(args.aligned, dataset_names)
             sequences = [{"name": n} for n in names]
-            parts, template_faces = _truth(dataset, sequences, [np.arange(n) for n in lengths], lengths)
+            every_frame = [np.arange(n) for n in lengths]  # an align output keeps every frame
+            labels, depth = _frame_labels(names, every_frame), _depth(extra, root, int(lengths.sum()))
+            parts, template_faces = _truth(dataset, sequences, every_frame, lengths)
             # the ground truth is in the files' units and axes; the aligned frames in metres, +Y up
             conventions = _truth_conventions(dataset, manifest, args.aligned, names, parts, args.units, args.up)
             say_conventions(conventions, names, _say_line, what="ground truth")
@@ -394,18 +391,15 @@ def run(args):
                                     seconds=extra.get("seconds"), retried=extra.get("retried"),
                                     cpu_seconds=extra.get("cpu_seconds"), confidence=extra.get("confidence"),
                                     repaired=extra.get("repaired"), pulled=extra.get("pulled"),
-                                    part_counts=_part_counts(manifest),
-                                    depth=_depth(extra, root, int(lengths.sum())),
-                                    frame_labels=_frame_labels(names, [np.arange(n) for n in lengths]))
+                                    part_counts=_part_counts(manifest), depth=depth, frame_labels=labels)
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, root=int(root),
-                          root_frame=_frame_label(int(root), names, [np.arange(n) for n in lengths]),
-                          aligned=record, **_units_report(names, conventions))
+                          root_frame=labels[int(root)], aligned=record, **_units_report(names, conventions))
             reason = _recorded_root_reason(args.aligned)
             if reason:  # why the alignment ran no trial or race, as it recorded
                 report["root_reason"] = reason
             results = {"aligned": (vertices, faces, root_vertices)}
-            frame_rows = _frame_rows("aligned", errors, size, names, [np.arange(n) for n in lengths],
-                                     depth=_depth(extra, root, int(lengths.sum())), parent=extra.get("parent"),
+            frame_rows = _frame_rows("aligned", errors, size, names, every_frame, depth=depth,
+                                     parent=extra.get("parent"),
                                      confidence=extra.get("confidence"), repaired=extra.get("repaired"))
         else:
             sequences = resolve_inputs([dataset], args.only)
@@ -431,7 +425,8 @@ def run(args):
                                       retries=args.retries, repair_budget=args.repair_budget, progress=progress)
             root = tree_run.aligned.root
             report["root"] = int(root)
-            report["root_frame"] = _frame_label(int(root), names, picks)
+            labels = _frame_labels(names, picks)
+            report["root_frame"] = labels[int(root)]
             report["root_trial"] = tree_run.root_trial
             report["root_reason"] = tree_run.root_reason
             report["colour_cues"] = bool(tree_run.colour_cues)
@@ -463,7 +458,7 @@ def run(args):
                                         seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds,
                                         confidence=a.confidence, repaired=a.repaired, pulled=a.pulled,
                                         part_counts=_part_counts(manifest), depth=result.tree.depth,
-                                        frame_labels=_frame_labels(names, picks))
+                                        frame_labels=labels)
                 report[method] = {**report.get(method, {}), **record}
                 results[method] = (a.vertices, a.faces, a.root_vertices)
                 frame_rows += _frame_rows(method, errors, size, names, picks, depth=result.tree.depth, parent=a.parent,

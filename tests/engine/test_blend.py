@@ -126,8 +126,8 @@ def test_the_hybrid_reports_every_cell_tested_and_every_pruning_check(space3):
     references hit their cap tested cells for minutes with its bar standing still."""
     sources, linear, nonlinear = space3
     messages = []
-    tree, _, report = build_hybrid(linear.blend_all_phases, nonlinear.blend_all_phases, 3, P, sources.shape[2],
-                                   epsilon=0.008, progress=messages.append)
+    _, _, report = build_hybrid(linear.blend_all_phases, nonlinear.blend_all_phases, 3, P, sources.shape[2],
+                                epsilon=0.008, progress=messages.append)
     splits = [m for m in messages if m.startswith("split cell")]
     kept = [m for m in messages if " kept " in m]
     pruning = [m for m in messages if m.startswith("pruning")]
