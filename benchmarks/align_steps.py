@@ -23,8 +23,13 @@ it).
 segment (the joint that owns it, from the dataset's ``template/body.npz``) of the template
 vertex it lies nearest on the true surface, and a segment's error is its vertices' mean
 (``lowerarm_r 31.2%``: the right forearm did not follow a punch).
+``--oracle-pull NAMES`` (comma separated parts of skeleton segment names, ``arm,hand``) also aligns
+each pair with the pairwise aligner directly (its own rigid start), then pulls the root vertices
+of those segments onto their true places (the aligner's own solve, the rest of the surface held
+where the alignment left it) and fits again from there: whether a part put in its place stays
+there through the fit (the studio dance's arms do; its hands alone do not).
 ``--tiny`` (the test suite's smoke run) needs no dataset: two pairs of the generator's 1,000-vertex
-run at 15 fps, small alignment settings, one part, the oracle included; ``--out`` is required.
+run at 15 fps, small alignment settings, one part, the oracles included (the tiny rig's elbows and wrists pulled); ``--out`` is required.
 """
 
 from __future__ import annotations
@@ -40,7 +45,8 @@ from _tiny import emit, parse_arguments
 from align_breakdown import parse_options, part_counts
 from align_speed import load_frames
 
-TINY = {"pairs": "0:1,3:2", "options": ["patches=8", "levels=2"], "oracle_rigid": True, "segments": 3}
+TINY = {"pairs": "0:1,3:2", "options": ["patches=8", "levels=2"], "oracle_rigid": True, "segments": 3,
+        "oracle_pull": "elbow,wrist"}
 
 
 def parse_pairs(text, every, frames):
@@ -90,19 +96,15 @@ def worst_segments(pct, root_vertices, truth_root, faces, segment, names, count)
     return {name: round(value, 3) for name, value in worst}
 
 
-def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
-    """B aligned from A's true rigid placement and from its true pose: (aligned from the placement,
-    the placement alone, aligned from the true pose, the true pose alone, the true positions in B
-    of A's vertices)."""
+def _pair_aligner(mesh_a, mesh_b, truth_ab, faces, options):
+    """The pairwise aligner of A (colour cues as ``align_captures`` gives them), B's target surface,
+    A's vertices and their true positions in B."""
     from dataclasses import replace
-
-    import numpy as np
 
     from engine.align.captures import COLOUR_WEIGHT
     from engine.align.evaluation import surface_coordinates, true_positions
     from engine.align.matching import TargetSurface
     from engine.align.pairwise import PairwiseAligner
-    from engine.align.rigid import kabsch, rotation_fit
     from engine.surface import main_components
 
     V, F, kept = main_components(mesh_a.vertices, mesh_a.faces)
@@ -112,17 +114,62 @@ def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
     aligner = PairwiseAligner(V, F, colours, options=options)
     target = TargetSurface(mesh_b.vertices, mesh_b.faces, mesh_b.colors)
     face, bary, _ = surface_coordinates(V, truth_ab[0], faces)
-    true = true_positions(truth_ab[1:2], faces, face, bary)[0]
+    return aligner, target, V, true_positions(truth_ab[1:2], faces, face, bary)[0]
+
+
+def _pull(aligner, X, goal, confidence):
+    """The root's solid carried towards per-vertex goals by the aligner's own as-rigid-as-possible
+    solve (its final stiffness, ten rounds), rotations first fitted to the pose ``X``."""
+    from engine.align.rigid import rotation_fit
+
+    rotations = rotation_fit(aligner._gradients(X), aligner._eye, iterations=8)
+    solver = aligner._solvers[aligner.options.final_stiffness]
+    for _ in range(10):
+        X, rotations = aligner._deform(X, rotations, solver, goal, confidence)
+    return X
+
+
+def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
+    """B aligned from A's true rigid placement and from its true pose: (aligned from the placement,
+    the placement alone, aligned from the true pose, the true pose alone, the true positions in B
+    of A's vertices)."""
+    import numpy as np
+
+    from engine.align.rigid import kabsch
+
+    aligner, target, V, true = _pair_aligner(mesh_a, mesh_b, truth_ab, faces, options)
     R, t = kabsch(V, true, np.ones(len(V)))
     X = aligner.V_tet @ R.T + t
     result = aligner._fit(X, target)
     # the true pose: the root's solid pulled onto the true positions by the aligner's own solve
-    rotations = rotation_fit(aligner._gradients(X), aligner._eye, iterations=8)
-    solver = aligner._solvers[aligner.options.final_stiffness]
-    for _ in range(10):
-        X, rotations = aligner._deform(X, rotations, solver, true, np.ones(len(true)))
+    X = _pull(aligner, X, true, np.ones(len(true)))
     from_pose = aligner._fit(X, target)
     return result.V, V @ R.T + t, from_pose.V, aligner.surface(X), true
+
+
+def oracle_pull(mesh_a, mesh_b, truth_ab, faces, size, options, segment, names, patterns):
+    """B aligned by the pairwise aligner as it runs (its own rigid start), then the parts whose
+    skeleton segment names contain one of ``patterns`` pulled onto their true places (the rest of
+    the surface held where the alignment left it), then fitted again from there: does a part put
+    in its place stay there? Returns {key: % of the model size} and the pulled vertices' count."""
+    import numpy as np
+
+    from engine.align.evaluation import nearest_template_vertices
+
+    aligner, target, V, true = _pair_aligner(mesh_a, mesh_b, truth_ab, faces, options)
+    owner = segment[nearest_template_vertices(V, truth_ab[0], faces)]
+    chosen = [k for k, name in enumerate(names) if any(p in name for p in patterns)]
+    part = np.isin(owner, chosen)
+    result = aligner.align(aligner.V_tet, target)
+    X = _pull(aligner, result.X, np.where(part[:, None], true, result.V), np.ones(len(true)))
+    pulled = aligner.surface(X)
+    refit = aligner._fit(X, target)
+    out = {}
+    for key, W in (("as_aligned", result.V), ("pulled", pulled), ("pulled_fit", refit.V)):
+        error = 100.0 * np.linalg.norm(W - true, axis=1) / size
+        out[f"{key}_pct"] = round(float(error.mean()), 3)
+        out[f"{key}_parts_pct"] = round(float(error[part].mean()), 3) if part.any() else 0.0
+    return out, int(part.sum())
 
 
 def main(argv=None):
@@ -137,6 +184,9 @@ def main(argv=None):
                         help="an AlignmentOptions field (repeatable)")
     parser.add_argument("--segments", type=int, default=0, metavar="K",
                         help="also list each pair's K worst skeleton segments (from the dataset's rig)")
+    parser.add_argument("--oracle-pull", default="", metavar="NAMES",
+                        help="also pull the parts whose skeleton segment names contain one of these (comma "
+                             "separated, e.g. arm,hand) onto their true places after the alignment, and fit again")
     parser.add_argument("--tiny", action="store_true", help="the test suite's smoke run (no dataset)")
     parser.add_argument("--out", type=Path, help="write the JSON here too")
     args = parse_arguments(parser, argv, TINY)
@@ -156,7 +206,9 @@ def main(argv=None):
     if not pairs:
         parser.error("no pairs: give --pairs or --every")
     parts = None if args.tiny else part_counts(args.dataset, False)
-    segment, joint_names = template_segments(args.dataset, args.tiny) if args.segments > 0 else (None, None)
+    patterns = [p for p in args.oracle_pull.split(",") if p]
+    segment, joint_names = (template_segments(args.dataset, args.tiny) if args.segments > 0 or patterns
+                            else (None, None))
     names = list(parts) if parts else ["all"]
     load_before = os.getloadavg()
     cpu_started = time.process_time()
@@ -172,7 +224,7 @@ def main(argv=None):
         row = {"pair": [a, b], "mean_pct": round(float(pct.mean()), 3),
                "parts_pct": {name: round(float(pct[labels == k].mean()), 3) for k, name in enumerate(names)
                              if np.any(labels == k)}}
-        if segment is not None:
+        if args.segments > 0:
             row["worst_segments_pct"] = worst_segments(pct, root_vertices, truth_ab[0], faces, segment, joint_names,
                                                        args.segments)
         if args.oracle_rigid:
@@ -180,14 +232,22 @@ def main(argv=None):
             for key, W in (("oracle_rigid_pct", aligned), ("placement_alone_pct", placed),
                            ("oracle_pose_pct", from_pose), ("true_pose_pct", pose)):
                 row[key] = round(float(100.0 * np.linalg.norm(W - true, axis=1).mean() / size), 3)
+        if patterns:
+            row["oracle_pull"], row["oracle_pull_vertices"] = oracle_pull(
+                frames[a], frames[b], truth_ab, faces, size, options, segment, joint_names, patterns)
         rows.append(row)
         extra = (f", from the true rigid placement {row['oracle_rigid_pct']:.2f}% (that placement alone "
                  f"{row['placement_alone_pct']:.2f}%), from the true pose {row['oracle_pose_pct']:.2f}% (that "
                  f"pose alone {row['true_pose_pct']:.2f}%)" if args.oracle_rigid else "")
         worst = ("; worst segments " + ", ".join(f"{k} {v:.1f}%" for k, v in row["worst_segments_pct"].items())
-                 if segment is not None else "")
+                 if args.segments > 0 else "")
+        pull = row.get("oracle_pull")
+        pulled = (f"; {'/'.join(patterns)} ({row['oracle_pull_vertices']} vertices) pulled: aligned directly "
+                  f"{pull['as_aligned_pct']:.2f}% (those parts {pull['as_aligned_parts_pct']:.1f}%), pulled "
+                  f"{pull['pulled_pct']:.2f}% ({pull['pulled_parts_pct']:.1f}%), then the fit {pull['pulled_fit_pct']:.2f}% "
+                  f"({pull['pulled_fit_parts_pct']:.1f}%)" if pull else "")
         print(f"{a} -> {b}: {row['mean_pct']:.2f}%{extra}; " + ", ".join(f"{k} {v:.2f}%" for k, v in row["parts_pct"].items())
-              + worst, flush=True)
+              + worst + pulled, flush=True)
     cpu = time.process_time() - cpu_started
     means = [row["mean_pct"] for row in rows]
     record = {"dataset": "tiny" if args.tiny else str(args.dataset), "sequence": "run" if args.tiny else args.sequence,
@@ -198,9 +258,17 @@ def main(argv=None):
     if args.oracle_rigid:
         for key in ("oracle_rigid", "oracle_pose"):
             record[f"{key}_mean_pct"] = round(float(np.mean([row[f"{key}_pct"] for row in rows])), 3)
+    if patterns:
+        record["oracle_pull_parts"] = patterns
+        for key in ("as_aligned", "pulled", "pulled_fit"):
+            record[f"oracle_pull_{key}_mean_pct"] = round(float(np.mean([row["oracle_pull"][f"{key}_pct"]
+                                                                         for row in rows])), 3)
     print(f"{len(rows)} single steps: mean {record['mean_pct']:.2f}%, median {record['median_pct']:.2f}% of the "
           f"model size" + (f"; from the true rigid placement: mean {record['oracle_rigid_mean_pct']:.2f}%; from the "
-                           f"true pose: mean {record['oracle_pose_mean_pct']:.2f}%" if args.oracle_rigid else "") + f"; {cpu:.1f} CPU s", flush=True)
+                           f"true pose: mean {record['oracle_pose_mean_pct']:.2f}%" if args.oracle_rigid else "")
+          + (f"; {'/'.join(patterns)} pulled onto the truth, then the fit: mean {record['oracle_pull_pulled_fit_mean_pct']:.2f}% "
+             f"(aligned directly {record['oracle_pull_as_aligned_mean_pct']:.2f}%)" if patterns else "")
+          + f"; {cpu:.1f} CPU s", flush=True)
     emit(record, args.out)
 
 

@@ -252,7 +252,13 @@ def check_align_steps(record, stdout):
         worst = list(row["worst_segments_pct"].values())
         assert len(worst) == 3 and worst == sorted(worst, reverse=True) and worst[0] >= row["mean_pct"] - 2e-3
         assert all(name in stdout for name in row["worst_segments_pct"])
-    assert "worst segments" in stdout
+        # the elbows and wrists pulled onto their true places are closer to them than aligned, and
+        # the fit from there is scored like every other figure
+        pull = row["oracle_pull"]
+        assert row["oracle_pull_vertices"] > 0 and 0 <= pull["pulled_parts_pct"] < pull["as_aligned_parts_pct"]
+        assert 0 < pull["pulled_fit_pct"] < 100 and 0 < pull["as_aligned_pct"] < 100
+    assert "worst segments" in stdout and record["oracle_pull_parts"] == ["elbow", "wrist"]
+    assert "elbow/wrist pulled onto the truth, then the fit" in stdout
     assert record["mean_pct"] == pytest.approx(sum(r["mean_pct"] for r in record["pairs"]) / 2, abs=2e-3)
     assert positive(record["cpu_seconds"]) and "2 single steps: mean" in stdout and "true rigid placement" in stdout
     assert 0 < record["oracle_pose_mean_pct"] < 100 and "from the true pose" in stdout
