@@ -55,6 +55,10 @@ class AlignmentOptions:
                                 extremities (hands, feet, head) onto what nothing covers,
                                 bending the limb as-rigid-as-possible (:mod:`engine.align.reach`;
                                 on by default)
+    graft_limbs : bool          in the repair, a frame the root left flagged has its limbs
+                                grafted from the other frames' aligned poses and is
+                                aligned again from there (:mod:`engine.align.limb_graft`; off by
+                                default: on the studio's sparse takes it grafted almost nothing)
     search_angles : tuple       rotation angles tried about each axis (degrees, both signs)
     search_samples : int        vertices per patch used to score hypotheses
     search_cap : float          distance (m) at which a sample counts as unmatched
@@ -107,6 +111,7 @@ class AlignmentOptions:
     search_rounds: int = 3
     swing_limbs: bool = False
     reach_limbs: bool = True
+    graft_limbs: bool = False
     search_angles: tuple = (30.0, 60.0, 90.0)
     search_samples: int = 24
     search_cap: float = 0.05

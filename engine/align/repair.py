@@ -14,7 +14,9 @@ torn far beyond the floor. Frames below a confidence of one half are aligned aga
 other sources: first from the root itself (a frame aligned straight from the root cannot
 inherit a slip; the frames most like the root first, as far as the budget goes), then, where
 that did not lift the frame to one half, parents first from the most similar trusted frames;
-the best result by the same score is kept. A frame that no source aligns well stays flagged,
+the best result by the same score is kept (with ``AlignmentOptions.graft_limbs``, between the two:
+a frame the root left flagged has its limbs grafted from the other frames' poses and is aligned
+again, :mod:`engine.align.limb_graft`). A frame that no source aligns well stays flagged,
 with its confidence, never silent.
 """
 
@@ -36,6 +38,7 @@ COLOUR_MARGIN = 0.1    # with colours, results whose colours agree within this s
 TURN_COLOUR = 2.5      # a flagged frame is also aligned turned round when its colours disagree this many
                        # times more than the trusted frames' do (median): a body facing the wrong way
 TURN_SAMPLE = 16       # trusted frames whose colours set that median (evenly spaced in the tree's order)
+GRAFT = -2             # a source that stands for the frame's own alignment with limbs grafted (engine.align.limb_graft)
 
 
 def alignment_badness(residual, distortion_tail, model_size, reference=0.0, colour=None, colour_floor=None):
@@ -181,14 +184,27 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             others = trusted[(trusted != root) & (trusted != parent)]
             others = others[np.argsort(np.asarray(dissimilarity)[frame, others], kind="stable")]
             sources += [int(s) for s in others[:max(0, int(candidates))]]
+        if phase == "limbs":
+            return [GRAFT] if grafted(frame) is not None and spent < limit else []
         if phase != "root" and frame in turn:  # (a flagged frame is never a trusted source: the frame means this)
             sources.append(int(frame))
         if spent + len(sources) > limit:
             sources = sources[:max(0, int(limit) - spent)]
         return sources
 
+    grafts, library = {}, []  # frame -> its pose with limbs grafted (or None); the library, made when first needed
+
+    def grafted(frame):
+        if frame not in grafts:
+            if not library:  # every frame's pose: a limb's is taken only where it fits the frame best
+                from engine.align.limb_graft import LimbLibrary
+                library.append(LimbLibrary(aligner, np.asarray(aligned.vertices)[depth_order]))
+            target = TargetSurface(*mesh_arrays(meshes[frame], use_colours))
+            grafts[frame] = library[0].pose(aligned.poses[frame], aligned.vertices[frame], target)
+        return grafts[frame]
+
     def job(frame, sources):
-        starts = [(turned_round(aligned.poses[s]), None) if s == frame else
+        starts = [(grafts[frame], None) if s == GRAFT else (turned_round(aligned.poses[s]), None) if s == frame else
                   (aligned.poses[s], None if yaw is None else float(yaw[frame, s])) for s in sources]
         return mesh_arrays(meshes[frame], use_colours), starts
 
@@ -210,7 +226,7 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             aligned.distortion[frame], aligned.distortion_tail[frame] = best.distortion, best.distortion_tail
             if aligned.colour is not None:
                 aligned.colour[frame] = best.colour_mean
-            if best_source != frame:  # (its own alignment turned round keeps its parent)
+            if best_source not in (frame, GRAFT):  # (its own alignment turned round or grafted keeps its parent)
                 aligned.parent[frame] = best_source
             aligned.poses[frame] = best.X
             if aligned.pulled is not None:
@@ -224,10 +240,14 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     spent, done, steps = 0, 0, []
     if first:  # every flagged frame from the root, then those still flagged from the others
         steps.append(("root", affordable(flagged, lambda f: 1 if aligned.parent[f] != root else 0, 0, near=True)))
+        if aligner.options.graft_limbs:  # then their limbs grafted from the trusted frames' poses
+            steps.append(("limbs", None))
         steps.append(("others", None))
     else:
         steps.append(("all", affordable(flagged, lambda f: (1 if aligned.parent[f] != root else 0) + similar
                                         + (1 if f in turn else 0), 0)))
+        if aligner.options.graft_limbs:  # then the frames no source mended, their limbs grafted
+            steps.append(("limbs", None))
     total = len(steps[0][1])
     progress = _forward_only(progress)  # a wave's share can run ahead of the frames applied after it
     if progress is not None and total:  # the stage shows from its start
@@ -239,9 +259,9 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
 
         local, shared = runner, portable_aligner(aligner)  # one object: a ProcessRunner keeps its processes
     for phase, frames in steps:
-        if frames is None:  # root_first's second phase: the frames the root did not mend
+        if frames is None:  # the frames the root (or, for the limbs, any source) did not mend
             still = [f for f in flagged if confidence[f] < TRUSTED]
-            frames = affordable(still, lambda f: similar + (1 if f in turn else 0), spent)
+            frames = affordable(still, lambda f: 1 if phase == "limbs" else similar + (1 if f in turn else 0), spent)
             total += len(frames)
         spent, done = _run_phase(frames, phase, plan, job, apply, local, shared, versions, spent, done, total,
                                  progress)

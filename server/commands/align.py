@@ -108,6 +108,10 @@ def add_arguments(parser):
                         help="pull the root's extremities (hands, feet, head, a sleeve's or hem's end) onto "
                              "the parts of a frame nothing covers, bending the limb as-rigid-as-possible (an "
                              "arm thrown into a punch; default on; docs/alignment.md)")
+    parser.add_argument("--graft-limbs", action=argparse.BooleanOptionalAction, default=False,
+                        help="in the repair, give a frame the root left flagged the limbs of the other frames' "
+                             "poses that fit it clearly better (an arm raised where its parent's hung) and align "
+                             "it again from there (default off; docs/alignment.md)")
     parser.add_argument("--colors", nargs="?", const="on", default="auto", choices=("auto", "on", "off"),
                         help="vertex colours as local matching cues when every frame has them: auto (default) "
                              "when the meshes are fine enough for colours to carry texture (median edge "
@@ -324,7 +328,7 @@ def convert_inputs(meshes, sequences, lengths, units="auto", up="auto", *, say=N
 
 
 OPTION_NAMES = ("patches", "levels", "window", "retries", "repair_budget", "tree", "root_choice", "colors",
-                "swing_limbs", "reach_limbs")
+                "swing_limbs", "reach_limbs", "graft_limbs")
 
 
 def colour_cues_text(mode, used, meshes):
@@ -552,7 +556,7 @@ def run(args):
                 f"frames/s (say --fps)")
         root = parse_root(args.root, sequences, lengths)
         options = AlignmentOptions(patches=args.patches, levels=args.levels, swing_limbs=args.swing_limbs,
-                                   reach_limbs=args.reach_limbs)
+                                   reach_limbs=args.reach_limbs, graft_limbs=args.graft_limbs)
         result = align_captures(meshes, lengths, method="sequential" if args.sequential else "tree", tree_kind=args.tree,
                                 root=root, root_choice=args.root_choice, options=options, window=args.window,
                                 workers=args.workers, retries=args.retries,

@@ -73,6 +73,9 @@ def add_arguments(parser):
                         help="swing limbs onto what nothing covers (see `morphspace align --help`)")
     parser.add_argument("--reach-limbs", action=argparse.BooleanOptionalAction, default=True,
                         help="pull limbs onto what nothing covers (see `morphspace align --help`; default on)")
+    parser.add_argument("--graft-limbs", action=argparse.BooleanOptionalAction, default=False,
+                        help="graft flagged frames' limbs from other frames' poses in the repair (see "
+                             "`morphspace align --help`; default off)")
     parser.add_argument("--out", type=Path, help="directory for results.json and the pictures "
                         "(default: <dataset>-align-eval next to the dataset)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
@@ -94,7 +97,7 @@ def add_arguments(parser):
 
 
 ALIGNING_OPTIONS = ("max_frames", "every", "tree", "root", "root_choice", "colors", "swing_limbs", "reach_limbs",
-                    "repair_budget", "retries", "seed", "patches", "levels")
+                    "graft_limbs", "repair_budget", "retries", "seed", "patches", "levels")
 
 
 def _refuse_alignment_options(args):
@@ -416,7 +419,7 @@ def run(args):
             size = _model_size(manifest, conventions, truth)
             root = _kept_root(args.root, sequences, counts, picks)
             options = AlignmentOptions(patches=args.patches, levels=args.levels, swing_limbs=args.swing_limbs,
-                                       reach_limbs=args.reach_limbs)
+                                       reach_limbs=args.reach_limbs, graft_limbs=args.graft_limbs)
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, every=args.every,
                           **_units_report(names, conventions))
             tree_run = align_captures(meshes, lengths, method="tree", tree_kind=args.tree, root=root,
@@ -439,6 +442,7 @@ def run(args):
             report["stage_seconds"] = {stage: round(float(t), 2) for stage, t in tree_run.timings.items()}
             report["tree"] = {"kind": args.tree, "retries": args.retries, "repair_budget": args.repair_budget,
                               "swing_limbs": args.swing_limbs, "reach_limbs": args.reach_limbs,
+                              "graft_limbs": args.graft_limbs,
                               "depth_max": int(tree_run.tree.depth.max()),
                               "depth_mean": round(float(tree_run.tree.depth.mean()), 2),
                               "components_reconnected": int(tree_run.tree.components)}

@@ -149,6 +149,9 @@ class AlignJob(_Body):
     reach_limbs: bool = Field(True, description="pull the root's extremities (hands, feet, head, a sleeve's or "
                                                 "hem's end) onto the parts of a frame nothing covers, bending "
                                                 "the limb as-rigid-as-possible")
+    graft_limbs: bool = Field(False, description="in the repair, give a frame the root left flagged the limbs "
+                                                 "of the other frames' poses that fit it clearly better and "
+                                                 "align it again from there")
     seed: int = Field(0, ge=0, le=2**31 - 1)
     units: Literal["auto", "m", "cm", "mm"] = Field(
         "auto", description="length unit of the input meshes; auto: from the model's size (a person is "

@@ -264,7 +264,7 @@ def run_graph(payload, reporter):
 # --- align ----------------------------------------------------------------------------------------
 # what a job record made before these parameters existed runs with (the AlignJob model's defaults)
 ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "auto", "colors": "auto", "repair_budget": 0.25, "units": "auto",
-                  "up": "auto", "swing_limbs": False, "reach_limbs": True}
+                  "up": "auto", "swing_limbs": False, "reach_limbs": True, "graft_limbs": False}
 
 
 def run_align(payload, reporter, runner=None):
@@ -293,7 +293,8 @@ def run_align(payload, reporter, runner=None):
     meshes, conventions = convert_inputs(meshes, sequences, lengths, params["units"], params["up"], say=reporter.log)
     root = parse_root(params.get("root"), sequences, lengths, label="root")
     options = AlignmentOptions(patches=params["patches"], levels=params["levels"],
-                               swing_limbs=params["swing_limbs"], reach_limbs=params["reach_limbs"])
+                               swing_limbs=params["swing_limbs"], reach_limbs=params["reach_limbs"],
+                               graft_limbs=params["graft_limbs"])
     result = align_captures(meshes, lengths, method="sequential" if params["sequential"] else "tree",
                             tree_kind=params["tree"], root=root, root_choice=params["root_choice"],
                             options=options, window=params["window"], workers=1, retries=params["retries"],

@@ -271,6 +271,12 @@ def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsy
     unpulled = json.loads(capsys.readouterr().out)["tree"]
     assert unpulled["reach_limbs"] is False and unpulled["frames"] == 4 and unpulled["mean_pct"] < 2.0
     assert unpulled["pulled_frames"] == 0 and 0 <= report["tree"]["pulled_frames"] <= 4
+    assert report["tree"]["graft_limbs"] is False and unpulled["graft_limbs"] is False  # off by default
+    assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "grafted"),
+                 "--json", "--workers", "1", "--repair-budget", "0", "--graft-limbs"]) == 0
+    grafted = json.loads(capsys.readouterr().out)["tree"]
+    # with no repair budget nothing is grafted: the same alignment
+    assert grafted["graft_limbs"] is True and grafted["mean_pct"] == report["tree"]["mean_pct"]
     # align's --levels and --patches reach the aligner: a coarser run scores differently
     assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "coarse"),
                  "--json", "--workers", "1", "--repair-budget", "0", "--levels", "2", "--patches", "10"]) == 0
