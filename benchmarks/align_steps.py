@@ -29,7 +29,8 @@ of those segments onto their true places (the aligner's own solve, the rest of t
 where the alignment left it) and fits again from there: whether a part put in its place stays
 there through the fit (the studio dance's arms do; its hands alone do not).
 ``--tiny`` (the test suite's smoke run) needs no dataset: two pairs of the generator's 1,000-vertex
-run at 15 fps, small alignment settings, one part, the oracles included (the tiny rig's elbows and wrists pulled); ``--out`` is required.
+run at 15 fps, small alignment settings, one part, the oracles included (the tiny rig's elbows and
+wrists pulled); ``--out`` is required.
 """
 
 from __future__ import annotations
@@ -117,24 +118,13 @@ def _pair_aligner(mesh_a, mesh_b, truth_ab, faces, options):
     return aligner, target, V, true_positions(truth_ab[1:2], faces, face, bary)[0]
 
 
-def _pull(aligner, X, goal, confidence):
-    """The root's solid carried towards per-vertex goals by the aligner's own as-rigid-as-possible
-    solve (its final stiffness, ten rounds), rotations first fitted to the pose ``X``."""
-    from engine.align.rigid import rotation_fit
-
-    rotations = rotation_fit(aligner._gradients(X), aligner._eye, iterations=8)
-    solver = aligner._solvers[aligner.options.final_stiffness]
-    for _ in range(10):
-        X, rotations = aligner._deform(X, rotations, solver, goal, confidence)
-    return X
-
-
 def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
     """B aligned from A's true rigid placement and from its true pose: (aligned from the placement,
     the placement alone, aligned from the true pose, the true pose alone, the true positions in B
     of A's vertices)."""
     import numpy as np
 
+    from engine.align.limb_graft import carry
     from engine.align.rigid import kabsch
 
     aligner, target, V, true = _pair_aligner(mesh_a, mesh_b, truth_ab, faces, options)
@@ -142,7 +132,7 @@ def oracle_step(mesh_a, mesh_b, truth_ab, faces, options):
     X = aligner.V_tet @ R.T + t
     result = aligner._fit(X, target)
     # the true pose: the root's solid pulled onto the true positions by the aligner's own solve
-    X = _pull(aligner, X, true, np.ones(len(true)))
+    X = carry(aligner, X, true)
     from_pose = aligner._fit(X, target)
     return result.V, V @ R.T + t, from_pose.V, aligner.surface(X), true
 
@@ -155,13 +145,14 @@ def oracle_pull(mesh_a, mesh_b, truth_ab, faces, size, options, segment, names, 
     import numpy as np
 
     from engine.align.evaluation import nearest_template_vertices
+    from engine.align.limb_graft import carry
 
     aligner, target, V, true = _pair_aligner(mesh_a, mesh_b, truth_ab, faces, options)
     owner = segment[nearest_template_vertices(V, truth_ab[0], faces)]
     chosen = [k for k, name in enumerate(names) if any(p in name for p in patterns)]
     part = np.isin(owner, chosen)
     result = aligner.align(aligner.V_tet, target)
-    X = _pull(aligner, result.X, np.where(part[:, None], true, result.V), np.ones(len(true)))
+    X = carry(aligner, result.X, np.where(part[:, None], true, result.V))
     pulled = aligner.surface(X)
     refit = aligner._fit(X, target)
     out = {}
@@ -244,8 +235,8 @@ def main(argv=None):
         pull = row.get("oracle_pull")
         pulled = (f"; {'/'.join(patterns)} ({row['oracle_pull_vertices']} vertices) pulled: aligned directly "
                   f"{pull['as_aligned_pct']:.2f}% (those parts {pull['as_aligned_parts_pct']:.1f}%), pulled "
-                  f"{pull['pulled_pct']:.2f}% ({pull['pulled_parts_pct']:.1f}%), then the fit {pull['pulled_fit_pct']:.2f}% "
-                  f"({pull['pulled_fit_parts_pct']:.1f}%)" if pull else "")
+                  f"{pull['pulled_pct']:.2f}% ({pull['pulled_parts_pct']:.1f}%), then the fit "
+                  f"{pull['pulled_fit_pct']:.2f}% ({pull['pulled_fit_parts_pct']:.1f}%)" if pull else "")
         print(f"{a} -> {b}: {row['mean_pct']:.2f}%{extra}; " + ", ".join(f"{k} {v:.2f}%" for k, v in row["parts_pct"].items())
               + worst + pulled, flush=True)
     cpu = time.process_time() - cpu_started
@@ -266,8 +257,9 @@ def main(argv=None):
     print(f"{len(rows)} single steps: mean {record['mean_pct']:.2f}%, median {record['median_pct']:.2f}% of the "
           f"model size" + (f"; from the true rigid placement: mean {record['oracle_rigid_mean_pct']:.2f}%; from the "
                            f"true pose: mean {record['oracle_pose_mean_pct']:.2f}%" if args.oracle_rigid else "")
-          + (f"; {'/'.join(patterns)} pulled onto the truth, then the fit: mean {record['oracle_pull_pulled_fit_mean_pct']:.2f}% "
-             f"(aligned directly {record['oracle_pull_as_aligned_mean_pct']:.2f}%)" if patterns else "")
+          + (f"; {'/'.join(patterns)} pulled onto the truth, then the fit: mean "
+             f"{record['oracle_pull_pulled_fit_mean_pct']:.2f}% (aligned directly "
+             f"{record['oracle_pull_as_aligned_mean_pct']:.2f}%)" if patterns else "")
           + f"; {cpu:.1f} CPU s", flush=True)
     emit(record, args.out)
 

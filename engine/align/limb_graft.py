@@ -39,6 +39,7 @@ import numpy as np
 from scipy.sparse.csgraph import dijkstra
 
 from engine.align.reach import _edge_graph, extremities_of
+from engine.align.rigid import rotation_fit
 from engine.nearest import PointTree
 from engine.surface import model_size, vertex_normals
 
@@ -176,16 +177,18 @@ class LimbLibrary:
         """The tet pose carried to the grafted limbs from pose ``X`` (surface ``S``), or None when
         no limb was grafted."""
         goal, grafted = self.graft(S, target)
-        if not grafted:
-            return None
-        from engine.align.rigid import rotation_fit
-
-        a = self.aligner
-        R = rotation_fit(a._gradients(X), a._eye, iterations=8)
-        solver = a._solvers[a.options.final_stiffness]
-        for _ in range(ARAP_STEPS):
-            X, R = a._deform(X, R, solver, goal, np.ones(len(goal)))
-        return X
+        return carry(self.aligner, X, goal) if grafted else None
 
 
-__all__ = ["LimbLibrary", "Limbs", "batch_kabsch", "limb_cost", "limbs_of"]
+def carry(aligner, X, goal):
+    """The root's solid carried from pose ``X`` (k, 3) towards per-vertex surface goals (n, 3) by
+    the aligner's own as-rigid-as-possible solve at its final stiffness, every goal at full
+    confidence: ``ARAP_STEPS`` deformations, the rotations first fitted to ``X``."""
+    R = rotation_fit(aligner._gradients(X), aligner._eye, iterations=8)
+    solver = aligner._solvers[aligner.options.final_stiffness]
+    for _ in range(ARAP_STEPS):
+        X, R = aligner._deform(X, R, solver, goal, np.ones(len(goal)))
+    return X
+
+
+__all__ = ["LimbLibrary", "Limbs", "batch_kabsch", "carry", "limb_cost", "limbs_of"]

@@ -185,7 +185,7 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             others = others[np.argsort(np.asarray(dissimilarity)[frame, others], kind="stable")]
             sources += [int(s) for s in others[:max(0, int(candidates))]]
         if phase == "limbs":
-            return [GRAFT] if grafted(frame) is not None and spent < limit else []
+            return [GRAFT] if spent < limit and grafted(frame) is not None else []  # no graft made past the budget
         if phase != "root" and frame in turn:  # (a flagged frame is never a trusted source: the frame means this)
             sources.append(int(frame))
         if spent + len(sources) > limit:
@@ -240,7 +240,7 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     spent, done, steps = 0, 0, []
     if first:  # every flagged frame from the root, then those still flagged from the others
         steps.append(("root", affordable(flagged, lambda f: 1 if aligned.parent[f] != root else 0, 0, near=True)))
-        if aligner.options.graft_limbs:  # then their limbs grafted from the trusted frames' poses
+        if aligner.options.graft_limbs:  # then their limbs grafted from the other frames' poses
             steps.append(("limbs", None))
         steps.append(("others", None))
     else:

@@ -1,10 +1,11 @@
-"""Fixtures shared by engine tests: a short walk of a small synthetic body; small motion spaces
-and a motion graph over them."""
+"""Fixtures shared by engine tests: a short walk of a small synthetic body; a hand hanging and
+reaching (the limb tests); small motion spaces and a motion graph over them."""
 
 import pytest
 
 from engine.align import PairwiseAligner
-from engine.synthetic import SequenceSpec, build_body, generate_sequence_data
+from engine.synthetic import SequenceSpec, animate, build_body, generate_sequence_data
+from engine.synthetic.reaches import reach
 from engine.tetmesh import tetrahedralize
 
 
@@ -24,6 +25,16 @@ def walk_aligner(walk_capture):
     _, _, frames = walk_capture
     V, F, C = frames[0]
     return PairwiseAligner(V, F, C, tets=tetrahedralize(V, F, resolution=48))
+
+
+@pytest.fixture(scope="module")
+def reach_pair():
+    """The plain 1,000-vertex body with its right hand hanging, and reaching forward at 1.4 m."""
+    body = build_body(1000)
+    motion = reach(body.skeleton, 1.4, fps=15)
+    frames = animate(body, motion)
+    V0, V1 = frames[0], frames[motion.events["peak_frame"]]
+    return body, V0, V1, tetrahedralize(V0, body.F, resolution=48)
 
 
 @pytest.fixture(scope="session")

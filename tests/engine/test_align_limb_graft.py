@@ -1,26 +1,12 @@
 """Limbs grafted from other aligned frames' poses (engine.align.limb_graft)."""
 
 import numpy as np
-import pytest
 
 from engine.align import AlignmentOptions, PairwiseAligner
 from engine.align.limb_graft import LimbLibrary, batch_kabsch, limbs_of
 from engine.align.matching import TargetSurface
 from engine.rotations import rot_y
-from engine.synthetic import animate, build_body
 from engine.synthetic.body import JOINT_INDEX
-from engine.synthetic.reaches import reach
-from engine.tetmesh import tetrahedralize
-
-
-@pytest.fixture(scope="module")
-def reach_pair():
-    """The plain 1,000-vertex body with its right hand hanging, and reaching forward at 1.4 m."""
-    body = build_body(1000)
-    motion = reach(body.skeleton, 1.4, fps=15)
-    frames = animate(body, motion)
-    V0, V1 = frames[0], frames[motion.events["peak_frame"]]
-    return body, V0, V1, tetrahedralize(V0, body.F, resolution=48)
 
 
 def test_batch_kabsch_recovers_rigid_motions():
@@ -89,8 +75,6 @@ def test_the_repair_grafts_a_flagged_frames_arm_from_a_trusted_frame_that_reache
     flagged; the root cannot mend it; frame 1 (the reach, as aligned well) holds the pose that fits. The
     repair's last phase grafts frame 1's arm onto frame 2 and aligns it again: the arm lands,
     the frame is trusted, and it keeps its parent. With ``graft_limbs`` off it stays flagged."""
-    from dataclasses import replace
-
     from engine.align import align_tree, repair_alignment
     from engine.align.similarity_tree import rooted_tree
 
@@ -114,4 +98,4 @@ def test_the_repair_grafts_a_flagged_frames_arm_from_a_trusted_frame_that_reache
         else:
             assert aligned.confidence[2] < 0.5
     assert errors[True] < 0.3 * errors[False], errors
-    assert replace(AlignmentOptions(), graft_limbs=True) != AlignmentOptions()  # off by default
+    assert AlignmentOptions().graft_limbs is False  # off by default

@@ -1,26 +1,12 @@
 """Limbs pulled out as-rigid-as-possible to what nothing covers (engine.align.reach)."""
 
 import numpy as np
-import pytest
 
 from engine.align import AlignmentOptions, PairwiseAligner
 from engine.align.matching import TargetSurface
 from engine.align.reach import HANDLE, HOLD, Extremities, extremities_of, reach_uncovered
 from engine.surface import model_size
-from engine.synthetic import animate, build_body
 from engine.synthetic.body import JOINT_INDEX
-from engine.synthetic.reaches import reach
-from engine.tetmesh import tetrahedralize
-
-
-@pytest.fixture(scope="module")
-def reach_pair():
-    """The plain 1,000-vertex body with its right hand hanging, and reaching forward at 1.4 m."""
-    body = build_body(1000)
-    motion = reach(body.skeleton, 1.4, fps=15)
-    frames = animate(body, motion)
-    V0, V1 = frames[0], frames[motion.events["peak_frame"]]
-    return body, V0, V1, tetrahedralize(V0, body.F, resolution=48)
 
 
 def test_the_extremities_of_a_body_are_its_hands_feet_and_head(reach_pair):
