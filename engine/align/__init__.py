@@ -15,6 +15,7 @@ One module per step, in pipeline order:
 ``propagation``      ``align_tree(aligner, meshes, tree)``           every frame from its parent
 ``repair``           ``repair_alignment(aligner, meshes, aligned)``  per-frame confidence; slipped
                      frames aligned again from the root and trusted frames
+``repair_waves``     the repair's alignments in waves through a task runner, or one by one
 ``captures``         ``align_captures(meshes, lengths)``             all of the above, end to end
 ``facing``           ``body_facing(V)``: the way a body's front faces (feet ahead of ankles)
 ``evaluation``       ``score_alignment``, the pattern pictures (fig. 2)

@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from engine.align.matching import TargetSurface
+from engine.align.repair_waves import SerialRunner, forward_only, repair_task, run_phase
 
 TAIL_SCALE = 4.0       # distortion tail (||F - R||^2 over the worst 5% of the solid) at confidence 1/e ...
 TAIL_RELATIVE = 0.0    # ... plus this share of the capture's floor; 0.25 halved the dance's false flags
@@ -249,11 +250,11 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         if aligner.options.graft_limbs:  # then the frames no source mended, their limbs grafted
             steps.append(("limbs", None))
     total = len(steps[0][1])
-    progress = _forward_only(progress)  # a wave's share can run ahead of the frames applied after it
+    progress = forward_only(progress)  # a wave's share can run ahead of the frames applied after it
     if progress is not None and total:  # the stage shows from its start
         progress(0, total)
     if runner is None:
-        local, shared = _SerialRunner(aligner), None
+        local, shared = SerialRunner(aligner), None
     else:
         from engine.align.pieces import portable_aligner
 
@@ -263,74 +264,12 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
             still = [f for f in flagged if confidence[f] < TRUSTED]
             frames = affordable(still, lambda f: 1 if phase == "limbs" else similar + (1 if f in turn else 0), spent)
             total += len(frames)
-        spent, done = _run_phase(frames, phase, plan, job, apply, local, shared, versions, spent, done, total,
-                                 progress)
+        spent, done = run_phase(frames, phase, plan, job, apply, local, shared, versions, spent, done, total,
+                                progress)
     aligned.repair_spent = spent
     aligned.confidence = confidence
     aligned.repaired = repaired
     return aligned
-
-
-class _SerialRunner:
-    """``runner.map`` in this process, one task after another (the repair without a runner)."""
-
-    def __init__(self, aligner):
-        self.aligner = aligner
-
-    def map(self, fn, jobs, *, shared=None, sizes=None, progress=None):
-        return [fn(self.aligner, job) for job in jobs]
-
-
-def _run_phase(frames, phase, plan, job, apply, runner, shared, versions, spent, done, total, progress):
-    """Repair ``frames`` in order from ``plan(frame, spent, phase)``'s sources through ``runner``,
-    in waves: every remaining frame's alignments as the frames stand now, all at once, then the
-    frames applied in order while the sources the serial pass would pick were aligned (a frame
-    repaired in this wave may change a later frame's sources: that one waits for the next wave).
-    One frame a wave in this process (the serial pass itself). Returns (spent, done)."""
-    serial = isinstance(runner, _SerialRunner)
-    found, k = {}, 0
-    while k < len(frames):
-        wanted, planned = {}, spent
-        for frame in frames[k:k + 1] if serial else frames[k:]:
-            sources = plan(frame, planned, phase)
-            planned += len(sources)
-            missing = [s for s in sources if (frame, s, versions.get(s, 0)) not in found]
-            if missing:
-                wanted[frame] = missing
-        jobs = [job(f, sources) for f, sources in wanted.items()]
-        # during a wave the bar moves with its alignments (a frame's share of them), so a wave of
-        # every flagged frame at once (root first) does not sit at 0 for its whole length
-        wave = None if progress is None else (
-            lambda d, t, base=done, n=len(jobs): progress(base + (n * d) // max(t, 1), total))
-        outs = runner.map(repair_task, jobs, shared=shared, sizes=[len(j[1]) for j in jobs], progress=wave)
-        for (frame, sources), results in zip(wanted.items(), outs, strict=True):
-            found.update({(frame, s, versions.get(s, 0)): r for s, r in zip(sources, results, strict=True)})
-        while k < len(frames):
-            frame = frames[k]
-            sources = plan(frame, spent, phase)
-            keys = [(frame, s, versions.get(s, 0)) for s in sources]
-            if any(key not in found for key in keys):
-                break
-            spent += len(sources)
-            apply(frame, sources, [found.pop(key) for key in keys])
-            k += 1
-            done += 1
-            if progress is not None:
-                progress(done, total)
-    return spent, done
-
-
-def _forward_only(progress):
-    """``progress`` called only when ``done`` grows (or ``total`` changes), or None."""
-    if progress is None:
-        return None
-    shown = [-1, None]
-
-    def report(done, total):
-        if done > shown[0] or total != shown[1]:
-            shown[:] = [done, total]
-            progress(done, total)
-    return report
 
 
 def colour_terms(aligned, use):
@@ -350,24 +289,6 @@ def turned_round(X):
     turned[:, 0] *= -1.0
     turned[:, 2] *= -1.0
     return turned + centre
-
-
-def repair_task(shared, job):
-    """Runner task: one frame aligned from several sources. ``job`` is ((V, F, colors), [(pose,
-    yaw hint), ...]); returns a PairAlignment per source (each with its ``colour_distance``:
-    NaN without colours)."""
-    from engine.tasks import shared_value
-
-    aligner = shared_value(shared)
-    (V, F, C), starts = job
-    target = TargetSurface(V, F, C)
-    from engine.tasks import checkpoint
-
-    results = []
-    for pose, hint in starts:
-        checkpoint()  # a task stops here when its runner says the work has ended
-        results.append(aligner.align(pose, target, yaw=hint))
-    return results
 
 
 def _colour_now(aligner, mesh, vertices):
