@@ -525,6 +525,14 @@ def job_range(field):
     return (next(m.ge for m in metadata if hasattr(m, "ge")), next(m.le for m in metadata if hasattr(m, "le")))
 
 
+def check_root_given_once(args):
+    """--root with a --root-choice other than the default: the root is given, so nothing would be
+    chosen; refused rather than recorded as a choice that never ran."""
+    if args.root is not None and args.root_choice != "auto":
+        raise ValueError(f"--root-choice {args.root_choice}: the root is given (--root {args.root}), so no root "
+                         "is chosen; give one or the other")
+
+
 def check_job_ranges(args, fields=("window", "patches", "levels", "retries", "repair_budget")):
     """Refuse ``fields`` (--window, --patches, ...) outside the align job's ranges."""
     for field in fields:
@@ -540,6 +548,7 @@ def run(args):
         if not value >= low or not math.isfinite(value):  # (NaN fails both)
             raise ValueError(f"{name} must be a number >= {low}, got {value}")
     check_job_ranges(args)
+    check_root_given_once(args)
     if args.fps is not None and not (math.isfinite(args.fps) and 0 < args.fps <= MAX_FPS):
         raise ValueError(f"--fps must be above 0 and at most {MAX_FPS:g} frames/s, got {args.fps}")
     sequences = resolve_inputs(args.inputs, args.only)

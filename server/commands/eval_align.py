@@ -39,8 +39,8 @@ from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
 from engine.mesh_io.errors import MeshFormatError
 from engine.mesh_io.units import UNITS_PER_METRE, resolve_convention, to_metres_y_up
 from engine.surface import model_size
-from server.commands.align import (COLOUR_MODES, Progress, check_job_ranges, check_root_early, convert_inputs,
-                                   parse_root, read_inputs, resolve_inputs)
+from server.commands.align import (COLOUR_MODES, Progress, check_job_ranges, check_root_early, check_root_given_once,
+                                   convert_inputs, parse_root, read_inputs, resolve_inputs)
 from server.units import (
     DISPLAY_PER_METRE,
     add_units_arguments,
@@ -96,8 +96,8 @@ def add_arguments(parser):
     add_units_arguments(parser)
 
 
-ALIGNING_OPTIONS = ("max_frames", "every", "tree", "root", "root_choice", "colors", "swing_limbs", "reach_limbs",
-                    "graft_limbs", "repair_budget", "retries", "seed", "patches", "levels")
+ALIGNING_OPTIONS = ("only", "max_frames", "every", "tree", "root", "root_choice", "colors", "swing_limbs",
+                    "reach_limbs", "graft_limbs", "repair_budget", "retries", "seed", "patches", "levels")
 
 
 def _refuse_alignment_options(args):
@@ -109,8 +109,9 @@ def _refuse_alignment_options(args):
     if given:
         shown = ", ".join("--" + name.replace("_", "-") if getattr(args, name) is not False else
                           "--no-" + name.replace("_", "-") for name in given)
-        raise ValueError(f"{shown}: with --aligned the output of `morphspace align` is scored as it is; these options "
-                         "steer an alignment eval-align runs itself (give them to `morphspace align`)")
+        raise ValueError(f"{shown}: with --aligned the output of `morphspace align` is scored as it is, every sequence "
+                         "it holds; these options pick or steer an alignment eval-align runs itself (give them to "
+                         "`morphspace align`)")
 
 
 def _kept_root(text, sequences, counts, picks):
@@ -296,12 +297,25 @@ def _truth_conventions(dataset, manifest, aligned, names, parts, units, up):
     conventions = []
     for name, positions in zip(names, parts):
         recorded = _read_record(aligned / "sequences" / name / "meta.json").get("alignment") or {}
+        _check_given_against_record(name, aligned, recorded, units, up)
         declared = declared_convention([_read_record(dataset / "sequences" / name / "meta.json"),
                                         {"units": recorded.get("source_units"), "up": recorded.get("source_up")},
                                         manifest.get("body")])
         conventions.append(resolve_convention(positions, units, up, declared_units=declared[0],
                                               declared_up=declared[1]))
     return conventions
+
+
+def _check_given_against_record(name, aligned, recorded, units, up):
+    """A --units or --up that contradicts what the alignment recorded of a sequence's input is
+    refused: the aligned frames were converted from that input, so ground truth read otherwise
+    would be scored in other units or axes than the frames (nonsense errors, not a warning)."""
+    for flag, given, key, same in (("units", units, "source_units", lambda a, b: a == b),
+                                   ("up", up, "source_up", lambda a, b: a.lower().lstrip("+") == b.lower().lstrip("+"))):
+        said = recorded.get(key)
+        if given != "auto" and said not in (None, "", "mixed") and not same(str(given), str(said)):
+            raise ValueError(f"--{flag} {given}: {aligned} aligned {name} from input in {said} ({key} in its "
+                             f"meta.json), so its ground truth is read in {said} too; leave --{flag} out with --aligned")
 
 
 def _depth(extra, root, frames):
@@ -373,6 +387,7 @@ def run(args):
         raise ValueError(f"--seed must be >= 0, got {args.seed}")
     if args.aligned is not None:
         _refuse_alignment_options(args)
+    check_root_given_once(args)
     progress = Progress()
     report = {"dataset": str(dataset)}
     started = time.perf_counter()

@@ -161,6 +161,13 @@ class AlignJob(_Body):
                             "floor, else the longer of the body's Y and Z extents, else the dataset's metadata")
     replace: bool = False
 
+    @model_validator(mode="after")
+    def _root_given_once(self):
+        if self.root is not None and self.root_choice != "auto":
+            raise ValueError(f"root_choice {self.root_choice}: the root is given (root {self.root}), so no root is "
+                             "chosen; give one or the other")
+        return self
+
 
 class IngestJob(_Body):
     """Validate every frame of a dataset and normalise it (frame names, OBJ, meta.json, manifest)."""

@@ -331,10 +331,24 @@ def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, cap
     # --root printed as "given" while the alignment's own root was scored)
     for options, named in ((["--root", "walk:1"], "--root"), (["--max-frames", "2", "--levels", "2"],
                                                                   "--max-frames, --levels"),
-                           (["--every", "2"], "--every"), (["--no-reach-limbs"], "--no-reach-limbs")):
+                           (["--every", "2"], "--every"), (["--no-reach-limbs"], "--no-reach-limbs"),
+                           (["--only", "walk"], "--only")):  # it was ignored: every sequence was scored
         assert main(["eval-align", str(dataset), "--aligned", str(aligned), "--out", str(tmp_path), *options]) == 2
         assert f"error: {named}: with --aligned the output of `morphspace align` is scored as it is" in \
             capsys.readouterr().err
+    # units or an up axis other than the input the alignment recorded: refused (the truth read in cm against
+    # frames converted from m gave 75% errors and a warning only); what it recorded is accepted
+    said = json.loads((aligned / "sequences" / "walk" / "meta.json").read_text())["alignment"]
+    other = {"m": "cm", "cm": "mm", "mm": "m"}[said["source_units"]]
+    assert main(["eval-align", str(dataset), "--aligned", str(aligned), "--out", str(tmp_path), "--units", other]) == 2
+    assert (f"error: --units {other}: {aligned} aligned walk from input in {said['source_units']} (source_units in its "
+            "meta.json)") in capsys.readouterr().err
+    flipped = "z" if said["source_up"].lower().lstrip("+") == "y" else "y"
+    assert main(["eval-align", str(dataset), "--aligned", str(aligned), "--out", str(tmp_path), "--up", flipped]) == 2
+    assert f"error: --up {flipped}: " in capsys.readouterr().err
+    assert main(["eval-align", str(dataset), "--aligned", str(aligned), "--out", str(tmp_path / "same"), "--json",
+                 "--units", said["source_units"], "--up", said["source_up"].lstrip("+").lower()]) == 0
+    assert json.loads(capsys.readouterr().out)["aligned"]["mean_pct"] == report["aligned"]["mean_pct"]
     # the confidence the alignment recorded, and the tree depths it aligned along (alignment.npz)
     record = np.load(aligned / "alignment.npz")
     assert report["aligned"]["flagged_frames"] == int(np.sum(record["confidence"] < 0.5))
@@ -627,6 +641,18 @@ def test_an_output_that_would_destroy_the_input_is_refused_before_any_work(datas
     assert main(["align", str(copy), "--out", str(afile), "--force"]) == 2
     assert "afile is a file, not a directory" in capsys.readouterr().err
     assert afile.read_text() == "not a directory" and not list(tmp_path.glob(".afile*"))
+
+
+def test_a_given_root_with_a_root_choice_is_refused(dataset, tmp_path, capsys):
+    """--root with --root-choice race ran with the root given and recorded root_choice "race" beside
+    root_reason "the root given" (a docs-only trial); refused before any frame is read, in align and
+    eval-align; --root-choice auto (the default) with --root stays accepted."""
+    for command in (["align", str(dataset), "--out", str(tmp_path / "a")],
+                    ["eval-align", str(dataset), "--out", str(tmp_path / "e")]):
+        assert main([*command, "--root", "walk:0", "--root-choice", "race"]) == 2
+        err = capsys.readouterr().err
+        assert "error: --root-choice race: the root is given (--root walk:0), so no root is chosen" in err, err
+        assert not (tmp_path / "a").exists() and not (tmp_path / "e").exists()
 
 
 def test_bad_frame_rates_and_metadata_are_named(dataset, tmp_path, capsys):

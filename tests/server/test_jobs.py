@@ -180,6 +180,8 @@ def test_bad_job_requests_name_the_problem(client):
          "root zzz:9: no sequence 'zzz'; sequences are "),
         ({"kind": "align", "datasets": ["gaits"], "output": "aligned", "root": "slow:x"}, 422,
          "root slow:x: frame must be an integer"),
+        ({"kind": "align", "datasets": ["gaits"], "output": "aligned", "root": "slow:0", "root_choice": "race"}, 422,
+         "root_choice race: the root is given (root slow:0), so no root is chosen"),
     ]
     for body, status, words in cases:
         r = client.post("/v1/jobs", json=body, headers=AUTH)
