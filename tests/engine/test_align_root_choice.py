@@ -5,7 +5,7 @@ import pytest
 from skimage.measure import marching_cubes
 
 from engine.align.options import AlignmentOptions
-from engine.align.root_choice import choose_root, geodesic_spread
+from engine.align.root_choice import choose_root, geodesic_spread, surface_handles
 from engine.align.root_trial import trial_candidates, trial_probes, try_roots
 from engine.align.similarity_tree import similarity_tree, tree_centrality, tree_root
 from engine.mesh_io import Mesh
@@ -66,6 +66,52 @@ def test_the_root_is_nearly_central_with_its_limbs_apart():
     posed = [_body(0.05, bend=0.08), _body(0.05), _body(0.05, bend=0.08)]
     root, report = choose_root(posed, np.array([10.0, 10.01, 10.0]))
     assert root == 0 and report["spread"][list(report["candidates"]).index(1)] > report["spread"][0]
+
+
+def _touching(bridges):
+    """The torso and an arm 5 cm apart, touching where ``bridges`` say ((y0, y1) cell rows): a hand
+    on the hip with the elbow out, as a reconstruction merges it, closes a loop through the
+    contact (a handle) where an arm merged all along its length closes none."""
+    field = np.zeros((70, 80, 30))
+    field[5:25, 10:70, 8:22] = 1.0
+    field[25:37, 62:70, 10:20] = 1.0
+    field[30:37, 20:70, 11:19] = 1.0
+    for y0, y1 in bridges:
+        field[25:30, y0:y1, 11:19] = 1.0
+    V, F, _, _ = marching_cubes(np.pad(field, 2), level=0.5, spacing=(CELL, CELL, CELL))
+    return Mesh(vertices=V.astype(np.float64), faces=F.astype(np.int64))
+
+
+def test_handles_count_the_loops_merged_contacts_close():
+    import trimesh
+
+    for mesh, handles in ((trimesh.creation.icosphere(3), 0), (trimesh.creation.torus(1.0, 0.3), 1),
+                          (_touching([]), 0), (_body(0.0), 0), (_touching([(20, 26)]), 1),
+                          (_touching([(20, 26), (40, 46)]), 2)):
+        assert surface_handles(mesh.vertices, mesh.faces) == handles
+    # a hole is no handle: one face out of the sphere, and a disc cut out of the arm
+    sphere = trimesh.creation.icosphere(3)
+    assert surface_handles(sphere.vertices, sphere.faces[1:]) == 0
+    arm = _touching([(20, 26)])
+    centre = arm.vertices[arm.faces].mean(axis=1)
+    cut = (centre[:, 0] > 0.36) & (centre[:, 1] > 0.5) & (centre[:, 1] < 0.53)
+    assert cut.any() and surface_handles(arm.vertices, arm.faces[~cut]) == 1
+
+
+def test_a_root_with_fewer_handles_is_taken_over_a_more_central_one():
+    frames = [_touching([(20, 26), (40, 46)]), _touching([]), _touching([(20, 26), (40, 46)])]
+    # a third less central and 19% wider: the spread alone pays more in centrality than it gains, so
+    # it keeps the central frame, whose arm touches the torso twice
+    centrality = np.array([10.0, 13.4, 10.0])
+    assert choose_root(frames, centrality, handle_slack=None)[0] == 0
+    root, report = choose_root(frames, centrality)
+    assert root == 1 and list(report["handles"][np.argsort(report["candidates"])]) == [2.0, 0.0, 2.0]
+    # one handle more than the fewest is allowed: the spread and the centrality decide as before
+    frames = [_touching([(20, 26)]), _touching([]), _touching([(20, 26)])]
+    assert choose_root(frames, np.array([10.0, 10.3, 10.0]))[0] == choose_root(
+        frames, np.array([10.0, 10.3, 10.0]), handle_slack=None)[0]
+    # beyond the slack no frame is a candidate, however few its handles
+    assert choose_root([frames[0], _touching([]), frames[0]], np.array([10.0, 14.0, 10.0]))[0] == 0
 
 
 def test_tree_centrality_is_what_the_median_root_minimises_and_choose_root_overrides_it():
