@@ -157,7 +157,8 @@ def choose_root(meshes, centrality, *, slack=ROOT_SLACK, max_candidates=ROOT_CAN
     Returns
     -------
     root : int
-    report : dict   ``candidates`` (frame indices), ``spread`` (their spreads), ``handles`` (their
+    report : dict   ``candidates`` (frame indices), ``spread`` (their spreads; NaN for those not
+                    allowed by their handles, whose spread is not measured), ``handles`` (their
                     handles, None when not counted), ``score``, ``central`` (the most central frame)
     """
     centrality = np.asarray(centrality, dtype=np.float64)
@@ -165,21 +166,22 @@ def choose_root(meshes, centrality, *, slack=ROOT_SLACK, max_candidates=ROOT_CAN
     best_total = max(float(centrality[order[0]]), 1e-300)
     within = order[centrality[order] <= (1.0 + float(slack)) * best_total]
     candidates = within[:max(int(max_candidates), 1)]
-    spread = np.empty(len(candidates))
-    for i, frame in enumerate(candidates):
-        spread[i] = geodesic_spread(meshes[frame].vertices, meshes[frame].faces, samples=samples)
-        if progress is not None:
-            progress(i + 1, len(candidates))
     allowed = np.ones(len(candidates), dtype=bool)
     handles = None
-    if handle_slack is not None:
+    if handle_slack is not None:  # counted first (milliseconds): the spread's walks only for those allowed
         handles = np.array([surface_handles(meshes[f].vertices, meshes[f].faces) for f in candidates])
         allowed = handles <= handles.min() + float(handle_slack)
+    spread = np.full(len(candidates), np.nan)
+    for i, frame in enumerate(candidates):
+        if allowed[i]:
+            spread[i] = geodesic_spread(meshes[frame].vertices, meshes[frame].faces, samples=samples)
+        if progress is not None:
+            progress(i + 1, len(candidates))
     first = int(np.argmax(allowed))  # the most central allowed candidate (candidates[0] is the most central frame)
     central = max(float(spread[first]), 1e-300)
     score = spread / central - centrality_weight * (centrality[candidates] / best_total - 1.0)
     # the most central allowed frame keeps its own score; a wider one must beat it, its centrality paid
-    narrow = spread < (1.0 + float(min_gain)) * central
+    narrow = spread < (1.0 + float(min_gain)) * central   # (NaN: not allowed, scored out below)
     narrow[first] = False
     score[narrow | ~allowed] = -np.inf
     root = int(candidates[int(np.argmax(score))])

@@ -310,10 +310,10 @@ def _check_given_against_record(name, aligned, recorded, units, up):
     """A --units or --up that contradicts what the alignment recorded of a sequence's input is
     refused: the aligned frames were converted from that input, so ground truth read otherwise
     would be scored in other units or axes than the frames (nonsense errors, not a warning)."""
-    for flag, given, key, same in (("units", units, "source_units", lambda a, b: a == b),
-                                   ("up", up, "source_up", lambda a, b: a.lower().lstrip("+") == b.lower().lstrip("+"))):
+    plain = lambda value: str(value).strip().lower().lstrip("+")  # noqa: E731  ("+Z" and "z" are one axis)
+    for flag, given, key in (("units", units, "source_units"), ("up", up, "source_up")):
         said = recorded.get(key)
-        if given != "auto" and said not in (None, "", "mixed") and not same(str(given), str(said)):
+        if given != "auto" and said not in (None, "", "mixed") and plain(given) != plain(said):
             raise ValueError(f"--{flag} {given}: {aligned} aligned {name} from input in {said} ({key} in its "
                              f"meta.json), so its ground truth is read in {said} too; leave --{flag} out with --aligned")
 
