@@ -131,7 +131,8 @@ def main(argv=None):
         if any(not 0 <= c < n for c in candidates) or len(set(candidates)) != len(candidates):
             parser.error(f"--roots must be distinct frames of the slice, 0..{n - 1}")
     else:
-        candidates = trial_candidates(similarity.dissimilarity, chooser.centrality, spread_choice, slack=ROOT_SLACK)
+        candidates = trial_candidates(similarity.dissimilarity, chooser.centrality, spread_choice, slack=ROOT_SLACK,
+                                      allowed=chooser.report["allowed"])
     probes = trial_probes(n, candidates, args.probes or TRIAL_PROBES)
     colours = all(getattr(m, "colors", None) is not None for m in oriented)
     cpu_started = time.process_time()

@@ -17,7 +17,8 @@ from engine.align.pairwise import AlignmentOptions
 from engine.align.propagation import AlignedFrames, align_tree
 from engine.align.repair import alignment_confidence, colour_terms, repair_alignment, tail_reference
 from engine.align.root_choice import ROOT_SLACK, choose_root
-from engine.align.root_race import finalists, no_race_reason, no_trial_reason, race_frames, race_score, sub_similarity
+from engine.align.root_race import (finalists, no_race_reason, no_trial_reason, race_frames, race_in_processes,
+                                    race_score, sub_similarity)
 from engine.align.root_trial import root_setup, trial_candidates, trial_probes, try_roots
 from engine.align.similarity import shape_dissimilarity
 from engine.align.similarity_tree import DEFAULT_TREE, chain_tree, similarity_tree
@@ -43,12 +44,13 @@ class CaptureAlignment:
     turned : dict       frame index -> faces whose winding was reversed so that the frame faces
                         outward (:func:`engine.surface.orient_outward`); frames as read are absent
     root_trial : dict or None   with ``root_choice`` "trial", "race" or "auto": the candidate roots
-                        tried, the probe frames, each candidate's badness per probe and mean, and
-                        the spread's choice (:func:`engine.align.root_trial.try_roots`); when
+                        tried, the probe frames, each candidate's badness per probe and mean, its
+                        handles and the spread's choice (:func:`engine.align.root_trial.try_roots`); when
                         raced also ``race``: ``finalists``, ``frames`` (how many each aligned),
                         ``confidence`` (each finalist's mean) and ``winner``; None when no trial ran
     root_reason : str or None   when no trial or no race ran although ``root_choice`` asked for it,
-                        why (``root`` given, or fewer than ``TRIAL_MIN_FRAMES`` frames: neither;
+                        why (``root`` given, fewer than ``TRIAL_MIN_FRAMES`` frames, or no other
+                        central frame with as few handles as the spread's choice: neither;
                         "auto" on a densely tracked take, ``root_race.neighbour_share``: no race)
     """
 
@@ -185,7 +187,11 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
         "the root given: no trial or race" if root is not None and root_choice in ("auto", "race", "trial") else None
     if tries and reason is None and tets is None:
         started = time.perf_counter()
-        candidates = trial_candidates(similarity.dissimilarity, chooser.centrality, tree.root, slack=ROOT_SLACK)
+        # a frame with more handles than the choice allows (merged contacts) is not tried either
+        candidates = trial_candidates(similarity.dissimilarity, chooser.centrality, tree.root, slack=ROOT_SLACK,
+                                      allowed=chooser.report["allowed"])
+        if len(candidates) == 1:
+            reason = "the spread's choice, `apart`: no other central frame with as few handles to try"
         if len(candidates) > 1:
             probes = trial_probes(len(meshes), candidates)
             # the probes are far steps, where the ring (engine.align.ring) would run on most: without it
@@ -194,6 +200,8 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                              colours=colours, seed=seed, runner=runner, workers=workers,
                                              progress=(lambda d, t: progress("trial", d, t)) if progress else None)
             trial["spread_choice"] = int(tree.root)
+            counted = dict(zip(chooser.report["candidates"].tolist(), chooser.report["handles"].tolist()))
+            trial["handles"] = [counted[c] for c in candidates]
             tets = tried[chosen]
             if chosen != tree.root:
                 tree = similarity_tree(similarity.dissimilarity, root=chosen, kind=tree_kind, lengths=lengths)
@@ -274,8 +282,8 @@ def _race(meshes, lengths, similarity, trial, tried, tree_kind, settings, progre
     if settings["runner"] is None and settings["workers"] >= 2:
         # the finalists side by side, one process each: a race's tree is one or two pieces, so a
         # finalist alone keeps one core busy (the same result: it does not depend on ``workers``)
-        done = _race_in_processes(sub, sub_lengths, similar, trees, [tried.get(c) for c in final], settings,
-                                  progress)
+        done = race_in_processes(sub, sub_lengths, similar, trees, [tried.get(c) for c in final], settings,
+                                 progress)
     else:
         done = [_align_from(sub, sub_lengths, similar, tree, "tree", tets=tried.get(c),
                             progress=_race_progress(progress, k * len(frames), len(final) * len(frames)), **settings)
@@ -288,57 +296,6 @@ def _race(meshes, lengths, similarity, trial, tried, tree_kind, settings, progre
     if whole:
         return runs[winner]
     return similarity_tree(similarity.dissimilarity, root=winner, kind=tree_kind, lengths=lengths), None
-
-
-_RACE = {}
-
-
-def _race_in_processes(sub, lengths, similar, trees, tets, settings, progress):
-    """Each finalist's :func:`_align_from` in its own process (``settings["workers"]`` at most),
-    with one worker each; the "race" stage's progress counts the frames of all of them."""
-    import multiprocessing
-    import queue as queue_module
-    from concurrent.futures import ProcessPoolExecutor, wait
-
-    context = multiprocessing.get_context("forkserver")
-    ticks = context.Queue()
-    shared = (sub, lengths, similar, dict(settings, workers=1))
-    frames, total = {}, len(trees) * len(sub)
-    with ProcessPoolExecutor(max_workers=min(int(settings["workers"]), len(trees)), mp_context=context,
-                             initializer=_race_init, initargs=(shared, ticks)) as pool:
-        futures = [pool.submit(_race_entry, (k, tree, t)) for k, (tree, t) in enumerate(zip(trees, tets))]
-        pending = set(futures)
-        while pending:
-            _, pending = wait(pending, timeout=0.5)
-            while True:
-                try:
-                    k, done = ticks.get_nowait()
-                except queue_module.Empty:
-                    break
-                frames[k] = done
-                if progress is not None:
-                    progress("race", sum(frames.values()), total)
-        results = [future.result() for future in futures]
-    if progress is not None:
-        progress("race", total, total)  # ticks a process sent after its result came back
-    return results
-
-
-def _race_init(shared, ticks):
-    """Process-pool initializer of :func:`_race_in_processes`."""
-    _RACE["shared"], _RACE["ticks"] = shared, ticks
-
-
-def _race_entry(job):
-    """One finalist's alignment in a process of the race: ``job`` is (its index, tree, tets)."""
-    k, tree, tets = job
-    sub, lengths, similar, settings = _RACE["shared"]
-    ticks = _RACE["ticks"]
-
-    def report(stage, done, _):
-        if stage == "align":
-            ticks.put((k, done))
-    return _align_from(sub, lengths, similar, tree, "tree", tets=tets, progress=report, **settings)
 
 
 def _race_progress(progress, offset, total):
@@ -375,10 +332,13 @@ def _with_faces(mesh, faces):
 
 def _apart(meshes, progress):
     """``choose_root`` for :func:`similarity_tree`: central, with the limbs apart (the
-    centrality it was given kept as ``.centrality``, for the root trial)."""
+    centrality it was given kept as ``.centrality`` and its report as ``.report``, for the root
+    trial)."""
     def choose(centrality):
         choose.centrality = np.asarray(centrality)
-        return choose_root(meshes, centrality, progress=(lambda d, t: progress("root", d, t)) if progress else None)[0]
+        root, choose.report = choose_root(meshes, centrality,
+                                          progress=(lambda d, t: progress("root", d, t)) if progress else None)
+        return root
     return choose
 
 

@@ -159,7 +159,8 @@ def choose_root(meshes, centrality, *, slack=ROOT_SLACK, max_candidates=ROOT_CAN
     root : int
     report : dict   ``candidates`` (frame indices), ``spread`` (their spreads; NaN for those not
                     allowed by their handles, whose spread is not measured), ``handles`` (their
-                    handles, None when not counted), ``score``, ``central`` (the most central frame)
+                    handles, None when not counted), ``allowed`` (the candidates' frames allowed by
+                    their handles, most central first), ``score``, ``central`` (the most central frame)
     """
     centrality = np.asarray(centrality, dtype=np.float64)
     order = np.argsort(centrality, kind="stable")
@@ -185,8 +186,8 @@ def choose_root(meshes, centrality, *, slack=ROOT_SLACK, max_candidates=ROOT_CAN
     narrow[first] = False
     score[narrow | ~allowed] = -np.inf
     root = int(candidates[int(np.argmax(score))])
-    return root, {"candidates": candidates, "spread": spread, "handles": handles, "score": score,
-                  "central": int(order[0])}
+    return root, {"candidates": candidates, "spread": spread, "handles": handles,
+                  "allowed": [int(f) for f in candidates[allowed]], "score": score, "central": int(order[0])}
 
 
 __all__ = ["HANDLE_SLACK", "choose_root", "geodesic_spread", "surface_handles"]

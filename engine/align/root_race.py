@@ -121,6 +121,60 @@ def race_score(confidence, root):
     return float(confidence[others].mean()) if others.any() else 1.0
 
 
+_RACE = {}
+
+
+def race_in_processes(sub, lengths, similar, trees, tets, settings, progress):
+    """Each finalist aligns ``sub`` along its tree (:func:`engine.align.captures._align_from`) in
+    its own process (``settings["workers"]`` at most), with one worker each; the "race" stage's
+    progress counts the frames of all of them."""
+    import multiprocessing
+    import queue as queue_module
+    from concurrent.futures import ProcessPoolExecutor, wait
+
+    context = multiprocessing.get_context("forkserver")
+    ticks = context.Queue()
+    shared = (sub, lengths, similar, dict(settings, workers=1))
+    frames, total = {}, len(trees) * len(sub)
+    with ProcessPoolExecutor(max_workers=min(int(settings["workers"]), len(trees)), mp_context=context,
+                             initializer=_race_init, initargs=(shared, ticks)) as pool:
+        futures = [pool.submit(_race_entry, (k, tree, t)) for k, (tree, t) in enumerate(zip(trees, tets))]
+        pending = set(futures)
+        while pending:
+            _, pending = wait(pending, timeout=0.5)
+            while True:
+                try:
+                    k, done = ticks.get_nowait()
+                except queue_module.Empty:
+                    break
+                frames[k] = done
+                if progress is not None:
+                    progress("race", sum(frames.values()), total)
+        results = [future.result() for future in futures]
+    if progress is not None:
+        progress("race", total, total)  # ticks a process sent after its result came back
+    return results
+
+
+def _race_init(shared, ticks):
+    """Process-pool initializer of :func:`race_in_processes`."""
+    _RACE["shared"], _RACE["ticks"] = shared, ticks
+
+
+def _race_entry(job):
+    """One finalist's alignment in a process of the race: ``job`` is (its index, tree, tets)."""
+    from engine.align.captures import _align_from
+
+    k, tree, tets = job
+    sub, lengths, similar, settings = _RACE["shared"]
+    ticks = _RACE["ticks"]
+
+    def report(stage, done, _):
+        if stage == "align":
+            ticks.put((k, done))
+    return _align_from(sub, lengths, similar, tree, "tree", tets=tets, progress=report, **settings)
+
+
 def sub_similarity(similarity, frames):
     """A :class:`engine.align.similarity.ShapeSimilarity` of ``frames`` only (one sequence: the
     frames are not neighbours in time)."""
@@ -133,4 +187,5 @@ def sub_similarity(similarity, frames):
 
 
 __all__ = ["RACE_FINALISTS", "RACE_FRAMES", "TRACKED_SHARE", "finalists", "neighbour_share", "no_race_reason",
-           "no_trial_reason", "race_frames", "race_score", "sub_similarity"]
+           "no_trial_reason", "race_frames", "race_in_processes",
+           "race_score", "sub_similarity"]

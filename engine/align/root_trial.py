@@ -36,11 +36,14 @@ TRIAL_MIN_FRAMES = 24   # fewer frames than this: no trial, the spread's choice 
 TRIAL_APART = 0.5       # a candidate is at least this share of the median dissimilarity from those taken
 
 
-def trial_candidates(dissimilarity, centrality, first, *, slack, count=TRIAL_CANDIDATES, apart=TRIAL_APART):
+def trial_candidates(dissimilarity, centrality, first, *, slack, count=TRIAL_CANDIDATES, apart=TRIAL_APART,
+                     allowed=None):
     """The candidate roots: ``first`` (the spread's choice), then the most central frames within
     ``slack`` of the most central, skipping frames closer than ``apart`` times the median
     dissimilarity to a candidate already taken (the rest poses at a take's start and end are one
-    pose). Fewer than ``count`` when the close ones are all that is left.
+    pose) and, when ``allowed`` (frame indices) is given, frames not in it: the frames
+    :func:`engine.align.root_choice.choose_root` allowed by their handles. Fewer than ``count``
+    when the close ones are all that is left.
 
     Returns a list of frame indices, ``first`` first.
     """
@@ -49,6 +52,9 @@ def trial_candidates(dissimilarity, centrality, first, *, slack, count=TRIAL_CAN
     order = np.argsort(centrality, kind="stable")
     best = max(float(centrality[order[0]]), 1e-300)
     pool = [int(f) for f in order if centrality[f] <= (1.0 + float(slack)) * best]
+    if allowed is not None:
+        allowed = {int(f) for f in allowed}
+        pool = [f for f in pool if f in allowed]
     off = D[~np.eye(len(D), dtype=bool)]
     near = float(apart) * (float(np.median(off)) if len(off) else 0.0)
     taken = [int(first)]

@@ -106,6 +106,7 @@ def test_a_root_with_fewer_handles_is_taken_over_a_more_central_one():
     assert choose_root(frames, centrality, handle_slack=None)[0] == 0
     root, report = choose_root(frames, centrality)
     assert root == 1 and list(report["handles"][np.argsort(report["candidates"])]) == [2.0, 0.0, 2.0]
+    assert report["allowed"] == [1]  # the frames the trial may try too
     # one handle more than the fewest is allowed: the spread and the centrality decide as before
     frames = [_touching([(20, 26)]), _touching([]), _touching([(20, 26)])]
     assert choose_root(frames, np.array([10.0, 10.3, 10.0]))[0] == choose_root(
@@ -140,6 +141,9 @@ def test_trial_candidates_start_from_the_spread_choice_and_skip_near_poses():
     assert trial_candidates(D, centrality, 1, slack=0.35, count=2) == [1, 3]
     # with nothing kept apart, the most central frames in order
     assert trial_candidates(D, centrality, 1, slack=0.35, count=3, apart=0.0) == [1, 0, 2]
+    # frames the handles do not allow (merged contacts) are not tried
+    assert trial_candidates(D, centrality, 1, slack=0.35, count=4, allowed=[1, 4, 5]) == [1, 4]
+    assert trial_candidates(D, centrality, 1, slack=0.35, count=4, allowed=[1]) == [1]
 
 
 def test_trial_probes_are_spread_evenly_and_never_a_candidate():
