@@ -49,8 +49,7 @@ class CaptureAlignment:
                         raced also ``race``: ``finalists``, ``frames`` (how many each aligned),
                         ``confidence`` (each finalist's mean) and ``winner``; None when no trial ran
     root_reason : str or None   when no trial or no race ran although ``root_choice`` asked for it,
-                        why (``root`` given, fewer than ``TRIAL_MIN_FRAMES`` frames, or no other
-                        central frame with as few handles as the spread's choice: neither;
+                        why (``root`` given, or fewer than ``TRIAL_MIN_FRAMES`` frames: neither;
                         "auto" on a densely tracked take, ``root_race.neighbour_share``: no race)
     """
 
@@ -187,11 +186,9 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
         "the root given: no trial or race" if root is not None and root_choice in ("auto", "race", "trial") else None
     if tries and reason is None and tets is None:
         started = time.perf_counter()
-        # a frame with more handles than the choice allows (merged contacts) is not tried either
+        # frames with as few handles as the choice allows are tried first, the others only after them
         candidates = trial_candidates(similarity.dissimilarity, chooser.centrality, tree.root, slack=ROOT_SLACK,
                                       allowed=chooser.report["allowed"])
-        if len(candidates) == 1:
-            reason = "the spread's choice, `apart`: no other central frame with as few handles to try"
         if len(candidates) > 1:
             probes = trial_probes(len(meshes), candidates)
             # the probes are far steps, where the ring (engine.align.ring) would run on most: without it

@@ -41,9 +41,11 @@ def trial_candidates(dissimilarity, centrality, first, *, slack, count=TRIAL_CAN
     """The candidate roots: ``first`` (the spread's choice), then the most central frames within
     ``slack`` of the most central, skipping frames closer than ``apart`` times the median
     dissimilarity to a candidate already taken (the rest poses at a take's start and end are one
-    pose) and, when ``allowed`` (frame indices) is given, frames not in it: the frames
-    :func:`engine.align.root_choice.choose_root` allowed by their handles. Fewer than ``count``
-    when the close ones are all that is left.
+    pose). When ``allowed`` (frame indices: those :func:`engine.align.root_choice.choose_root`
+    allowed by their handles) is given, those frames come first and the others only fill the
+    places they leave (a merged sleeve closes no handle when it is merged all along: on the whole
+    studio the one frame the handles allowed, untried, erred 2.95% mean against 2.24% raced).
+    Fewer than ``count`` when the close ones are all that is left.
 
     Returns a list of frame indices, ``first`` first.
     """
@@ -54,7 +56,7 @@ def trial_candidates(dissimilarity, centrality, first, *, slack, count=TRIAL_CAN
     pool = [int(f) for f in order if centrality[f] <= (1.0 + float(slack)) * best]
     if allowed is not None:
         allowed = {int(f) for f in allowed}
-        pool = [f for f in pool if f in allowed]
+        pool = [f for f in pool if f in allowed] + [f for f in pool if f not in allowed]
     off = D[~np.eye(len(D), dtype=bool)]
     near = float(apart) * (float(np.median(off)) if len(off) else 0.0)
     taken = [int(first)]

@@ -141,9 +141,10 @@ def test_trial_candidates_start_from_the_spread_choice_and_skip_near_poses():
     assert trial_candidates(D, centrality, 1, slack=0.35, count=2) == [1, 3]
     # with nothing kept apart, the most central frames in order
     assert trial_candidates(D, centrality, 1, slack=0.35, count=3, apart=0.0) == [1, 0, 2]
-    # frames the handles do not allow (merged contacts) are not tried
-    assert trial_candidates(D, centrality, 1, slack=0.35, count=4, allowed=[1, 4, 5]) == [1, 4]
-    assert trial_candidates(D, centrality, 1, slack=0.35, count=4, allowed=[1]) == [1]
+    # frames the handles allow come first (5 is beyond the slack); the others fill the places left
+    assert trial_candidates(D, centrality, 1, slack=0.35, count=2, allowed=[1, 4, 5]) == [1, 4]
+    assert trial_candidates(D, centrality, 1, slack=0.35, count=4, allowed=[1, 4, 5]) == [1, 4, 3]
+    assert trial_candidates(D, centrality, 1, slack=0.35, count=2, allowed=[1]) == [1, 3]
 
 
 def test_trial_probes_are_spread_evenly_and_never_a_candidate():
