@@ -16,7 +16,7 @@ import numpy as np
 from engine.align.pairwise import AlignmentOptions
 from engine.align.propagation import AlignedFrames, align_tree
 from engine.align.repair import alignment_confidence, colour_terms, repair_alignment, tail_reference
-from engine.align.root_choice import ROOT_SLACK, choose_root
+from engine.align.root_choice import ROOT_SLACK, choose_root, surface_handles
 from engine.align.root_race import (finalists, no_race_reason, no_trial_reason, race_frames, race_in_processes,
                                     race_score, sub_similarity)
 from engine.align.root_trial import root_setup, trial_candidates, trial_probes, try_roots
@@ -197,8 +197,8 @@ def align_captures(meshes, lengths, *, method="tree", tree_kind=DEFAULT_TREE, ro
                                              colours=colours, seed=seed, runner=runner, workers=workers,
                                              progress=(lambda d, t: progress("trial", d, t)) if progress else None)
             trial["spread_choice"] = int(tree.root)
-            counted = dict(zip(chooser.report["candidates"].tolist(), chooser.report["handles"].tolist()))
-            trial["handles"] = [counted[c] for c in candidates]
+            # counted again (milliseconds): a candidate that fills a place may lie beyond the 64 the choice counted
+            trial["handles"] = [surface_handles(meshes[c].vertices, meshes[c].faces) for c in candidates]
             tets = tried[chosen]
             if chosen != tree.root:
                 tree = similarity_tree(similarity.dissimilarity, root=chosen, kind=tree_kind, lengths=lengths)

@@ -187,5 +187,4 @@ def sub_similarity(similarity, frames):
 
 
 __all__ = ["RACE_FINALISTS", "RACE_FRAMES", "TRACKED_SHARE", "finalists", "neighbour_share", "no_race_reason",
-           "no_trial_reason", "race_frames", "race_in_processes",
-           "race_score", "sub_similarity"]
+           "no_trial_reason", "race_frames", "race_in_processes", "race_score", "sub_similarity"]
