@@ -48,6 +48,11 @@ class AlignmentOptions:
                                 (rotations about the joint with the best-fitting neighbour)
                                 and keep the best fitting one
     search_rounds : int         rounds per such level that search
+    search_gate : float         0: every fit searches. Above 0: a fit runs first without the
+                                search, and only one whose colours disagree more than this many
+                                times the root's colour floor (or that has no colours to tell) runs
+                                again with it; the better of the two is kept, judged as the tree's
+                                retries judge (``engine.align.pieces.better_alignment``)
     swing_limbs : bool          in those rounds, also swing limbs onto the parts of the target
                                 nothing covers (:mod:`engine.align.coverage`): an arm thrown
                                 into a punch, which patch matching leaves by the hip it fits
@@ -109,6 +114,7 @@ class AlignmentOptions:
     rotation_prior: float = 0.0
     search_levels: int = 1
     search_rounds: int = 3
+    search_gate: float = 0.0
     swing_limbs: bool = False
     reach_limbs: bool = True
     graft_limbs: bool = False
@@ -146,6 +152,7 @@ class PairAlignment:
     orientations : int          rigid starts aligned from (2 or 3: front and back ambiguous, the ring's best)
     pulled : int                limbs pulled onto what nothing covered (``reach_limbs``) in the
                                 alignment kept
+    searched : bool             the fit kept ran the articulated search (``search_gate``)
     """
 
     V: np.ndarray
@@ -159,6 +166,7 @@ class PairAlignment:
     colour_mean: float = float("nan")
     orientations: int = 1
     pulled: int = 0
+    searched: bool = False
 
     @property
     def quality(self):

@@ -144,18 +144,36 @@ class PairwiseAligner:
         """
         started = time.perf_counter()
         starts = self._rigid_starts(np.asarray(X_source, dtype=np.float64), target, yaw)
-        results = [self._fit(X, target) for X in starts]
-        regions = self.colour_regions
-        for result in results:
-            result.colour_distance, result.colour_mean = colour_measures(result.V, self.colors, target, regions)
-        best = min(results, key=self._orientation_score)
+        gate = self.options.search_gate
+        best = self._best_fit(starts, target, search=gate <= 0)
+        if gate > 0 and self.options.search_levels > 0 and self._search_needed(best, gate):
+            from engine.align.pieces import better_alignment  # pieces imports this module
+
+            searched = self._best_fit(starts, target, search=True)
+            best = searched if better_alignment(searched, best, self._retry_floor) else best
         best.seconds = time.perf_counter() - started
         best.orientations = len(starts)
         return best
 
-    def _fit(self, X, target):
-        """Coarse-to-fine patch matching and deformation from a rigidly placed pose X."""
+    def _best_fit(self, starts, target, search):
+        """The fit from every rigid start, with or without the articulated search; the best kept."""
+        results = [self._fit(X, target, search=search) for X in starts]
+        regions = self.colour_regions
+        for result in results:
+            result.colour_distance, result.colour_mean = colour_measures(result.V, self.colors, target, regions)
+        return min(results, key=self._orientation_score)
+
+    def _search_needed(self, result, gate):
+        """Whether a fit without the search is fitted again with it (``options.search_gate``): its
+        colours disagree more than ``gate`` times the root's floor, or there are no colours to tell."""
+        floor = self._retry_floor
+        return not (np.isfinite(floor) and np.isfinite(result.colour_mean)) or result.colour_mean > gate * floor
+
+    def _fit(self, X, target, search=True):
+        """Coarse-to-fine patch matching and deformation from a rigidly placed pose X (with the
+        articulated search on ``options.search_levels`` levels, or with none)."""
         o = self.options
+        search_levels = o.search_levels if search else 0
         R = rotation_fit(self._gradients(X), self._eye, iterations=8)
         prior, pulled = R.copy(), 0
         use_colour = self.colors is not None and target.colors is not None and o.colour_weight > 0
@@ -164,7 +182,7 @@ class PairwiseAligner:
             solver = self._solvers[o.stiffness[min(level, len(o.stiffness) - 1)]]
             for round_ in range(o.rounds[min(level, len(o.rounds) - 1)]):
                 S = self.B @ X
-                search = level < o.search_levels and round_ < o.search_rounds
+                search = level < search_levels and round_ < o.search_rounds
                 goal, confidence = self._match_patches(S, target, labels, count, use_colour,
                                                        level=level if search else None,
                                                        coarse=level < o.match_sample_levels,
@@ -186,7 +204,8 @@ class PairwiseAligner:
         per_tet = np.sum((F - R) ** 2, axis=(1, 2))
         distortion = float(self._tet_volume @ per_tet / self._tet_volume.sum())
         return PairAlignment(V=V, X=X, residual=residual, residual_max=residual_max, distortion=distortion,
-                             distortion_tail=self._tail(per_tet), pulled=pulled)
+                             distortion_tail=self._tail(per_tet), pulled=pulled,
+                             searched=search_levels > 0)
 
     @functools.cached_property
     def reach_colours(self):
@@ -197,6 +216,11 @@ class PairwiseAligner:
     def colour_floor(self):
         """The root's colour floor (:func:`engine.align.appearance.colour_floor`; NaN without colours)."""
         return colour_floor(self.V, self.F, self.colors, self.colour_regions)
+
+    @property
+    def _retry_floor(self):
+        """The colour floor the tree's retries judge by: NaN when colour cues are off."""
+        return self.colour_floor if self.options.colour_weight > 0 else float("nan")
 
     @property
     def colour_regions(self):

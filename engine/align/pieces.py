@@ -4,7 +4,7 @@ A piece is a connected part of the tree (:func:`engine.align.propagation.partiti
 frames are aligned breadth first, each from its parent's aligned pose; a frame whose alignment
 scores poorly, or whose step lost the root's colours (:func:`_colour_slipped`), is aligned again
 from other already aligned frames of the piece, the most similar first, and the best result is
-kept (:func:`_better`). A worker process builds its aligner once
+kept (:func:`better_alignment`). A worker process builds its aligner once
 (:func:`init_worker`) and then aligns pieces (:func:`run_piece`).
 """
 
@@ -124,7 +124,7 @@ def align_piece(aligner, job, tick=None):
                     source = int(candidates[j])
                     other = aligner.align(poses[source], target, yaw=float(job["yaw_rows"][i][j]))
                     spent += other.seconds
-                    if _better(other, result, floor):
+                    if better_alignment(other, result, floor):
                         result, p = other, source
                     if result.quality <= limit and not _colour_slipped(result, colour_of.get(p), floor):
                         break
@@ -164,7 +164,7 @@ def _colour_slipped(result, parent_colour, floor):
         result.colour_mean - parent_colour > COLOUR_STEP * floor
 
 
-def _better(other, result, floor):
+def better_alignment(other, result, floor):
     """Whether a retry's result replaces the one so far: with colours, one whose colours agree
     better by more than ``RETRY_MARGIN`` (a body turned or slid can fit and tear no worse), and
     not one that agrees worse by as much; between those (a periodic print agrees about as well
@@ -177,4 +177,4 @@ def _better(other, result, floor):
     return other.quality < result.quality
 
 
-__all__ = ["align_piece", "init_worker", "piece_task", "portable_aligner", "run_piece"]
+__all__ = ["align_piece", "better_alignment", "init_worker", "piece_task", "portable_aligner", "run_piece"]

@@ -73,7 +73,7 @@ def test_with_colours_only_a_large_tear_counts():
 
 def test_a_step_that_loses_the_roots_colours_is_aligned_again_and_the_better_colours_win():
     from engine.align.options import PairAlignment
-    from engine.align.pieces import COLOUR_RETRY, COLOUR_STEP, _better, _colour_slipped
+    from engine.align.pieces import COLOUR_RETRY, COLOUR_STEP, _colour_slipped, better_alignment
 
     def result(colour, quality=1.0):
         return PairAlignment(V=None, X=None, residual=0.05 * quality, residual_max=0.0, colour_mean=colour)
@@ -85,11 +85,11 @@ def test_a_step_that_loses_the_roots_colours_is_aligned_again_and_the_better_col
     assert not _colour_slipped(result(high), high - 0.1 * floor, floor)  # inherited from the parent
     assert not _colour_slipped(result(COLOUR_RETRY * floor), 0.0, floor)
     assert not _colour_slipped(result(high), None, float("nan"))  # no colour cues
-    assert _better(result(0.2, quality=5.0), result(0.3, quality=1.0), floor)  # colours decide ...
-    assert not _better(result(0.3, quality=1.0), result(0.2, quality=5.0), floor)
-    assert not _better(result(0.29, quality=5.0), result(0.3, quality=1.0), floor)  # ... when clearly apart
-    assert _better(result(0.31, quality=1.0), result(0.3, quality=5.0), floor)
-    assert not _better(result(0.2, quality=5.0), result(0.3, quality=1.0), float("nan"))  # else the quality
+    assert better_alignment(result(0.2, quality=5.0), result(0.3, quality=1.0), floor)  # colours decide ...
+    assert not better_alignment(result(0.3, quality=1.0), result(0.2, quality=5.0), floor)
+    assert not better_alignment(result(0.29, quality=5.0), result(0.3, quality=1.0), floor)  # ... when clearly apart
+    assert better_alignment(result(0.31, quality=1.0), result(0.3, quality=5.0), floor)
+    assert not better_alignment(result(0.2, quality=5.0), result(0.3, quality=1.0), float("nan"))  # else the quality
 
 
 def test_regions_take_out_light_and_exposure_but_not_a_slide():

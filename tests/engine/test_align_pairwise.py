@@ -151,3 +151,30 @@ def test_a_patch_half_covered_by_the_target_is_matched_with_partial_confidence(w
         assert np.all(per_patch[side == 1] > 0.9), level
         partial = (per_patch > 0.05) & (per_patch < 0.95)
         assert partial.sum() >= 0.05 * count, (level, np.round(per_patch, 2))   # 9 of 30, 23 of 240
+
+
+def test_the_search_gate_fits_again_with_the_search_only_where_the_colours_disagree(walk_capture, walk_aligner):
+    from dataclasses import replace
+
+    from engine.align.pairwise import PairwiseAligner
+    from engine.align.pieces import better_alignment
+
+    _, _, frames = walk_capture
+    base = walk_aligner
+    Vk, Fk, Ck = frames[2]
+    target = TargetSurface(Vk, Fk, Ck)
+
+    def aligner(**changes):
+        options = replace(base.options, colour_weight=1.0, **changes)
+        return PairwiseAligner(base.V, base.F, base.colors, tets=(base.V_tet, base.T), options=options)
+
+    plain = aligner(search_levels=0).align(base.V_tet, target)
+    searched = aligner().align(base.V_tet, target)
+    assert searched.searched and not plain.searched
+    never = aligner(search_gate=1e9).align(base.V_tet, target)  # the colours always agree well enough
+    assert not never.searched
+    np.testing.assert_array_equal(never.V, plain.V)
+    always = aligner(search_gate=1e-9).align(base.V_tet, target)  # they never agree that well
+    keep = better_alignment(searched, plain, aligner().colour_floor)
+    np.testing.assert_array_equal(always.V, (searched if keep else plain).V)
+    assert always.searched is keep
