@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+RETRY_MARGIN = 0.1  # a retry's colours must agree better by this share to win on colours alone
+
 
 @dataclass(frozen=True)
 class AlignmentOptions:
@@ -52,7 +54,7 @@ class AlignmentOptions:
                                 search, and only one whose colours disagree more than this many
                                 times the root's colour floor (or that has no colours to tell) runs
                                 again with it; the better of the two is kept, judged as the tree's
-                                retries judge (``engine.align.pieces.better_alignment``)
+                                retries judge (:func:`better_alignment`)
     swing_limbs : bool          in those rounds, also swing limbs onto the parts of the target
                                 nothing covers (:mod:`engine.align.coverage`): an arm thrown
                                 into a punch, which patch matching leaves by the hip it fits
@@ -174,4 +176,17 @@ class PairAlignment:
         return self.distortion + self.residual / 0.05
 
 
-__all__ = ["AlignmentOptions", "PairAlignment"]
+def better_alignment(other, result, floor):
+    """Whether a retry's result replaces the one so far: with colours, one whose colours agree
+    better by more than ``RETRY_MARGIN`` (a body turned or slid can fit and tear no worse), and
+    not one that agrees worse by as much; between those (a periodic print agrees about as well
+    one period off), and without colours, the lower quality score."""
+    if np.isfinite(floor) and np.isfinite(other.colour_mean) and np.isfinite(result.colour_mean):
+        if other.colour_mean < (1.0 - RETRY_MARGIN) * result.colour_mean:
+            return True
+        if result.colour_mean < (1.0 - RETRY_MARGIN) * other.colour_mean:
+            return False
+    return other.quality < result.quality
+
+
+__all__ = ["RETRY_MARGIN", "AlignmentOptions", "PairAlignment", "better_alignment"]

@@ -39,7 +39,7 @@ from engine.align.matching import (
     project_onto,
     reverse_correspondences,
 )
-from engine.align.options import AlignmentOptions, PairAlignment
+from engine.align.options import AlignmentOptions, PairAlignment, better_alignment
 from engine.align.patches import border_points, farthest_point_patches, patch_adjacency, patch_samples, search_patches
 from engine.align.reach import reach_uncovered
 from engine.align.rigid import patch_rigid_steps, rodrigues, rotation_fit, rotation_set, stack_rotations
@@ -147,10 +147,8 @@ class PairwiseAligner:
         gate = self.options.search_gate
         best = self._best_fit(starts, target, search=gate <= 0)
         if gate > 0 and self.options.search_levels > 0 and self._search_needed(best, gate):
-            from engine.align.pieces import better_alignment  # pieces imports this module
-
             searched = self._best_fit(starts, target, search=True)
-            best = searched if better_alignment(searched, best, self._retry_floor) else best
+            best = searched if better_alignment(searched, best, self.retry_floor) else best
         best.seconds = time.perf_counter() - started
         best.orientations = len(starts)
         return best
@@ -166,7 +164,7 @@ class PairwiseAligner:
     def _search_needed(self, result, gate):
         """Whether a fit without the search is fitted again with it (``options.search_gate``): its
         colours disagree more than ``gate`` times the root's floor, or there are no colours to tell."""
-        floor = self._retry_floor
+        floor = self.retry_floor
         return not (np.isfinite(floor) and np.isfinite(result.colour_mean)) or result.colour_mean > gate * floor
 
     def _fit(self, X, target, search=True):
@@ -218,8 +216,8 @@ class PairwiseAligner:
         return colour_floor(self.V, self.F, self.colors, self.colour_regions)
 
     @property
-    def _retry_floor(self):
-        """The colour floor the tree's retries judge by: NaN when colour cues are off."""
+    def retry_floor(self):
+        """The colour floor the tree's retries and the search gate judge by: NaN when colour cues are off."""
         return self.colour_floor if self.options.colour_weight > 0 else float("nan")
 
     @property

@@ -15,6 +15,7 @@ import time
 import numpy as np
 
 from engine.align.matching import TargetSurface
+from engine.align.options import better_alignment
 from engine.align.pairwise import PairAlignment, PairwiseAligner
 from engine.tasks import checkpoint
 
@@ -22,7 +23,6 @@ from engine.tasks import checkpoint
 _WORKER = {}
 COLOUR_RETRY = 2.0  # colour disagreement (in units of the root's floor) beyond which a frame ...
 COLOUR_STEP = 0.5   # ... that disagrees this much more than its parent is aligned again from other frames
-RETRY_MARGIN = 0.1  # a retry's colours must agree better by this share to win on colours alone
 RETRY_HISTORY = 10  # frames aligned before retries start (their median quality sets the retry limit)
 
 
@@ -90,7 +90,7 @@ def align_piece(aligner, job, tick=None):
     if job["entry"] >= 0:
         aligned[column[job["entry"]]] = True
     qualities = list(job["history"])
-    floor = aligner.colour_floor if aligner.options.colour_weight > 0 else float("nan")  # retries read colours with cues on
+    floor = aligner.retry_floor
     colour_of = {}  # node -> its colour disagreement (this piece's frames)
     out = {"nodes": nodes, "V": [], "residual": [], "residual_max": [], "distortion": [], "tail": [], "colour": [],
            "seconds": [], "cpu_seconds": [], "parent": [], "retried": [], "pulled": [], "quality": [], "poses": {}}
@@ -162,19 +162,6 @@ def _colour_slipped(result, parent_colour, floor):
         return False
     return parent_colour is None or not np.isfinite(parent_colour) or \
         result.colour_mean - parent_colour > COLOUR_STEP * floor
-
-
-def better_alignment(other, result, floor):
-    """Whether a retry's result replaces the one so far: with colours, one whose colours agree
-    better by more than ``RETRY_MARGIN`` (a body turned or slid can fit and tear no worse), and
-    not one that agrees worse by as much; between those (a periodic print agrees about as well
-    one period off), and without colours, the lower quality score."""
-    if np.isfinite(floor) and np.isfinite(other.colour_mean) and np.isfinite(result.colour_mean):
-        if other.colour_mean < (1.0 - RETRY_MARGIN) * result.colour_mean:
-            return True
-        if result.colour_mean < (1.0 - RETRY_MARGIN) * other.colour_mean:
-            return False
-    return other.quality < result.quality
 
 
 __all__ = ["align_piece", "better_alignment", "init_worker", "piece_task", "portable_aligner", "run_piece"]
