@@ -164,4 +164,4 @@ def _colour_slipped(result, parent_colour, floor):
         result.colour_mean - parent_colour > COLOUR_STEP * floor
 
 
-__all__ = ["align_piece", "better_alignment", "init_worker", "piece_task", "portable_aligner", "run_piece"]
+__all__ = ["align_piece", "init_worker", "piece_task", "portable_aligner", "run_piece"]

@@ -72,8 +72,8 @@ def test_with_colours_only_a_large_tear_counts():
 
 
 def test_a_step_that_loses_the_roots_colours_is_aligned_again_and_the_better_colours_win():
-    from engine.align.options import PairAlignment
-    from engine.align.pieces import COLOUR_RETRY, COLOUR_STEP, _colour_slipped, better_alignment
+    from engine.align.options import PairAlignment, better_alignment
+    from engine.align.pieces import COLOUR_RETRY, COLOUR_STEP, _colour_slipped
 
     def result(colour, quality=1.0):
         return PairAlignment(V=None, X=None, residual=0.05 * quality, residual_max=0.0, colour_mean=colour)

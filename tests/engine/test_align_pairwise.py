@@ -157,7 +157,7 @@ def test_the_search_gate_fits_again_with_the_search_only_where_the_colours_disag
     from dataclasses import replace
 
     from engine.align.pairwise import PairwiseAligner
-    from engine.align.pieces import better_alignment
+    from engine.align.options import better_alignment
 
     _, _, frames = walk_capture
     base = walk_aligner
@@ -169,12 +169,13 @@ def test_the_search_gate_fits_again_with_the_search_only_where_the_colours_disag
         return PairwiseAligner(base.V, base.F, base.colors, tets=(base.V_tet, base.T), options=options)
 
     plain = aligner(search_levels=0).align(base.V_tet, target)
-    searched = aligner().align(base.V_tet, target)
+    searching = aligner()
+    searched = searching.align(base.V_tet, target)
     assert searched.searched and not plain.searched
     never = aligner(search_gate=1e9).align(base.V_tet, target)  # the colours always agree well enough
     assert not never.searched
     np.testing.assert_array_equal(never.V, plain.V)
     always = aligner(search_gate=1e-9).align(base.V_tet, target)  # they never agree that well
-    keep = better_alignment(searched, plain, aligner().colour_floor)
+    keep = better_alignment(searched, plain, searching.colour_floor)
     np.testing.assert_array_equal(always.V, (searched if keep else plain).V)
     assert always.searched is keep
