@@ -89,8 +89,9 @@ class AlignmentOptions:
                                 data (0: every patch steps on its own); a patch whose data
                                 leave a motion free (a plain sleeve's twist) then moves with
                                 its neighbours (``engine.align.rigid.coupled_patch_steps``).
-                                Off by default: at 1 it lowers the error of loose sleeves but
-                                hides slips from the confidence on small captures (docs/alignment.md)
+                                1 by default since session 48: it lowers the error of loose
+                                sleeves and of whole far frames, and the confidence (which reads
+                                the colours) still flags what slips (docs/alignment.md)
     tet_resolution : float      lattice cells along the model size when the root is
                                 tetrahedralised here (``engine.tetmesh.tetrahedralize``)
     """
@@ -123,7 +124,7 @@ class AlignmentOptions:
     search_angles: tuple = (30.0, 60.0, 90.0)
     search_samples: int = 24
     search_cap: float = 0.05
-    patch_coupling: float = 0.0
+    patch_coupling: float = 1.0
     tet_resolution: float = 48.0
     orientation_margin: float = 1.25
     ring_margin: float = 0.93

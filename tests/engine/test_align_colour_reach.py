@@ -135,7 +135,9 @@ def test_a_plain_tube_turned_about_its_axis_is_turned_back_by_its_colours():
     """A tube 1.6 m long with a red and a blue stripe, turned 60 degrees about its own axis: its
     surface is the same, so closest points leave it where it was (every vertex about 10 cm off
     along the surface, beyond the local colour cue's few neighbours); the stripes reaching for
-    their colours turn it back. The same input gives the same result."""
+    their colours turn it back. Measured with the patches stepping on their own (coupled steps,
+    the default, carry the local cues' turn from patch to patch and turn it back even without
+    the reach); the defaults turn it back too, the same result twice."""
     from dataclasses import replace
 
     from engine.align import PairwiseAligner
@@ -150,10 +152,13 @@ def test_a_plain_tube_turned_about_its_axis_is_turned_back_by_its_colours():
     W = V @ np.array([[1, 0, 0], [0, np.cos(t), -np.sin(t)], [0, np.sin(t), np.cos(t)]]).T
     error, results = {}, {}
     for reach in (0.0, 0.18):
-        options = replace(AlignmentOptions(patches=16, levels=3), colour_weight=1.0, colour_reach=reach)
+        options = replace(AlignmentOptions(patches=16, levels=3, patch_coupling=0.0), colour_weight=1.0,
+                          colour_reach=reach)
         aligner = PairwiseAligner(V, F, C, options=options)
         results[reach] = aligner.align(aligner.V_tet, TargetSurface(W, F, C)).V
         error[reach] = np.linalg.norm(results[reach] - W, axis=1).mean()
     assert error[0.0] > 0.03 and error[0.18] < 0.2 * error[0.0]
     aligner = PairwiseAligner(V, F, C, options=replace(AlignmentOptions(patches=16, levels=3), colour_weight=1.0))
-    assert np.array_equal(aligner.align(aligner.V_tet, TargetSurface(W, F, C)).V, results[0.18])   # the default
+    default = aligner.align(aligner.V_tet, TargetSurface(W, F, C)).V
+    assert np.linalg.norm(default - W, axis=1).mean() < 0.2 * error[0.0]
+    assert np.array_equal(aligner.align(aligner.V_tet, TargetSurface(W, F, C)).V, default)

@@ -3,7 +3,9 @@ than 3% of the model size is flagged (issue 12: "flagged, never silent").
 
 The tiny preset's walk and run (42 frames, 1,000 vertices), aligned with the defaults and scored
 against the generator's truth by `morphspace eval-align`. Coupled patch steps with the floor-scaled
-flag (session 10) passed every other test and left 3 frames over 3% (up to 11%) unflagged here.
+flag (session 10) passed every other test and left 3 frames over 3% (up to 11%) unflagged here;
+the coupling is on by default since session 48 (this capture has no colours: the fit and the tail
+flag alone).
 """
 
 from __future__ import annotations
