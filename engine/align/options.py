@@ -48,16 +48,19 @@ class AlignmentOptions:
     rotation_prior : float      pull of each tet's rotation towards the source pose's
     search_levels : int         coarse levels whose patches also try articulated hypotheses
                                 (rotations about the joint with the best-fitting neighbour)
-                                and keep the best fitting one
-    search_rounds : int         rounds per such level that search
-    search_gate : float         0: every fit searches. Above 0: a fit runs first without the
+                                and keep the best fitting one; 0 by default since session 49
+                                (it was 1): with the coupled steps the search made the studio's
+                                takes worse and cost a third of a fit (docs/evaluation.md)
+    search_rounds : int         the first rounds of a level that search (and swing limbs)
+    search_gate : float         with ``search_levels`` > 0: 0, every fit searches. Above 0: a fit runs first without the
                                 search, and only one whose colours disagree more than this many
                                 times the root's colour floor (or that has no colours to tell) runs
                                 again with it; the better of the two is kept, judged as the tree's
                                 retries judge (:func:`better_alignment`)
-    swing_limbs : bool          in those rounds, also swing limbs onto the parts of the target
-                                nothing covers (:mod:`engine.align.coverage`): an arm thrown
-                                into a punch, which patch matching leaves by the hip it fits
+    swing_limbs : bool          in the first ``search_rounds`` rounds of the searching levels (of
+                                the coarsest level when none searches), also swing limbs onto
+                                the parts of the target nothing covers (:mod:`engine.align.coverage`):
+                                an arm thrown into a punch, which patch matching leaves by the hip it fits
     reach_limbs : bool          after the coarsest level's first round, pull the root's
                                 extremities (hands, feet, head) onto what nothing covers,
                                 bending the limb as-rigid-as-possible (:mod:`engine.align.reach`;
@@ -115,7 +118,7 @@ class AlignmentOptions:
     outlier_factor: float = 3.0
     rigid_iterations: int = 15
     rotation_prior: float = 0.0
-    search_levels: int = 1
+    search_levels: int = 0
     search_rounds: int = 3
     search_gate: float = 0.0
     swing_limbs: bool = False

@@ -180,9 +180,11 @@ class PairwiseAligner:
             solver = self._solvers[o.stiffness[min(level, len(o.stiffness) - 1)]]
             for round_ in range(o.rounds[min(level, len(o.rounds) - 1)]):
                 S = self.B @ X
-                search = level < search_levels and round_ < o.search_rounds
-                goal, confidence = self._match_patches(S, target, labels, count, use_colour,
-                                                       level=level if search else None,
+                early = round_ < o.search_rounds
+                search = level < search_levels and early
+                swing = o.swing_limbs and level < max(search_levels, 1) and early
+                goal, confidence = self._match_patches(S, target, labels, count, use_colour, level=level,
+                                                       search=search, swing=swing,
                                                        coarse=level < o.match_sample_levels,
                                                        graph=self.patch_graph[level],
                                                        reach=use_colour and level < o.colour_reach_levels)
@@ -293,14 +295,17 @@ class PairwiseAligner:
                 starts.append(X @ ring[0].T + ring[1])
         return starts
 
-    def _match_patches(self, S, target, labels, count, use_colour, level=None, coarse=True, graph=None, reach=False):
+    def _match_patches(self, S, target, labels, count, use_colour, level=0, search=False, swing=False, coarse=True,
+                       graph=None, reach=False):
         """Rigidly match every patch to the target; returns per-vertex goals and confidences.
 
         The rigid steps are driven by at most ``options.match_samples`` source vertices and as
         many target vertices (fixed random subsets) on a ``coarse`` level, and at most
-        ``options.fine_match_samples`` on the others; every vertex moves with its patch. With
-        ``level`` given, badly fitting patches also try articulated hypotheses
-        (:func:`engine.align.patches.search_patches`) after the ICP steps. With ``graph`` (the
+        ``options.fine_match_samples`` on the others; every vertex moves with its patch. After
+        the ICP steps, with ``swing`` limbs swing onto what nothing covers
+        (:func:`engine.align.coverage.cover_uncovered`), and with ``search`` badly fitting patches
+        try articulated hypotheses (:func:`engine.align.patches.search_patches`), on ``level``'s
+        patches. With ``graph`` (the
         level's ``patch_adjacency``) and ``options.patch_coupling`` > 0, adjacent patches' steps
         are solved together (:func:`engine.align.rigid.coupled_patch_steps`). With ``reach`` (and
         ``options.colour_reach`` > 0) matches reach for the colour (:mod:`engine.align.colour_reach`).
@@ -338,12 +343,13 @@ class PairwiseAligner:
             Rp = rodrigues(omega)
             x = np.einsum("pij,pj->pi", Rp[labels], x - centres[labels]) + centres[labels] + shift[labels]
             n = np.einsum("pij,pj->pi", Rp[labels], n)
-        if level is not None:
+        if swing or search:
             args = (target, labels, count, self.patch_samples[level], self.patch_graph[level])
-            if o.swing_limbs:
-                if level not in self._limbs:
-                    self._limbs[level] = limbs_of(self.V, self.patch_graph[level], labels, count)
-                x, n = cover_uncovered(x, n, *args, self._limbs[level], o)
+        if swing:
+            if level not in self._limbs:
+                self._limbs[level] = limbs_of(self.V, self.patch_graph[level], labels, count)
+            x, n = cover_uncovered(x, n, *args, self._limbs[level], o)
+        if search:
             x, n = search_patches(x, n, *args, self._search_rotations, o)
         xs, ns = (x, n) if pick is None else (x[pick], n[pick])
         w = correspondence_weights(xs, ns, target, o, picked_labels, count)

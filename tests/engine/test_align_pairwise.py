@@ -165,8 +165,8 @@ def test_the_search_gate_fits_again_with_the_search_only_where_the_colours_disag
     Vk, Fk, Ck = frames[2]
     target = TargetSurface(Vk, Fk, Ck)
 
-    def aligner(**changes):
-        options = replace(base.options, colour_weight=1.0, **changes)
+    def aligner(**changes):   # the articulated search on the coarsest level (off by default since session 49)
+        options = replace(base.options, **{"colour_weight": 1.0, "search_levels": 1, **changes})
         return PairwiseAligner(base.V, base.F, base.colors, tets=(base.V_tet, base.T), options=options)
 
     plain = aligner(search_levels=0).align(base.V_tet, target)
