@@ -492,9 +492,10 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
 
 
 def _file_name(source):
-    """A frame's file name from its ``Mesh.source`` (a path, or ``archive.zip:member``)."""
+    """The file a frame came from, from its ``Mesh.source``: a file's name in a directory, or a zip
+    member's whole path (``take1/frame_0003.obj``: one zip may hold several folders' frames)."""
     archive, sep, member = str(source).rpartition(".zip:")
-    return PurePosixPath(member).name if sep else Path(str(source)).name
+    return str(PurePosixPath(member)) if sep else Path(str(source)).name
 
 
 def check_output(out, inputs, force):

@@ -489,6 +489,10 @@ def run(args):
         progress.close()
     report["seconds"] = round(time.perf_counter() - started, 1)
     out.mkdir(parents=True, exist_ok=True)
+    stale = (() if "sequential" in results else ("aligned_pattern_sequential.png",)) + (
+        ("similarity.png", "tree.png") if args.aligned is not None else ())
+    for name in stale:   # an earlier run's pictures of another alignment, not this one's
+        (out / name).unlink(missing_ok=True)
     from PIL import Image
 
     method = "tree" if "tree" in results else "aligned"

@@ -6,6 +6,7 @@ import json
 import re
 import shutil
 import types
+import zipfile
 
 import numpy as np
 import pytest
@@ -187,6 +188,21 @@ def test_a_frame_in_a_format_not_read_is_named_and_left_out(dataset, tmp_path):
     assert meta["fps"] == 30
 
 
+def test_frames_from_a_zip_are_named_by_their_member_paths(dataset, tmp_path):
+    """One zip holding two folders' frames: meta.json names each frame's member path, so frames of
+    the same file name in the two folders stay apart (a docs-only trial found bare names)."""
+    frames = sorted((dataset / "sequences" / "walk" / "unstructured").iterdir())[:2]
+    archive = tmp_path / "two.zip"
+    with zipfile.ZipFile(archive, "w") as bundle:
+        for folder in ("a", "b"):
+            for path in frames:
+                bundle.write(path, f"{folder}/{path.name}")
+    assert main(["align", str(archive), "--fps", "25", "--out", str(tmp_path / "out"), "--workers", "1",
+                 "--levels", "2"]) == 0
+    meta = json.loads((tmp_path / "out" / "sequences" / "two" / "meta.json").read_text())
+    assert meta["alignment"]["source_files"] == [f"{folder}/{path.name}" for folder in ("a", "b") for path in frames]
+
+
 def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
     out = tmp_path / "eval"
     assert main(["eval-align", str(dataset), "--max-frames", "3", "--out", str(out), "--json",
@@ -320,8 +336,13 @@ def test_eval_align_passes_retries_to_the_tree(dataset, tmp_path, capsys, monkey
 
 
 def test_eval_align_scores_an_existing_alignment(dataset, aligned, tmp_path, capsys):
+    stale = ("similarity.png", "tree.png", "aligned_pattern_sequential.png")
+    for name in stale:   # an earlier run's pictures in the same --out (a docs-only trial found them left there)
+        (tmp_path / name).write_bytes(b"an earlier run's picture")
     assert main(["eval-align", str(dataset), "--aligned", str(aligned), "--out", str(tmp_path), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
+    assert [name for name in stale if (tmp_path / name).exists()] == []
+    assert (tmp_path / "aligned_pattern.png").stat().st_size > 1000
     assert report["aligned"]["mean_pct"] < 1.5
     assert report["root"] == int(np.load(aligned / "alignment.npz")["root"]) and "every" not in report
     assert report["root_frame"] == ["walk:0", "walk:1", "walk:2", "jog:0", "jog:1", "jog:2"][report["root"]]
