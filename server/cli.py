@@ -9,6 +9,7 @@ after the command's own clean-up (temporary files removed, nothing half-written 
 from __future__ import annotations
 
 import argparse
+import multiprocessing
 import os
 import signal
 import sys
@@ -60,6 +61,8 @@ def _on_sigterm(main_pid):
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
             os.kill(os.getpid(), signal.SIGTERM)
             return
+        for child in multiprocessing.active_children():  # the worker processes end now, not when their task
+            child.terminate()                            # is done (a pool's shutdown waits for running tasks)
         raise Terminated()
     return handler
 
