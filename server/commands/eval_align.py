@@ -222,6 +222,7 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
     return record, errors
 
 
+PICTURES = ("aligned_pattern.png", "aligned_pattern_sequential.png", "similarity.png", "tree.png")  # what a run may write
 FRAME_COLUMNS = ("method", "sequence", "frame", "mean_pct", "p95_pct", "max_pct", "depth", "parent", "confidence",
                  "flagged", "repaired")
 
@@ -489,9 +490,7 @@ def run(args):
         progress.close()
     report["seconds"] = round(time.perf_counter() - started, 1)
     out.mkdir(parents=True, exist_ok=True)
-    stale = (() if "sequential" in results else ("aligned_pattern_sequential.png",)) + (
-        ("similarity.png", "tree.png") if args.aligned is not None else ())
-    for name in stale:   # an earlier run's pictures of another alignment, not this one's
+    for name in PICTURES:   # an earlier run's pictures are of another alignment: only this run's are left
         (out / name).unlink(missing_ok=True)
     from PIL import Image
 
@@ -570,7 +569,5 @@ def _print_report(report, out, args):
                                                      for name, p in parts.items()))
     if "sequential_over_tree_mean" in report:
         print(f"sequential / tree mean error: {report['sequential_over_tree_mean']:.2f}x")
-    names = ("aligned_pattern.png",) + (("aligned_pattern_sequential.png",) if report.get("sequential") else ()) + (
-        "similarity.png", "tree.png")
-    pictures = [name for name in names if (out / name).is_file()]
+    pictures = [name for name in PICTURES if (out / name).is_file()]
     print(f"wrote {out / 'results.json'}, {out / 'frames.csv'} and " + ", ".join(str(out / name) for name in pictures))
