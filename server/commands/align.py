@@ -44,6 +44,7 @@ from engine.align.captures import FINE_EDGE, ROOT_CHOICES
 from engine.align.repair import TRUSTED
 from engine.mesh_io import MESH_EXTENSIONS, read_frames, write_obj, write_sequence
 from engine.mesh_io.frames import left_out_frames, list_frames
+from engine.mesh_io.natural_sort import stem_runs
 from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
 from engine.mesh_io.errors import MeshFormatError, MeshSequenceError
 from server.commands.checks import MAX_FPS, read_meta
@@ -281,7 +282,9 @@ def read_inputs(sequences, progress=None, *, say=None):
     """All frames of all sequences (concatenated) and the frame count of each sequence.
 
     ``say(line)`` is told of files beside a sequence's frames in a mesh format that is not read
-    (an ``.stl`` among ``.obj`` frames): they are left out, and the frames renumbered without them.
+    (an ``.stl`` among ``.obj`` frames): they are left out, and the frames renumbered without them;
+    and of frame files of more than one name (``frame_10.ply`` beside ``take_0004.ply``): they are
+    taken in natural order all the same (`mixed_names_text`).
     """
     meshes, lengths = [], []
     total = None
@@ -296,11 +299,33 @@ def read_inputs(sequences, progress=None, *, say=None):
             shown = ", ".join(left_out[:5]) + (f" and {len(left_out) - 5} more" if len(left_out) > 5 else "")
             say(f"warning: {s['name']}: {len(left_out)} file(s) in a mesh format that is not read "
                 f"({', '.join(MESH_EXTENSIONS)} are), left out of the sequence: {shown}")
+        mixed = mixed_names_text([_file_name(m.source) for m in frames])
+        if mixed and say is not None:
+            say(f"warning: {s['name']}: {mixed}")
         if len(frames) < 1:
             raise MeshFormatError(f"{s['frames']}: no frames")
         meshes.extend(frames)
         lengths.append(len(frames))
     return meshes, np.array(lengths, dtype=np.int64)
+
+
+def mixed_names_text(names, shown=6):
+    """None when every frame file of a sequence (``names``, in natural order) has one name apart from
+    its number, else a line naming the names and the order the frames are taken in (``shown`` runs)::
+
+        the frame files mix names 'frame_' and 'take_', taken in natural order: frame_1.ply to
+        frame_10.ply as frames 0-9, then take_0004.ply to take_0007.ply as frames 10-13
+    """
+    runs = stem_runs(names)
+    stems = list(dict.fromkeys(stem.casefold() for stem, _, _ in runs))
+    if len(stems) < 2:
+        return None
+    spelled = [next(repr(stem) for stem, _, _ in runs if stem.casefold() == folded) for folded in stems]
+    parts = [f"{names[first]} as frame {first}" if first == last
+             else f"{names[first]} to {names[last]} as frames {first}-{last}" for _, first, last in runs[:shown]]
+    more = f", ... ({len(runs)} runs in all)" if len(runs) > shown else ""
+    return (f"the frame files mix names {', '.join(spelled[:-1])} and {spelled[-1]}, taken in natural order: "
+            + ", then ".join(parts) + more)
 
 
 def convert_inputs(meshes, sequences, lengths, units="auto", up="auto", *, say=None):

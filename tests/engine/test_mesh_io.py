@@ -536,6 +536,17 @@ def test_natural_key_orders_numbers_by_value_case_insensitively():
     assert sorted(["f01", "f1", "F1"], key=natural_key) == sorted(["f01", "f1", "F1"])
 
 
+def test_stem_runs_group_consecutive_names_by_their_name_without_the_number():
+    from engine.mesh_io.natural_sort import name_stem, stem_runs
+
+    assert [name_stem(n) for n in ("take1/frame_0012.obj", "0012.ply", "f.001.OBJ", "walk")] == [
+        "frame_", "", "f.", "walk"]
+    assert stem_runs([]) == []
+    assert stem_runs(["frame_1.ply", "Frame_2.PLY", "frame_10.obj"]) == [("frame_", 0, 2)]
+    names = sorted(["frame_10.ply", "take_0004.ply", "frame_2.ply", "take_0005.ply", "0001.ply"], key=natural_key)
+    assert stem_runs(names) == [("", 0, 0), ("frame_", 1, 2), ("take_", 3, 4)]
+
+
 def make_sequence(frames=3, seed=0):
     V, F = tetrahedron()
     rng = np.random.default_rng(seed)

@@ -172,16 +172,20 @@ def test_aligning_again_gives_the_same_bytes_but_for_the_timings(dataset, aligne
 
 
 def test_a_frame_in_a_format_not_read_is_named_and_left_out(dataset, tmp_path):
-    """A directory of frames with one ``.stl`` among them and no meta.json: the ``.stl`` is left out
-    with a warning naming it, the assumed frame rate is noted, and meta.json lists the files read."""
+    """A directory of frames with one ``.stl`` among them, the last frame of another name and no
+    meta.json: the ``.stl`` is left out with a warning naming it, the mixed names and the order they
+    are taken in are warned of, the assumed frame rate is noted, and meta.json lists the files read."""
     frames = tmp_path / "take"
     shutil.copytree(dataset / "sequences" / "walk" / "unstructured", frames)
     (frames / "frame_0001b.stl").write_bytes(b"solid x\nendsolid x\n")
+    (frames / "frame_0002.ply").rename(frames / "take_0002.ply")
     err = io.StringIO()
     with contextlib.redirect_stderr(err):
         assert main(["align", str(frames), "--out", str(tmp_path / "out"), "--workers", "1", "--levels", "2"]) == 0
     err = err.getvalue()
     assert "take: 1 file(s) in a mesh format that is not read" in err and "frame_0001b.stl" in err
+    assert ("warning: take: the frame files mix names 'frame_' and 'take_', taken in natural order: frame_0000.ply "
+            "to frame_0001.ply as frames 0-1, then take_0002.ply as frame 2\n") in err
     assert "take: no meta.json gives the frame rate; written as 30 frames/s (say --fps)" in err
     meta = json.loads((tmp_path / "out" / "sequences" / "take" / "meta.json").read_text())
     assert meta["alignment"]["source_files"] == sorted(p.name for p in frames.iterdir() if p.suffix != ".stl")
