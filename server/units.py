@@ -10,6 +10,7 @@ sequences differ), each with its share of the model size.
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import NamedTuple
 
@@ -158,9 +159,15 @@ def say_conventions(conventions, names, say, what="input"):
 
 
 def length_text(metres, convention, size=None, digits=2):
-    """A length for people: in the data's display unit, and in % of ``size`` (metres) if given."""
+    """A length for people: in the data's display unit, and in % of ``size`` (metres) if given.
+
+    ``digits`` decimals, or 3 significant figures for a length under 1 display unit, so that a
+    length is never shown as 0.00 unless it is 0 (metres read as centimetres: ``0.00173 cm``)."""
     unit = display_unit(convention)
-    text = f"{float(metres) * DISPLAY_PER_METRE[unit]:.{digits}f} {unit}"
+    value = float(metres) * DISPLAY_PER_METRE[unit]
+    if 0 < abs(value) < 1:
+        digits = max(digits, 2 - math.floor(math.log10(abs(value))))
+    text = f"{value:.{digits}f} {unit}"
     if size:
         text += f" ({100.0 * float(metres) / size:.3g}% of model size)"
     return text

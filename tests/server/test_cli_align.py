@@ -446,6 +446,19 @@ def test_given_units_and_up_override_detection(dataset_mm_z_up, tmp_path, capsys
     assert size.argmax() == 1 and 10 < size.max() < 25  # mm read as cm: ten times too big, but +Y up
 
 
+def test_metres_given_as_centimetres_show_residuals_to_3_significant_figures(dataset, tmp_path, capsys):
+    """Frames in metres aligned with ``--units cm``: a model 1.7 cm across (warned of), whose fit
+    residuals, thousandths of a centimetre, were printed as 0.00 cm."""
+    assert main(["align", str(dataset), "--out", str(tmp_path / "out"), "--only", "walk", "--units", "cm",
+                 "--levels", "1", "--retries", "0", "--workers", "1"]) == 0
+    captured = capsys.readouterr()
+    assert "units cm (given" in captured.err and "not human-sized" in captured.err
+    mean, largest = re.search(r"fit residual mean (\S+) cm \(.*\), max (\S+) cm \(", captured.out).groups()
+    assert float(mean) < 1 and float(largest) < 1, captured.out
+    for shown in (mean, largest):  # 3 significant figures, never 0.00
+        assert re.fullmatch(r"0\.0*[1-9]\d\d", shown), captured.out
+
+
 def test_eval_align_in_millimetres_z_up_scores_as_in_metres(dataset, dataset_mm_z_up, aligned, tmp_path, capsys):
     reports = []
     for data in (dataset, dataset_mm_z_up):  # one alignment; the walk's ground truth in m +Y up, then mm +Z up

@@ -65,11 +65,11 @@ def test_blend_compare_reports_errors(arms, capsys):
     captured = capsys.readouterr()
     out = captured.out
     for mode in ("linear ", "hybrid "):  # max and mean, each in the data's unit and in % of the model size
-        assert re.search(rf"{mode} vs non-linear: max \d+\.\d\d mm \([\d.e+-]+% of model size\), "
-                         rf"mean \d+\.\d\d mm \([\d.e+-]+% of model size\)", out), out
+        assert re.search(rf"{mode} vs non-linear: max \d+\.\d\d+ mm \([\d.e+-]+% of model size\), "
+                         rf"mean \d+\.\d\d+ mm \([\d.e+-]+% of model size\)", out), out
     # the % are of the model size the units line states (the straight arm alone is longer than the bent one)
     stated = float(re.search(r"the model is ([\d.]+) m across", captured.err).group(1))
-    mm, pct = re.search(r"linear  vs non-linear: max (\d+\.\d\d) mm \(([\d.e+-]+)% of model size\)", out).groups()
+    mm, pct = re.search(r"linear  vs non-linear: max (\d+\.\d\d+) mm \(([\d.e+-]+)% of model size\)", out).groups()
     assert float(mm) / 1000 / (float(pct) / 100) == pytest.approx(stated, rel=0.02)
 
 
