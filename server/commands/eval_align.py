@@ -265,11 +265,10 @@ def _read_record(path):
     return record if isinstance(record, dict) else {}
 
 
-def _recorded_root_reason(directory):
-    """The ``root_reason`` an align output's manifest records (``alignment.root_reason``), or None."""
+def _recorded_alignment(directory):
+    """The ``alignment`` record of an align output's manifest ({} when it has none)."""
     alignment = _read_record(directory / "manifest.json").get("alignment")
-    recorded = alignment.get("root_reason") if isinstance(alignment, dict) else None
-    return recorded if isinstance(recorded, str) else None
+    return alignment if isinstance(alignment, dict) else {}
 
 
 def _part_counts(manifest):
@@ -391,6 +390,7 @@ def run(args):
     check_root_given_once(args)
     progress = Progress()
     report = {"dataset": str(dataset)}
+    recorded = None   # with --aligned: the align output's manifest's ``alignment`` record
     started = time.perf_counter()
     try:
         if args.aligned is not None:
@@ -413,9 +413,9 @@ def run(args):
                                     part_counts=_part_counts(manifest), depth=depth, frame_labels=labels)
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, root=int(root),
                           root_frame=labels[int(root)], aligned=record, **_units_report(names, conventions))
-            reason = _recorded_root_reason(args.aligned)
-            if reason:  # why the alignment ran no trial or race, as it recorded
-                report["root_reason"] = reason
+            recorded = _recorded_alignment(args.aligned)
+            if isinstance(recorded.get("root_reason"), str):  # why the alignment ran no trial or race
+                report["root_reason"] = recorded["root_reason"]
             results = {"aligned": (vertices, faces, root_vertices)}
             frame_rows = _frame_rows("aligned", errors, size, names, every_frame, depth=depth,
                                      parent=extra.get("parent"),
@@ -516,7 +516,7 @@ def run(args):
     if args.json:
         print(json.dumps(report))
     else:
-        _print_report(report, out, args)
+        _print_report(report, out, args, recorded)
     return 0
 
 
@@ -530,22 +530,38 @@ def _units_report(names, conventions):
             "display_unit": display_unit(common_convention(conventions))}
 
 
-def _print_report(report, out, args):
+def _root_line(report, args, recorded=None):
+    """The printed report's second line: the root frame and what chose it, as `align` says it.
+
+    With ``--aligned`` (``recorded``: the align output's manifest ``alignment`` record) the root is
+    the alignment's, and the trial and race, or why none ran, are what it recorded (its
+    ``root_trial``, ``root_reason`` and ``options.root_choice``)."""
+    if recorded is None:
+        trial, given, choice = report.get("root_trial"), args.root is not None, args.root_choice
+    else:
+        trial = recorded.get("root_trial") if isinstance(recorded.get("root_trial"), dict) else None
+        given, choice = False, (recorded.get("options") or {}).get("root_choice")
+    if trial:
+        said = (f"tried: candidates {trial['candidates']}, mean badness {trial['mean']}"
+                + (f"; raced: {trial['race']['finalists']}, mean confidence {trial['race']['confidence']}"
+                   if trial.get("race") else "")
+                + (f"; {report['root_reason']}" if report.get("root_reason") else ""))
+    else:   # said, as align says it
+        said = ("given: --root" if given else report.get("root_reason")
+                or (f"--root-choice {choice}" if choice in ("apart", "central") else ""))
+    if recorded is not None:
+        said = f"align's root, as {args.aligned / 'manifest.json'} records" + (f": {said}" if said else "")
+    return f"root frame {report['root']}, {report['root_frame']}" + (f" ({said})" if said else "")
+
+
+def _print_report(report, out, args, recorded=None):
     unit = report["display_unit"]
     scale = DISPLAY_PER_METRE[unit] / 1000.0  # from the records' mm
     inputs = sorted({f"{r['units']}, {r['up']} up" for r in report["input"].values()})
     count = len(report["sequences"])
     print(f"{report['frames']} frame{'s' * (report['frames'] != 1)} of {count} sequence{'s' * (count != 1)}, model size "
           f"{report['model_size_m']:.3f} m; input in {' / '.join(inputs)}; lengths in {unit}")
-    trial = report.get("root_trial")
-    if trial is None:   # said, as align says it
-        why = (" (given: --root)" if args.root is not None else
-               f" ({report['root_reason']})" if report.get("root_reason") else
-               f" (--root-choice {args.root_choice})" if args.root_choice in ("apart", "central") else "")
-    print(f"root frame {report['root']}, {report['root_frame']}" + (why if not trial else (
-        f" (tried: candidates {trial['candidates']}, mean badness {trial['mean']}"
-        + (f"; raced: {trial['race']['finalists']}, mean confidence {trial['race']['confidence']}" if "race" in trial else "")
-        + (f"; {report['root_reason']}" if report.get("root_reason") else "") + ")")))
+    print(_root_line(report, args, recorded))
     if "similarity_seconds" in report:
         print(f"similarity {report['similarity_seconds']:.1f} s, tree {report['tree_seconds']:.3f} s "
               f"(depth max {report['tree']['depth_max']}, mean {report['tree']['depth_mean']})"

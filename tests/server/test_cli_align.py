@@ -446,6 +446,30 @@ def test_given_units_and_up_override_detection(dataset_mm_z_up, tmp_path, capsys
     assert size.argmax() == 1 and 10 < size.max() < 25  # mm read as cm: ten times too big, but +Y up
 
 
+def test_eval_align_of_an_existing_alignment_prints_the_root_trial_and_race_it_recorded(dataset, aligned, tmp_path,
+                                                                                         capsys):
+    """The printed second line names the root as the alignment's and repeats what its manifest records:
+    why no trial ran, or the trial and the race (a docs-only trial found only the bare root there)."""
+    root = int(np.load(aligned / "alignment.npz")["root"])
+    label = ["walk:0", "walk:1", "walk:2", "jog:0", "jog:1", "jog:2"][root]
+    reason = json.loads((aligned / "manifest.json").read_text())["alignment"]["root_reason"]
+    assert main(["eval-align", str(dataset), "--aligned", str(aligned), "--out", str(tmp_path / "e")]) == 0
+    assert capsys.readouterr().out.splitlines()[1] == (
+        f"root frame {root}, {label} (align's root, as {aligned / 'manifest.json'} records: {reason})")
+    raced = tmp_path / "raced"
+    shutil.copytree(aligned, raced)
+    manifest = json.loads((raced / "manifest.json").read_text())
+    other = (root + 1) % 6
+    manifest["alignment"].update(root_reason=None, root_trial={
+        "candidates": [root, other], "probes": [2, 5], "mean": [0.1234, 0.2345], "spread_choice": other,
+        "race": {"finalists": [root, other], "frames": 6, "confidence": [0.61, 0.55], "winner": root}})
+    (raced / "manifest.json").write_text(json.dumps(manifest))
+    assert main(["eval-align", str(dataset), "--aligned", str(raced), "--out", str(tmp_path / "r")]) == 0
+    assert capsys.readouterr().out.splitlines()[1] == (
+        f"root frame {root}, {label} (align's root, as {raced / 'manifest.json'} records: tried: candidates "
+        f"[{root}, {other}], mean badness [0.1234, 0.2345]; raced: [{root}, {other}], mean confidence [0.61, 0.55])")
+
+
 def test_metres_given_as_centimetres_show_residuals_to_3_significant_figures(dataset, tmp_path, capsys):
     """Frames in metres aligned with ``--units cm``: a model 1.7 cm across (warned of), whose fit
     residuals, thousandths of a centimetre, were printed as 0.00 cm."""
