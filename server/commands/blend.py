@@ -64,8 +64,14 @@ def _load(paths, progress):
         if len(mesh.vertices) != len(first.vertices):
             raise ValueError(f"{path} has {len(mesh.vertices)} vertices, {paths[0]} has {len(first.vertices)}; "
                              "blending needs meshes with the same topology")
-        if mesh.faces.shape != first.faces.shape or not np.array_equal(mesh.faces, first.faces):
-            raise ValueError(f"{path} has different faces from {paths[0]}; blending needs the same topology")
+        if len(mesh.faces) != len(first.faces):
+            raise ValueError(f"{path} has {len(mesh.faces)} faces, {paths[0]} has {len(first.faces)}; "
+                             "blending needs meshes with the same topology (the face count differs)")
+        if not np.array_equal(mesh.faces, first.faces):
+            face = int(np.flatnonzero((mesh.faces != first.faces).any(axis=1))[0])
+            raise ValueError(f"{path}: face {face} is {tuple(mesh.faces[face].tolist())} but in {paths[0]} it is "
+                             f"{tuple(first.faces[face].tolist())}; blending needs meshes with the same topology "
+                             "(the connectivity differs)")
     sizes = [model_size(mesh.vertices) for mesh in meshes]
     for path, size in zip(paths, sizes):
         if not (np.isfinite(size) and size > 0):

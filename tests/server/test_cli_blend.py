@@ -108,6 +108,18 @@ def test_blend_errors_are_clear(arms, tmp_path, capsys):
         assert main(["blend", *args, "--out", str(tmp_path / "x.obj")]) == 2
         assert message in capsys.readouterr().err
     assert not (tmp_path / "x.obj").exists()
+    # the same vertices with other faces: both files and both face counts named, as build names them
+    fewer, turned = tmp_path / "fewer.obj", tmp_path / "turned.obj"
+    write_obj(fewer, V0, F[:-2])
+    write_obj(turned, V0, np.vstack([F[:5], F[5, [1, 2, 0]], F[6:]]))
+    straight = folder / "straight.obj"
+    for mesh, message in ((fewer, f"{fewer} has {len(F) - 2} faces, {straight} has {len(F)}; blending needs meshes "
+                                  "with the same topology (the face count differs)"),
+                          (turned, f"{turned}: face 5 is {tuple(F[5, [1, 2, 0]].tolist())} but in {straight} it is "
+                                   f"{tuple(F[5].tolist())}; blending needs meshes with the same topology "
+                                   "(the connectivity differs)")):
+        assert main(["blend", str(straight), str(mesh), "--weights", "1", "1", "--out", str(tmp_path / "x.obj")]) == 2
+        assert message in capsys.readouterr().err
 
 
 def test_open_surfaces_blend_non_linearly_and_a_flat_one_is_explained(tmp_path, capsys):
