@@ -94,19 +94,27 @@ def run(args):
         print(json.dumps(report, indent=2))
         return 0
     print(f"{report['graph']} ({report['vertices']} vertices): {args.requests} random requests x seeds "
-          f"{','.join(map(str, seeds))} at {args.fps:g} frames/s")
+          f"{','.join(map(str, seeds))} at {args.fps:g} frames/s; search latency weight {options.latency_weight:g}, "
+          f"candidates {options.candidates}")
 
     def f(x, spec=".2f"):
         return "-" if x is None else format(x, spec)
-    print(f"{'strategy':<10} {'n':>4} {'smooth p50':>10} {'p95':>5} {'pop p95':>7} {'latency p50':>11} {'p95':>5} "
-          f"{'slide p95 cm':>12} {'root max':>8} {'seam p50 mm':>11} {'leg p95/max cm':>14} {'leg length p95/max %':>20}")
+
+    def pair(s, first, second, spec=".1f"):   # two figures of a strategy, "first / second"
+        return f(s.get(first), spec) + " / " + f(s.get(second), spec)
+    print(f"{'strategy':<10} {'n':>4} {'smooth p50':>10} {'p95':>5} {'pop p50':>7} {'p95':>5} {'latency p50':>11} "
+          f"{'p95':>5} {'slide p50/p95 cm':>16} {'root max':>8} {'seam p50 mm':>11} {'held %':>6} "
+          f"{'leg p95/max cm':>14} {'leg length p95/max %':>20} {'leg edge p95/max %':>18}")
     for name, s in report["strategies"].items():
+        held = s.get("frames_held")
         print(f"{name:<10} {s['transitions']:>4} {f(s['smoothness_p50']):>10} {f(s['smoothness_p95']):>5} "
-              f"{f(s['pop_p95']):>7} "
-              f"{f(s['latency_p50_s']):>11} {f(s['latency_p95_s']):>5} {f(s['foot_slide_p95_cm']):>12} "
+              f"{f(s['pop_p50']):>7} {f(s['pop_p95']):>5} {f(s['latency_p50_s']):>11} {f(s['latency_p95_s']):>5} "
+              f"{pair(s, 'foot_slide_p50_cm', 'foot_slide_p95_cm', '.2f'):>16} "
               f"{f(s['root_ratio_max']):>8} {f(s['seam_p50_mm'], '.1f'):>11} "
-              f"{f(s.get('leg_offset_p95_cm'), '.1f') + ' / ' + f(s.get('leg_offset_max_cm'), '.1f'):>14} "
-              f"{f(s.get('leg_segment_change_p95_pct'), '.1f') + ' / ' + f(s.get('leg_segment_change_max_pct'), '.1f'):>20}")
+              f"{f(None if held is None else 100 * held, '.0f'):>6} "
+              f"{pair(s, 'leg_offset_p95_cm', 'leg_offset_max_cm'):>14} "
+              f"{pair(s, 'leg_segment_change_p95_pct', 'leg_segment_change_max_pct'):>20} "
+              f"{pair(s, 'leg_edge_change_p95_pct', 'leg_edge_change_max_pct'):>18}")
     search = report["strategies"]["search"]
     print(f"search time median {search['search_p50_ms']:.3f} ms, p99 {search['search_p99_ms']:.3f} ms "
           f"({search['searches']} searches, wall clock, load average {report['load_average']:.1f})")

@@ -199,9 +199,24 @@ def test_eval_graph_measures_the_search_and_the_baselines_on_the_same_requests(g
     # may slide by what is beyond the leg's reach: the bound)
     assert report["strategies"]["search"]["foot_slide_p95_cm"] < 2.0
     assert report["strategies"]["search"]["searches"] >= 2 and report["strategies"]["cut"]["smoothness_p95"] > 0
+    assert main(["eval-graph", str(graph_file), "--requests", "3", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
     assert main(["eval-graph", str(graph_file), "--requests", "3"]) == 0
     out = capsys.readouterr().out
-    assert "crossfade" in out and "leg p95/max cm" in out and "leg length p95/max %" in out and "pop p95" in out
+    assert "search latency weight 0.5, candidates 5\n" in out
+    header, *rows = out.splitlines()[1:5]
+    assert header.split() == ["strategy", "n", "smooth", "p50", "p95", "pop", "p50", "p95", "latency", "p50", "p95",
+                              "slide", "p50/p95", "cm", "root", "max", "seam", "p50", "mm", "held", "%", "leg",
+                              "p95/max", "cm", "leg", "length", "p95/max", "%", "leg", "edge", "p95/max", "%"]
+    for row, (name, s) in zip(rows, report["strategies"].items()):  # every figure of --json's record but the search's
+        two = lambda a, b, spec=".1f": [format(s[a], spec), "/", format(s[b], spec)]  # noqa: E731
+        assert row.split() == [name, str(s["transitions"])] + [format(s[key], ".2f") for key in (
+            "smoothness_p50", "smoothness_p95", "pop_p50", "pop_p95", "latency_p50_s", "latency_p95_s")] + two(
+            "foot_slide_p50_cm", "foot_slide_p95_cm", ".2f") + [
+            format(s["root_ratio_max"], ".2f"), format(s["seam_p50_mm"], ".1f"), format(100 * s["frames_held"], ".0f")
+        ] + two("leg_offset_p95_cm", "leg_offset_max_cm") + two("leg_segment_change_p95_pct",
+                                                                "leg_segment_change_max_pct") + two(
+            "leg_edge_change_p95_pct", "leg_edge_change_max_pct"), row
     assert "search time median" in out
     assert main(["eval-graph", str(graph_file), "--requests", "3", "--candidates", "-1"]) == 2
     assert "--candidates" in capsys.readouterr().err
