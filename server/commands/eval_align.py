@@ -414,8 +414,9 @@ def run(args):
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, root=int(root),
                           root_frame=labels[int(root)], aligned=record, **_units_report(names, conventions))
             recorded = _recorded_alignment(args.aligned)
-            if isinstance(recorded.get("root_reason"), str):  # why the alignment ran no trial or race
-                report["root_reason"] = recorded["root_reason"]
+            reason = recorded.get("root_reason")
+            if reason and isinstance(reason, str):  # why the alignment ran no trial or race, as it recorded
+                report["root_reason"] = reason
             results = {"aligned": (vertices, faces, root_vertices)}
             frame_rows = _frame_rows("aligned", errors, size, names, every_frame, depth=depth,
                                      parent=extra.get("parent"),
@@ -539,8 +540,9 @@ def _root_line(report, args, recorded=None):
     if recorded is None:
         trial, given, choice = report.get("root_trial"), args.root is not None, args.root_choice
     else:
-        trial = recorded.get("root_trial") if isinstance(recorded.get("root_trial"), dict) else None
-        given, choice = False, (recorded.get("options") or {}).get("root_choice")
+        trial, options = recorded.get("root_trial"), recorded.get("options")
+        trial = trial if isinstance(trial, dict) else None
+        given, choice = False, options.get("root_choice") if isinstance(options, dict) else None
     if trial:
         said = (f"tried: candidates {trial['candidates']}, mean badness {trial['mean']}"
                 + (f"; raced: {trial['race']['finalists']}, mean confidence {trial['race']['confidence']}"
