@@ -44,9 +44,9 @@ from engine.align.captures import FINE_EDGE, ROOT_CHOICES
 from engine.align.repair import TRUSTED
 from engine.mesh_io import MESH_EXTENSIONS, read_frames, write_obj, write_sequence
 from engine.mesh_io.frames import left_out_frames, list_frames
-from engine.mesh_io.natural_sort import stem_runs
 from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
 from engine.mesh_io.errors import MeshFormatError, MeshSequenceError
+from engine.mesh_io.natural_sort import stem_runs
 from server.commands.checks import MAX_FPS, read_meta
 from engine.mesh_io.npz import savez_stable
 from engine.mesh_io.units import Convention
