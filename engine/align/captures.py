@@ -256,7 +256,7 @@ def _align_from(meshes, lengths, similarity, tree, method, *, options, use_color
                              candidates=retries, budget=repair_budget,
                              progress=(lambda d, t: progress("repair", d, t)) if progress else None, runner=local)
     else:
-        _confidence_only(aligned, colours=bool(cues))
+        _confidence_only(aligned, cues=bool(cues))
     timings["repair"] = time.perf_counter() - started
     return aligned, tets, bool(cues), timings
 
@@ -286,7 +286,7 @@ def _race(meshes, lengths, similarity, trial, tried, tree_kind, settings, progre
                             progress=_race_progress(progress, k * len(frames), len(final) * len(frames)), **settings)
                 for k, (c, tree) in enumerate(zip(final, trees))]
     runs = {c: (tree, run) for c, tree, run in zip(final, trees, done)}
-    scores = [race_score(run[0].confidence, tree.root) for tree, run in runs.values()]
+    scores = [race_score(_race_confidence(run[0], run[2]), tree.root) for tree, run in runs.values()]
     winner = final[int(np.argmax(scores))]  # the first of equals: the trial's better candidate
     trial["race"] = {"finalists": final, "frames": len(frames), "confidence": [round(x, 4) for x in scores],
                      "winner": int(winner)}
@@ -339,15 +339,31 @@ def _apart(meshes, progress):
     return choose
 
 
-def _confidence_only(aligned, colours=False):
-    """Fill ``confidence`` (and an all-false ``repaired``) without aligning anything again;
-    ``colours``: colour cues are on (the confidence reads the colours' disagreement too)."""
+def _race_confidence(aligned, cues):
+    """The confidence a race ranks its finalists by: the alignment's own with colour cues on; with
+    them off, the fit and the tail alone. (Colours too coarse for the cues still flag frames, but
+    each finalist's colours count against its own floor, and on the tiny preset's walk and run that
+    turned the race to a root whose alignment left the run facing backwards, unseen by either.)"""
+    if cues:
+        return aligned.confidence
     from engine.surface import model_size
 
     reference = tail_reference(aligned.distortion_tail, aligned.parent, aligned.root)
-    colour, floor = colour_terms(aligned, colours)
+    confidence = alignment_confidence(aligned.residual, aligned.distortion_tail, model_size(aligned.root_vertices),
+                                      reference)
+    confidence[aligned.root] = 1.0
+    return confidence
+
+
+def _confidence_only(aligned, cues=False):
+    """Fill ``confidence`` (and an all-false ``repaired``) without aligning anything again (with
+    colours, the confidence reads their disagreement too; ``cues``: colour cues are on)."""
+    from engine.surface import model_size
+
+    reference = tail_reference(aligned.distortion_tail, aligned.parent, aligned.root)
+    colour, floor, tail_free = colour_terms(aligned, cues)
     aligned.confidence = alignment_confidence(aligned.residual, aligned.distortion_tail,
-                                              model_size(aligned.root_vertices), reference, colour, floor)
+                                              model_size(aligned.root_vertices), reference, colour, floor, tail_free)
     aligned.confidence[aligned.root] = 1.0
     aligned.repaired = np.zeros(len(aligned.confidence), dtype=bool)
     return aligned

@@ -6,11 +6,12 @@ of the root that carried the limb are torn where it slid (a hip, a shoulder). So
 gets a confidence from its fit *and* the tail of its distortion (the worst 5% of the solid,
 ``PairAlignment.distortion_tail``) beyond the capture's own floor: loose garments (a skirt, wide
 sleeves) deform that much in every frame, so the tail the frames aligned straight from the root
-show (:func:`tail_reference`) is subtracted first. Where the frames' colours carry texture (colour
-cues on), the confidence also reads the colours where each frame's vertices landed against the
-root's (:mod:`engine.align.appearance`): anchored to the root, they show what a frame inherited
-along its path as well as its own step's slip, and the tail then counts only where the solid is
-torn far beyond the floor. Frames below a confidence of one half are aligned again from
+show (:func:`tail_reference`) is subtracted first. Where the frames carry vertex colours, the
+confidence also reads the colours where each frame's vertices landed against the root's
+(:mod:`engine.align.appearance`): anchored to the root, they show what a frame inherited along
+its path as well as its own step's slip. With colour cues on, the tail then counts only where the
+solid is torn far beyond the floor; with them off, the colours add to the tail. Frames below a
+confidence of one half are aligned again from
 other sources: first from the root itself (a frame aligned straight from the root cannot
 inherit a slip; the frames most like the root first, as far as the budget goes), then, where
 that did not lift the frame to one half, parents first from the most similar trusted frames;
@@ -42,7 +43,8 @@ TURN_SAMPLE = 16       # trusted frames whose colours set that median (evenly sp
 GRAFT = -2             # a source that stands for the frame's own alignment with limbs grafted (engine.align.limb_graft)
 
 
-def alignment_badness(residual, distortion_tail, model_size, reference=0.0, colour=None, colour_floor=None):
+def alignment_badness(residual, distortion_tail, model_size, reference=0.0, colour=None, colour_floor=None,
+                      tail_free=TAIL_WITH_COLOUR):
     """Badness of aligned frames: fit residual and the distortion tail beyond ``reference``
     (:func:`tail_reference`), each in units of its scale (the tail's: ``TAIL_SCALE +
     TAIL_RELATIVE * reference``).
@@ -50,9 +52,11 @@ def alignment_badness(residual, distortion_tail, model_size, reference=0.0, colo
     With ``colour`` (the frames' colour disagreement,
     :func:`engine.align.appearance.colour_disagreement`) and the root's ``colour_floor``: plus how
     far the disagreement exceeds ``COLOUR_FREE`` times the floor, in units of ``COLOUR_SCALE``
-    times the floor, and the tail counts only beyond ``TAIL_WITH_COLOUR`` of its units (a solid
-    torn that much, as a limb on its neighbour's place tears it, whatever the colours say; below
-    that the colours see a slip better than the tail). NaN colours add nothing.
+    times the floor, and the tail counts only beyond ``tail_free`` of its units (``TAIL_WITH_COLOUR``:
+    a solid torn that much, as a limb on its neighbour's place tears it, whatever the colours say;
+    below that the colours see a slip better than the tail). With colour cues off (colours too
+    coarse to guide the matching, :func:`colour_terms`) ``tail_free`` is 0: the colours add to the
+    tail and do not excuse it. NaN colours add nothing.
     """
     excess = np.maximum(np.asarray(distortion_tail, dtype=np.float64) - float(reference), 0.0)
     scale = TAIL_SCALE + TAIL_RELATIVE * max(float(reference), 0.0)
@@ -62,12 +66,14 @@ def alignment_badness(residual, distortion_tail, model_size, reference=0.0, colo
         return tail + residual
     ratio = np.asarray(colour, dtype=np.float64) / float(colour_floor)
     seen = np.nan_to_num(np.maximum(ratio - COLOUR_FREE, 0.0) / COLOUR_SCALE)
-    return residual + seen + np.where(np.isfinite(ratio), np.maximum(tail - TAIL_WITH_COLOUR, 0.0), tail)
+    return residual + seen + np.where(np.isfinite(ratio), np.maximum(tail - tail_free, 0.0), tail)
 
 
-def alignment_confidence(residual, distortion_tail, model_size, reference=0.0, colour=None, colour_floor=None):
+def alignment_confidence(residual, distortion_tail, model_size, reference=0.0, colour=None, colour_floor=None,
+                         tail_free=TAIL_WITH_COLOUR):
     """Per-frame confidence in 0..1: ``exp(-badness)`` (1 for the root; 1/e at each scale)."""
-    return np.exp(-alignment_badness(residual, distortion_tail, model_size, reference, colour, colour_floor))
+    return np.exp(-alignment_badness(residual, distortion_tail, model_size, reference, colour, colour_floor,
+                                     tail_free))
 
 
 def tail_reference(distortion_tail, parent, root):
@@ -134,8 +140,9 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     size = model_size(aligner.V)
     root = int(aligned.root)
     reference = tail_reference(aligned.distortion_tail, aligned.parent, root)
-    colour, floor = colour_terms(aligned, aligner.colors is not None and aligner.options.colour_weight > 0)
-    confidence = alignment_confidence(aligned.residual, aligned.distortion_tail, size, reference, colour, floor)
+    colour, floor, tail_free = colour_terms(aligned, aligner.colors is not None and aligner.options.colour_weight > 0)
+    confidence = alignment_confidence(aligned.residual, aligned.distortion_tail, size, reference, colour, floor,
+                                      tail_free)
     confidence[root] = 1.0
     repaired = np.zeros(len(confidence), dtype=bool)
     depth_order = _tree_order(aligned.parent, root)
@@ -211,11 +218,11 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
 
     def apply(frame, sources, results):
         entries = [(alignment_badness(aligned.residual[frame], aligned.distortion_tail[frame], size, reference,
-                                      None if colour is None else colour[frame], floor),
+                                      None if colour is None else colour[frame], floor, tail_free),
                     current_colour.get(frame, float("nan")), None, None)]
         for source, result in zip(sources, results, strict=True):
             entries.append((alignment_badness(result.residual, result.distortion_tail, size, reference,
-                                              None if colour is None else result.colour_mean, floor),
+                                              None if colour is None else result.colour_mean, floor, tail_free),
                             result.colour_distance, source, result))
         colours = np.array([entry[1] for entry in entries])
         if np.all(np.isfinite(colours)):  # the appearance rules out a body turned the wrong way
@@ -272,13 +279,18 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
     return aligned
 
 
-def colour_terms(aligned, use):
-    """(per-frame colour disagreement, the root's floor) for the confidence when ``use`` (colour
-    cues on: the capture's colours carry texture) and the frames have them, else (None, None)."""
+def colour_terms(aligned, cues):
+    """(per-frame colour disagreement, the root's floor, the tail they excuse) for the confidence
+    when the frames have colours, else (None, None, 0).
+
+    With colour cues on (``cues``: the colours carry texture) the colours excuse the distortion tail
+    up to ``TAIL_WITH_COLOUR``. With them off, a mesh too coarse for its colours to guide the
+    matching still shows, frame by frame, how far its colours landed from the root's, but not a
+    leg on the other leg's place in the same trousers: there the colours only add to the tail."""
     colour = getattr(aligned, "colour", None)
-    if not use or colour is None or not np.isfinite(colour[int(aligned.root)]):
-        return None, None
-    return colour, float(colour[int(aligned.root)])
+    if colour is None or not np.isfinite(colour[int(aligned.root)]):
+        return None, None, 0.0
+    return colour, float(colour[int(aligned.root)]), TAIL_WITH_COLOUR if cues else 0.0
 
 
 def turned_round(X):

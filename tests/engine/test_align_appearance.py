@@ -71,6 +71,26 @@ def test_with_colours_only_a_large_tear_counts():
         pytest.approx(without)
 
 
+def test_colours_too_coarse_for_the_cues_add_to_the_tail_and_excuse_nothing():
+    from engine.align.repair import colour_terms
+
+    class Aligned:
+        root = 0
+        colour = np.array([0.1, 0.1, 0.2, 0.2])
+
+    tails = np.array([0.0, 3.0, 0.0, 3.0]) * TAIL_SCALE
+    colour, floor, tail_free = colour_terms(Aligned, cues=False)
+    assert tail_free == 0.0 and floor == 0.1
+    without = alignment_confidence(np.zeros(4), tails, 1.7)
+    coarse = alignment_confidence(np.zeros(4), tails, 1.7, colour=colour, colour_floor=floor, tail_free=tail_free)
+    assert np.all(coarse <= without)  # never more trusting than the fit and the tail alone
+    assert coarse[1] == pytest.approx(without[1]) and coarse[2] < 0.5 and coarse[3] < coarse[1]
+    # with the cues on the same colours excuse a tail up to TAIL_WITH_COLOUR
+    assert colour_terms(Aligned, cues=True)[2] == TAIL_WITH_COLOUR
+    Aligned.colour = np.array([np.nan, 0.1, 0.2, 0.2])  # no colours: nothing to read
+    assert colour_terms(Aligned, cues=False) == (None, None, 0.0)
+
+
 def test_a_step_that_loses_the_roots_colours_is_aligned_again_and_the_better_colours_win():
     from engine.align.options import PairAlignment, better_alignment
     from engine.align.pieces import COLOUR_RETRY, COLOUR_STEP, _colour_slipped
