@@ -31,6 +31,10 @@ from engine.align.repair_waves import SerialRunner, forward_only, repair_task, r
 TAIL_SCALE = 4.0       # distortion tail (||F - R||^2 over the worst 5% of the solid) at confidence 1/e ...
 TAIL_RELATIVE = 0.0    # ... plus this share of the capture's floor; 0.25 halved the dance's false flags
                        # but missed 3 of 8 frames over 3% on studio-tiny (docs/alignment.md), so it is off
+TAIL_FLOOR = 20.0      # ... but at most this many times the floor: a body whose own frames hardly deform
+                       # (a tight suit, a coarse mesh) shows a leg on the other leg's place by a tail far
+                       # below TAIL_SCALE (the tiny run: floor 0.05, swapped legs 0.7-1.0, docs/alignment.md)
+TAIL_LEAST = 0.25      # ... and never below this
 RESIDUAL_SCALE = 0.01  # mean two-sided fit residual, as a fraction of the model size, at 1/e
 COLOUR_FREE = 1.3      # colour disagreement (in units of the root's own floor) that costs nothing ...
 COLOUR_SCALE = 0.58    # ... and the excess over it at confidence 1/e (1.7 times the floor: confidence 1/2)
@@ -46,8 +50,7 @@ GRAFT = -2             # a source that stands for the frame's own alignment with
 def alignment_badness(residual, distortion_tail, model_size, reference=0.0, colour=None, colour_floor=None,
                       tail_free=TAIL_WITH_COLOUR):
     """Badness of aligned frames: fit residual and the distortion tail beyond ``reference``
-    (:func:`tail_reference`), each in units of its scale (the tail's: ``TAIL_SCALE +
-    TAIL_RELATIVE * reference``).
+    (:func:`tail_reference`), each in units of its scale (the tail's: :func:`tail_scale`).
 
     With ``colour`` (the frames' colour disagreement,
     :func:`engine.align.appearance.colour_disagreement`) and the root's ``colour_floor``: plus how
@@ -59,14 +62,25 @@ def alignment_badness(residual, distortion_tail, model_size, reference=0.0, colo
     tail and do not excuse it. NaN colours add nothing.
     """
     excess = np.maximum(np.asarray(distortion_tail, dtype=np.float64) - float(reference), 0.0)
-    scale = TAIL_SCALE + TAIL_RELATIVE * max(float(reference), 0.0)
-    tail = excess / scale
+    tail = excess / tail_scale(reference)
     residual = np.asarray(residual, dtype=np.float64) / (RESIDUAL_SCALE * float(model_size))
     if colour is None or colour_floor is None or not np.isfinite(colour_floor) or colour_floor <= 0:
         return tail + residual
     ratio = np.asarray(colour, dtype=np.float64) / float(colour_floor)
     seen = np.nan_to_num(np.maximum(ratio - COLOUR_FREE, 0.0) / COLOUR_SCALE)
     return residual + seen + np.where(np.isfinite(ratio), np.maximum(tail - tail_free, 0.0), tail)
+
+
+def tail_scale(reference):
+    """The distortion tail beyond the floor that costs one unit of badness: ``TAIL_SCALE`` (plus
+    ``TAIL_RELATIVE`` times the floor), but at most ``TAIL_FLOOR`` times a known floor (``reference``
+    > 0) and at least ``TAIL_LEAST``. A tail twenty times what the capture's frames aligned straight
+    from the root show is a torn solid, however small in absolute terms."""
+    reference = max(float(reference), 0.0)
+    scale = TAIL_SCALE + TAIL_RELATIVE * reference
+    if reference > 0.0:
+        scale = min(scale, max(TAIL_FLOOR * reference, TAIL_LEAST))
+    return scale
 
 
 def alignment_confidence(residual, distortion_tail, model_size, reference=0.0, colour=None, colour_floor=None,
@@ -330,4 +344,4 @@ def _tree_order(parent, root):
 
 
 __all__ = ["alignment_badness", "alignment_confidence", "colour_terms", "repair_alignment", "repair_task", "tail_reference",
-           "turned_round"]
+           "tail_scale", "turned_round"]

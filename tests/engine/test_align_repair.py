@@ -15,6 +15,20 @@ def test_confidence_is_one_for_a_perfect_frame_and_falls_with_tail_and_residual(
     assert c[3] < 1e-4
 
 
+def test_the_tail_scale_shrinks_with_a_small_floor_and_never_grows_past_the_fixed_one():
+    from engine.align.repair import TAIL_FLOOR, TAIL_LEAST, TAIL_SCALE, tail_scale
+
+    assert tail_scale(0.0) == TAIL_SCALE        # no floor known (no frame aligned from the root)
+    assert tail_scale(2.3) == TAIL_SCALE        # studio-tiny's floor: 20 x 2.3 is past the fixed scale
+    assert tail_scale(0.05) == pytest.approx(TAIL_FLOOR * 0.05)   # the tiny preset's
+    assert tail_scale(1e-4) == TAIL_LEAST
+    # the tiny run's legs exchanged front for back: tail 0.93 over a floor of 0.05, a fit of 2.2 mm
+    tiny = alignment_confidence([0.0022], [0.93], 1.75, reference=0.05)
+    assert tiny[0] < 0.5
+    # the same tail over a floor of 2.3 is the capture's own deformation
+    assert alignment_confidence([0.0022], [2.3 + 0.93], 1.75, reference=2.3)[0] > 0.5
+
+
 def test_a_slipped_frame_is_flagged_and_realigned_from_the_root(walk_aligner, walk_capture):
     """Frame 2 aligned from a deliberately wrong pose (a mirrored tet mesh): the repair pass
     sees the torn solid, aligns it again from the root, and its confidence recovers."""

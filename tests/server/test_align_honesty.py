@@ -10,6 +10,12 @@ The studio-tiny preset (3,960 vertices) is too coarse for colour cues, and until
 confidence read only the fit and the tail: on every third frame of its walk and contacts, the two
 frames over 3% (3.2%) had confidences 0.60 and 0.72 and nothing was flagged. The confidence now
 reads the colours' disagreement whenever the frames carry colours.
+
+From the walk's frame 7 (the root a race chose in one variant of session 52), the run's frames 0
+and 11 came out with their legs exchanged front for back (11.9% off) and frames 1 and 12 half so
+(6.2%), all unflagged: on a body whose frames hardly deform (a distortion floor of 0.05), their
+tails of 0.7-1.0 were a small share of the fixed scale of 4. The tail's scale now shrinks with the
+floor (at most 20 times it, engine.align.repair.tail_scale).
 """
 
 from __future__ import annotations
@@ -18,19 +24,26 @@ import contextlib
 import io
 import json
 
+import pytest
+
 from server.cli import main
 
 
-def test_every_frame_over_3_percent_is_flagged(tmp_path, capsys):
-    data = tmp_path / "tiny"
-    with contextlib.redirect_stderr(io.StringIO()):
+@pytest.fixture(scope="module")
+def tiny_walk_run(tmp_path_factory):
+    data = tmp_path_factory.mktemp("honesty") / "tiny"
+    with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
         assert main(["synth", "--preset", "tiny", "--only", "walk", "run", "--no-previews", "--out", str(data)]) == 0
-    capsys.readouterr()
+    return data
+
+
+@pytest.mark.parametrize("root", [[], ["--root", "walk:7"]], ids=["race", "walk7"])
+def test_every_frame_over_3_percent_is_flagged(tiny_walk_run, tmp_path, capsys, root):
     with contextlib.redirect_stderr(io.StringIO()):
-        assert main(["eval-align", str(data), "--no-sequential", "--workers", "1", "--out", str(tmp_path / "eval"),
-                     "--json"]) == 0
+        assert main(["eval-align", str(tiny_walk_run), "--no-sequential", "--workers", "1",
+                     "--out", str(tmp_path / "eval"), "--json", *root]) == 0
     report = json.loads(capsys.readouterr().out)["tree"]
-    assert report["mean_pct"] < 2.0, report["mean_pct"]
+    assert report["mean_pct"] < (2.0 if not root else 3.0), report["mean_pct"]
     assert report["frames_over_3pct_flagged"] == report["frames_over_3pct"], report["breakdown"]["worst_frames"]
     recall = report["breakdown"]["confidence"]["over_3pct"]["recall"]
     assert recall in (None, 1.0), report["breakdown"]["confidence"]
