@@ -5,6 +5,8 @@
 - ``built_spaces``: speed.mspace and jump.mspace, small real motion spaces from the synthetic body
   at 1,000 vertices (a two-gait speed chain and a two-jump distance chain), used by the server,
   browser and engine-client tests;
+- ``built_steer``: steer.mspace, a speed x turn_rate fan of four gaits (its own directory, built
+  once), used by the browser and the player tests;
 - ``built_graph``: the tiny motion graph with a reach (engine.graph.tiny: walk, stand, jump, reach
   and tiny.mgraph in one directory, as a server's spaces directory holds them).
 
@@ -74,6 +76,22 @@ def _build_spaces(directory):
                        parameters={"layout": Layout("chain", 2, chain=(0, 1)), "names": ["jump_distance"]})
 
 
+def _build_steer(directory):
+    """speed x turn_rate (fan): gaits at 0.9 and 2.6 m/s, turns of +-40 deg/s at 1.5 m/s (1,000 vertices).
+    Fast turns are out of its reach (clamped): what issue 15's first two items are about."""
+    from engine.motion_space import SourceClip, build_motion_space
+    from engine.parameters import Layout
+    from engine.synthetic import animate, build_body, gait
+
+    body = build_body(1000)
+    gaits = [("slow", 0.9, 0.0), ("fast", 2.6, 0.0), ("left", 1.5, 40.0), ("right", 1.5, -40.0)]
+    clips = [SourceClip(name, animate(body, gait(body.skeleton, v, turn_rate=r, cycles=1.0, fps=FPS)), FPS, True)
+             for name, v, r in gaits]
+    build_motion_space(directory / "steer.mspace", clips, body.F, name="steer", epsilon=0.008, rest=body.V,
+                       parameters={"layout": Layout("fan", 4, chain=(0, 1), left=2, right=3),
+                                   "names": ["speed", "turn_rate"]})
+
+
 def _build_graph(directory):
     from engine.graph.tiny import build_tiny_graph, build_tiny_spaces
 
@@ -92,3 +110,9 @@ def built_graph(build_once):
 def built_spaces(build_once):
     """Directory with speed.mspace and jump.mspace (built once for all workers)."""
     return build_once("morphspace-test-spaces", _build_spaces)
+
+
+@pytest.fixture(scope="session")
+def built_steer(build_once):
+    """Directory with steer.mspace (built once for all workers)."""
+    return build_once("morphspace-test-steer", _build_steer)

@@ -53,33 +53,15 @@ def browser():
         chromium.close()
 
 
-def _build_steer_space(path):
-    """speed x turn_rate (fan): gaits at 0.9 and 2.6 m/s, turns of +-40 deg/s at 1.5 m/s (1,000 vertices).
-    Fast turns are out of its reach (clamped): what issue 15's first two items are about."""
-    from engine.motion_space import SourceClip, build_motion_space
-    from engine.parameters import Layout
-    from engine.synthetic import animate, build_body, gait
-
-    fps = 15.0
-    body = build_body(1000)
-    gaits = [("slow", 0.9, 0.0), ("fast", 2.6, 0.0), ("left", 1.5, 40.0), ("right", 1.5, -40.0)]
-    clips = [SourceClip(name, animate(body, gait(body.skeleton, v, turn_rate=r, cycles=1.0, fps=fps)), fps, True)
-             for name, v, r in gaits]
-    build_motion_space(path, clips, body.F, name="steer", epsilon=0.008, rest=body.V,
-                       parameters={"layout": Layout("fan", 4, chain=(0, 1), left=2, right=3),
-                                   "names": ["speed", "turn_rate"]})
-
-
 @pytest.fixture(scope="session")
-def steer_space(built_spaces):
-    """built_spaces' directory, with steer.mspace added (built once per run, under the same kind of lock)."""
+def steer_space(built_spaces, built_steer):
+    """built_spaces' directory, with built_steer's steer.mspace linked in (under the same kind of lock)."""
     import fcntl
 
     with open(built_spaces / ".steer-lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         if not (built_spaces / "steer.mspace").exists():
-            _build_steer_space(built_spaces / "steer.mspace.tmp")
-            (built_spaces / "steer.mspace.tmp").rename(built_spaces / "steer.mspace")
+            os.link(built_steer / "steer.mspace", built_spaces / "steer.mspace")
         fcntl.flock(lock, fcntl.LOCK_UN)
     return built_spaces
 

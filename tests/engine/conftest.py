@@ -38,37 +38,22 @@ def reach_pair():
 
 
 @pytest.fixture(scope="session")
-def export_spaces(tmp_path_factory):
+def export_spaces(built_spaces):
     """{"speed": a cyclic two-gait speed chain, "jump": a one-shot two-jump distance chain}: open
-    MotionSpaces of a 1,000-vertex body at 15 fps, for the export tests."""
-    from engine.motion_space import MotionSpace, SourceClip, build_motion_space
-    from engine.parameters import Layout
-    from engine.synthetic import animate, gait, jump
+    MotionSpaces of a 1,000-vertex body at 15 fps, for the export tests (the shared built_spaces)."""
+    from engine.motion_space import MotionSpace
 
-    body = build_body(1000)
-    directory = tmp_path_factory.mktemp("export-spaces")
-    fps = 15.0
-    gaits = [SourceClip(f"gait_{v}", animate(body, gait(body.skeleton, v, cycles=2.0, fps=fps)), fps, True)
-             for v in (0.9, 2.6)]
-    jumps = [SourceClip(f"jump_{d}", animate(body, jump(body.skeleton, 0.3, d, fps=fps)), fps, False)
-             for d in (0.3, 1.0)]
-    spaces = {}
-    for name, clips, parameter in (("speed", gaits, "speed"), ("jump", jumps, "jump_distance")):
-        build_motion_space(directory / f"{name}.mspace", clips, body.F, name=name, epsilon=0.008, rest=body.V,
-                           parameters={"layout": Layout("chain", 2, chain=(0, 1)), "names": [parameter]})
-        spaces[name] = MotionSpace.open(directory / f"{name}.mspace")
+    spaces = {name: MotionSpace.open(built_spaces / f"{name}.mspace") for name in ("speed", "jump")}
     yield spaces
     for space in spaces.values():
         space.close()
 
 
 @pytest.fixture(scope="session")
-def graph_spaces(build_once):
-    """Directory with the tiny graph's walk, stand and jump spaces (engine.graph.tiny; built once
-    for all workers)."""
-    from engine.graph.tiny import build_tiny_spaces
-
-    return build_once("morphspace-graph-spaces", build_tiny_spaces)
+def graph_spaces(built_graph):
+    """Directory with the tiny graph's walk, stand and jump spaces (engine.graph.tiny; the shared
+    built_graph's directory, which also holds reach.mspace and tiny.mgraph)."""
+    return built_graph
 
 
 @pytest.fixture(scope="session")

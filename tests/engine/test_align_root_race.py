@@ -1,6 +1,8 @@
 """The root race: the trial's two best candidates align the capture, the more confident wins
 (engine.align.root_race, engine.align.align_captures with root_choice="race")."""
 
+import pickle
+
 import numpy as np
 import pytest
 
@@ -19,16 +21,16 @@ from engine.align.root_race import (
 from engine.mesh_io import Mesh
 from engine.synthetic import SequenceSpec, build_body, generate_sequence_data
 
-OPTIONS = AlignmentOptions(levels=2, patches=10)
+OPTIONS = AlignmentOptions(levels=1, patches=10)
 
 
 @pytest.fixture(scope="module")
-def walk30():
-    """30 unstructured frames of a walk, 1,000 vertices: long enough for the trial and the race."""
+def walk24():
+    """24 unstructured frames of a walk, 1,000 vertices: just long enough for the trial and the race."""
     body = build_body(1000)
-    data = generate_sequence_data(body, SequenceSpec("walk", "gait", {"speed": 1.2, "cycles": 1.5}), fps=20, seed=3)
+    data = generate_sequence_data(body, SequenceSpec("walk", "gait", {"speed": 1.2, "cycles": 1.5}), fps=15, seed=3)
     frames = [Mesh(V, F) for V, F, _ in data["unstructured"]]
-    assert len(frames) >= 30
+    assert len(frames) == 24
     return frames, np.array([len(frames)])
 
 
@@ -58,14 +60,19 @@ def test_race_score_is_the_mean_confidence_of_the_other_frames():
 
 
 @pytest.fixture(scope="module")
-def raced(walk30):
-    """walk30 aligned with the race, one worker (asked for: a dense take is not raced by default)."""
-    frames, lengths = walk30
-    return align_captures(frames, lengths, options=OPTIONS, workers=1, root_choice="race")
+def raced(walk24, build_once):
+    """walk24 aligned with the race, one worker (asked for: a dense take is not raced by default);
+    made once for all xdist workers (pickled under the run's shared directory)."""
+    def race(directory):
+        frames, lengths = walk24
+        run = align_captures(frames, lengths, options=OPTIONS, workers=1, root_choice="race")
+        (directory / "raced.pkl").write_bytes(pickle.dumps(run))
+
+    return pickle.loads((build_once("morphspace-walk24-raced", race) / "raced.pkl").read_bytes())
 
 
-def test_the_race_keeps_the_more_confident_finalist_and_its_alignment_is_that_roots_own(walk30, raced):
-    frames, lengths = walk30
+def test_the_race_keeps_the_more_confident_finalist_and_its_alignment_is_that_roots_own(walk24, raced):
+    frames, lengths = walk24
     run = raced
     trial = run.root_trial
     race = trial["race"]
@@ -84,21 +91,21 @@ def test_the_race_keeps_the_more_confident_finalist_and_its_alignment_is_that_ro
     assert "race" not in tried.root_trial and int(tried.aligned.root) == race["finalists"][0]
 
 
-def test_a_long_capture_races_a_subset_then_the_winner_aligns_it_all(walk30, monkeypatch):
-    frames, lengths = walk30
-    monkeypatch.setattr(root_race, "RACE_FRAMES", 12)  # 30 frames: over twice 12
+def test_a_long_capture_races_a_subset_then_the_winner_aligns_it_all(walk24, monkeypatch):
+    frames, lengths = walk24
+    monkeypatch.setattr(root_race, "RACE_FRAMES", 10)  # 24 frames: over twice 10
     run = align_captures(frames, lengths, options=OPTIONS, workers=1, root_choice="race")
     race = run.root_trial["race"]
-    assert race["frames"] == 12 and int(run.aligned.root) == race["winner"]
+    assert race["frames"] == 10 and int(run.aligned.root) == race["winner"]
     assert run.aligned.vertices.shape[0] == len(frames)
     alone = align_captures(frames, lengths, options=OPTIONS, workers=1, root=race["winner"])
     assert np.array_equal(alone.aligned.vertices, run.aligned.vertices)
 
 
-def test_sub_similarity_is_the_frames_rows_and_columns(walk30):
+def test_sub_similarity_is_the_frames_rows_and_columns(walk24):
     from engine.align.similarity import shape_dissimilarity
 
-    frames, lengths = walk30
+    frames, lengths = walk24
     similarity = shape_dissimilarity(frames[:8], np.array([8]), window=2, workers=1)
     picked = [1, 4, 6]
     sub = sub_similarity(similarity, picked)
@@ -107,10 +114,10 @@ def test_sub_similarity_is_the_frames_rows_and_columns(walk30):
     assert len(sub.histograms) == 3 and list(sub.lengths) == [3]
 
 
-def test_finalists_raced_side_by_side_in_two_processes_give_the_same_alignment(walk30, raced):
+def test_finalists_raced_side_by_side_in_two_processes_give_the_same_alignment(walk24, raced):
     """With two workers the finalists align at the same time, one process each (a race's tree
     is one piece or two, so one finalist kept one core busy); the result is the serial race's."""
-    frames, lengths = walk30
+    frames, lengths = walk24
     serial = raced
     seen = []
     both = align_captures(frames, lengths, options=OPTIONS, workers=2, root_choice="race",
@@ -150,12 +157,12 @@ def test_auto_does_not_race_a_densely_tracked_take_and_race_does():
     assert no_trial_reason(24) is None
 
 
-def test_auto_keeps_the_trials_choice_on_a_tracked_take_and_says_why(walk30, raced, monkeypatch):
+def test_auto_keeps_the_trials_choice_on_a_tracked_take_and_says_why(walk24, raced, monkeypatch):
     """A tree whose steps join neighbours in time (TRACKED_SHARE of them or more) is tried but not
     raced by default: the trial's choice aligns it, exactly as root_choice="trial" does.
-    walk30's tree is not a chain (a walk's frames a stride apart look alike: 39% of its steps
+    walk24's tree is not a chain (a walk's frames a stride apart look alike: 52% of its steps
     join neighbours), so the share asked for is lowered to make it one."""
-    frames, lengths = walk30
+    frames, lengths = walk24
     monkeypatch.setattr(root_race, "TRACKED_SHARE", 0.3)
     auto = align_captures(frames, lengths, options=OPTIONS, workers=1)
     assert "race" not in auto.root_trial and "race" not in auto.timings and "trial" in auto.timings

@@ -3,37 +3,21 @@
 import numpy as np
 import pytest
 
-from engine.motion_space import MotionSpace, SourceClip, build_motion_space
-from engine.parameters import Layout
+from engine.motion_space import MotionSpace
 from engine.player import Player, _critically_damped
-from engine.synthetic import animate, build_body, gait, jump
-
-FPS = 15.0
 
 
 @pytest.fixture(scope="module")
-def body():
-    return build_body(1000)
-
-
-@pytest.fixture(scope="module")
-def gait_space(body, tmp_path_factory):
-    clips = [SourceClip(f"g{v}", animate(body, gait(body.skeleton, v, cycles=2.0, fps=FPS)), FPS, True)
-             for v in (0.9, 2.6)]
-    path = tmp_path_factory.mktemp("player") / "speed.mspace"
-    build_motion_space(path, clips, body.F, name="speed", epsilon=0.008, rest=body.V,
-                       parameters={"layout": Layout("chain", 2, chain=(0, 1)), "names": ["speed"]})
-    with MotionSpace.open(path) as space:
+def gait_space(built_spaces):
+    """The shared speed chain (gaits at 0.9 and 2.6 m/s, tests/conftest.py)."""
+    with MotionSpace.open(built_spaces / "speed.mspace") as space:
         yield space
 
 
 @pytest.fixture(scope="module")
-def jump_space(body, tmp_path_factory):
-    clips = [SourceClip(f"j{d}", animate(body, jump(body.skeleton, 0.3, d, fps=FPS)), FPS, False) for d in (0.3, 1.0)]
-    path = tmp_path_factory.mktemp("player") / "jump.mspace"
-    build_motion_space(path, clips, body.F, name="jump", epsilon=0.008, rest=body.V,
-                       parameters={"layout": Layout("chain", 2, chain=(0, 1)), "names": ["jump_distance"]})
-    with MotionSpace.open(path) as space:
+def jump_space(built_spaces):
+    """The shared jump-distance chain (0.3 and 1.0 m)."""
+    with MotionSpace.open(built_spaces / "jump.mspace") as space:
         yield space
 
 
@@ -86,16 +70,9 @@ def test_unreachable_requests_are_clamped(gait_space):
 
 
 @pytest.fixture(scope="module")
-def fan_space(body, tmp_path_factory):
-    """speed x turn_rate: a speed chain (0.9, 2.6 m/s) and turns of +-40 deg/s at 1.5 m/s."""
-    gaits = [(0.9, 0.0), (2.6, 0.0), (1.5, 40.0), (1.5, -40.0)]
-    clips = [SourceClip(f"g{k}", animate(body, gait(body.skeleton, v, turn_rate=r, cycles=1.0, fps=FPS)), FPS, True)
-             for k, (v, r) in enumerate(gaits)]
-    path = tmp_path_factory.mktemp("player") / "fan.mspace"
-    build_motion_space(path, clips, body.F, name="fan", epsilon=0.008, rest=body.V,
-                       parameters={"layout": Layout("fan", 4, chain=(0, 1), left=2, right=3),
-                                   "names": ["speed", "turn_rate"]})
-    with MotionSpace.open(path) as space:
+def fan_space(built_steer):
+    """speed x turn_rate: a speed chain (0.9, 2.6 m/s) and turns of +-40 deg/s at 1.5 m/s (the shared steer space)."""
+    with MotionSpace.open(built_steer / "steer.mspace") as space:
         yield space
 
 

@@ -7,31 +7,17 @@ import numpy as np
 import pytest
 
 from engine import player_steps
-from engine.motion_space import MotionSpace, SourceClip, build_motion_space
+from engine.motion_space import MotionSpace
 from engine.parameters import Layout, ParameterMap, RootTrack
 from engine.player import Player
-from engine.synthetic import animate, build_body, gait
 
-FPS = 15.0
 pytestmark = pytest.mark.skipif(player_steps._OPENBLAS is None, reason="numpy is not built with its wheels' OpenBLAS")
 
 
 @pytest.fixture(scope="module")
-def body():
-    return build_body(1000)
-
-
-@pytest.fixture(scope="module")
-def fan_space(body, tmp_path_factory):
-    """speed x turn_rate (cyclic): a speed chain and a left and a right turn."""
-    gaits = [(0.9, 0.0), (2.6, 0.0), (1.5, 40.0), (1.5, -40.0)]
-    clips = [SourceClip(f"g{k}", animate(body, gait(body.skeleton, v, turn_rate=r, cycles=1.0, fps=FPS)), FPS, True)
-             for k, (v, r) in enumerate(gaits)]
-    path = tmp_path_factory.mktemp("steps") / "fan.mspace"
-    build_motion_space(path, clips, body.F, name="fan", epsilon=0.008, rest=body.V,
-                       parameters={"layout": Layout("fan", 4, chain=(0, 1), left=2, right=3),
-                                   "names": ["speed", "turn_rate"]})
-    with MotionSpace.open(path) as space:
+def fan_space(built_steer):
+    """speed x turn_rate (cyclic): a speed chain and a left and a right turn (the shared steer space)."""
+    with MotionSpace.open(built_steer / "steer.mspace") as space:
         yield space
 
 

@@ -212,9 +212,11 @@ def test_tree_pieces_through_a_runner_equal_the_plain_run(walk_capture, walk_ali
     assert all(np.array_equal(tasks.poses[k], plain.poses[k]) for k in plain.poses)
 
 
-def _repaired_serially_and_through(walk_aligner, runner, strategy="root_first", ticks=None):
-    """Frames 2 and 3 of a walk slipped, repaired by the serial pass and through ``runner``
-    (frame distance as the dissimilarity): both results, after checking the frames were mended."""
+_SERIAL = {}   # (strategy) -> (meshes, the slipped alignment, the serial pass's repair): the same in every test
+
+
+def _serially_repaired(walk_aligner, strategy):
+    """Frames 2 and 3 of a walk slipped (a deep copy each call), and the serial pass's repair of them."""
     import copy
 
     from engine.align import repair_alignment
@@ -222,17 +224,32 @@ def _repaired_serially_and_through(walk_aligner, runner, strategy="root_first", 
 
     from test_align_repair import _slipped
 
-    data = generate_sequence_data(build_body(1000), SequenceSpec("walk", "gait", {"speed": 1.0, "cycles": 0.34,
-                                                                                  "start_phase": 0.1}),
-                                  fps=15, seed=1)
-    meshes = data["unstructured"][:5]
-    aligned = _slipped(walk_aligner, meshes, [2, 3])
-    D = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)
-    serial, tasks = copy.deepcopy(aligned), copy.deepcopy(aligned)
-    repair_alignment(walk_aligner, meshes, serial, dissimilarity=D, candidates=2, strategy=strategy)
-    repair_alignment(walk_aligner, meshes, tasks, dissimilarity=D, candidates=2, runner=runner, strategy=strategy,
-                     progress=None if ticks is None else (lambda d, t: ticks.append((d, t))))
-    assert serial.repaired[[2, 3]].all()
+    if strategy not in _SERIAL:
+        data = generate_sequence_data(build_body(1000), SequenceSpec("walk", "gait", {"speed": 1.0, "cycles": 0.34,
+                                                                                      "start_phase": 0.1}),
+                                      fps=15, seed=1)
+        meshes = data["unstructured"][:5]
+        aligned = _slipped(walk_aligner, meshes, [2, 3])
+        serial = copy.deepcopy(aligned)
+        repair_alignment(walk_aligner, meshes, serial, dissimilarity=_DISTANCE, candidates=2, strategy=strategy)
+        assert serial.repaired[[2, 3]].all()
+        _SERIAL[strategy] = meshes, aligned, serial
+    meshes, aligned, serial = _SERIAL[strategy]
+    return meshes, copy.deepcopy(aligned), serial
+
+
+_DISTANCE = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)   # frame distance as the dissimilarity
+
+
+def _repaired_serially_and_through(walk_aligner, runner, strategy="root_first", ticks=None):
+    """Frames 2 and 3 of a walk slipped, repaired by the serial pass and through ``runner``
+    (frame distance as the dissimilarity): both results, after checking the frames were mended.
+    The serial pass is made once per strategy and worker (it does not change with the runner)."""
+    from engine.align import repair_alignment
+
+    meshes, tasks, serial = _serially_repaired(walk_aligner, strategy)
+    repair_alignment(walk_aligner, meshes, tasks, dissimilarity=_DISTANCE, candidates=2, runner=runner,
+                     strategy=strategy, progress=None if ticks is None else (lambda d, t: ticks.append((d, t))))
     for name in ("vertices", "residual", "distortion_tail", "colour", "parent", "confidence", "repaired"):
         assert np.array_equal(getattr(tasks, name), getattr(serial, name), equal_nan=name == "colour"), name
 

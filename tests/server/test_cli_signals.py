@@ -43,7 +43,7 @@ def _running(pid):
 
 def test_sigterm_ends_the_worker_processes_at_once(tmp_path):
     data = tmp_path / "studio-tiny"
-    assert main(["synth", "--preset", "studio-tiny", "--out", str(data), "--workers", "2"]) == 0
+    assert main(["synth", "--preset", "studio-tiny", "--out", str(data), "--workers", "2", "--no-previews"]) == 0
     command = [sys.executable, "-m", "server.cli", "align", str(data), "--out", str(tmp_path / "out"), "--workers", "2"]
     process = subprocess.Popen(command, cwd=tmp_path, stderr=subprocess.PIPE)
     seen = []
