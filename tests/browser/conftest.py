@@ -53,23 +53,11 @@ def browser():
         chromium.close()
 
 
-@pytest.fixture(scope="session")
-def steer_space(built_spaces, built_steer):
-    """built_spaces' directory, with built_steer's steer.mspace linked in (under the same kind of lock)."""
-    import fcntl
-
-    with open(built_spaces / ".steer-lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        if not (built_spaces / "steer.mspace").exists():
-            os.link(built_steer / "steer.mspace", built_spaces / "steer.mspace")
-        fcntl.flock(lock, fcntl.LOCK_UN)
-    return built_spaces
-
-
 @pytest.fixture(scope="module")
-def steer_server(steer_space, tmp_path_factory):
+def steer_server(built_spaces, built_steer, tmp_path_factory):
     """A live server with the 'speed', 'jump' and 'steer' test spaces."""
-    data = data_dir_with_spaces(tmp_path_factory.mktemp("browser-steer"), steer_space, names=("speed", "jump", "steer"))
+    data = data_dir_with_spaces(tmp_path_factory.mktemp("browser-steer"), built_spaces)
+    data_dir_with_spaces(data, built_steer, names=("steer",))
     with LiveServer(data) as live:
         yield live
 

@@ -40,7 +40,7 @@ def reach_pair():
 @pytest.fixture(scope="session")
 def export_spaces(built_spaces):
     """{"speed": a cyclic two-gait speed chain, "jump": a one-shot two-jump distance chain}: open
-    MotionSpaces of a 1,000-vertex body at 15 fps, for the export tests (the shared built_spaces)."""
+    MotionSpaces of a 1,000-vertex body at 15 fps, for the export and player tests (the shared built_spaces)."""
     from engine.motion_space import MotionSpace
 
     spaces = {name: MotionSpace.open(built_spaces / f"{name}.mspace") for name in ("speed", "jump")}

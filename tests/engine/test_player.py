@@ -8,17 +8,15 @@ from engine.player import Player, _critically_damped
 
 
 @pytest.fixture(scope="module")
-def gait_space(built_spaces):
-    """The shared speed chain (gaits at 0.9 and 2.6 m/s, tests/conftest.py)."""
-    with MotionSpace.open(built_spaces / "speed.mspace") as space:
-        yield space
+def gait_space(export_spaces):
+    """The shared speed chain (gaits at 0.9 and 2.6 m/s)."""
+    return export_spaces["speed"]
 
 
 @pytest.fixture(scope="module")
-def jump_space(built_spaces):
+def jump_space(export_spaces):
     """The shared jump-distance chain (0.3 and 1.0 m)."""
-    with MotionSpace.open(built_spaces / "jump.mspace") as space:
-        yield space
+    return export_spaces["jump"]
 
 
 def test_the_map_spans_the_sources_speeds(gait_space):

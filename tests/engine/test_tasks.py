@@ -212,11 +212,13 @@ def test_tree_pieces_through_a_runner_equal_the_plain_run(walk_capture, walk_ali
     assert all(np.array_equal(tasks.poses[k], plain.poses[k]) for k in plain.poses)
 
 
-_SERIAL = {}   # (strategy) -> (meshes, the slipped alignment, the serial pass's repair): the same in every test
+_DISTANCE = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)   # frame distance as the dissimilarity
 
 
-def _serially_repaired(walk_aligner, strategy):
-    """Frames 2 and 3 of a walk slipped (a deep copy each call), and the serial pass's repair of them."""
+@pytest.fixture(scope="module")
+def serial_repairs(walk_aligner):
+    """``get(strategy)``: (meshes, a fresh copy of the walk with frames 2 and 3 slipped, the serial
+    pass's repair of it), the serial pass made once per strategy (it does not change with the runner)."""
     import copy
 
     from engine.align import repair_alignment
@@ -224,30 +226,30 @@ def _serially_repaired(walk_aligner, strategy):
 
     from test_align_repair import _slipped
 
-    if strategy not in _SERIAL:
-        data = generate_sequence_data(build_body(1000), SequenceSpec("walk", "gait", {"speed": 1.0, "cycles": 0.34,
-                                                                                      "start_phase": 0.1}),
-                                      fps=15, seed=1)
-        meshes = data["unstructured"][:5]
-        aligned = _slipped(walk_aligner, meshes, [2, 3])
-        serial = copy.deepcopy(aligned)
-        repair_alignment(walk_aligner, meshes, serial, dissimilarity=_DISTANCE, candidates=2, strategy=strategy)
-        assert serial.repaired[[2, 3]].all()
-        _SERIAL[strategy] = meshes, aligned, serial
-    meshes, aligned, serial = _SERIAL[strategy]
-    return meshes, copy.deepcopy(aligned), serial
+    data = generate_sequence_data(build_body(1000), SequenceSpec("walk", "gait", {"speed": 1.0, "cycles": 0.34,
+                                                                                  "start_phase": 0.1}),
+                                  fps=15, seed=1)
+    meshes = data["unstructured"][:5]
+    aligned = _slipped(walk_aligner, meshes, [2, 3])
+    serial = {}
+
+    def get(strategy):
+        if strategy not in serial:
+            serial[strategy] = copy.deepcopy(aligned)
+            repair_alignment(walk_aligner, meshes, serial[strategy], dissimilarity=_DISTANCE, candidates=2,
+                             strategy=strategy)
+            assert serial[strategy].repaired[[2, 3]].all()
+        return meshes, copy.deepcopy(aligned), serial[strategy]
+
+    return get
 
 
-_DISTANCE = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)   # frame distance as the dissimilarity
-
-
-def _repaired_serially_and_through(walk_aligner, runner, strategy="root_first", ticks=None):
+def _repaired_serially_and_through(walk_aligner, serial_repairs, runner, strategy="root_first", ticks=None):
     """Frames 2 and 3 of a walk slipped, repaired by the serial pass and through ``runner``
-    (frame distance as the dissimilarity): both results, after checking the frames were mended.
-    The serial pass is made once per strategy and worker (it does not change with the runner)."""
+    (frame distance as the dissimilarity): the results compared, the frames checked mended."""
     from engine.align import repair_alignment
 
-    meshes, tasks, serial = _serially_repaired(walk_aligner, strategy)
+    meshes, tasks, serial = serial_repairs(strategy)
     repair_alignment(walk_aligner, meshes, tasks, dissimilarity=_DISTANCE, candidates=2, runner=runner,
                      strategy=strategy, progress=None if ticks is None else (lambda d, t: ticks.append((d, t))))
     for name in ("vertices", "residual", "distortion_tail", "colour", "parent", "confidence", "repaired"):
@@ -255,12 +257,12 @@ def _repaired_serially_and_through(walk_aligner, runner, strategy="root_first", 
 
 
 @pytest.mark.parametrize("strategy", ["root_first", "together"])
-def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner, make_runner, strategy):
+def test_repairs_in_waves_through_a_runner_equal_the_serial_pass(walk_aligner, serial_repairs, make_runner, strategy):
     """Frame 3's trusted sources change once frame 2 is repaired, so the runner needs a second
     wave: the result is the same."""
     runner = make_runner()
     ticks = []
-    _repaired_serially_and_through(walk_aligner, runner, strategy, ticks)
+    _repaired_serially_and_through(walk_aligner, serial_repairs, runner, strategy, ticks)
     assert runner.calls and all(name == "repair_task" for name, _ in runner.calls)
     # the bar moves with a wave's alignments as they finish, and never goes back
     assert ticks[0][0] == 0 and ticks[-1][0] == ticks[-1][1] > 0
@@ -322,10 +324,10 @@ def test_a_process_runner_places_results_by_index_and_keeps_its_processes_for_th
     assert runner._pool is None
 
 
-def test_repairs_in_local_processes_equal_the_serial_pass(walk_aligner):
+def test_repairs_in_local_processes_equal_the_serial_pass(walk_aligner, serial_repairs):
     """The repair's waves in two processes (as ``align_captures`` runs them with ``workers`` 2 and
     no runner) give the serial pass's result to the last bit."""
     from engine.tasks import ProcessRunner
 
     with ProcessRunner(2) as runner:
-        _repaired_serially_and_through(walk_aligner, runner)
+        _repaired_serially_and_through(walk_aligner, serial_repairs, runner)

@@ -67,7 +67,7 @@ def run_both(cluster, data_dir, kind, params, name):
 
 def test_align_job_split_on_dask_equals_the_local_run(cluster, data_dir):
     params = {"datasets": ["tiny"], "output": "aligned", "only": None, "root": None, "sequential": False,
-              "tree": "mst", "window": 2, "patches": 10, "levels": 1, "retries": 1, "seed": 0, "units": "auto",
+              "tree": "mst", "window": 2, "patches": 10, "levels": 2, "retries": 1, "seed": 0, "units": "auto",
               "up": "auto"}
     local, remote, names, events = run_both(cluster, data_dir, "align", params, "align")
     # the root trial's candidates are tasks too (the tiny capture has more than 24 frames), and the
