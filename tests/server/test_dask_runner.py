@@ -8,6 +8,7 @@ the timings they record.
 
 from __future__ import annotations
 
+import functools
 import json
 import time
 from pathlib import Path
@@ -65,13 +66,23 @@ def run_both(cluster, data_dir, kind, params, name):
     return Path(local["staging"]), Path(remote["staging"]), names, events
 
 
-def test_align_job_split_on_dask_equals_the_local_run(cluster, data_dir):
-    params = {"datasets": ["tiny"], "output": "aligned", "only": None, "root": None, "sequential": False,
+def test_align_job_split_on_dask_equals_the_local_run(cluster, data_dir, monkeypatch):
+    from engine.align import captures, root_race, root_trial
+
+    # the walk's 12 frames, with a smaller trial and race than a capture's own, in both runs alike
+    # (the cluster's workers are threads of this process): a trial from 12 frames on, two candidates
+    # of two probes each, and the finalists raced (asked for: one take) on 4 of the 12 frames (the
+    # subset race) before the winner aligns them all
+    monkeypatch.setattr(root_trial, "TRIAL_MIN_FRAMES", 12)
+    monkeypatch.setattr(captures, "trial_candidates", functools.partial(root_trial.trial_candidates, count=2))
+    monkeypatch.setattr(captures, "trial_probes", functools.partial(root_trial.trial_probes, count=2))
+    monkeypatch.setattr(root_race, "RACE_FRAMES", 4)
+    params = {"datasets": ["tiny"], "output": "aligned", "only": ["walk"], "root": None, "sequential": False,
               "tree": "mst", "window": 2, "patches": 10, "levels": 2, "retries": 1, "seed": 0, "units": "auto",
-              "up": "auto"}
+              "up": "auto", "root_choice": "race"}
     local, remote, names, events = run_both(cluster, data_dir, "align", params, "align")
-    # the root trial's candidates are tasks too (the tiny capture has more than 24 frames), and the
-    # race's finalists align in pieces like the final run
+    # the root trial's candidates are tasks too, and the race's finalists align in pieces like the
+    # final run
     assert {"histogram-task", "distance-task", "trial-task", "piece-task"} <= names, names
     stages = {e["stage"] for e in events if e.get("t") == "progress"} | {
         e["line"][6:] for e in events if e.get("t") == "log" and e["line"].startswith("stage ")}
@@ -83,7 +94,7 @@ def test_align_job_split_on_dask_equals_the_local_run(cluster, data_dir):
     for key in compared:
         assert np.array_equal(a[key], b[key]), key
     frames = sorted((local / "dataset").rglob("consistent/*"))
-    assert len(frames) == len(a["parent"]) > 10
+    assert len(frames) == len(a["parent"]) == 12
     for path in frames:
         assert path.read_bytes() == (remote / "dataset" / path.relative_to(local / "dataset")).read_bytes(), path
 
