@@ -158,6 +158,15 @@ def say_conventions(conventions, names, say, what="input"):
             say(f"warning: {name}: {warning}")
 
 
+def figure_text(value, digits=2):
+    """``value`` with ``digits`` decimals, or 3 significant figures when it is under 1, so that a
+    figure is never shown as 0.00 unless it is 0 (``0.00173``); NaN as ``nan``."""
+    value = float(value)
+    if math.isfinite(value) and 0 < abs(value) < 1:
+        digits = max(digits, 2 - math.floor(math.log10(abs(value))))
+    return f"{value:.{digits}f}"
+
+
 def length_text(metres, convention, size=None, digits=2):
     """A length for people: in the data's display unit, and in % of ``size`` (metres) if given.
 
@@ -165,13 +174,11 @@ def length_text(metres, convention, size=None, digits=2):
     length is never shown as 0.00 unless it is 0 (metres read as centimetres: ``0.00173 cm``)."""
     unit = display_unit(convention)
     value = float(metres) * DISPLAY_PER_METRE[unit]
-    if 0 < abs(value) < 1:
-        digits = max(digits, 2 - math.floor(math.log10(abs(value))))
-    text = f"{value:.{digits}f} {unit}"
+    text = f"{figure_text(value, digits)} {unit}"
     if size:
         text += f" ({100.0 * float(metres) / size:.3g}% of model size)"
     return text
 
 
-__all__ = ["add_units_arguments", "common_convention", "declared_convention", "display_unit", "length_text",
-           "meshes_to_metres", "say_conventions"]
+__all__ = ["add_units_arguments", "common_convention", "declared_convention", "display_unit", "figure_text",
+           "length_text", "meshes_to_metres", "say_conventions"]

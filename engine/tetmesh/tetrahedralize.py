@@ -85,8 +85,8 @@ def tetrahedralize(V, F, *, resolution=56, cell=None, max_cells=4000, min_inside
     count = inside.reshape(cells[0], 2, cells[1], 2, cells[2], 2).sum(axis=(1, 3, 5))
     solid = np.argwhere(count >= int(min_inside))
     if len(solid) == 0:
-        raise ValueError(f"the surface encloses no lattice cell of {h:.4g} (is it too thin, or open "
-                         f"beyond what capping its holes can close?)")
+        raise ValueError(f"the surface encloses no lattice cell of {h:.4g}: is it too thin, or open "
+                         f"beyond what capping its holes can close?")
     corners = solid[:, None, None, :] + _KUHN[None]                    # (cells, 6, 4, 3)
     stride = np.array([(cells[1] + 1) * (cells[2] + 1), cells[2] + 1, 1])
     ids = (corners @ stride).reshape(-1, 4)

@@ -404,15 +404,22 @@ def frame_label(index, sequences, lengths):
 def confidence_summary(aligned, sequences, lengths):
     """The per-frame confidence in a few numbers (the align job's summary, the CLI's last line):
     ``root_frame`` ("SEQUENCE:FRAME"), ``repaired_frames`` and ``flagged_frames`` (below
-    ``TRUSTED``) counted over all sequences, ``confidence_min``, ``pulled_frames`` (frames whose
+    ``TRUSTED``) counted over all sequences, ``repair_alignments`` (the pairwise alignments the
+    repair tried, kept or not), ``confidence_min``, ``pulled_frames`` (frames whose
     alignment pulled a limb onto what nothing covered, ``reach_limbs``), and ``flagged``: per
     sequence the frames (its own numbering) still below ``TRUSTED``."""
     return {"root_frame": frame_label(aligned.root, sequences, lengths),
             "repaired_frames": int(np.sum(aligned.repaired)),
+            "repair_alignments": int(aligned.repair_spent),
             "flagged_frames": int(np.sum(aligned.confidence < TRUSTED)),
             "confidence_min": float(np.min(aligned.confidence)),
             "pulled_frames": int(np.sum(np.asarray(aligned.pulled) > 0)) if aligned.pulled is not None else 0,
             "flagged": flagged_by_sequence(aligned, sequences, lengths)}
+
+
+def _count(n, noun):
+    """"1 frame", "2 frames"."""
+    return f"{n} {noun}{'s' * (n != 1)}"
 
 
 def flagged_by_sequence(aligned, sequences, lengths):
@@ -636,7 +643,7 @@ def run(args):
     print(f"  input {given} (written in metres, +Y up); fit residual mean "
           f"{length_text(aligned.residual.mean(), convention, size)}, max "
           f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "
-          f"{int(aligned.retried.sum())} frames re-aligned from other parents, "
+          f"{_count(int(aligned.retried.sum()), 'frame')} re-aligned from other parents, "
           f"{confidence['pulled_frames']} with a limb pulled onto what nothing covered")
     print(f"  colour cues {colour_cues_text(args.colors, result.colour_cues, meshes)}")
     if result.root_trial:
@@ -648,9 +655,9 @@ def run(args):
         print(f"  faces wound inward (or mixed) turned outward in {len(shown)} frame{'s' * (len(shown) != 1)}: "
               f"{', '.join(shown[:6])}"
               + (", ..." if len(shown) > 6 else ""))
-    print(f"  confidence: {confidence['repaired_frames']} frames repaired (aligned again from the root or trusted "
-          f"frames), {confidence['flagged_frames']} of {frames} still below {TRUSTED} (listed per sequence in "
-          "meta.json)")
+    print(f"  confidence: {_count(confidence['repaired_frames'], 'frame')} repaired (aligned again from the root or "
+          f"trusted frames; {_count(confidence['repair_alignments'], 'alignment')} tried), "
+          f"{confidence['flagged_frames']} of {frames} still below {TRUSTED} (listed per sequence in meta.json)")
     return 0
 
 

@@ -47,6 +47,7 @@ from server.units import (
     common_convention,
     declared_convention,
     display_unit,
+    figure_text,
     say_conventions,
 )
 
@@ -178,7 +179,9 @@ def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, le
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
     per_sequence = {}
     for name, start, n in zip(names, starts, lengths):
-        per_sequence[name] = {k: round(v, 3) for k, v in error_summary(errors[start:start + n], size).items()}
+        # all frames but the root, as the summary (a sequence of the root alone: the root)
+        picked = [f for f in range(start, start + n) if f != root] or [root]
+        per_sequence[name] = {k: round(v, 3) for k, v in error_summary(errors[picked], size).items()}
     record = {"method": method, "frames": int(frames), **{k: round(v, 4) for k, v in summary.items()},
               "per_sequence": per_sequence}
     if part_counts:  # a studio body: the body and each garment apart
@@ -559,7 +562,11 @@ def _root_line(report, args, recorded=None):
 def _print_report(report, out, args, recorded=None):
     unit = report["display_unit"]
     scale = DISPLAY_PER_METRE[unit] / 1000.0  # from the records' mm
-    inputs = sorted({f"{r['units']}, {r['up']} up" for r in report["input"].values()})
+    conventions = {}  # "units, up" -> the sequences in it
+    for name, r in report["input"].items():
+        conventions.setdefault(f"{r['units']}, {r['up']} up", []).append(name)
+    inputs = sorted(conventions) if len(conventions) == 1 else \
+        [f"{key} ({', '.join(conventions[key])})" for key in sorted(conventions)]
     count = len(report["sequences"])
     print(f"{report['frames']} frame{'s' * (report['frames'] != 1)} of {count} sequence{'s' * (count != 1)}, model size "
           f"{report['model_size_m']:.3f} m; input in {' / '.join(inputs)}; lengths in {unit}")
@@ -576,16 +583,20 @@ def _print_report(report, out, args, recorded=None):
         r = report.get(method)
         if not r:
             continue
-        print(f"{method:<12}{r['mean_pct']:>8.2f}{r['p95_pct']:>8.2f}{r['max_pct']:>8.1f}"
-              f"{scale * r['mean_mm']:>9.1f}{scale * r['p95_mm']:>8.1f}{scale * r['max_mm']:>8.0f}"
-              f"{scale * r.get('residual_mean_mm', float('nan')):>10.2f}"
+        # (figures under 1 keep 3 significant figures: none reads 0.00 unless it is 0)
+        print(f"{method:<12}{figure_text(r['mean_pct']):>8}{figure_text(r['p95_pct']):>8}"
+              f"{figure_text(r['max_pct'], 1):>8}{figure_text(scale * r['mean_mm'], 1):>9}"
+              f"{figure_text(scale * r['p95_mm'], 1):>8}{figure_text(scale * r['max_mm'], 0):>8}"
+              f"{figure_text(scale * r.get('residual_mean_mm', float('nan'))):>10}"
               f"{r.get('seconds_per_frame', float('nan')):>9.2f}{r.get('cpu_seconds_per_frame', float('nan')):>9.2f}")
     for method in ("tree", "sequential", "aligned"):
         parts = report.get(method, {}).get("per_part")
         if parts:
-            print(f"{method} per part: " + ", ".join(f"{name} {p['mean_pct']:.2f}% (p95 {p['p95_pct']:.2f}%)"
+            print(f"{method} per part: " + ", ".join(f"{name} {figure_text(p['mean_pct'])}% "
+                                                     f"(p95 {figure_text(p['p95_pct'])}%)"
                                                      for name, p in parts.items()))
     if "sequential_over_tree_mean" in report:
         print(f"sequential / tree mean error: {report['sequential_over_tree_mean']:.2f}x")
     pictures = [name for name in PICTURES if (out / name).is_file()]
-    print(f"wrote {out / 'results.json'}, {out / 'frames.csv'} and " + ", ".join(str(out / name) for name in pictures))
+    written = [out / "results.json", out / "frames.csv"] + [out / name for name in pictures]
+    print(f"wrote {', '.join(str(p) for p in written[:-1])} and {written[-1]}")

@@ -315,7 +315,8 @@ def run_align(payload, reporter, runner=None):
     if result.root_reason:
         reporter.log(f"root: {result.root_reason}")
     confidence = confidence_summary(aligned, sequences, lengths)
-    reporter.log(f"confidence: {confidence['repaired_frames']} frames repaired, {confidence['flagged_frames']} of "
+    reporter.log(f"confidence: {confidence['repaired_frames']} frames repaired ({confidence['repair_alignments']} "
+                 f"alignments tried), {confidence['flagged_frames']} of "
                  f"{int(lengths.sum())} still below {TRUSTED} (the summary's flagged lists them per sequence), "
                  f"{confidence['pulled_frames']} with a limb pulled onto what nothing covered")
     return {"output": {"type": "dataset", "name": params["output"], "path": out.name},

@@ -1,6 +1,7 @@
 """`morphspace align` and `morphspace eval-align` on a few frames of a tiny capture dataset."""
 
 import contextlib
+import functools
 import io
 import json
 import re
@@ -252,13 +253,21 @@ def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
     # why no trial or race ran, as align says it (found by a docs-only user)
     assert f"root frame {root}, {label} (the spread's choice, `apart`: no trial or race on fewer than 24 frames)\n" \
         in printed
-    assert printed.rstrip().endswith(", ".join(str(tmp_path / "printed" / name) for name in
-                                               ("aligned_pattern.png", "similarity.png", "tree.png")))
+    printed_dir = tmp_path / "printed"
+    assert printed.rstrip().endswith(f", {printed_dir / 'aligned_pattern.png'}, {printed_dir / 'similarity.png'} "
+                                     f"and {printed_dir / 'tree.png'}")
+    row = next(line for line in printed.splitlines() if line.startswith("tree "))
+    assert all(float(x) != 0 or x == "0" for x in row.split()[1:8]), row  # none reads 0.00 unless it is 0
+    # the figures leave out the root, which is not aligned, per sequence too (found by a docs-only user)
+    for name, figures in printed_report["tree"]["per_sequence"].items():
+        frame_means = [float(r["mean_pct"]) for r in csv.DictReader((tmp_path / "printed" / "frames.csv").open())
+                       if r["sequence"] == name and r["parent"] != ""]
+        assert figures["mean_pct"] == pytest.approx(np.mean(frame_means), abs=2e-3), (name, frame_means)
     # the sequential alignment's picture is among those written when it was made
     assert main(["eval-align", str(dataset), "--max-frames", "3", "--out", str(out), "--workers", "1"]) == 0
     printed = capsys.readouterr().out
-    assert printed.rstrip().endswith(", ".join(str(out / name) for name in ("aligned_pattern.png",
-                                     "aligned_pattern_sequential.png", "similarity.png", "tree.png")))
+    assert printed.rstrip().endswith(f", {out / 'aligned_pattern_sequential.png'}, {out / 'similarity.png'} and "
+                                     f"{out / 'tree.png'}")
 
 
 def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsys):
@@ -481,6 +490,9 @@ def test_metres_given_as_centimetres_show_residuals_to_3_significant_figures(dat
     assert float(mean) < 1 and float(largest) < 1, captured.out
     for shown in (mean, largest):  # 3 significant figures, never 0.00
         assert re.fullmatch(r"0\.0*[1-9]\d\d", shown), captured.out
+    # how many alignments the repair tried, kept or not, beside what it kept (found by a docs-only user)
+    assert re.search(r"  confidence: \d+ frames? repaired \(aligned again from the root or trusted frames; \d+ "
+                     r"alignments? tried\), \d+ of \d+ still below 0.5", captured.out), captured.out
 
 
 def test_eval_align_in_millimetres_z_up_scores_as_in_metres(dataset, dataset_mm_z_up, aligned, tmp_path, capsys):
@@ -497,6 +509,20 @@ def test_eval_align_in_millimetres_z_up_scores_as_in_metres(dataset, dataset_mm_
     assert (walk["units"], walk["up"], millimetres["input"]["jog"]["units"]) == ("mm", "+Z", "m")
     assert (metres["input"]["walk"]["units"], metres["input"]["walk"]["up"]) == ("m", "+Y")
     assert millimetres["display_unit"] == metres["display_unit"] == "mm"
+    # the printed report says which sequences are in which units (found by a docs-only user)
+    assert main(["eval-align", str(dataset_mm_z_up), "--aligned", str(aligned), "--out", str(tmp_path / "printed")]) == 0
+    assert "; input in m, +Y up (jog) / mm, +Z up (walk); lengths in mm\n" in capsys.readouterr().out
+
+
+def test_printed_figures_under_1_keep_3_significant_figures():
+    """eval-align's table printed 0.0 cm and 0.00% for errors of thousandths (found by a docs-only
+    user); its figures, like align's lengths, keep 3 significant figures under 1."""
+    from server.units import figure_text
+
+    assert [figure_text(v) for v in (0.00173, 0.0456, 0.5, 1.5, 12.345, 0.0)] == \
+        ["0.00173", "0.0456", "0.500", "1.50", "12.35", "0.00"]
+    assert [figure_text(v, 0) for v in (0.00173, 3.6, 250.4)] == ["0.00173", "4", "250"]
+    assert figure_text(-0.0123, 1) == "-0.0123" and figure_text(float("nan")) == "nan"
 
 
 def test_build_converts_sources_in_millimetres_z_up(aligned, tmp_path, capsys):
@@ -640,6 +666,11 @@ def longer_dataset(tmp_path_factory):
 
 
 def test_the_root_is_tried_and_raced_on_a_capture_of_24_frames_or_more(longer_dataset, tmp_path, capsys, monkeypatch):
+    from engine.align import captures, root_trial
+    from engine.align.root_race import finalists
+
+    # three probes a candidate instead of six, in all four runs (the summary reports the count)
+    monkeypatch.setattr(captures, "trial_probes", functools.partial(root_trial.trial_probes, count=3))
     out = tmp_path / "tried"
     assert main(["align", str(longer_dataset), "--out", str(out), "--workers", "2", "--levels", "1",
                  "--root-choice", "race"]) == 0
@@ -647,19 +678,22 @@ def test_the_root_is_tried_and_raced_on_a_capture_of_24_frames_or_more(longer_da
     assert "try roots: 100%" in captured.err and "race roots: 100%" in captured.err
     assert ", root trial " in captured.out and ", root race " in captured.out
     line = next(x for x in captured.out.splitlines() if "root tried:" in x)
-    assert "candidates aligned 6 probe frames each (mean badness, lower is better: walk:" in line, line
+    assert "candidates aligned 3 probe frames each (mean badness, lower is better: walk:" in line, line
     tried, raced = line.split("better: ")[1], line.split("higher is better: ")[1]
     means = {label: float(value) for label, value in re.findall(r"(walk:\d+) ([0-9.]+)", tried.split(")")[0])}
     confidence = {label: float(value) for label, value in re.findall(r"(walk:\d+) ([0-9.]+)", raced.split(")")[0])}
     frames = len(np.load(out / "alignment.npz")["parent"])
-    # the trial's two least bad candidates each aligned the whole capture; the more confident is the root
-    assert f"; the best 2 each aligned {frames} frames (mean confidence" in line, line
-    assert sorted(confidence) == sorted(sorted(means, key=means.get)[:2]), (means, confidence)
-    best = max(confidence, key=confidence.get)
-    assert f"; {best} " in line and np.load(out / "alignment.npz")["root"] == int(best.split(":")[1])
-    assert ("kept (the spread's choice too)" in line) != ("taken instead of the spread's choice, walk:" in line), line
     # the manifest keeps the whole report, unrounded
     record = json.loads((out / "manifest.json").read_text())["alignment"]["root_trial"]
+    # the trial's two least bad candidates (by the unrounded means: two may print alike) each aligned
+    # the whole capture; the more confident is the root
+    assert f"; the best 2 each aligned {frames} frames (mean confidence" in line, line
+    least_bad = [f"walk:{c}" for c in finalists(record)]
+    assert sorted(confidence) == sorted(least_bad), (means, confidence)
+    best = f"walk:{record['race']['winner']}"
+    assert confidence[best] == max(confidence.values())
+    assert f"; {best} " in line and np.load(out / "alignment.npz")["root"] == int(best.split(":")[1])
+    assert ("kept (the spread's choice too)" in line) != ("taken instead of the spread's choice, walk:" in line), line
     assert record["race"]["winner"] == np.load(out / "alignment.npz")["root"] and record["race"]["frames"] == frames
     assert [round(m, 2) for m in record["mean"]] == [means[f"walk:{c}"] for c in record["candidates"]]
     # the trial alone: no race

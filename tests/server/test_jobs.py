@@ -396,6 +396,8 @@ def test_align_job_writes_a_buildable_dataset(client, live, dataset_zip):
         assert info["sequences"][[s["name"] for s in info["sequences"]].index(name)]["vertices"] == meta["vertices"]
     assert result["flagged_frames"] == sum(len(f) for f in result["flagged"].values())
     assert 0 <= result["confidence_min"] <= 1 and 0 <= result["repaired_frames"] <= 6
+    assert result["repair_alignments"] >= result["repaired_frames"]  # tried, kept or not
+    assert any(f"frames repaired ({result['repair_alignments']} alignments tried)" in line for line in job["log"])
     pulled = np.load(served / "alignment.npz")["pulled"]
     assert result["pulled_frames"] == int(np.sum(pulled > 0))
     seq, frame = result["root_frame"].split(":")
