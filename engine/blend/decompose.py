@@ -20,6 +20,7 @@ from engine.deform import DeformationSolver
 from engine.tetmesh import (
     deformation_gradients,
     polar_decomposition,
+    rest_inverse,
     rotations_to_quaternions,
     tet_barycentric,
     tet_laplacian,
@@ -125,6 +126,7 @@ class FrameDecomposer:
         # its own surface's best rotation: one rotation for all would leave a piece that turns
         # apart from the body to the ARAP steps, which do not get there
         T = np.asarray(embedding.T)
+        self._rest_inverse = rest_inverse(embedding.V_tet, T)  # every fit's gradients share it
         self._tet_part = self.solver.part[T[:, 0]] if self.solver.n_parts > 1 else None
         if self._tet_part is not None:
             self._surface_part = self.solver.part[T[np.asarray(embedding.surface_tet), 0]]
@@ -145,8 +147,8 @@ class FrameDecomposer:
         T, V_tet = self.embedding.T, self.embedding.V_tet
         X = self.solver.solve(_stacked(self._start_rotations(S)), S)
         for _ in range(self.iterations):
-            R, _ = polar_decomposition(deformation_gradients(V_tet, X, T))
-            X = self.solver.solve(_stacked(R @ _rest_frames(len(T))), S)
+            R, _ = polar_decomposition(deformation_gradients(V_tet, X, T, rest_inverse=self._rest_inverse))
+            X = self.solver.solve(_stacked(R), S)  # the rest frames are the identity: R itself
         return X
 
     def decompose(self, S):
@@ -154,7 +156,7 @@ class FrameDecomposer:
         S = np.asarray(S, dtype=np.float64)
         emb = self.embedding
         X = self.fit(S)
-        F = deformation_gradients(emb.V_tet, X, emb.T)
+        F = deformation_gradients(emb.V_tet, X, emb.T, rest_inverse=self._rest_inverse)
         R, Sy = polar_decomposition(F)
         q = rotations_to_quaternions(R)
         residual = S - self.B @ X
@@ -169,10 +171,6 @@ def _best_rotation(P, Q):
     U, _, Vt = np.linalg.svd(H)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
     return Vt.T @ D @ U.T
-
-
-def _rest_frames(t):
-    return np.broadcast_to(np.eye(3), (t, 3, 3))
 
 
 def _stacked(F):

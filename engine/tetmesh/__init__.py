@@ -11,7 +11,7 @@ One function per file, each named after what it returns:
 ``G = tet_gradient(V, T)``                     (3t, k) gradient operator
 ``D = tet_mass(V, T)``                         (3t, 3t) volumes, each repeated 3 times
 ``L = tet_laplacian(V, T)``                    G^T D G
-``F = deformation_gradients(V_rest, V_def, T)``  (t, 3, 3)
+``F = deformation_gradients(V_rest, V_def, T)``  (t, 3, 3) (``rest_inverse``: its rest part, once)
 ``R, S = polar_decomposition(F)``              F = R S, det R = +1
 ``q = rotations_to_quaternions(R)``, ``R = quaternions_to_rotations(q)``
 
@@ -19,7 +19,7 @@ Casas et al. 2012, section 4.1 and eq. (2); DESIGN.md pipeline step 7.
 """
 
 from .boundary_faces import boundary_faces
-from .deformation_gradients import deformation_gradients
+from .deformation_gradients import deformation_gradients, rest_inverse
 from .embed_barycentric import embed_barycentric, tet_barycentric
 from .polar_decomposition import polar_decomposition
 from .quaternions import quaternions_to_rotations, rotations_to_quaternions
@@ -36,6 +36,7 @@ __all__ = [
     "embed_barycentric",
     "polar_decomposition",
     "quaternions_to_rotations",
+    "rest_inverse",
     "rotations_to_quaternions",
     "tet_barycentric",
     "tet_components",

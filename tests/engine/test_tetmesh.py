@@ -198,6 +198,28 @@ def test_polar_decomposition_of_random_and_near_degenerate_matrices():
     assert np.linalg.eigvalsh(S).min() > -1e-12  # det F > 0: S is positive semi-definite
 
 
+def test_the_compiled_newton_split_is_the_svd_split_and_inverted_elements_still_take_the_svd():
+    """Tets that are not inverted or nearly flat are split by Newton's iteration (compiled); the
+    others by the SVD, as before. Both give the same factors to rounding."""
+    from engine.tetmesh.polar_decomposition import _svd_polar
+
+    rng = np.random.default_rng(7)
+    F = np.eye(3) + 0.3 * rng.normal(size=(4000, 3, 3))   # a body's gradients, a few inverted
+    F[:1000] *= 1e-3                                       # in millimetres' scale
+    inverted = np.linalg.det(F) < 0
+    assert 0 < inverted.sum() < 100
+    R, S = polar_decomposition(F)
+    R_svd, S_svd = _svd_polar(F)
+    np.testing.assert_allclose(R, R_svd, atol=1e-13)
+    np.testing.assert_allclose(S, S_svd, atol=1e-13)
+    assert np.array_equal(R[inverted], R_svd[inverted]) and np.array_equal(S[inverted], S_svd[inverted])
+    assert_polar(F, R, S)
+    again, _ = polar_decomposition(F)
+    assert np.array_equal(again, R)  # the same bytes run after run
+    assert polar_decomposition(F[0])[0].shape == (3, 3) and polar_decomposition(F[:0])[0].shape == (0, 3, 3)
+    assert polar_decomposition(F.reshape(40, 100, 3, 3))[0].shape == (40, 100, 3, 3)
+
+
 @settings(max_examples=60, deadline=None)
 @given(arrays(np.float64, (3, 3), elements=st.floats(-10, 10)))
 def test_polar_decomposition_property(F):
