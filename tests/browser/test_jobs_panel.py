@@ -63,7 +63,7 @@ def test_upload_build_and_the_new_space_streams(empty_server, open_page):
             page.screenshot("jobs-build-running")
         if state in ("succeeded", "failed", "cancelled"):
             break
-        page.page.wait_for_timeout(300)
+        page.page.wait_for_timeout(100)  # the page polls every 0.7 s; the build takes a few seconds
     assert state == "succeeded", job.inner_text()
     assert progress[-1] == 1.0 and any(0 < p < 1 for p in progress), progress
 

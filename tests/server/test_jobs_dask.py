@@ -46,7 +46,8 @@ def built(live):
     with httpx.Client(base_url=live.url, timeout=30.0) as client:
         job = client.post("/v1/jobs", json=build_request("dask_space"), headers=AUTH).json()
         seen = []
-        job = wait_for(client, job["id"], lambda j: j["status"] in FINAL, timeout=300, seen=seen)
+        # polled often: the build takes a few seconds (its tets' split is compiled since session 55)
+        job = wait_for(client, job["id"], lambda j: j["status"] in FINAL, timeout=300, seen=seen, every=0.01)
     timings = {}
     if job["status"] == "succeeded":
         timings = job["result"]["stage_seconds"]
@@ -82,7 +83,7 @@ def test_cancel_on_dask(built, client, live, cluster):
     assert timings, "the uncancelled build failed"
     job = client.post("/v1/jobs", json=build_request("dask_cancelled"), headers=AUTH).json()
     running = wait_for(client, job["id"], lambda j: j["status"] == "running" and j["stage"] == "decompose",
-                       timeout=300)
+                       timeout=300, every=0.01)
     cancelled_at = time.monotonic()
     r = client.post(f"/v1/jobs/{job['id']}/cancel", headers=AUTH)
     assert r.status_code == 200 and r.json()["status"] == "cancelled", r.text
@@ -182,7 +183,8 @@ def test_a_clean_stop_during_a_dask_job_loses_nothing(tmp_path, cluster):
         c.post("/v1/datasets", params={"name": "gaits"}, content=capture_zip(),
                headers={**AUTH, "Content-Type": "application/zip"}).raise_for_status()
         job = c.post("/v1/jobs", json=build_request("restarted"), headers=AUTH).json()
-        first = wait_for(c, job["id"], lambda j: j["status"] == "running" and j["stage"] == "decompose", timeout=300)
+        first = wait_for(c, job["id"], lambda j: j["status"] == "running" and j["stage"] == "decompose", timeout=300,
+                         every=0.01)
     with LiveServer(data, env=env) as server, httpx.Client(base_url=server.url, timeout=30.0) as c:
         job = wait_for(c, job["id"], lambda j: j["status"] in FINAL, timeout=300)
     assert job["status"] == "succeeded", job
@@ -216,7 +218,8 @@ def test_jobs_wait_for_the_scheduler_and_one_it_lost_is_queued_again(tmp_path):
         time.sleep(3.0)  # two dispatcher rounds
         assert c.get(f"/v1/jobs/{job['id']}").json()["status"] == "queued"
         with cluster_at_port():
-            wait_for(c, job["id"], lambda j: j["status"] == "running" and j["stage"] == "decompose", timeout=300)
+            wait_for(c, job["id"], lambda j: j["status"] == "running" and j["stage"] == "decompose", timeout=300,
+                     every=0.01)
         lost = wait_for(c, job["id"], lambda j: j["status"] != "running", timeout=60)
         assert lost["status"] == "queued", lost
         assert any("attempt 1 interrupted: the Dask scheduler" in line for line in lost["log"]), lost["log"]
