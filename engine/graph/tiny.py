@@ -1,7 +1,7 @@
 """A small motion graph straight from the capture generator, for tests and the benchmarks'
 ``--tiny`` runs: a walk (speed chain, cyclic), a standing idle (no parameters, cyclic) and a
 jump (height chain, one-shot) of the 1,000-vertex body at 15 fps, at cheap settings (12 phases,
-a coarse hybrid), joined walk <-> stand -> jump -> stand, walk -> jump. About 10 CPU seconds.
+a coarse hybrid), joined walk <-> stand -> jump -> stand, walk -> jump. About 6 CPU seconds.
 ``reach=True`` adds a reach (height chain, one-shot) joined stand <-> reach, for the stream's
 walk -> jump -> walk -> reach tests."""
 
