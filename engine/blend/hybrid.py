@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.linalg.blas import saxpy
 
-from engine.blend.corrections import CorrectionBuilder, Corrections
+from engine.blend.corrections import CorrectionBuilder, Corrections, vector_lengths
 from engine.blend.linear import blend_rows
 from engine.blend.phase import phase_samples
 from engine.blend.simplex import SimplexTree
@@ -265,7 +265,7 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         for k, r in enumerate(tree.cells[node]):
             if g[k] > 0 and nodal[r] is not None:
                 H += g[k] * nodal[r]
-        return float(np.linalg.norm(H - exact(w), axis=2).max())
+        return float(vector_lengths(H - exact(w)).max())
 
     def points_in(node):
         if test_weights is None:
@@ -395,7 +395,7 @@ def prune_corrections(tree, corrections, test_weights, linear, exact, bound, lea
             error[t] += phi[t, r] * corrections.dense(r)
         if progress is not None:
             progress(f"pruning: test point {t + 1} of {len(test_weights)} measured")
-    limit = np.maximum(np.float32(bound), np.linalg.norm(error, axis=3).max(axis=(1, 2)))
+    limit = np.maximum(np.float32(bound), vector_lengths(error).max(axis=(1, 2)))
     keep = np.ones(len(corrections.vertex), dtype=bool)
     for r in range(R - 1, -1, -1):
         support = np.flatnonzero(phi[:, r])
@@ -410,14 +410,14 @@ def prune_corrections(tree, corrections, test_weights, linear, exact, bound, lea
             value = corrections.value[s:e].astype(np.float32) * corrections.scale[k]
             before = error[support, p][:, vertex]                                  # (S, c, 3)
             after = before - phi[support, r, None, None].astype(np.float32) * value
-            fine = np.all(np.linalg.norm(after, axis=2) <= limit[support, None], axis=0)
+            fine = np.all(vector_lengths(after) <= limit[support, None], axis=0)
             keep[s:e] = ~fine
             error[np.ix_(support, [p], vertex[fine])] = after[:, None, fine]
     kept_before = np.concatenate([[0], np.cumsum(keep)])
     pruned = Corrections(n_phases=P, n_vertices=n, pointer=kept_before[corrections.pointer].astype(np.int64),
                          vertex=corrections.vertex[keep], value=corrections.value[keep],
                          scale=corrections.scale)
-    norms = np.linalg.norm(error, axis=3).max(axis=(1, 2))
+    norms = vector_lengths(error).max(axis=(1, 2))
     worst = {}
     for t, node in enumerate(leaf):
         if node >= 0:
