@@ -25,6 +25,7 @@ def vector_lengths(x):
     this way."""
     return np.sqrt(x[..., 0] * x[..., 0] + x[..., 1] * x[..., 1] + x[..., 2] * x[..., 2])
 
+
 QUANT_LEVELS = 127  # int8 range used by quantised corrections
 
 

@@ -30,8 +30,9 @@ def polar_decomposition(F):
     positive and not small against ``F``'s scale (``NEWTON_LEAST_DET``: almost every tet of a
     body), it is found by Newton's iteration with determinant scaling, ``X <- (g X + X^-T / g) / 2``
     with ``g = |det X|^(-1/3)`` (Higham, "Computing the polar decomposition", 1986), compiled, one
-    matrix at a time: about 20 times faster than a batched LAPACK SVD of 3 x 3 matrices, and
-    orthogonal to rounding. Elsewhere, batched SVD ``F = U diag(s) W^T``; ``R = U W^T`` and
+    matrix at a time: about 8 times faster than a batched LAPACK SVD of 3 x 3 matrices (17 ms
+    against 145 ms for 20,000 gradients near the identity, 0.5% of them inverted), and orthogonal
+    to rounding. Elsewhere, batched SVD ``F = U diag(s) W^T``; ``R = U W^T`` and
     ``S = W diag(s) W^T``, and where ``det(U W^T) < 0`` (an inverted element, or an indefinite
     sign in a near-degenerate one) the singular vector of the smallest singular value is
     flipped, so ``R`` stays a rotation and ``S`` takes one negative eigenvalue: the rotation

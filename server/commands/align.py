@@ -417,7 +417,7 @@ def confidence_summary(aligned, sequences, lengths):
             "flagged": flagged_by_sequence(aligned, sequences, lengths)}
 
 
-def _count(n, noun):
+def count_text(n, noun):
     """"1 frame", "2 frames"."""
     return f"{n} {noun}{'s' * (n != 1)}"
 
@@ -624,12 +624,12 @@ def run(args):
     aligned = result.aligned
     t = result.timings
     frames = int(lengths.sum())
-    print(f"aligned {frames} frame{'s' * (frames != 1)} of {len(sequences)} sequence{'s' * (len(sequences) != 1)} "
+    print(f"aligned {count_text(frames, 'frame')} of {count_text(len(sequences), 'sequence')} "
           f"to {out} in {time.perf_counter() - started:.1f} s "
           f"({result.method}, root {frame_label(aligned.root, sequences, lengths)} = frame {aligned.root}, "
           f"{len(aligned.root_vertices)} vertices)")
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
-          f"{result.tree.components} component{'s' * (result.tree.components != 1)} reconnected), "
+          f"{count_text(result.tree.components, 'component')} reconnected), "
           + (f"root trial {t['trial']:.1f} s, " if "trial" in t else "")
           + (f"root race {t['race']:.1f} s, " if "race" in t else "") + f"tetrahedralise {t['tetrahedralize']:.1f} s, "
           f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "
@@ -643,7 +643,7 @@ def run(args):
     print(f"  input {given} (written in metres, +Y up); fit residual mean "
           f"{length_text(aligned.residual.mean(), convention, size)}, max "
           f"{length_text(aligned.residual_max.max(), convention, size, digits=1)}; "
-          f"{_count(int(aligned.retried.sum()), 'frame')} re-aligned from other parents, "
+          f"{count_text(int(aligned.retried.sum()), 'frame')} re-aligned from other parents, "
           f"{confidence['pulled_frames']} with a limb pulled onto what nothing covered")
     print(f"  colour cues {colour_cues_text(args.colors, result.colour_cues, meshes)}")
     if result.root_trial:
@@ -652,14 +652,15 @@ def run(args):
         print(f"  root: {result.root_reason}")
     if result.turned:
         shown = [frame_label(i, sequences, lengths) for i in sorted(result.turned)]
-        print(f"  faces wound inward (or mixed) turned outward in {len(shown)} frame{'s' * (len(shown) != 1)}: "
+        print(f"  faces wound inward (or mixed) turned outward in {count_text(len(shown), 'frame')}: "
               f"{', '.join(shown[:6])}"
               + (", ..." if len(shown) > 6 else ""))
-    print(f"  confidence: {_count(confidence['repaired_frames'], 'frame')} repaired (aligned again from the root or "
-          f"trusted frames; {_count(confidence['repair_alignments'], 'alignment')} tried), "
+    print(f"  confidence: {count_text(confidence['repaired_frames'], 'frame')} repaired (aligned again from the root "
+          f"or trusted frames; {count_text(confidence['repair_alignments'], 'alignment')} tried), "
           f"{confidence['flagged_frames']} of {frames} still below {TRUSTED} (listed per sequence in meta.json)")
     return 0
 
 
-__all__ = ["add_arguments", "check_root_early", "confidence_summary", "convert_inputs", "flagged_by_sequence",
-           "frame_label", "parse_root", "read_inputs", "resolve_inputs", "run", "write_alignment"]
+__all__ = ["add_arguments", "check_root_early", "confidence_summary", "convert_inputs", "count_text",
+           "flagged_by_sequence", "frame_label", "parse_root", "read_inputs", "resolve_inputs", "run",
+           "write_alignment"]

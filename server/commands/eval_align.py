@@ -40,7 +40,7 @@ from engine.mesh_io.errors import MeshFormatError
 from engine.mesh_io.units import UNITS_PER_METRE, resolve_convention, to_metres_y_up
 from engine.surface import model_size
 from server.commands.align import (COLOUR_MODES, Progress, check_job_ranges, check_root_early, check_root_given_once,
-                                   convert_inputs, parse_root, read_inputs, resolve_inputs)
+                                   convert_inputs, count_text, parse_root, read_inputs, resolve_inputs)
 from server.units import (
     DISPLAY_PER_METRE,
     add_units_arguments,
@@ -567,8 +567,7 @@ def _print_report(report, out, args, recorded=None):
         conventions.setdefault(f"{r['units']}, {r['up']} up", []).append(name)
     inputs = sorted(conventions) if len(conventions) == 1 else \
         [f"{key} ({', '.join(conventions[key])})" for key in sorted(conventions)]
-    count = len(report["sequences"])
-    print(f"{report['frames']} frame{'s' * (report['frames'] != 1)} of {count} sequence{'s' * (count != 1)}, model size "
+    print(f"{count_text(report['frames'], 'frame')} of {count_text(len(report['sequences']), 'sequence')}, model size "
           f"{report['model_size_m']:.3f} m; input in {' / '.join(inputs)}; lengths in {unit}")
     print(_root_line(report, args, recorded))
     if "similarity_seconds" in report:
