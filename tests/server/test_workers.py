@@ -211,7 +211,10 @@ def test_a_killed_worker_is_started_again_and_reported(built_spaces, tmp_path):
             job = client.post("/v1/jobs", json=build_request("after_kill"), headers=AUTH).json()
             job = wait_for(client, job["id"], lambda j: j["status"] == "running" and (j["worker"] or {}).get("pid"))
         first_owner = record["workers"][0]["pid"]
-        for index in (1, 0):  # a streaming worker, then the job queue's in the middle of a build
+        # the job queue's worker first, as soon as its build runs (a tiny build now ends in a few
+        # seconds: killed second, after worker 1's restart, it had finished once in CI), then a
+        # streaming worker while the new worker 0 may already run the job again
+        for index in (0, 1):
             pid = record["workers"][index]["pid"]
             os.kill(pid, signal.SIGKILL)
             record = wait_health(live, lambda r: all_alive(r) and r["workers"][index]["pid"] != pid)
