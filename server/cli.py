@@ -9,11 +9,14 @@ after the command's own clean-up (temporary files removed, nothing half-written 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import multiprocessing
 import os
 import signal
 import sys
 import threading
+import time
+from pathlib import Path
 
 from server.commands import bench, blend, build, eval_params, play, synth
 from server.commands import eval as eval_command
@@ -63,8 +66,32 @@ def _on_sigterm(main_pid):
             return
         for child in multiprocessing.active_children():  # the worker processes end now, not when their task
             child.terminate()                            # is done (a pool's shutdown waits for running tasks)
+        for attempt in range(2):  # and a forkserver's workers, one still starting included (looked for
+            if attempt:           # again once the forkserver has had time to fork one just asked for)
+                time.sleep(0.05)
+            for pid in _grandchildren(main_pid):
+                with contextlib.suppress(OSError):
+                    os.kill(pid, signal.SIGTERM)
         raise Terminated()
     return handler
+
+
+def _grandchildren(pid):
+    """The pids of the children of ``pid``'s children (Linux ``/proc``; none elsewhere).
+
+    A forkserver pool's workers are the forkserver's children. One whose start the signal
+    interrupted (forked, its start-up data sent, not yet registered as a child process) is in no
+    ``active_children()``: left running, it unpickled that data after this process had unlinked
+    the pool's semaphores, or found its start-up pipe closed, and printed a ``FileNotFoundError``
+    or ``EOFError`` traceback after "terminated" (4 runs of 6 signalled at "try roots")."""
+    def children(of):
+        found = set()
+        for task in Path(f"/proc/{of}/task").glob("*"):
+            with contextlib.suppress(OSError, ValueError):
+                found |= {int(c) for c in (task / "children").read_text().split()}
+        return found
+
+    return {g for child in children(pid) for g in children(child)}
 
 
 def main(argv=None):
