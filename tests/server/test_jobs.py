@@ -126,7 +126,10 @@ def test_upload_build_and_the_space_appears(client, live):
     assert job["status"] == "succeeded", job
     progress = [j["progress"] for j in seen if j["status"] == "running"]
     assert progress == sorted(progress), "progress went backwards"
-    assert len({p for p in progress if 0 < p < 1}) >= 3, progress
+    # at least two values between 0 and 1 (three were asked for until session 56: the build now
+    # sends only a few, at most every 0.2 s and at each stage, and one suite run under load saw
+    # 0.35 and 0.5187 between the zeros and the end)
+    assert len({p for p in progress if 0 < p < 1}) >= 2, progress
     # the stages polled, and every stage the job's log names (a fast stage can fall between polls)
     stages = {j["stage"] for j in seen} | {line.split("stage ", 1)[1].strip() for line in job["log"]
                                            if "stage " in line}
