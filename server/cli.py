@@ -100,8 +100,9 @@ def main(argv=None):
     if unknown:  # the command's usage, not the top level's (exit status 2)
         parser.commands[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     previous = None
-    if args.command != "serve" and os.name == "posix" and threading.current_thread() is threading.main_thread():
-        # (uvicorn handles its own signals; only the main thread may set a handler)
+    if os.name == "posix" and threading.current_thread() is threading.main_thread():
+        # (only the main thread may set a handler; `serve`'s uvicorn takes the signal while it serves,
+        # then restores this handler and raises the signal again once it has stopped gracefully)
         previous = signal.signal(signal.SIGTERM, _on_sigterm(os.getpid()))
     try:
         return COMMANDS[args.command].run(args)

@@ -109,7 +109,8 @@ def decode_client(data, max_bytes=None, limits=None):
         else:
             raw = msgpack.unpackb(data, raw=False, strict_map_key=False)  # keys are checked per field
     except (ValueError, msgpack.UnpackException, msgpack.ExtraData, TypeError, RecursionError) as exc:
-        raise ProtocolError("malformed", f"not a msgpack (or JSON text) message ({type(exc).__name__}: {exc})") from None
+        reason = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__  # msgpack's FormatError has none
+        raise ProtocolError("malformed", f"not a msgpack (or JSON text) message ({reason})") from None
     if not isinstance(raw, dict) or not isinstance(raw.get("type"), str):
         raise ProtocolError("malformed", "a message must be a map with a string 'type' field")
     kind = raw["type"]

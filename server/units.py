@@ -158,6 +158,11 @@ def say_conventions(conventions, names, say, what="input"):
             say(f"warning: {name}: {warning}")
 
 
+def count_text(n, noun):
+    """"1 frame", "2 frames"."""
+    return f"{n} {noun}{'s' * (n != 1)}"
+
+
 def figure_text(value, digits=2):
     """``value`` with ``digits`` decimals, or 3 significant figures when it is under 1, so that a
     figure is never shown as 0.00 unless it is 0 (``0.00173``); NaN as ``nan``."""
@@ -180,5 +185,5 @@ def length_text(metres, convention, size=None, digits=2):
     return text
 
 
-__all__ = ["add_units_arguments", "common_convention", "declared_convention", "display_unit", "figure_text",
-           "length_text", "meshes_to_metres", "say_conventions"]
+__all__ = ["add_units_arguments", "common_convention", "count_text", "declared_convention", "display_unit",
+           "figure_text", "length_text", "meshes_to_metres", "say_conventions"]

@@ -54,6 +54,7 @@ from engine.surface import model_size
 from server.units import (
     add_units_arguments,
     common_convention,
+    count_text,
     display_unit,
     declared_convention,
     length_text,
@@ -417,11 +418,6 @@ def confidence_summary(aligned, sequences, lengths):
             "flagged": flagged_by_sequence(aligned, sequences, lengths)}
 
 
-def count_text(n, noun):
-    """"1 frame", "2 frames"."""
-    return f"{n} {noun}{'s' * (n != 1)}"
-
-
 def flagged_by_sequence(aligned, sequences, lengths):
     """{sequence name: its frames (its own numbering) whose confidence is below ``TRUSTED``}."""
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -661,6 +657,6 @@ def run(args):
     return 0
 
 
-__all__ = ["add_arguments", "check_root_early", "confidence_summary", "convert_inputs", "count_text",
+__all__ = ["add_arguments", "check_root_early", "confidence_summary", "convert_inputs",
            "flagged_by_sequence", "frame_label", "parse_root", "read_inputs", "resolve_inputs", "run",
            "write_alignment"]

@@ -40,11 +40,12 @@ from engine.mesh_io.errors import MeshFormatError
 from engine.mesh_io.units import UNITS_PER_METRE, resolve_convention, to_metres_y_up
 from engine.surface import model_size
 from server.commands.align import (COLOUR_MODES, Progress, check_job_ranges, check_root_early, check_root_given_once,
-                                   convert_inputs, count_text, parse_root, read_inputs, resolve_inputs)
+                                   convert_inputs, parse_root, read_inputs, resolve_inputs)
 from server.units import (
     DISPLAY_PER_METRE,
     add_units_arguments,
     common_convention,
+    count_text,
     declared_convention,
     display_unit,
     figure_text,

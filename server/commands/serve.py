@@ -37,7 +37,7 @@ def run(args):
                                    "stream_stall_timeout": args.stall_timeout}.items() if v is not None}
     if args.allow_open_bind:
         overrides["allow_open_bind"] = True
-    settings = Settings(**overrides)
+    settings = read_settings(Settings, overrides)
     check_bind(settings, settings.host)
     if settings.workers > 1:
         return _run_workers(overrides, args.log_level)
@@ -51,8 +51,38 @@ def run(args):
     app = create_app(settings)
     print(f"morphspace: serving {settings.spaces_dir} on http://{settings.host}:{settings.port}/ "
           f"(browser client at /, API docs at /docs)", flush=True)
-    uvicorn.run(app, **uvicorn_options(settings, args.log_level), host=settings.host, port=settings.port)
+    server = uvicorn.Server(uvicorn.Config(app, **uvicorn_options(settings, args.log_level), host=settings.host,
+                                          port=settings.port))
+    # uvicorn takes Ctrl-C and SIGTERM while it serves, stops gracefully, then restores the
+    # handlers it found and raises the signal again: Ctrl-C's KeyboardInterrupt, and the CLI's
+    # SIGTERM handler (server.cli), end `serve` as they end every command (130 or 143, a line
+    # saying which). uvicorn.run() swallowed the KeyboardInterrupt: Ctrl-C ended with status 0.
+    server.run()
     return 0
+
+
+OPTIONS = {"data_dir": "--data-dir", "host": "--host", "port": "--port", "dask_scheduler": "--dask-scheduler",
+           "workers": "--workers", "stream_stall_timeout": "--stall-timeout"}
+
+
+def read_settings(settings_class, overrides):
+    """The settings from the environment and ``overrides`` (the options given). A bad value is a
+    ValueError on one line naming the option or the environment variable it came from
+    (``--port 99999: Input should be less than or equal to 65535``, ``MORPHSPACE_PORT=abc: ...``),
+    not pydantic's report in the settings' own field names."""
+    from pydantic import ValidationError
+
+    try:
+        return settings_class(**overrides)
+    except ValidationError as exc:
+        problems = []
+        for error in exc.errors():
+            field = str(error["loc"][0]) if error["loc"] else ""
+            given = error.get("input")
+            source = (f"{OPTIONS[field]} {given}" if field in overrides and field in OPTIONS
+                      else f"MORPHSPACE_{field.upper()}={given}")
+            problems.append(f"{source}: {error['msg']}")
+        raise ValueError("; ".join(problems)) from None
 
 
 def uvicorn_options(settings, log_level):

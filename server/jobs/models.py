@@ -294,7 +294,9 @@ class JobRecord(BaseModel):
     kind: Literal["build", "align", "ingest", "export", "graph"]
     status: JobStatus
     stage: str = Field(description="what it is doing: queued, starting, read, tetrahedralise, ... publish")
-    progress: float = Field(ge=0, le=1, description="0..1, never decreasing within an attempt")
+    progress: float = Field(ge=0, le=1, description="0..1, never decreasing within a run of the job (a run "
+                                                    "stopped by a clean shutdown starts again from 0 under the "
+                                                    "same attempt number)")
     params: dict[str, Any] = Field(description="the request")
     result: dict[str, Any] | None = Field(description="what a succeeded job produced (with its url)")
     error: str | None = Field(description="why it failed or was cancelled")

@@ -36,7 +36,7 @@ from server import uploads
 from server.jobs import models
 from server.jobs.executors import DaskExecutor, Interrupted, LocalExecutor, WorkerLost
 from server.jobs.store import FINAL, JobStore
-from server.jobs.tasks import JobCancelled, JobError, _relative, check_build_sources, publish
+from server.jobs.tasks import JobCancelled, JobError, _relative, align_sequences, check_build_sources, publish
 
 log = logging.getLogger("morphspace.jobs")
 
@@ -163,8 +163,8 @@ class JobService:
             if not (datasets / name).is_dir():
                 have = ", ".join(uploads.dataset_names(self.settings)) or "none"
                 raise JobRequestError(404, f"no dataset {name!r} (have: {have})")
-        if kind == "align" and params.get("root"):
-            self._check_root(params)
+        if kind == "align":
+            self._check_align(params)
         if kind == "build":
             try:
                 check_build_sources(datasets / params["dataset"], params["spec"])
@@ -197,19 +197,19 @@ class JobService:
         self._kick()
         return job
 
-    def _check_root(self, params):
-        """An align job's ``root`` names a sequence of its datasets (of ``only``, when given) and a
-        frame number, or is a frame index (their ranges are checked when the frames are read)."""
-        from server.commands.align import parse_root
+    def _check_align(self, params):
+        """An align job's ``only`` names sequences of its datasets, and its ``root`` a sequence of
+        them (of ``only``, when given) and a frame within the frame files listed, or a frame
+        index: refused before anything is queued, as ``morphspace align`` refuses them before it
+        reads a frame. A listing that fails leaves the problem to the job, which names it."""
+        from server.commands.align import check_root_early, parse_root
 
-        names = sorted({entry.name for dataset in params["datasets"]
-                        for entry in (self.settings.datasets_dir / dataset / "sequences").glob("*") if entry.is_dir()})
-        if params.get("only"):
-            names = [n for n in names if n in params["only"]]
         try:
-            parse_root(params["root"], [{"name": n} for n in names], None, label="root")
-        except ValueError as exc:
-            raise JobRequestError(422, str(exc)) from None
+            sequences = align_sequences(self.settings.datasets_dir, params)
+            parse_root(params.get("root"), sequences, None, label="root")  # its form and sequence
+            check_root_early(params.get("root"), sequences, label="root")   # and its frame
+        except (ValueError, OSError, JobError) as exc:
+            raise JobRequestError(422, _relative(exc, self.settings.data_dir)) from None
 
     def _check_export(self, params):
         """An export job's space must exist and its clip be playable (the errors of the

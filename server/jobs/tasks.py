@@ -267,16 +267,11 @@ ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "auto", "colors": "auto", "repai
                   "up": "auto", "swing_limbs": False, "reach_limbs": True, "graft_limbs": False}
 
 
-def run_align(payload, reporter, runner=None):
-    from engine.align import AlignmentOptions, align_captures
-    from engine.surface import model_size
-    from server.commands.align import (COLOUR_MODES, DEFAULT_FPS, TRUSTED, confidence_summary, convert_inputs,
-                                       options_record, parse_root, read_inputs, resolve_inputs, root_trial_text,
-                                       write_alignment)
-    from server.units import common_convention, display_unit
+def align_sequences(datasets, params):
+    """The sequences an align job's ``params`` name (``datasets``, ``only``), as ``align`` reads
+    them: an uploaded sequence with only consistent-topology frames is aligned from those."""
+    from server.commands.align import resolve_inputs
 
-    params, staging = {**ALIGN_DEFAULTS, **payload["params"]}, Path(payload["staging"])
-    datasets = Path(payload["data_dir"]) / "datasets"
     inputs = []
     for name in params["datasets"]:
         if not (datasets / name).is_dir():
@@ -287,9 +282,22 @@ def run_align(payload, reporter, runner=None):
         frames = Path(entry["frames"])
         if frames.name != "unstructured" and (frames / "consistent").is_dir():
             entry["frames"] = frames / "consistent"
+    return sequences
+
+
+def run_align(payload, reporter, runner=None):
+    from engine.align import AlignmentOptions, align_captures
+    from engine.surface import model_size
+    from server.commands.align import (COLOUR_MODES, DEFAULT_FPS, TRUSTED, confidence_summary, convert_inputs,
+                                       options_record, parse_root, read_inputs, root_trial_text,
+                                       write_alignment)
+    from server.units import common_convention, count_text, display_unit
+
+    params, staging = {**ALIGN_DEFAULTS, **payload["params"]}, Path(payload["staging"])
+    sequences = align_sequences(Path(payload["data_dir"]) / "datasets", params)
     started = time.perf_counter()
     meshes, lengths = read_inputs(sequences, reporter.progress, say=reporter.log)
-    reporter.log(f"read {int(lengths.sum())} frames of {len(sequences)} sequences")
+    reporter.log(f"read {count_text(int(lengths.sum()), 'frame')} of {count_text(len(sequences), 'sequence')}")
     meshes, conventions = convert_inputs(meshes, sequences, lengths, params["units"], params["up"], say=reporter.log)
     root = parse_root(params.get("root"), sequences, lengths, label="root")
     options = AlignmentOptions(patches=params["patches"], levels=params["levels"],
@@ -315,8 +323,8 @@ def run_align(payload, reporter, runner=None):
     if result.root_reason:
         reporter.log(f"root: {result.root_reason}")
     confidence = confidence_summary(aligned, sequences, lengths)
-    reporter.log(f"confidence: {confidence['repaired_frames']} frames repaired ({confidence['repair_alignments']} "
-                 f"alignments tried), {confidence['flagged_frames']} of "
+    reporter.log(f"confidence: {count_text(confidence['repaired_frames'], 'frame')} repaired "
+                 f"({count_text(confidence['repair_alignments'], 'alignment')} tried), {confidence['flagged_frames']} of "
                  f"{int(lengths.sum())} still below {TRUSTED} (the summary's flagged lists them per sequence), "
                  f"{confidence['pulled_frames']} with a limb pulled onto what nothing covered")
     return {"output": {"type": "dataset", "name": params["output"], "path": out.name},

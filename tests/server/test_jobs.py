@@ -23,6 +23,7 @@ from live_server import LiveServer
 
 from engine.mesh_io import read_mesh
 from server.cli import main as cli_main
+from server.units import count_text
 
 TOKEN = "test-token-jobs"
 AUTH = {"Authorization": f"Bearer {TOKEN}"}
@@ -187,6 +188,14 @@ def test_bad_job_requests_name_the_problem(client):
          "root slow:x: frame must be an integer"),
         ({"kind": "align", "datasets": ["gaits"], "output": "aligned", "root": "slow:0", "root_choice": "race"}, 422,
          "root_choice race: the root is given (root slow:0), so no root is chosen"),
+        # sequences and the root's frame as `morphspace align` checks them, before anything is queued
+        # (both were queued and failed a second later; found by a docs-only user)
+        ({"kind": "align", "datasets": ["gaits"], "output": "aligned", "only": ["nope"]}, 422,
+         '"datasets/gaits: no sequence(s) nope; it has '),
+        ({"kind": "align", "datasets": ["gaits"], "output": "aligned", "root": "slow:999"}, 422,
+         "root slow:999: sequence slow has frames 0.."),
+        ({"kind": "align", "datasets": ["gaits"], "output": "aligned", "only": ["fast"], "root": "slow:0"}, 422,
+         "root slow:0: no sequence 'slow'; sequences are fast"),
     ]
     for body, status, words in cases:
         r = client.post("/v1/jobs", json=body, headers=AUTH)
@@ -402,7 +411,9 @@ def test_align_job_writes_a_buildable_dataset(client, live, dataset_zip):
     assert result["flagged_frames"] == sum(len(f) for f in result["flagged"].values())
     assert 0 <= result["confidence_min"] <= 1 and 0 <= result["repaired_frames"] <= 6
     assert result["repair_alignments"] >= result["repaired_frames"]  # tried, kept or not
-    assert any(f"frames repaired ({result['repair_alignments']} alignments tried)" in line for line in job["log"])
+    repaired = (f"confidence: {count_text(result['repaired_frames'], 'frame')} repaired "
+                f"({count_text(result['repair_alignments'], 'alignment')} tried)")
+    assert any(repaired in line for line in job["log"]), job["log"]  # "1 frame", "1 alignment" in the singular
     pulled = np.load(served / "alignment.npz")["pulled"]
     assert result["pulled_frames"] == int(np.sum(pulled > 0))
     seq, frame = result["root_frame"].split(":")

@@ -85,6 +85,13 @@ def test_random_bytes_never_raise_anything_but_protocol_errors(data):
         assert exc.code in P.ERROR_CODES
 
 
+def test_a_message_that_is_no_msgpack_gives_a_reason_without_an_empty_part():
+    """msgpack's FormatError carries no text: the reason was "(FormatError: )" (a docs-only client)."""
+    with pytest.raises(P.ProtocolError) as info:
+        decode_client(b"\xc1\xc1\xc1")
+    assert info.value.code == "malformed" and str(info.value).endswith("message (FormatError)"), str(info.value)
+
+
 @settings(max_examples=200, deadline=None)
 @given(st.dictionaries(st.sampled_from(["type", "space", "phase", "params", "seq", "rate", "id", "frame", "x"]),
                        st.one_of(st.none(), st.booleans(), st.integers(-2**63, 2**64 - 1), st.floats(), st.text(max_size=5),

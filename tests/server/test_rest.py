@@ -3,13 +3,17 @@ schema is complete, and the server refuses an open bind without a token."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import httpx
+import pytest
 from live_server import free_port
 
 from server.app import create_app
@@ -65,6 +69,49 @@ def test_serve_refuses_an_open_bind_without_a_token(tmp_path):
     assert run.returncode == 2, (run.returncode, run.stdout, run.stderr)
     assert "refusing to bind 0.0.0.0 without a token" in run.stderr
     assert "MORPHSPACE_TOKEN" in run.stderr
+
+
+@pytest.mark.parametrize("args, env, line", [
+    (["--port", "99999"], {}, "morphspace serve: error: --port 99999: Input should be less than or equal to 65535"),
+    (["--stall-timeout", "0"], {}, "morphspace serve: error: --stall-timeout 0.0: Input should be greater than 0"),
+    ([], {"MORPHSPACE_STREAM_MAX_FPS": "-1"}, "morphspace serve: error: MORPHSPACE_STREAM_MAX_FPS=-1: Input should be "
+                                              "greater than 0"),
+])
+def test_serve_names_the_option_or_variable_of_a_bad_setting_on_one_line(tmp_path, args, env, line):
+    """Not pydantic's several-line report in the settings' own field names (``stream_stall_timeout``);
+    found by a docs-only user."""
+    run = subprocess.run([sys.executable, "-m", "server.cli", "serve", "--data-dir", str(tmp_path / "data"), *args],
+                         env={**os.environ, **env}, capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and run.stderr.strip() == line, (run.returncode, run.stderr)
+    assert not (tmp_path / "data").exists()
+
+
+@pytest.mark.parametrize("signum, status, word", [(signal.SIGINT, 130, "interrupted"),
+                                                  (signal.SIGTERM, 143, "terminated")])
+def test_serve_ends_on_ctrl_c_and_sigterm_as_every_command_does(tmp_path, signum, status, word):
+    """docs/cli.md: Ctrl-C ends a command with `interrupted` and status 130, SIGTERM with
+    `terminated` and 143, serve included once it has stopped gracefully (it ended with status 0
+    on Ctrl-C and was killed by SIGTERM after its stop, both without a word; a docs-only user)."""
+    port = free_port()
+    process = subprocess.Popen([sys.executable, "-m", "server.cli", "serve", "--port", str(port),
+                                "--data-dir", str(tmp_path / "data")],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert "morphspace: serving" in process.stdout.readline()   # (blocks until serving or exit)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:   # until uvicorn has taken the signals
+            with contextlib.suppress(httpx.HTTPError):
+                if httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=2).status_code == 200:
+                    break
+            time.sleep(0.1)
+        process.send_signal(signum)
+        _, stderr = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait(10)
+    assert process.returncode == status, (process.returncode, stderr[-2000:])
+    assert stderr.rstrip().splitlines()[-1] == f"morphspace serve: {word}", stderr[-2000:]
 
 
 def _documented_keys(text, after):
