@@ -15,7 +15,6 @@ import os
 import signal
 import sys
 import threading
-import time
 from pathlib import Path
 
 from server.commands import bench, blend, build, eval_params, play, synth
@@ -64,26 +63,38 @@ def _on_sigterm(main_pid):
             signal.signal(signal.SIGTERM, signal.SIG_DFL)
             os.kill(os.getpid(), signal.SIGTERM)
             return
+        if _starting_a_process(frame):  # not now: once the worker is registered, it is ended with the rest
+            threading.Timer(0.02, os.kill, (main_pid, signal.SIGTERM)).start()
+            return
         for child in multiprocessing.active_children():  # the worker processes end now, not when their task
             child.terminate()                            # is done (a pool's shutdown waits for running tasks)
-        for attempt in range(2):  # and a forkserver's workers, one still starting included (looked for
-            if attempt:           # again once the forkserver has had time to fork one just asked for)
-                time.sleep(0.05)
-            for pid in _grandchildren(main_pid):
-                with contextlib.suppress(OSError):
-                    os.kill(pid, signal.SIGTERM)
+        for pid in _grandchildren(main_pid):  # a forkserver's workers that no pool had registered yet
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGTERM)
         raise Terminated()
     return handler
 
 
-def _grandchildren(pid):
-    """The pids of the children of ``pid``'s children (Linux ``/proc``; none elsewhere).
+def _starting_a_process(frame):
+    """Whether the main thread is inside ``multiprocessing``'s ``BaseProcess.start``.
 
-    A forkserver pool's workers are the forkserver's children. One whose start the signal
-    interrupted (forked, its start-up data sent, not yet registered as a child process) is in no
-    ``active_children()``: left running, it unpickled that data after this process had unlinked
-    the pool's semaphores, or found its start-up pipe closed, and printed a ``FileNotFoundError``
-    or ``EOFError`` traceback after "terminated" (4 runs of 6 signalled at "try roots")."""
+    Raised there, the signal's exception left a worker half started: forked by the forkserver but
+    never registered as a child process (so in no ``active_children()``), it outlived the command
+    and printed a ``FileNotFoundError`` or ``EOFError`` traceback after "terminated" (it unpickled
+    its start-up data after the pool's semaphores were unlinked, or found its pipe closed), or the
+    forkserver itself died on the half-sent request with an ``EOFError`` traceback (4 runs of 6
+    signalled at "try roots"). The handler sends the signal again 20 ms later instead."""
+    while frame is not None:
+        code = frame.f_code
+        if code.co_name == "start" and code.co_filename.endswith(os.path.join("multiprocessing", "process.py")):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _grandchildren(pid):
+    """The pids of the children of ``pid``'s children (Linux ``/proc``; none elsewhere): a
+    forkserver pool's workers are the forkserver's children."""
     def children(of):
         found = set()
         for task in Path(f"/proc/{of}/task").glob("*"):
