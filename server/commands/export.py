@@ -136,12 +136,24 @@ def clear_export(directory):
             path.unlink()
 
 
+def replace_export(out, force):
+    """With ``force``, an existing directory ``out`` loses what an earlier export wrote there, just
+    before the new one is written (every check passed). Other mesh files there are refused first,
+    before anything is removed: the refusal used to come after the earlier export was gone."""
+    if not (force and out.is_dir()):
+        return
+    other = sorted(p.name for p in out.iterdir() if p.is_file() and p.suffix.lower() in (".obj", ".ply", ".off", ".glb")
+                   and not EXPORT_FILES.fullmatch(p.name))
+    if other:
+        raise ValueError(f"{out}: holds {len(other)} mesh files no export wrote (e.g. {other[0]}); nothing was "
+                         f"removed; export into an empty directory")
+    clear_export(out)
+
+
 def run(args):
     fmt = output_format(args.out, args.format)
     if args.out.exists() and not args.force:
         raise ValueError(f"--out {args.out} exists; pass --force to replace it")
-    if args.force and args.out.is_dir():
-        clear_export(args.out)
     if args.space.suffix == ".mgraph":
         from server.commands.export_graph import run_graph
 
@@ -162,6 +174,7 @@ def run(args):
     try:
         frames = play_clip(space, clip, progress=bar.stage("play", clip.n_frames))
         played = time.perf_counter()
+        replace_export(args.out, args.force)
         stats = write_export(args.out, frames, fmt, progress=bar.stage("write", clip.n_frames),
                              precision=args.precision, interpolation=args.interpolation)
     finally:

@@ -67,6 +67,9 @@ def run_graph(args, fmt, bar):
         except ClipError as exc:
             raise ValueError(f"{source}: {exc}") from None
         played = time.perf_counter()
+        from server.commands.export import replace_export
+
+        replace_export(args.out, args.force)
         stats = write_export(args.out, frames, fmt, progress=bar.stage("write", len(frames)),
                              precision=args.precision, interpolation=args.interpolation)
         bar.close()

@@ -112,5 +112,12 @@ def test_force_replaces_an_earlier_sequence_export(built_spaces, tmp_path):
     assert run.returncode == 0, run.stderr
     assert sorted(p.name for p in out.iterdir()) == ["clip.json"] + [f"frame_{k:04d}.obj" for k in range(11)] + ["notes.txt"]
     (out / "other.ply").write_text("ply\n")
+    before = sorted(p.name for p in out.iterdir())
     run = export(space, "--out", out, "--format", "obj", "--seconds", 0.5, "--force", "--quiet", cwd=tmp_path)
-    assert run.returncode == 2 and "already holds 1 other mesh files (e.g. other.ply)" in run.stderr, run.stderr
+    assert run.returncode == 2 and "holds 1 mesh files no export wrote (e.g. other.ply); nothing was removed" in run.stderr, \
+        run.stderr
+    # the refused --force keeps the earlier export (it removed it first; a docs-only user)
+    assert sorted(p.name for p in out.iterdir()) == before
+    # and so does a --force refused for its clip, checked before anything is removed
+    run = export(space, "--out", out, "--format", "obj", "--seconds", 0, "--force", "--quiet", cwd=tmp_path)
+    assert run.returncode == 2 and sorted(p.name for p in out.iterdir()) == before, run.stderr
