@@ -46,6 +46,7 @@ def add_arguments(parser):
                         help="one non-negative weight per mesh (normalised to sum 1)")
     parser.add_argument("--mode", choices=("linear", "nonlinear", "hybrid"), default="nonlinear")
     parser.add_argument("--out", type=Path, required=True, help="output mesh (.obj, .ply or .off)")
+    parser.add_argument("--force", action="store_true", help="replace an existing --out file (never one of the inputs)")
     parser.add_argument("--rest", type=Path, help="rest shape to tetrahedralise (default: the first mesh)")
     parser.add_argument("--epsilon-mm", type=float, default=5.0, help="hybrid error bound in mm (default 5)")
     parser.add_argument("--compare", action="store_true",
@@ -98,6 +99,11 @@ def run(args):
                          f"got {args.epsilon_mm}")
     if args.out.is_dir():
         raise ValueError(f"--out {args.out} is a directory: name the output mesh file (.obj, .ply or .off)")
+    if args.out.exists():  # (it replaced even one of its own inputs without a word; a docs-only user)
+        if any(args.out.resolve() == Path(p).resolve() for p in [*args.meshes, args.rest] if p is not None):
+            raise ValueError(f"--out {args.out} is one of the input meshes; name another file")
+        if not args.force:
+            raise ValueError(f"--out {args.out} exists; pass --force to replace it")
     from engine.mesh_io.mesh_file import writable_type
 
     try:   # before the meshes are read and blended

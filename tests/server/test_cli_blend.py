@@ -226,9 +226,27 @@ def test_bad_weights_epsilon_outputs_and_units_are_named(arms, tmp_path, capsys)
     err = capsys.readouterr().err
     assert err.startswith("morphspace blend: error: --out ") and "cannot write this file type (writable: .obj" in err
     write_obj(tmp_path / "mm.obj", 1000.0 * V1, F)  # the same arm in millimetres
+    out = tmp_path / "o2.obj"  # (o.obj exists now: replacing it needs --force)
     assert main(["blend", inputs[0], str(tmp_path / "mm.obj"), "--weights", "1", "1", "--out", str(out)]) == 2
     assert re.search(r"mm\.obj is \d+ times the size of .*straight\.obj: blend meshes in the same units",
                      capsys.readouterr().err)
     write_obj(tmp_path / "point.obj", np.zeros_like(V0), F)
     assert main(["blend", inputs[0], str(tmp_path / "point.obj"), "--weights", "1", "1", "--out", str(out)]) == 2
     assert "point.obj: model size must be positive" in capsys.readouterr().err
+
+
+def test_blend_refuses_an_existing_output_without_force_and_never_replaces_an_input(arms, capsys):
+    """(It replaced an existing file, even one of its own inputs, without a word; a docs-only user.)"""
+    folder, V0, _, F = arms
+    inputs = [str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "1", "1", "--mode", "linear"]
+    before = (folder / "straight.obj").read_bytes()
+    assert main(["blend", *inputs, "--out", str(folder / "straight.obj"), "--force"]) == 2
+    assert "is one of the input meshes" in capsys.readouterr().err
+    assert (folder / "straight.obj").read_bytes() == before
+    out = folder / "again.obj"
+    assert main(["blend", *inputs, "--out", str(out)]) == 0
+    written = out.read_bytes()
+    assert main(["blend", *inputs[:4], "3", "--mode", "linear", "--out", str(out)]) == 2
+    assert "exists; pass --force to replace it" in capsys.readouterr().err and out.read_bytes() == written
+    assert main(["blend", *inputs[:4], "3", "--mode", "linear", "--out", str(out), "--force"]) == 0
+    assert out.read_bytes() != written
