@@ -232,6 +232,8 @@ def run(args):
         staged.append((out / ".results.json.part", out / "results.json"))
         for part, final in staged:   # the run's files replace an earlier run's only once all are written
             part.replace(final)
+        if not args.sweep:  # an earlier run's sweep picture does not stay beside results without a sweep
+            (out / "epsilon_sweep.png").unlink(missing_ok=True)
         staged = []
     except BaseException:
         if made is not None:  # an --out made for this run: nothing left behind

@@ -236,6 +236,12 @@ def test_eval_of_a_space_with_a_layout_gives_the_hybrid_error_on_its_sheet(tmp_p
     assert errors["sheet"]["weights"] == 17
     assert errors["sheet"]["hybrid"]["max_error_mm"] <= 1.01 * errors["epsilon_mm"]
     assert errors["sheet"]["linear"]["max_error_mm"] > errors["sheet"]["hybrid"]["max_error_mm"]
+    # a run without --sweep into the same --out leaves no earlier sweep picture beside its results
+    # (it stayed; a docs-only user)
+    assert (out / "epsilon_sweep.png").is_file()
+    assert main(["eval", str(tmp_path / "gaits.mspace"), "--out", str(out), "--timing-calls", "2"]) == 0
+    assert "sweep" not in json.loads((out / "results.json").read_text())
+    assert sorted(p.name for p in out.iterdir()) == ["heatmap.png", "results.json"]
 
 
 def test_an_eval_that_fails_leaves_an_earlier_runs_files_in_its_out_as_they_were(dataset, tmp_path, capsys,
