@@ -215,7 +215,9 @@ def resolve_inputs(inputs, only=None):
 
 def _sequence_entry(path, body=None):
     meta = read_meta(path) if (path / "meta.json").is_file() else None
-    frames = path / "unstructured" if (path / "unstructured").is_dir() else path
+    # a sequence's re-meshed frames; without them its consistent ones (an upload, or an aligned
+    # output aligned again: "no mesh files among the 2 entries" named the wrong problem)
+    frames = next((path / sub for sub in ("unstructured", "consistent") if (path / sub).is_dir()), path)
     name = (meta or {}).get("name") or (path.stem if path.suffix.lower() == ".zip" else path.name)
     if body is None and (path.parent.parent / "manifest.json").is_file():  # a sequence of a dataset
         try:

@@ -269,7 +269,7 @@ ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "auto", "colors": "auto", "repai
 
 def align_sequences(datasets, params):
     """The sequences an align job's ``params`` name (``datasets``, ``only``), as ``align`` reads
-    them: an uploaded sequence with only consistent-topology frames is aligned from those."""
+    them (an uploaded sequence with only consistent-topology frames is aligned from those)."""
     from server.commands.align import resolve_inputs
 
     inputs = []
@@ -277,12 +277,7 @@ def align_sequences(datasets, params):
         if not (datasets / name).is_dir():
             raise JobError(f"no dataset {name!r}")
         inputs.append(datasets / name)
-    sequences = resolve_inputs(inputs, params.get("only"))
-    for entry in sequences:  # uploaded sequences may only have consistent/ frames
-        frames = Path(entry["frames"])
-        if frames.name != "unstructured" and (frames / "consistent").is_dir():
-            entry["frames"] = frames / "consistent"
-    return sequences
+    return resolve_inputs(inputs, params.get("only"))
 
 
 def run_align(payload, reporter, runner=None):

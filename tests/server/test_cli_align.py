@@ -799,3 +799,20 @@ def test_eval_align_names_a_broken_ground_truth_or_alignment(dataset, aligned, t
     assert main(["eval-align", str(dataset), "--workers", "0", "--out", str(tmp_path / "e")]) == 2
     assert "--workers must be >= 1" in capsys.readouterr().err
     assert not (tmp_path / "e").exists()
+
+
+def test_a_sequence_with_consistent_frames_only_is_read_from_them(tmp_path):
+    """An aligned output aligned again (or an upload's sequence): its frames are in consistent/, and
+    `align` said "no mesh files among the 2 entries of the directory" (a docs-only user)."""
+    from engine.mesh_io import write_obj
+    from server.commands.align import resolve_inputs
+
+    sequence = tmp_path / "walk"
+    (sequence / "consistent").mkdir(parents=True)
+    (sequence / "meta.json").write_text(json.dumps({"name": "walk", "fps": 10.0}))
+    V, F = np.eye(3).tolist() + [[0.0, 0.0, 0.0]], [[0, 1, 2], [0, 3, 1], [1, 3, 2], [2, 3, 0]]
+    write_obj(sequence / "consistent" / "frame_0000.obj", np.array(V), np.array(F))
+    (entry,) = resolve_inputs([sequence])
+    assert entry["frames"] == sequence / "consistent"
+    (sequence / "unstructured").mkdir()  # re-meshed frames, where there are any, come first
+    assert resolve_inputs([sequence])[0]["frames"] == sequence / "unstructured"
