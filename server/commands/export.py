@@ -20,6 +20,7 @@ A motion graph (``.mgraph``) exports a recorded performance (server/commands/exp
 from __future__ import annotations
 
 import json
+import math
 import re
 import sys
 import time
@@ -152,6 +153,11 @@ def replace_export(out, force):
 
 def run(args):
     fmt = output_format(args.out, args.format)
+    # named by their options, as `play` names them (the clip's own check said "duration" and "rate")
+    if not (math.isfinite(args.fps) and args.fps > 0):
+        raise ValueError(f"--fps must be a positive number of frames per second, got {args.fps:g}")
+    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
+        raise ValueError(f"--seconds must be a positive number, got {args.seconds:g}")
     if args.out.exists() and not args.force:
         raise ValueError(f"--out {args.out} exists; pass --force to replace it")
     if args.space.suffix == ".mgraph":

@@ -46,7 +46,9 @@ def test_export_writes_glb_usd_and_sequences(built_spaces, tmp_path):
     (["--out", "x.glb", "--at", "12", "speed=1"], "track: time 12.0 is outside the clip [0, 10] s"),
     (["--out", "x.zip"], "cannot tell the format from the name; give --format"),
     (["--out", "x.glb", "--format", "usd"], "a usd export must be a file ending in .usd, .usdc or .usda"),
-    (["--out", "x.glb", "--seconds", "-1"], "duration must be a positive number of seconds"),
+    (["--out", "x.glb", "--seconds", "-1"], "--seconds must be a positive number, got -1"),
+    (["--out", "x.glb", "--seconds", "0"], "--seconds must be a positive number, got 0"),
+    (["--out", "x.glb", "--fps", "nan"], "--fps must be a positive number of frames per second, got nan"),
     # (it made a directory frame_0000.obj holding the frames; found by a docs-only user)
     (["--out", "seq/frame_0000.obj", "--format", "obj"],
      "an obj export is a directory or a .zip file, not a file of its (.obj); give the directory"),
