@@ -627,7 +627,8 @@ def run(args):
           f"({result.method}, root {frame_label(aligned.root, sequences, lengths)} = frame {aligned.root}, "
           f"{len(aligned.root_vertices)} vertices)")
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
-          f"{count_text(result.tree.components, 'component')} reconnected), "
+          + ("the pruned graph in one piece), " if result.tree.components == 1 else
+             f"{result.tree.components} pieces of the pruned graph reconnected), ")
           + (f"root trial {t['trial']:.1f} s, " if "trial" in t else "")
           + (f"root race {t['race']:.1f} s, " if "race" in t else "") + f"tetrahedralise {t['tetrahedralize']:.1f} s, "
           f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "

@@ -626,6 +626,11 @@ def test_the_summary_says_whether_colours_were_cues_and_why(aligned_run):
     # 6 frames: too few to try roots, and the summary says so; the manifest records no trial
     assert "root: the spread's choice, `apart`: no trial or race on fewer than 24 frames" in aligned_run[2]
     assert json.loads((aligned_run[0] / "manifest.json").read_text())["alignment"]["root_trial"] is None
+    # the pieces the pruned graph fell into, as alignment.npz records them ("1 component reconnected"
+    # when nothing was; a docs-only user)
+    pieces = int(np.load(aligned_run[0] / "alignment.npz")["tree_components"])
+    assert (", the pruned graph in one piece), " if pieces == 1 else
+            f", {pieces} pieces of the pruned graph reconnected), ") in aligned_run[2]
     frames = [types.SimpleNamespace(colors=None)]
     assert colour_cues_text("auto", False, frames) == "off (--colors auto: not every frame has vertex colours)"
     assert colour_cues_text("on", True, frames) == "on (--colors on)"
