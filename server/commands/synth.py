@@ -36,6 +36,7 @@ from engine.synthetic import PRESETS, build_body, generate_sequence_data, get_pr
 from engine.synthetic.body import MAX_VERTICES, MIN_VERTICES
 from engine.synthetic.studio import StudioPreset
 from server.commands.checks import check_output_path
+from server.units import count_text
 
 MAX_FPS = 240.0  # frames per second of a synthetic capture (a fast studio camera)
 MAX_NOISE_MM = 100.0
@@ -253,10 +254,10 @@ def run(args):
         }
         write_capture_manifest(staging, manifest)
     frames = sum(m["frames"] for m in manifest["sequences"])
-    print(f"wrote {len(specs)} sequences, {frames} frames, body of {len(body.V)} vertices "
+    print(f"wrote {count_text(len(specs), 'sequence')}, {frames} frames, body of {len(body.V)} vertices "
           f"to {out} in {time.perf_counter() - started:.1f} s")
     for m in manifest["sequences"]:
-        measured = ", ".join(f"{k} {v:.3f}" for k, v in m["measured"].items())
+        measured = ", ".join(f"{k} {_fixed(v)}" for k, v in m["measured"].items())
         print(f"  {m['name']:<18} {m['frames']:>4} frames  measured: {measured}")
     return 0
 
@@ -276,6 +277,12 @@ class worker_pool:
     def __exit__(self, *exc):
         self.pool.shutdown(wait=True, cancel_futures=True)
         return False
+
+
+def _fixed(value):
+    """A measured parameter with 3 decimals, never "-0.000" (a turn rate of -1e-9 read as a turn)."""
+    text = f"{value:.3f}"
+    return "0.000" if text == "-0.000" else text
 
 
 def run_jobs(pool, function, jobs, desc="synth", total=None, per_job=False, unit="frame"):

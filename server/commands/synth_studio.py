@@ -45,6 +45,7 @@ from server.commands.synth import (
     staged,
     worker_pool,
 )
+from server.units import count_text
 
 CHUNK = 16  # frames per reconstruction job
 WRITERS = {"obj": lambda path, V, F, colors: write_obj(path, V, F, colors=colors, precision=6), "ply": write_ply}
@@ -185,7 +186,7 @@ def run_studio(args, preset):
         }
         write_capture_manifest(staging, manifest)
     frames = sum(m["frames"] for m in metas)
-    print(f"wrote {len(specs)} studio sequences, {frames} frames, template of {len(body.V)} vertices "
+    print(f"wrote {count_text(len(specs), 'studio sequence')}, {frames} frames, template of {len(body.V)} vertices "
           f"to {out} in {time.perf_counter() - started:.1f} s")
     for m in metas:
         files = f"{m['units']}, up {m['up']}"

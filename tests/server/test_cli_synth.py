@@ -120,3 +120,14 @@ def test_a_failure_while_writing_leaves_no_staging_directory(tmp_path, capsys, m
     monkeypatch.setattr(synth, "_body", fail)
     _refused(capsys, [*QUICK, "--out", "new/deeper/x"], "disk full")
     assert list(tmp_path.iterdir()) == []  # neither .x.partial-<pid> nor the parents made for it
+
+
+def test_the_summary_counts_in_the_singular_and_reads_no_negative_zero(tmp_path, capsys):
+    """("wrote 1 studio sequences", "turn_rate -0.000"; a docs-only user.)"""
+    from server.commands.synth import _fixed
+
+    assert main(["synth", "--preset", "tiny", "--out", str(tmp_path / "one"), "--only", "walk", "--no-unstructured",
+                 "--no-previews", "--workers", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert printed.startswith("wrote 1 sequence, ") and "-0.000" not in printed, printed
+    assert (_fixed(-1e-9), _fixed(-0.0004), _fixed(-0.0006), _fixed(2.25)) == ("0.000", "0.000", "-0.001", "2.250")
