@@ -181,3 +181,43 @@ def estimate_root_motion(V, F, fps, *, period=None, smoothing=0.3, reference=Non
     position[:, 1] = 0.0
     local = np.einsum("fba,fnb->fna", rot_y(heading), V - position[:, None, :])
     return RootMotion(position=position, heading=heading, local=local, fps=float(fps))
+
+
+FACING_TOLERANCE = np.radians(1.0)  # a reference facing off the travel by less is left as it is
+FORWARD_CONE = np.radians(30.0)     # sources travelling within this of their facing say where forward is
+MOVING = 0.05                       # mean speed, in model sizes per second, of a source that travels
+
+
+def travel_turn(roots, size):
+    """The turn about +Y (radians) from the heading reference's facing to the way the sources
+    travel, or 0 when they do not say or it is under 1 degree.
+
+    A space's heading 0 is its rest mesh's facing. The generator's rest faces exactly forward; a
+    captured one (an aligned capture's root frame, mid-stride) may face a few degrees off the way
+    the body walks, and the space then walked that much to the side of its facing (5.6 degrees on
+    the tiny preset's walk and run aligned and built; a docs-only user). Every source whose mean
+    velocity in its root frame is over ``MOVING`` model sizes per second and within ``FORWARD_CONE``
+    of its facing gives that velocity's angle (sidesteps and backward walks say nothing); the
+    turn is their median.
+
+    Parameters
+    ----------
+    roots : list of RootMotion    size : float, the model size (m)
+    """
+    angles = []
+    for root in roots:
+        v = root.velocity().mean(axis=0)
+        if np.hypot(v[0], v[2]) > MOVING * size:
+            angle = float(np.arctan2(v[0], v[2]))  # from +Z towards +X, as rot_y turns
+            if abs(angle) < FORWARD_CONE:
+                angles.append(angle)
+    turn = float(np.median(angles)) if angles else 0.0
+    return turn if abs(turn) >= FACING_TOLERANCE else 0.0
+
+
+def turned_reference(rest, turn):
+    """The heading reference for a ``travel_turn`` of ``turn``: ``rest`` (n, 3) turned by ``-turn``
+    about +Y through its mean, against which the root-local frames' velocity points along +Z."""
+    rest = np.asarray(rest, dtype=np.float64)
+    centre = rest.mean(axis=0)
+    return (rest - centre) @ rot_y(-turn).T + centre

@@ -7,6 +7,7 @@ import numpy as np
 
 from engine.evaluation.table import BlendCache, _noop, weight_grid
 from engine.motion_space import SourceClip, warp_cycle_onto
+from engine.root_motion import turned_reference
 from engine.surface import enclosed_volume
 from engine.synthetic import animate, gait
 
@@ -50,6 +51,8 @@ def true_samples(space, body, motion):
     clip = SourceClip(name=motion.name, vertices=V, fps=motion.fps, cyclic=True,
                       frames_per_cycle=motion.frames_per_cycle)
     rest = np.asarray(space.container["rest"])
+    turn = np.radians(float(space.metadata.get("heading_turn_deg", 0.0)))  # the sources' heading reference
+    rest = turned_reference(rest, turn) if turn else rest
     return warp_cycle_onto(clip, np.asarray(space.faces, dtype=np.int64), rest,
                            np.asarray(space.sources[:, 0], dtype=np.float64))
 

@@ -33,7 +33,7 @@ from engine.blend import (
 from engine.blend import HybridBlender, phase_of_sample
 from engine.motion_space.container import write_container
 from engine.parameters import ParameterMap, RootTrack, measure_parameters
-from engine.root_motion import estimate_root_motion
+from engine.root_motion import estimate_root_motion, travel_turn, turned_reference
 from engine.surface import model_size
 from engine.timewarp import (
     align_cycle,
@@ -85,6 +85,8 @@ class PreparedSources:
     root_rate : (P, N, 3) float array    root displacement per unit phase, in the root frame (m)
     turn_rate : (P, N) float array       heading change per unit phase (rad)
     info : list of dict                  per source: period, events, warp
+    heading_turn : float                 radians the heading reference was turned from the rest's
+                                         facing to the sources' travel (``travel_turn``; 0: not)
     """
 
     samples: np.ndarray
@@ -93,6 +95,7 @@ class PreparedSources:
     root_rate: np.ndarray
     turn_rate: np.ndarray
     info: list
+    heading_turn: float = 0.0
 
 
 def _cyclic_root(clip, faces, rest):
@@ -130,6 +133,22 @@ def _root_rates(root, times, span_frames):
     return velocity * seconds[:, None], turn * seconds
 
 
+def _roots(clips, faces, reference, size, cyclic):
+    """Root motion of every clip against the heading ``reference``, and what was found (period, events)."""
+    roots, info = [], []
+    for clip in clips:
+        if cyclic:
+            root, period = _cyclic_root(clip, faces, reference)
+            info.append({"name": clip.name, "period_frames": float(period)})
+        else:
+            root = estimate_root_motion(np.asarray(clip.vertices, dtype=np.float64), faces, clip.fps,
+                                        reference=reference)
+            events = detect_events(root.local, model_size=size)
+            info.append({"name": clip.name, "events_kind": events.kind, "events_frames": list(events.times)})
+        roots.append(root)
+    return roots, info
+
+
 def prepare_sources(clips, faces, rest, n_phases=None):
     """Root motion and time-warp of every clip onto a common phase grid (steps 5-6).
 
@@ -137,17 +156,10 @@ def prepare_sources(clips, faces, rest, n_phases=None):
     """
     size = model_size(rest)
     cyclic = clips[0].cyclic
-    roots, info = [], []
-    for clip in clips:
-        V = np.asarray(clip.vertices, dtype=np.float64)
-        if cyclic:
-            root, period = _cyclic_root(clip, faces, rest)
-            info.append({"name": clip.name, "period_frames": float(period)})
-        else:
-            root = estimate_root_motion(V, faces, clip.fps, reference=rest)
-            events = detect_events(root.local, model_size=size)
-            info.append({"name": clip.name, "events_kind": events.kind, "events_frames": list(events.times)})
-        roots.append(root)
+    roots, info = _roots(clips, faces, rest, size, cyclic)
+    turn = travel_turn(roots, size)  # heading 0 is where the sources travel, not where a captured rest faces
+    if turn:
+        roots, info = _roots(clips, faces, turned_reference(rest, turn), size, cyclic)
 
     if n_phases is None:
         n_phases = max(int(round(e["period_frames"])) for e in info) if cyclic else max(len(c.vertices) for c in clips)
@@ -199,7 +211,7 @@ def prepare_sources(clips, faces, rest, n_phases=None):
             durations[i] = (frames - 1) / clip.fps
             info[i]["common_event_phases"] = None if common is None else [float(c) for c in common]
     return PreparedSources(samples=samples, times=times, durations=durations, root_rate=root_rate,
-                           turn_rate=turn_rate, info=info)
+                           turn_rate=turn_rate, info=info, heading_turn=turn)
 
 
 def warp_cycle_onto(clip, faces, rest, reference):
@@ -243,6 +255,7 @@ def effector_vertices(samples, fraction=0.015):
 # Metadata keys build_motion_space writes itself (``metadata=`` may not set them).
 BUILT_METADATA = ("format", "version", "name", "cyclic", "n_sources", "n_phases", "n_vertices", "n_faces",
                   "n_tet_vertices", "n_tets", "model_size", "epsilon", "units", "up", "forward", "bounds",
+                  "heading_turn_deg",
                   "sources", "hybrid", "timings", "parameters")
 
 
@@ -376,6 +389,7 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
         "n_sources": N, "n_phases": n_phases, "n_vertices": int(n), "n_faces": int(len(faces)),
         "n_tet_vertices": int(len(embedding.V_tet)), "n_tets": int(len(embedding.T)),
         "model_size": size, "epsilon": float(epsilon), "units": "m", "up": "+Y", "forward": "+Z",
+        "heading_turn_deg": round(float(np.degrees(prepared.heading_turn)), 6),
         "bounds": [lo.tolist(), hi.tolist()],
         "sources": [{"name": c.name, "duration": float(prepared.durations[i]), "fps": c.fps,
                      "frames": int(len(c.vertices)), "cyclic": c.cyclic, **prepared.info[i]}
