@@ -77,7 +77,9 @@ def capture_truth(space, dataset):
     height = manifest["body"].get("height")  # null in datasets synthesised before 2026-11-30: the default
     body = build_body(int(manifest["body"]["vertices"]), *(() if height is None else (float(height),)))
     if len(body.V) != space.n_vertices:
-        raise ValueError(f"{dataset}: its body has {len(body.V)} vertices, the space {space.n_vertices}")
+        raise ValueError(f"{dataset}: its body has {len(body.V)} vertices, the space {space.n_vertices}: --captures "
+                         "compares a space built from the dataset's own consistent frames (the generator's "
+                         "mesh) with its truth; a space built from aligned frames has the root frame's mesh")
     true_motion = evaluation.gait_truth(body, speeds, turn_rates=turns, fps=fps.pop())
     return body, true_motion, sources
 
