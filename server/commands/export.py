@@ -41,7 +41,7 @@ def add_arguments(parser):
                         help="file (.glb, .usd/.usdc/.usda, .zip) or directory (obj/ply sequence)")
     parser.add_argument("--format", choices=("glb", "usd", "obj", "ply", "vat"),
                         help="default: from --out's suffix (.glb, .usd*); obj/ply/vat need --format")
-    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
+    parser.add_argument("--set", nargs="+", action="extend", default=[], metavar="NAME=VALUE",
                         help="parameters at t = 0 (a graph: the start node's)")
     parser.add_argument("--at", nargs="+", action="append", default=[], metavar="T NAME=VALUE",
                         help="at time T (s) request parameters (repeat for a script); a graph: "

@@ -30,7 +30,7 @@ from server.commands.checks import check_output_path
 
 def add_arguments(parser):
     parser.add_argument("space", type=Path, help="a .mspace file with parameters, or a .mgraph motion graph")
-    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE", help="initial parameters")
+    parser.add_argument("--set", nargs="+", action="extend", default=[], metavar="NAME=VALUE", help="initial parameters")
     parser.add_argument("--at", nargs="+", action="append", default=[], metavar="T [NODE] NAME=VALUE",
                         help="at time T (s) request parameters (repeat for a script); with a graph, a node "
                              "first and optionally budget=S (the latency budget, s)")
@@ -158,6 +158,9 @@ def frame_steps(seconds, fps, what):
 
 def scripted(entries, names):
     """``--at TIME NAME=VALUE ...`` entries as [(time, {name: value})]."""
+    for entry in entries:  # (a bare `--at 1` was accepted and did nothing; a docs-only user)
+        if len(entry) == 1:
+            raise ValueError(f"--at {entry[0]}: give NAME=VALUE after the time")
     return [(at_time(entry), _assignments(entry[1:], names)) for entry in entries]
 
 

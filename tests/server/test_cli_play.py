@@ -71,6 +71,9 @@ def renamed_space(tmp_path_factory):
     (["--trail-every", "-1"], "--trail-every must be a positive number of seconds, got -1"),
     (["--smoothing", "nan"], "--smoothing must be a non-negative number of seconds, got nan"),
     (["--set", "speed=nan"], "speed: 'nan' is not a finite number"),
+    # a repeated --set took the last value, a bare --at did nothing, both without a word (a docs-only user)
+    (["--set", "speed=2", "--set", "speed=3"], "speed is given twice (speed=2, speed=3); give each parameter once"),
+    (["--at", "1"], "--at 1: give NAME=VALUE after the time"),
 ])
 def test_bad_numbers_of_a_space_play_are_refused(built_spaces, capsys, argv, message):
     refused(capsys, ["play", built_spaces / "speed.mspace", *argv], message)
