@@ -33,13 +33,12 @@ from engine.blend import (
 from engine.blend import HybridBlender, phase_of_sample
 from engine.motion_space.container import write_container
 from engine.parameters import ParameterMap, RootTrack, measure_parameters
-from engine.root_motion import estimate_root_motion, travel_turn, turned_reference
+from engine.motion_space.roots import cyclic_root, source_roots
+from engine.root_motion import travel_turn, turned_reference
 from engine.surface import model_size
 from engine.timewarp import (
     align_cycle,
     cycle_at,
-    detect_events,
-    estimate_period,
     piecewise_warp,
     refine_offset,
     sample_frames,
@@ -98,18 +97,6 @@ class PreparedSources:
     heading_turn: float = 0.0
 
 
-def _cyclic_root(clip, faces, rest):
-    """Root motion of a cyclic clip filtered over its period (estimated when not given)."""
-    V = np.asarray(clip.vertices, dtype=np.float64)
-    period = clip.frames_per_cycle
-    if period is None:
-        rough = estimate_root_motion(V, faces, clip.fps, smoothing=0.5, reference=rest)
-        period = estimate_period(rough.local, clip.fps)
-    if period + 1 > len(V):
-        raise ValueError(f"{clip.name}: {len(V)} frames do not hold a whole cycle of {period:.1f} frames")
-    return estimate_root_motion(V, faces, clip.fps, period=period, reference=rest), float(period)
-
-
 def _align_to(reference, local, start, period, n_phases):
     """Warp (in cycle samples) of the cycle of ``local`` starting at ``start`` onto ``reference``:
     DTW on the sampled cycle, then a sub-sample offset fitted on the frames themselves."""
@@ -133,22 +120,6 @@ def _root_rates(root, times, span_frames):
     return velocity * seconds[:, None], turn * seconds
 
 
-def _roots(clips, faces, reference, size, cyclic):
-    """Root motion of every clip against the heading ``reference``, and what was found (period, events)."""
-    roots, info = [], []
-    for clip in clips:
-        if cyclic:
-            root, period = _cyclic_root(clip, faces, reference)
-            info.append({"name": clip.name, "period_frames": float(period)})
-        else:
-            root = estimate_root_motion(np.asarray(clip.vertices, dtype=np.float64), faces, clip.fps,
-                                        reference=reference)
-            events = detect_events(root.local, model_size=size)
-            info.append({"name": clip.name, "events_kind": events.kind, "events_frames": list(events.times)})
-        roots.append(root)
-    return roots, info
-
-
 def prepare_sources(clips, faces, rest, n_phases=None):
     """Root motion and time-warp of every clip onto a common phase grid (steps 5-6).
 
@@ -156,10 +127,10 @@ def prepare_sources(clips, faces, rest, n_phases=None):
     """
     size = model_size(rest)
     cyclic = clips[0].cyclic
-    roots, info = _roots(clips, faces, rest, size, cyclic)
+    roots, info = source_roots(clips, faces, rest, size, cyclic)
     turn = travel_turn(roots, size)  # heading 0 is where the sources travel, not where a captured rest faces
     if turn:
-        roots, info = _roots(clips, faces, turned_reference(rest, turn), size, cyclic)
+        roots, info = source_roots(clips, faces, turned_reference(rest, turn), size, cyclic)
 
     if n_phases is None:
         n_phases = max(int(round(e["period_frames"])) for e in info) if cyclic else max(len(c.vertices) for c in clips)
@@ -229,7 +200,7 @@ def warp_cycle_onto(clip, faces, rest, reference):
     samples : (P, n, 3) float array   root-local, key poses aligned to the reference
     """
     P = len(reference)
-    root, period = _cyclic_root(clip, faces, rest)
+    root, period = cyclic_root(clip, faces, rest)
     start = 0.5 * (len(clip.vertices) - 1 - period)
     warp = _align_to(np.asarray(reference, dtype=np.float64), root.local, start, period, P)
     return sample_frames(root.local, start + np.mod(warp * period / P, period))

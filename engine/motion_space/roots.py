@@ -1,0 +1,39 @@
+"""Root motion of a space's sources against its heading reference (``prepare_sources``' first step)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine.root_motion import estimate_root_motion
+from engine.timewarp import detect_events, estimate_period
+
+
+def cyclic_root(clip, faces, rest):
+    """Root motion of a cyclic clip filtered over its period (estimated when not given)."""
+    V = np.asarray(clip.vertices, dtype=np.float64)
+    period = clip.frames_per_cycle
+    if period is None:
+        rough = estimate_root_motion(V, faces, clip.fps, smoothing=0.5, reference=rest)
+        period = estimate_period(rough.local, clip.fps)
+    if period + 1 > len(V):
+        raise ValueError(f"{clip.name}: {len(V)} frames do not hold a whole cycle of {period:.1f} frames")
+    return estimate_root_motion(V, faces, clip.fps, period=period, reference=rest), float(period)
+
+
+def source_roots(clips, faces, reference, size, cyclic):
+    """Root motion of every clip against the heading ``reference``, and what was found (period, events)."""
+    roots, info = [], []
+    for clip in clips:
+        if cyclic:
+            root, period = cyclic_root(clip, faces, reference)
+            info.append({"name": clip.name, "period_frames": float(period)})
+        else:
+            root = estimate_root_motion(np.asarray(clip.vertices, dtype=np.float64), faces, clip.fps,
+                                        reference=reference)
+            events = detect_events(root.local, model_size=size)
+            info.append({"name": clip.name, "events_kind": events.kind, "events_frames": list(events.times)})
+        roots.append(root)
+    return roots, info
+
+
+__all__ = ["cyclic_root", "source_roots"]
