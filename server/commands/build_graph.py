@@ -113,4 +113,26 @@ def run(args):
     for edge in report["edges"]:
         print(f"  {edge['from']:>10} -> {edge['to']:<10} best seam {1000 * edge['min_m']:.1f} mm, "
               f"median {1000 * edge['median_m']:.1f} mm")
+    note = heading_turn_note({node.name: _heading_turn(node.space) for node in spec["nodes"]})
+    if note:
+        print(f"morphspace build-graph: warning: {note}", file=sys.stderr)
     return 0
+
+
+def _heading_turn(path):
+    from engine.motion_space import MotionSpace
+
+    with MotionSpace.open(path) as space:
+        return float(space.metadata.get("heading_turn_deg", 0.0))
+
+
+def heading_turn_note(turns, tolerance=1.0):
+    """A warning when the nodes' spaces took heading 0 from travel directions more than ``tolerance``
+    degrees apart (``heading_turn_deg``: spaces built from a captured rest, one that travels and one
+    that does not), else None: their root-local poses are turned that much from each other, and a
+    transition between them turns the body by it."""
+    if not turns or max(turns.values()) - min(turns.values()) <= tolerance:
+        return None
+    listed = ", ".join(f"{name} {turn:+.1f}" for name, turn in turns.items())
+    return (f"the nodes' spaces face heading 0 up to {max(turns.values()) - min(turns.values()):.1f} degrees apart "
+            f"(heading_turn_deg: {listed}); a transition between two of them turns the body by their difference")

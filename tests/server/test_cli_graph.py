@@ -53,6 +53,19 @@ def test_build_graph_writes_a_graph_file(graph_file, capsys):
     assert "already exists" in capsys.readouterr().err
 
 
+def test_spaces_facing_heading_0_apart_are_warned_of(built_spaces):
+    """Spaces built from a captured rest take heading 0 from where their sources travel
+    (``heading_turn_deg``); one that travels and one that does not then differ, and a transition
+    turns the body by it. The generator's spaces (0 each) and differences of 1 degree pass."""
+    from server.commands.build_graph import _heading_turn, heading_turn_note
+
+    assert _heading_turn(built_spaces / "speed.mspace") == _heading_turn(built_spaces / "jump.mspace") == 0.0
+    assert heading_turn_note({"run": 0.0, "leap": 0.0}) is None and heading_turn_note({"a": 5.2, "b": 4.4}) is None
+    note = heading_turn_note({"walk": 5.65, "reach": 0.0})
+    assert note == ("the nodes' spaces face heading 0 up to 5.7 degrees apart (heading_turn_deg: walk +5.7, "
+                    "reach +0.0); a transition between two of them turns the body by their difference"), note
+
+
 @pytest.mark.parametrize("change,message", [
     (lambda s: s.replace('space = "jump.mspace"', 'space = "nope.mspace"'), "nope.mspace does not exist"),
     (lambda s: s.replace('["leap", "run"]', '["leap", "walk"]'), "both ends must be nodes"),
