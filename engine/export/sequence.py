@@ -57,10 +57,10 @@ def write_mesh_sequence(directory, frames, format="obj", progress=None):
             raise ValueError(f"{directory}: already holds {len(stale)} other mesh files (e.g. {stale[0]}); export "
                              f"into an empty directory")
     created = not directory.exists()
-    directory.mkdir(parents=True, exist_ok=True)
     F = frames.faces
     paths = []
     try:
+        directory.mkdir(parents=True, exist_ok=True)
         for k, name in enumerate(names):
             if format == "obj":
                 write_obj(directory / name, frames.world(k), F, precision=OBJ_DECIMALS)
@@ -72,7 +72,9 @@ def write_mesh_sequence(directory, frames, format="obj", progress=None):
         with atomic_write(directory / "clip.json") as file:
             file.write(json.dumps(clip_record(frames), indent=1).encode())
     except BaseException:  # interrupted or failed: no half-written sequence stays behind
-        for path in paths:
+        # (the frame being written too: left half-written, it kept the directory from going; seen once
+        # under load in the SIGTERM test)
+        for path in paths + [directory / name for name in names[len(paths):len(paths) + 1]]:
             path.unlink(missing_ok=True)
         if created:
             with contextlib.suppress(OSError):
