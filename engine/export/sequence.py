@@ -37,6 +37,9 @@ def clip_record(frames):
     return record
 
 
+MESH_SUFFIXES = (".obj", ".ply", ".off", ".glb")  # mesh files a frame directory must not mix in
+
+
 def write_mesh_sequence(directory, frames, format="obj", progress=None):
     """Write every frame of ``frames`` (ClipFrames) as ``{directory}/frame_{k:04d}.{format}``.
 
@@ -51,7 +54,7 @@ def write_mesh_sequence(directory, frames, format="obj", progress=None):
     digits = max(4, len(str(len(frames) - 1)))
     names = [f"frame_{k:0{digits}d}.{format}" for k in range(len(frames))]
     if directory.is_dir():
-        stale = sorted(p.name for p in directory.iterdir() if p.suffix.lower() in (".obj", ".ply", ".off", ".glb")
+        stale = sorted(p.name for p in directory.iterdir() if p.suffix.lower() in MESH_SUFFIXES
                        and p.name not in set(names))
         if stale:
             raise ValueError(f"{directory}: already holds {len(stale)} other mesh files (e.g. {stale[0]}); export "

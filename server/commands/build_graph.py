@@ -131,8 +131,9 @@ def heading_turn_note(turns, tolerance=1.0):
     degrees apart (``heading_turn_deg``: spaces built from a captured rest, one that travels and one
     that does not), else None: their root-local poses are turned that much from each other, and a
     transition between them turns the body by it."""
-    if not turns or max(turns.values()) - min(turns.values()) <= tolerance:
+    spread = max(turns.values()) - min(turns.values()) if turns else 0.0
+    if spread <= tolerance:
         return None
     listed = ", ".join(f"{name} {turn:+.1f}" for name, turn in turns.items())
-    return (f"the nodes' spaces face heading 0 up to {max(turns.values()) - min(turns.values()):.1f} degrees apart "
+    return (f"the nodes' spaces face heading 0 up to {spread:.1f} degrees apart "
             f"(heading_turn_deg: {listed}); a transition between two of them turns the body by their difference")

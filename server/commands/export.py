@@ -20,7 +20,6 @@ A motion graph (``.mgraph``) exports a recorded performance (server/commands/exp
 from __future__ import annotations
 
 import json
-import math
 import re
 import sys
 import time
@@ -28,9 +27,10 @@ from pathlib import Path
 
 from engine.export import Clip, check_clip, parse_track, play_clip, write_export
 from engine.export.gltf import INTERPOLATIONS, PRECISIONS
+from engine.export.sequence import MESH_SUFFIXES
 from engine.motion_space import MotionSpace
 from engine.player import SMOOTHING
-from server.commands.play import _assignments, scripted
+from server.commands.play import _assignments, check_clock, scripted
 
 SUFFIXES = {".glb": "glb", ".usd": "usd", ".usdc": "usd", ".usda": "usd"}
 
@@ -143,7 +143,7 @@ def replace_export(out, force):
     before anything is removed: the refusal used to come after the earlier export was gone."""
     if not (force and out.is_dir()):
         return
-    other = sorted(p.name for p in out.iterdir() if p.is_file() and p.suffix.lower() in (".obj", ".ply", ".off", ".glb")
+    other = sorted(p.name for p in out.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES
                    and not EXPORT_FILES.fullmatch(p.name))
     if other:
         raise ValueError(f"{out}: holds {len(other)} mesh files no export wrote (e.g. {other[0]}); nothing was "
@@ -153,11 +153,7 @@ def replace_export(out, force):
 
 def run(args):
     fmt = output_format(args.out, args.format)
-    # named by their options, as `play` names them (the clip's own check said "duration" and "rate")
-    if not (math.isfinite(args.fps) and args.fps > 0):
-        raise ValueError(f"--fps must be a positive number of frames per second, got {args.fps:g}")
-    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds > 0):
-        raise ValueError(f"--seconds must be a positive number, got {args.seconds:g}")
+    check_clock(args.fps, args.seconds)  # named by their options (the clip's own check said "duration", "rate")
     if args.out.exists() and not args.force:
         raise ValueError(f"--out {args.out} exists; pass --force to replace it")
     if args.space.suffix == ".mgraph":

@@ -87,15 +87,20 @@ def at_time(entry):
     return when
 
 
+def check_clock(fps, seconds):
+    """``--fps`` and ``--seconds`` (None: the default) finite and positive, named by their options."""
+    if not (math.isfinite(fps) and fps > 0):
+        raise ValueError(f"--fps must be a positive number of frames per second, got {fps:g}")
+    if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+        raise ValueError(f"--seconds must be a positive number, got {seconds:g}")
+
+
 def check_arguments(args, graph=False):
     """Refuse bad numbers and output paths before anything is played or written (a ValueError naming the
     option): --fps and --seconds finite and positive, at most MAX_FRAMES frames, --smoothing and --trail-every
     for a space, --trail a picture file, --frames a directory, --record a file, --replay an existing file."""
-    if not (math.isfinite(args.fps) and args.fps > 0):
-        raise ValueError(f"--fps must be a positive number of frames per second, got {args.fps:g}")
+    check_clock(args.fps, args.seconds)
     if args.seconds is not None:
-        if not (math.isfinite(args.seconds) and args.seconds > 0):
-            raise ValueError(f"--seconds must be a positive number, got {args.seconds:g}")
         frame_steps(args.seconds, args.fps, f"--seconds {args.seconds:g}")
     if graph:
         if args.trail:
