@@ -105,6 +105,7 @@ def read_obj(data, source, resources=None):
             f"{source}: the mesh is empty (0 faces): {len(vertex_lines)} vertices and no 'f' lines (a point "
             f"cloud, or a file cut short before its faces)"
         )
+    _check_last_face_whole(data, face_lines, face_line_numbers, source)
     F = _parse_faces(face_lines, face_line_numbers, vertices_before_face, len(V), source)
     if colors is None and texture.libraries and resources is not None:
         colors = texture_colours(V, F, _without_trailing_comments(face_lines), face_line_numbers, texture,
@@ -180,6 +181,40 @@ def _parse_faces(lines, line_numbers, vertices_before, n_vertices, source):
             f"{where} references vertex {index} but the file has {n_vertices} vertices"
         )
     return fan_triangulate(indices, counts)
+
+
+def _corner_form(token):
+    """Which of a corner's vertex / texture / normal fields are present: ``12//3`` -> (1, 0, 1)."""
+    return tuple(bool(field) for field in token.split(b"/"))
+
+
+def _check_last_face_whole(data, face_lines, line_numbers, source):
+    """Refuse a file cut inside its last face line, where the cut shows.
+
+    Only a file that does not end with a newline is looked at. Its last face was cut when its
+    last corner ends with ``/``, or has another form than the face's other corners, which all
+    agree (``3/1`` after ``1/1/1 2/2/2``), or when the face has fewer corners than each of the
+    (4 to 16) faces before it, which all have the same number. A cut that leaves a whole corner of
+    the same form behind (``f 1 2 34`` cut to ``f 1 2 3``) cannot be told from a valid face.
+    """
+    if not face_lines or data.rstrip(b" \t").endswith((b"\n", b"\r")):
+        return
+    corners = face_lines[-1].split(b"#", 1)[0].split()
+    if len(corners) < 3:
+        return  # _parse_faces says a face needs 3 vertices
+    where = f"{source}: line {line_numbers[-1]}: the file does not end with a newline, and its last face"
+    forms = {_corner_form(corner) for corner in corners[:-1]}
+    if corners[-1].endswith(b"/") or (len(forms) == 1 and _corner_form(corners[-1]) not in forms):
+        shown = corners[-1][:20].decode("utf-8", "replace")
+        raise MeshFormatError(
+            f"{where} ends in a corner {shown!r} unlike its others: a file cut short inside its last line?"
+        )
+    before = [len(line.split(b"#", 1)[0].split()) for line in face_lines[-17:-1]]
+    if len(before) >= 4 and len(set(before)) == 1 and len(corners) < before[0]:
+        raise MeshFormatError(
+            f"{where} has {len(corners)} corners where the {len(before)} faces before it have {before[0]}: a file "
+            f"cut short inside its last line?"
+        )
 
 
 def _without_trailing_comments(lines):

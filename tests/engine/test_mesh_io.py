@@ -445,6 +445,32 @@ def test_an_obj_cut_short_before_its_faces_says_so(tmp_path):
         read_mesh(cut)
 
 
+@pytest.mark.parametrize("tail, expected", [
+    (b"f 1/1/1 2/2/2 3/3/3\nf 1/1/1 3/3/3 4/", r"ends in a corner '4/' unlike its others"),
+    (b"f 1//1 2//2 3//3\nf 1//1 3//3 4/1", r"ends in a corner '4/1' unlike its others"),
+    (b"f 1 2 3 4\nf 2 3 4 1\nf 3 4 1 2\nf 4 1 2 3\nf 1 2 3", r"has 3 corners where the 4 faces before it have 4"),
+])
+def test_an_obj_cut_inside_its_last_face_line_says_so(tmp_path, tail, expected):
+    head = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nvt 0 0\nvt 1 0\nvt 0 1\n"
+    path = write_bytes(tmp_path, "frame_7.obj", head + tail)
+    line = head.count(b"\n") + tail.count(b"\n") + 1
+    with pytest.raises(MeshFormatError, match=f"^{at(path)}: line {line}: the file does not end with a newline, and "
+                                              f"its last face {expected}: a file cut short inside its last line"):
+        read_mesh(path)
+
+
+@pytest.mark.parametrize("tail", [
+    b"f 1 2 3 4\nf 2 3 4 1\nf 3 4 1 2\nf 4 1 2 3\nf 1 2 3\n",  # a mixed mesh whose last line ends
+    b"f 1 2 3 4\nf 2 3 4 1\nf 1 2 3",                          # too few faces before it to tell
+    b"f 1 2 3\nf 1 3 4",                                        # a cut that would not show
+    b"f 1/1 2/2 3/3\nf 1 3/3 4//2",                              # mixed forms: the line's others disagree
+])
+def test_an_obj_whose_last_face_only_could_be_cut_is_read(tmp_path, tail):
+    head = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nvt 0 0\nvt 1 0\nvt 0 1\n"
+    path = write_bytes(tmp_path, "frame_8.obj", head + tail)
+    assert len(read_mesh(path).faces) >= 2
+
+
 def test_face_index_out_of_range_names_face_and_index(tmp_path):
     V, F = tetrahedron()
     obj = write_bytes(tmp_path, "frame_12.obj", polygon_obj(V, [[0, 1, 2], [0, 1, 4]]))
