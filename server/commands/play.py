@@ -183,8 +183,9 @@ def run(args):
     player = Player(space, mode=args.mode, smoothing=args.smoothing, loop=args.loop or None)
     names = player.names
     notes = []
-    if args.set:
-        solution = player.set_params(_assignments(args.set, names), immediate=True)
+    start = _assignments(args.set, names) if args.set else {}
+    if start:
+        solution = player.set_params(start, immediate=True)
         if solution.clamped:
             notes.append(f"t=0.00 s: {solution.message}")
     script = sorted(scripted(args.at, names), key=lambda item: item[0])
@@ -198,8 +199,10 @@ def run(args):
     if args.frames:
         open_frames(args.frames)  # (checked by check_arguments)
     frame = player.frame()
+    given, given_at = set(start), []  # the parameters asked for so far, per logged frame (the text says "default" before)
     for k in range(steps + 1):
         while script and script[0][0] <= k * dt + 1e-9:
+            given.update(script[0][1])
             solution = player.set_params(script.pop(0)[1])
             if solution.clamped:
                 notes.append(f"t={k * dt:.2f} s: {solution.message}")
@@ -208,6 +211,7 @@ def run(args):
                     "asked": player.asked.round(4).tolist(), "requested": frame.requested.round(4).tolist(),
                     "realised": frame.realised.round(4).tolist(),
                     "root": frame.root_position.round(4).tolist(), "heading_deg": round(np.degrees(frame.heading), 3)})
+        given_at.append(frozenset(given))
         if args.trail and k % every == 0:
             trail.append(frame.vertices.copy())
         if args.frames:
@@ -241,9 +245,11 @@ def run(args):
         return 0
     print(f"{space.name}: played {report['seconds']:.2f} s ({report['frames']} frames, {args.mode}), "
           f"travelled {travelled:.2f} m")
-    rows = log[:: max(1, len(log) // 10)]
-    for entry in rows + ([log[-1]] if rows[-1] is not log[-1] else []):
-        values = ", ".join(f"{n} {r:.3f} (asked {q:g})" for n, q, r in zip(names, entry["asked"], entry["realised"]))
+    rows = list(range(0, len(log), max(1, len(log) // 10)))
+    for row in rows + ([len(log) - 1] if rows[-1] != len(log) - 1 else []):
+        entry = log[row]
+        values = ", ".join(f"{n} {r:.3f} ({'asked' if n in given_at[row] else 'default'} {q:g})"
+                           for n, q, r in zip(names, entry["asked"], entry["realised"]))
         print(f"  t {entry['time']:6.2f} s  phase {entry['phase']:.2f}  {values}  root {entry['root'][0]:+.2f}, "
               f"{entry['root'][2]:+.2f} m  heading {entry['heading_deg']:+.1f} deg")
     for note in notes:

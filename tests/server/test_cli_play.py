@@ -159,6 +159,10 @@ def test_a_play_says_what_was_asked_and_a_graph_its_clamped_start(built_spaces, 
     assert "(asked 10)" in out
     timeline = [line for line in out.splitlines() if line.startswith("  t ")]
     assert len(timeline) == len(set(timeline))   # the last row once
+    assert main(["play", str(built_spaces / "speed.mspace"), "--at", "0.4", "speed=1", "--seconds", "0.5"]) == 0
+    timeline = [line for line in capsys.readouterr().out.splitlines() if line.startswith("  t ")]
+    assert "(default " in timeline[0] and "(asked" not in timeline[0]   # nothing asked yet: not "asked"
+    assert "(asked 1)" in timeline[-1]
     report = _play(capsys, built_graph / "tiny.mgraph", "--set", "speed=10", "--seconds", 0.5, "--fps", 15)
     assert len(report["notes"]) == 1 and report["notes"][0].startswith("t=0.00 s: start ")
     assert "clamped: speed 10" in report["notes"][0]
