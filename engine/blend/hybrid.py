@@ -198,11 +198,13 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         After the bisection, drop stored entries whose removal keeps every test point and every
         reference within margin * epsilon, or no further off than it was
         (``prune_corrections``). Same tree, fewer entries.
-    progress : callable(message) or None
+    progress : callable(message, done, total) or None
         called after every cell tested (split or kept as a leaf) and, while pruning, after every
         test point checked: the exact blends they need are the stage's cost, so a bar on it moves
         through all of it (it moved only on splits and stood still for minutes once the
-        references' cap stopped them)
+        references' cap stopped them). ``done`` counts the cells tested and points checked,
+        ``total`` adds the cells still queued, then the points still to check: it grows as the
+        bisection finds more to do
 
     Returns
     -------
@@ -280,6 +282,7 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         test_weights = test_weights / test_weights.sum(axis=1, keepdims=True)
     queue = [0]
     leaf_errors = []
+    tested = 0
     while queue:
         node = queue.pop(0)
         depth = int(tree.depth[node])
@@ -306,13 +309,16 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
             children = tree.children
             for split_node in split_nodes:
                 queue.extend(children[split_node].tolist())
+            tested += 1
             if progress is not None:
                 progress(f"split cell {node} (depth {depth}, test error {worst * 1000:.1f} mm): "
-                         f"{len(tree.references) - n_sources} references")
+                         f"{len(tree.references) - n_sources} references", tested, tested + len(queue))
         else:
             leaf_errors.append((int(node), worst))
+            tested += 1
             if progress is not None:
-                progress(f"cell {node} kept (depth {depth}, test error {worst * 1000:.1f} mm)")
+                progress(f"cell {node} kept (depth {depth}, test error {worst * 1000:.1f} mm)", tested,
+                         tested + len(queue))
     corrections = store.finish()
     if prune and uniform_depth is None:
         # Where the bound is checked: the leaves' test points, and every reference (the bisection
@@ -321,7 +327,9 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         checked += [(-1, w) for w in tree.references[n_sources:]]
         corrections, worst = prune_corrections(tree, corrections, [w for _, w in checked], linear, exact,
                                                margin * epsilon, leaf=[node for node, _ in checked],
-                                               progress=progress)
+                                               progress=None if progress is None else
+                                               lambda message, done, total: progress(message, tested + done,
+                                                                                     tested + total))
         leaf_errors = [(node, worst.get(node, 0.0)) for node, _ in leaf_errors]
     new = len(tree.references) - n_sources
     report = HybridReport(
@@ -368,7 +376,8 @@ def prune_corrections(tree, corrections, test_weights, linear, exact, bound, lea
     bound : float
     leaf : (T,) int list or None        the leaf each test weight reports to (-1: none; default
                                         the leaf containing it)
-    progress : callable(message) or None   called after each test weight's error is measured
+    progress : callable(message, done, total) or None   called after each test weight's error is
+                                        measured (``done`` of ``total`` test weights)
 
     Returns
     -------
@@ -394,7 +403,7 @@ def prune_corrections(tree, corrections, test_weights, linear, exact, bound, lea
         for r in np.flatnonzero(phi[t]):
             error[t] += phi[t, r] * corrections.dense(r)
         if progress is not None:
-            progress(f"pruning: test point {t + 1} of {len(test_weights)} measured")
+            progress(f"pruning: test point {t + 1} of {len(test_weights)} measured", t + 1, len(test_weights))
     limit = np.maximum(np.float32(bound), vector_lengths(error).max(axis=(1, 2)))
     keep = np.ones(len(corrections.vertex), dtype=bool)
     for r in range(R - 1, -1, -1):

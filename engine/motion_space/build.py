@@ -120,15 +120,19 @@ def _root_rates(root, times, span_frames):
     return velocity * seconds[:, None], turn * seconds
 
 
-def prepare_sources(clips, faces, rest, n_phases=None):
+def prepare_sources(clips, faces, rest, n_phases=None, heading_turn=None):
     """Root motion and time-warp of every clip onto a common phase grid (steps 5-6).
 
-    ``n_phases`` defaults to the longest cycle (cyclic clips) or clip, in frames.
+    ``n_phases`` defaults to the longest cycle (cyclic clips) or clip, in frames. ``heading_turn``
+    (radians) turns the heading reference from the rest's facing; None: the sources' own travel
+    (``travel_turn``). An aligned capture gives its whole capture's (``capture_travel_turn``),
+    so every space built from it shares one heading 0.
     """
     size = model_size(rest)
     cyclic = clips[0].cyclic
     roots, info = source_roots(clips, faces, rest, size, cyclic)
-    turn = travel_turn(roots, size)  # heading 0 is where the sources travel, not where a captured rest faces
+    # heading 0 is where the sources travel, not where a captured rest faces
+    turn = travel_turn(roots, size) if heading_turn is None else float(heading_turn)
     if turn:
         roots, info = source_roots(clips, faces, turned_reference(rest, turn), size, cyclic)
 
@@ -232,7 +236,7 @@ BUILT_METADATA = ("format", "version", "name", "cyclic", "n_sources", "n_phases"
 
 def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005, rest=None,
                        embedding=None, hybrid_options=None, parameters=None, metadata=None, progress=None,
-                       runner=None):
+                       runner=None, heading_turn=None):
     """Build and write a motion space.
 
     Parameters
@@ -256,6 +260,8 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
                                   the keys the builder writes itself (``BUILT_METADATA``) are refused
     progress : callable(stage: str, done: int, total: int) or None
     runner : task runner or None  decomposes chunks of source frames as its tasks (engine.tasks)
+    heading_turn : float or None  radians from the rest's facing to heading 0 (``prepare_sources``;
+                                  None: where the sources travel)
 
     Returns
     -------
@@ -292,7 +298,7 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
     if rest.shape != (n, 3):
         raise ValueError(f"rest must have shape ({n}, 3), got {rest.shape}")
     report_progress("time-warp", 0, 1)
-    prepared = prepare_sources(clips, faces, rest, n_phases)
+    prepared = prepare_sources(clips, faces, rest, n_phases, heading_turn)
     sources = prepared.samples  # (P, N, n, 3), root-local
     n_phases = sources.shape[0]
     N = len(clips)
@@ -319,11 +325,9 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
         NonlinearBlender(embedding, quaternions, stretch, detail, sources32.reshape(n_phases * N, n, 3)),
         n_phases, N, cyclic)
     t0 = time.perf_counter()
-    steps = [0]
 
-    def hybrid_progress(message):
-        steps[0] += 1
-        report_progress("hybrid", steps[0], 0)
+    def hybrid_progress(message, done, total):
+        report_progress("hybrid", done, total)
 
     options = dict(hybrid_options or {})
     if parameters is not None and "test_weights" not in options:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.root_motion import estimate_root_motion
+from engine.root_motion import estimate_root_motion, travel_turn
 from engine.timewarp import detect_events, estimate_period
 
 
@@ -36,4 +36,27 @@ def source_roots(clips, faces, reference, size, cyclic):
     return roots, info
 
 
-__all__ = ["cyclic_root", "source_roots"]
+def capture_travel_turn(clips, faces, rest, size):
+    """The turn about +Y (radians) from ``rest``'s facing to the way a whole capture travels
+    (``travel_turn`` over all its takes), or 0.
+
+    ``clips`` are SourceClips in the rest's vertices: every sequence of an aligned capture, whose
+    rest is its root frame. A cyclic take's root motion is filtered over its cycle (a take too
+    short to hold one says nothing), a one-shot take's heading goes from its first frames' to
+    its last frames'. A straight walk or run travels within ``FORWARD_CONE`` of its facing and
+    counts; reaches, jumps on the spot and dances that do not travel forward do not. Spaces built
+    from the capture then share this one heading 0, whatever their own sources do (a reach space
+    travels nowhere; a gait space built alone would take its own sources' turn).
+    """
+    roots = []
+    for clip in clips:
+        if len(clip.vertices) < 2:
+            continue
+        try:
+            roots += source_roots([clip], faces, rest, size, clip.cyclic)[0]
+        except ValueError:  # a cyclic take shorter than its cycle
+            continue
+    return travel_turn(roots, size)
+
+
+__all__ = ["capture_travel_turn", "cyclic_root", "source_roots"]

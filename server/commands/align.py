@@ -45,6 +45,8 @@ from engine.align.repair import TRUSTED
 from engine.mesh_io import MESH_EXTENSIONS, read_frames, write_obj, write_sequence
 from engine.mesh_io.frames import left_out_frames, list_frames
 from engine.mesh_io.dataset import read_capture_manifest, write_capture_manifest
+from engine.motion_space import SourceClip
+from engine.motion_space.roots import capture_travel_turn
 from engine.mesh_io.errors import MeshFormatError, MeshSequenceError
 from engine.mesh_io.natural_sort import stem_runs
 from server.commands.checks import MAX_FPS, read_meta
@@ -506,6 +508,9 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
     Image.fromarray(tree_image(tree, lengths, names)).save(out / "tree.png")
     Image.fromarray(pattern_sheet(aligned.vertices, aligned.faces, root, lengths, names)).save(
         out / "aligned_pattern.png")
+    takes = [SourceClip(meta["name"], aligned.vertices[a:a + n], float(meta.get("fps", fps)), bool(meta.get("cyclic")))
+             for meta, a, n in zip(metas, starts, lengths)]
+    turn = capture_travel_turn(takes, aligned.faces, aligned.root_vertices, size)
     write_capture_manifest(out, {
         "aligned": True, "alignment": {"method": result.method, "root": root_label,
                                        "options": options_record, "root_trial": result.root_trial,
@@ -515,7 +520,9 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
         "body": {"vertices": int(len(aligned.root_vertices)), "faces": int(len(aligned.faces)),
                  "model_size": size, "up": "+Y", "units": "m",
                  "source_units": common.units if common.units_from != "mixed" else "mixed",
-                 "source_up": common.up_label if common.up_from != "mixed" else "mixed"},
+                 "source_up": common.up_label if common.up_from != "mixed" else "mixed",
+                 # heading 0 of every space built on this rest: where the capture travels (build)
+                 "heading_turn_deg": round(float(np.degrees(turn)), 6)},
         # the first sequence's frame rate (its meta.json's, else ``fps``): the CLI and the align job agree
         "fps": float(metas[0].get("fps", fps)) if metas else fps, "sequences": metas,
     })

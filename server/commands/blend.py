@@ -180,7 +180,8 @@ def _blend(args, w, progress):
         if args.mode == "hybrid" or args.compare:
             progress("hybrid", 0, 1)
             tree, corrections, report = build_hybrid(
-                linear.blend_all_phases, nonlinear.blend_all_phases, N, 1, n, epsilon=args.epsilon_mm / 1000.0)
+                linear.blend_all_phases, nonlinear.blend_all_phases, N, 1, n, epsilon=args.epsilon_mm / 1000.0,
+                progress=lambda message, done, total: progress("hybrid", done, total))
             result["hybrid"] = HybridBlender(sources, tree, corrections, cyclic=True).blend(w, 0.0)
             progress("hybrid", 1, 1)
     progress("write", 0, 1)

@@ -253,19 +253,33 @@ def load_sources(directories, *, fps, cyclic, progress=None, log=None):
 
 
 def choose_rest(clips, faces, rest_path, template):
-    """(rest vertices, note): the given rest mesh (it must match the sources), else the dataset's
-    ``template`` when it matches, else the first source's first frame."""
+    """(rest vertices, note, heading turn): the given rest mesh (it must match the sources), else
+    the dataset's ``template`` when it matches, else the first source's first frame. The turn
+    (radians, or None) is the capture's own when the rest is an aligned capture's template
+    (``capture_heading_turn``)."""
     rest = clips[0].vertices[0]
     for path, strict in ((rest_path, True), (template, False)):
         if path is None or (not strict and not Path(path).is_file()):
             continue
         mesh = read_mesh(path)
         if mesh.vertices.shape == clips[0].vertices.shape[1:] and np.array_equal(mesh.faces, faces):
-            return mesh.vertices, f"resting on {path}"
+            return mesh.vertices, f"resting on {path}", capture_heading_turn(path)
         if strict:
             raise ValueError(f"{path}: the rest mesh must have the sources' vertices and faces")
-        return rest, f"{path} does not match the sources' mesh; resting on the first frame"
-    return rest, "resting on the first frame"
+        return rest, f"{path} does not match the sources' mesh; resting on the first frame", None
+    return rest, "resting on the first frame", None
+
+
+def capture_heading_turn(rest_path):
+    """The heading turn (radians) an aligned capture recorded for its rest, when ``rest_path`` is
+    that capture's ``template/body.obj`` (its manifest's ``body.heading_turn_deg``, written by
+    ``align``); else None, and the space takes its own sources' travel."""
+    path = Path(rest_path)
+    if path.name != "body.obj" or path.parent.name != "template":
+        return None
+    body = _json_record(path.parent.parent / "manifest.json", "body")
+    turn = body.get("heading_turn_deg") if isinstance(body, dict) else None
+    return float(np.radians(turn)) if isinstance(turn, (int, float)) and np.isfinite(turn) else None
 
 
 def _json_record(path, key=None):
@@ -343,10 +357,13 @@ def run(args):
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
 
     clips, faces = load_sources(directories, fps=args.fps, cyclic=args.cyclic)
-    rest, rest_note = choose_rest(clips, faces, rest_path, Path(directories[0]).parent.parent / "template" / "body.obj")
+    rest, rest_note, turn = choose_rest(clips, faces, rest_path,
+                                        Path(directories[0]).parent.parent / "template" / "body.obj")
     clips, rest, conventions = sources_to_metres(clips, rest, directories, args.units, args.up)
     say = lambda line: print(f"morphspace build: {line}", file=sys.stderr)  # noqa: E731
     say(f"rest shape: {rest_note}")
+    if turn is not None:
+        say(f"heading 0: the aligned capture's travel, {np.degrees(turn):+.1f} degrees from the rest's facing")
     say_conventions(conventions, [clip.name for clip in clips] + ["the rest shape"], say, what="source")
     bars = StageBars()
     started = time.perf_counter()
@@ -354,7 +371,7 @@ def run(args):
                                 epsilon=epsilon_mm / 1000.0, rest=rest, parameters=spec["parameters"],
                                 metadata=source_metadata([clip.name for clip in clips], conventions[:-1],
                                                          conventions[-1]),
-                                progress=bars)
+                                progress=bars, heading_turn=turn)
     bars.close()
     hybrid = report["hybrid"]
     print(f"wrote {out}: {report['n_sources']} sources x {report['n_phases']} phases, "

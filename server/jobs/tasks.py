@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import json
+import math
 import os
 import shutil
 import time
@@ -203,11 +204,13 @@ def run_build(payload, reporter, runner=None):
     try:
         clips, faces = load_sources(spec["directories"], fps=30.0, cyclic=False, progress=reporter.progress,
                                     log=reporter.log)
-        rest, note = choose_rest(clips, faces, spec["rest"], dataset_dir / "template" / "body.obj")
+        rest, note, turn = choose_rest(clips, faces, spec["rest"], dataset_dir / "template" / "body.obj")
         clips, rest, conventions = sources_to_metres(clips, rest, spec["directories"])  # units and up: auto
     except ValueError as exc:
         raise JobError(str(exc).replace(str(dataset_dir) + "/", "")) from None
     reporter.log(note.replace(str(dataset_dir) + "/", ""))
+    if turn is not None:
+        reporter.log(f"heading 0: the aligned capture's travel, {math.degrees(turn):+.1f} degrees from the rest's facing")
     say_conventions(conventions, [clip.name for clip in clips] + ["the rest shape"], reporter.log, what="source")
     out = staging / f"{params['space']}.mspace"
     epsilon_mm = spec["epsilon_mm"] or 5.0
@@ -215,7 +218,7 @@ def run_build(payload, reporter, runner=None):
                                 epsilon=epsilon_mm / 1000.0, rest=rest, parameters=spec["parameters"],
                                 metadata=source_metadata([clip.name for clip in clips], conventions[:-1],
                                                          conventions[-1]),
-                                progress=reporter.progress, runner=runner)
+                                progress=reporter.progress, runner=runner, heading_turn=turn)
     reporter.progress("write", 1, 1)
     hybrid = report["hybrid"]
     reporter.log(f"built {params['space']}: {report['n_sources']} sources x {report['n_phases']} phases, "

@@ -125,9 +125,15 @@ def test_the_hybrid_reports_every_cell_tested_and_every_pruning_check(space3):
     """The bisection's progress moves on every cell it tests, not only on splits: a build whose
     references hit their cap tested cells for minutes with its bar standing still."""
     sources, linear, nonlinear = space3
-    messages = []
+    calls = []
     _, _, report = build_hybrid(linear.blend_all_phases, nonlinear.blend_all_phases, 3, P, sources.shape[2],
-                                epsilon=0.008, progress=messages.append)
+                                epsilon=0.008, progress=lambda *call: calls.append(call))
+    messages = [message for message, _, _ in calls]
+    done = [d for _, d, _ in calls]
+    totals = [t for _, _, t in calls]
+    assert done == list(range(1, len(calls) + 1))   # one step a call, on one bar
+    assert all(d <= t for d, t in zip(done, totals)) and totals[-1] == done[-1]   # a total that grows to the end
+    assert max(totals[:-1]) > totals[0]   # the bisection found more cells than the first
     splits = [m for m in messages if m.startswith("split cell")]
     kept = [m for m in messages if " kept " in m]
     pruning = [m for m in messages if m.startswith("pruning")]
@@ -138,7 +144,7 @@ def test_the_hybrid_reports_every_cell_tested_and_every_pruning_check(space3):
     # with the cap reached at once, no cell splits and every test still shows
     messages.clear()
     _, _, capped = build_hybrid(linear.blend_all_phases, nonlinear.blend_all_phases, 3, P, sources.shape[2],
-                                epsilon=0.008, max_references=0, progress=messages.append)
+                                epsilon=0.008, max_references=0, progress=lambda m, d, t: messages.append(m))
     assert capped.references == 0 and any(" kept " in m for m in messages)
 
 

@@ -92,6 +92,31 @@ def test_a_rest_facing_off_the_travel_does_not_make_the_space_walk_sideways(body
     assert np.abs(travel(prepared)).max() < 1.0, travel(prepared)
 
 
+def test_a_capture_travels_one_way_for_all_its_spaces(body):
+    """An aligned capture's heading 0 is taken once from all its takes (``capture_travel_turn``):
+    the walks say where forward is, a take standing still says nothing, and a space whose sources
+    do not travel (a reach) is given it, so spaces built on one rest face one way."""
+    from engine.motion_space.roots import capture_travel_turn
+    from engine.rotations import rot_y
+
+    centre = body.V.mean(axis=0)
+    turned = (body.V - centre) @ rot_y(np.radians(6.0)).T + centre   # a root frame facing 6 degrees off the walk
+    takes = []
+    for speed in (1.0, 1.8):
+        motion = gait(body.skeleton, speed, cycles=2.0)
+        takes.append(SourceClip(f"walk {speed}", animate(body, motion), motion.fps, True))
+    standing = SourceClip("stand", np.repeat(body.V[None], 12, axis=0), 30.0, False)
+    short = SourceClip("short", takes[0].vertices[:5], 30.0, True)   # no whole cycle: says nothing
+    turn = capture_travel_turn(takes + [standing, short], body.F, turned, body.size)
+    assert np.degrees(turn) == pytest.approx(6.0, abs=1.0)
+    assert capture_travel_turn([standing, short], body.F, turned, body.size) == 0.0
+    standing = standing.vertices
+    # a space of two takes that do not travel: its own sources say nothing, the capture's turn is taken
+    still = [SourceClip(name, standing + [0.0, 0.01 * k, 0.0], 30.0, False) for k, name in enumerate("ab")]
+    assert prepare_sources(still, body.F, turned, 8).heading_turn == 0.0
+    assert prepare_sources(still, body.F, turned, 8, heading_turn=turn).heading_turn == turn
+
+
 def test_clip_too_short_for_its_cycle_is_refused(body):
     V = np.repeat(body.V[None], 10, axis=0)
     with pytest.raises(ValueError, match="do not hold a whole cycle"):

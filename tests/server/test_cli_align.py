@@ -116,6 +116,19 @@ def test_morphspace_build_reads_the_aligned_output(aligned, tmp_path):
     with MotionSpace.open(space) as loaded:
         np.testing.assert_array_equal(loaded.faces, template.faces)
         assert list(loaded.source_names) == ["walk", "jog"]
+        own = loaded.metadata["heading_turn_deg"]   # no manifest beside the template: the sources' travel
+    # With the capture's manifest, heading 0 is the whole capture's travel (align's body.heading_turn_deg),
+    # so every space built on its rest shares it, whatever its own sources do; here a value set by hand.
+    manifest = json.loads((aligned / "manifest.json").read_text())
+    assert abs(manifest["body"]["heading_turn_deg"]) < 30.0
+    manifest["body"]["heading_turn_deg"] = own + 7.5
+    (tmp_path / "aligned" / "manifest.json").write_text(json.dumps(manifest))
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        assert main(["build", *sources, "--out", str(space), "--phases", "3", "--force"]) == 0
+    assert f"heading 0: the aligned capture's travel, {own + 7.5:+.1f} degrees from the rest's facing" in err.getvalue()
+    with MotionSpace.open(space) as loaded:
+        assert loaded.metadata["heading_turn_deg"] == pytest.approx(own + 7.5, abs=1e-5)
 
 
 def test_align_writes_a_dataset_that_build_and_read_sequence_accept(dataset, aligned):
