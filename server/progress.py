@@ -25,8 +25,11 @@ class StageBars:
                             file=sys.stderr, leave=self.leave)
         if total:
             self.bar.total = total
-        self.bar.n = done
-        self.bar.refresh()
+        if done >= self.bar.n:
+            self.bar.update(done - self.bar.n)  # redrawn at most every mininterval (logs stay short)
+        else:
+            self.bar.n = done
+            self.bar.refresh()
 
     def close(self):
         if self.bar is not None:
