@@ -1,7 +1,7 @@
 """Stanford PLY: reading (ascii, binary little and big endian) and writing.
 
 Read: vertex ``x y z`` of any numeric type, optional ``red green blue`` (integer types scaled by
-their maximum, so uchar / 255; float types taken as they are), and the face element's
+their maximum, so uchar / 255; float types as they are, or / 255 when a value is above 1), and the face element's
 ``vertex_indices`` (or ``vertex_index``) list with any count and index types; polygons are
 fan-triangulated. Without vertex colours, a texture named in the header is baked per vertex
 (``ply_texture``). Other elements and properties are skipped. The element rows are read in
@@ -209,7 +209,7 @@ def _mesh_from_elements(values, elements, source):
             kind = vertex_types[channel].dtype
             scale = float(np.iinfo(kind).max) if kind.kind in "iu" else 1.0
             channels.append(np.asarray(vertex[channel], dtype=np.float64) / scale)
-        colors = np.stack(channels, axis=1)
+        colors = _float_colours_in_range(np.stack(channels, axis=1), source)
 
     F = np.empty((0, 3), dtype=np.int64)
     if "face" in values:
@@ -243,6 +243,19 @@ def _faces_from_lists(items, counts, n_vertices, source):
             f"but the mesh has {n_vertices} vertices"
         )
     return fan_triangulate(indices, counts)
+
+
+def _float_colours_in_range(colors, source):
+    """Colours in [0, 1]: float values above 1 are taken as 0-255 (as OBJ and COFF colours are);
+    a value below 0, above 255 or not finite is refused, naming the vertex and the channel."""
+    bad = ~np.isfinite(colors) | (colors < 0) | (colors > 255)
+    if bad.any():
+        vertex, channel = (int(i) for i in np.argwhere(bad)[0])
+        raise MeshFormatError(
+            f"{source}: vertex {vertex} has {('red', 'green', 'blue')[channel]} {colors[vertex, channel]:g}: vertex "
+            f"colours must be within [0, 1] or 0-255"
+        )
+    return colors / 255.0 if len(colors) and colors.max() > 1 else colors
 
 
 def write_ply(path, V, F, colors=None, binary=True, dtype=np.float32):

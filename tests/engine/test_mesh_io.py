@@ -332,6 +332,27 @@ l 1 2
     np.testing.assert_allclose(coloured.colors, [[1, 0, 0], [0, 1, 0], [0, 0, 0.2]], atol=1e-7)
 
 
+def _float_colour_ply(rows):
+    header = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n"
+              "property float red\nproperty float green\nproperty float blue\nelement face 1\n"
+              "property list uchar int vertex_indices\nend_header\n")
+    corners = ("0 0 0", "1 0 0", "0 1 0")
+    return (header + "".join(f"{p} {r} {g} {b}\n" for p, (r, g, b) in zip(corners, rows)) + "3 0 1 2\n").encode()
+
+
+def test_ply_float_colours_in_0_255_are_read_as_obj_and_coff_colours_are():
+    """A float red of 200 was refused ("colours must be within [0, 1]") where OBJ and COFF read 0-255."""
+    mesh = read_mesh(_float_colour_ply([(200, 100, 51), (0, 255, 0), (0, 0, 0)]), name="f.ply")
+    np.testing.assert_allclose(mesh.colors, [[200 / 255, 100 / 255, 0.2], [0, 1, 0], [0, 0, 0]], atol=1e-6)
+    unit = read_mesh(_float_colour_ply([(0.5, 0.25, 1), (0, 1, 0), (0, 0, 0)]), name="u.ply")
+    np.testing.assert_allclose(unit.colors[0], [0.5, 0.25, 1.0])
+    with pytest.raises(MeshFormatError, match=r"^n\.ply: vertex 1 has green -3: vertex colours must be within "
+                                              r"\[0, 1\] or 0-255"):
+        read_mesh(_float_colour_ply([(0.5, 0.25, 1), (0, -3, 0), (0, 0, 0)]), name="n.ply")
+    with pytest.raises(MeshFormatError, match=r"^b\.ply: vertex 2 has blue 300"):
+        read_mesh(_float_colour_ply([(0.5, 0.25, 1), (0, 1, 0), (0, 0, 300)]), name="b.ply")
+
+
 def test_ply_extra_elements_and_properties_are_skipped():
     header = b"""ply
 format binary_little_endian 1.0
