@@ -528,6 +528,14 @@ def write_alignment(out, sequences, meshes, lengths, result, *, fps, options_rec
     })
 
 
+def root_vertices_text(kept, captured):
+    """The root mesh's vertex count, and what was left out of its captured frame (``main_components``)."""
+    if kept == captured:
+        return f"{kept} vertices"
+    return (f"{kept} of its frame's {captured} vertices: {captured - kept} left out (floating pieces, vertices "
+            f"welded to a twin at the same place, vertices no face uses)")
+
+
 def _file_name(source):
     """The file a frame came from, from its ``Mesh.source``: a file's name in a directory, or a zip
     member's whole path (``take1/frame_0003.obj``: one zip may hold several folders' frames)."""
@@ -632,7 +640,7 @@ def run(args):
     print(f"aligned {count_text(frames, 'frame')} of {count_text(len(sequences), 'sequence')} "
           f"to {out} in {time.perf_counter() - started:.1f} s "
           f"({result.method}, root {frame_label(aligned.root, sequences, lengths)} = frame {aligned.root}, "
-          f"{len(aligned.root_vertices)} vertices)")
+          f"{root_vertices_text(len(aligned.root_vertices), len(meshes[aligned.root].vertices))})")
     print(f"  similarity {t['similarity']:.1f} s, tree {t['tree']:.2f} s (depth {int(result.tree.depth.max())}, "
           + ("the pruned graph in one piece), " if result.tree.components == 1 else
              f"{result.tree.components} pieces of the pruned graph reconnected), ")

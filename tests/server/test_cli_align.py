@@ -834,3 +834,25 @@ def test_a_sequence_with_consistent_frames_only_is_read_from_them(tmp_path):
     assert entry["frames"] == sequence / "consistent"
     (sequence / "unstructured").mkdir()  # re-meshed frames, where there are any, come first
     assert resolve_inputs([sequence])[0]["frames"] == sequence / "unstructured"
+
+
+def test_the_summary_says_what_the_root_mesh_left_out_of_its_frame(dataset, tmp_path, capsys):
+    """The root mesh leaves out its frame's floating pieces (and welded twins, unused vertices): the
+    summary gives both counts, so a template smaller than the frame named as root is explained."""
+    frames = tmp_path / "walk"
+    frames.mkdir()
+    for path in sorted((dataset / "sequences" / "walk" / "unstructured").iterdir()):
+        mesh = read_mesh(path)
+        blob = np.array([[0, 0, 0], [0.02, 0, 0], [0, 0.02, 0], [0, 0, 0.02]]) + [0.6, 1.0, 0.0]   # beside the body
+        V = np.concatenate([mesh.vertices, blob])
+        n = len(mesh.vertices)
+        F = np.concatenate([mesh.faces, n + np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])])
+        write_obj(frames / f"{path.stem}.obj", V, F)
+    out = tmp_path / "out"
+    assert main(["align", str(frames), "--out", str(out), "--workers", "1", "--levels", "3", "--root", "1",
+                 "--colors", "off"]) == 0
+    captured = len(read_mesh(frames / "frame_0001.obj").vertices)
+    kept = len(read_mesh(out / "template" / "body.obj").vertices)
+    assert kept <= captured - 4
+    assert (f"root walk:1 = frame 1, {kept} of its frame's {captured} vertices: {captured - kept} left out (floating "
+            f"pieces, vertices welded to a twin at the same place, vertices no face uses)") in capsys.readouterr().out
