@@ -326,11 +326,16 @@ def mixed_names_text(names, shown=6):
     if len(stems) < 2:
         return None
     spelled = [next(repr(stem) for stem, _, _ in runs if stem.casefold() == folded) for folded in stems]
+    listed = (f"names {', '.join(spelled[:-1])} and {spelled[-1]}" if len(spelled) <= 4 else
+              f"{len(spelled)} names ({spelled[0]}, {spelled[1]}, ..., {spelled[-1]})")
+    if len(runs) == len(names) and len(spelled) == len(names):  # no two files share a name: nothing is numbered
+        order = [f"{name} as frame {k}" for k, name in enumerate(names)]
+        order = order if len(order) <= 3 else order[:2] + ["...", order[-1]]
+        return f"the frame files have {len(names)} different names, taken in natural order: " + ", ".join(order)
     parts = [f"{names[first]} as frame {first}" if first == last
              else f"{names[first]} to {names[last]} as frames {first}-{last}" for _, first, last in runs[:shown]]
     more = f", ... ({len(runs)} runs in all)" if len(runs) > shown else ""
-    return (f"the frame files mix names {', '.join(spelled[:-1])} and {spelled[-1]}, taken in natural order: "
-            + ", then ".join(parts) + more)
+    return f"the frame files mix {listed}, taken in natural order: " + ", then ".join(parts) + more
 
 
 def convert_inputs(meshes, sequences, lengths, units="auto", up="auto", *, say=None):

@@ -201,6 +201,14 @@ def test_a_frame_in_a_format_not_read_is_named_and_left_out(dataset, tmp_path):
     assert ("warning: take: the frame files mix names 'frame_' and 'take_', taken in natural order: frame_0000.ply "
             "to frame_0001.ply as frames 0-1, then take_0002.ply as frame 2\n") in err
     assert "take: no meta.json gives the frame rate; written as 30 frames/s (say --fps)" in err
+    # frames named each by a word: one short line, not a list of every name (a docs-only trial's ten names)
+    from server.commands.align import mixed_names_text
+
+    words = [f"{word}.obj" for word in ("alpha", "bravo", "charlie", "delta", "echo", "juliet")]
+    assert mixed_names_text(words) == ("the frame files have 6 different names, taken in natural order: alpha.obj as "
+                                       "frame 0, bravo.obj as frame 1, ..., juliet.obj as frame 5")
+    assert mixed_names_text(["a_1.obj", "b_1.obj", "c_1.obj", "d_1.obj", "e_1.obj", "e_2.obj"]).startswith(
+        "the frame files mix 5 names ('a_', 'b_', ..., 'e_'), taken in natural order: a_1.obj as frame 0, then ")
     meta = json.loads((tmp_path / "out" / "sequences" / "take" / "meta.json").read_text())
     assert meta["alignment"]["source_files"] == sorted(p.name for p in frames.iterdir() if p.suffix != ".stl")
     assert meta["fps"] == 30
