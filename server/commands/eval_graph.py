@@ -55,7 +55,7 @@ def run(args):
     if args.requests < 1:
         raise ValueError(f"--requests must be at least 1, got {args.requests}")
     if not (math.isfinite(args.fps) and args.fps > 0):
-        raise ValueError(f"--fps must be a positive number of frames per second, got {args.fps:g}")
+        raise ValueError(f"--fps must be a finite positive number of frames per second, got {args.fps:g}")
     if args.latency_weight is not None and not (math.isfinite(args.latency_weight) and args.latency_weight >= 0):
         raise ValueError(f"--latency-weight must be a number from 0 (cost per second of latency), "
                          f"got {args.latency_weight:g}")

@@ -19,6 +19,7 @@ A motion graph (``.mgraph``) exports a recorded performance (server/commands/exp
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import sys
@@ -31,6 +32,7 @@ from engine.export.sequence import MESH_SUFFIXES
 from engine.motion_space import MotionSpace
 from engine.player import SMOOTHING
 from server.commands.play import _assignments, check_clock, scripted
+from server.units import count_text
 
 SUFFIXES = {".glb": "glb", ".usd": "usd", ".usdc": "usd", ".usda": "usd"}
 
@@ -54,13 +56,14 @@ def add_arguments(parser):
     parser.add_argument("--track", type=Path, help='JSON {"params": {...}, "track": [{"time": T, "params": {...}}]}')
     parser.add_argument("--seconds", type=float, help="clip length (default 10 s; a scripted graph "
                                                        "performance: 4 s after the last request)")
-    parser.add_argument("--fps", type=float, default=60.0, help="frames per second (default 60)")
-    parser.add_argument("--mode", choices=("linear", "hybrid", "nonlinear"), default="hybrid")
+    parser.add_argument("--fps", type=float, help="frames per second (default 60; a recording has its own)")
+    parser.add_argument("--mode", choices=("linear", "hybrid", "nonlinear"),
+                        help="blend mode (default hybrid; a recording has its own)")
     parser.add_argument("--smoothing", type=float, help="a space: parameter time constant, s (default 0.25)")
-    parser.add_argument("--precision", choices=PRECISIONS, default="int16",
-                        help="glTF vertex storage (default int16, KHR_mesh_quantization; float32: exact)")
-    parser.add_argument("--interpolation", choices=INTERPOLATIONS, default="LINEAR",
-                        help="glTF weights sampling between frames (default LINEAR)")
+    parser.add_argument("--precision", choices=PRECISIONS,
+                        help="glb only: vertex storage (default int16, KHR_mesh_quantization; float32: exact)")
+    parser.add_argument("--interpolation", choices=INTERPOLATIONS,
+                        help="glb only: weights sampling between frames (default LINEAR)")
     parser.add_argument("--force", action="store_true", help="replace an existing --out file")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -79,9 +82,69 @@ def output_format(out, chosen):
     if chosen in ("obj", "ply", "vat") and (inferred is not None or out.suffix.lower() in FRAME_SUFFIXES):
         # (frame_0000.obj would become a directory of that name, holding the frames)
         article = "an" if chosen == "obj" else "a"
-        raise ValueError(f"--out {out}: {article} {chosen} export is a directory or a .zip file, not a file of its "
-                         f"({out.suffix}); give the directory to write it into")
+        raise ValueError(f"--out {out}: {article} {chosen} export is a directory or a .zip file, not a {out.suffix} "
+                         f"file; give the directory to write it into")
     return chosen
+
+
+def check_export_options(args, fmt):
+    """Fill in the defaults of ``--fps``, ``--mode``, ``--precision`` and ``--interpolation``, refusing
+    each where it would be ignored: the glTF options for other formats, the clock and mode with a
+    recording (which has its own), as ``--seconds`` is refused there."""
+    for option, value in (("--precision", args.precision), ("--interpolation", args.interpolation)):
+        if value is not None and fmt != "glb":
+            raise ValueError(f"{option} is for glb exports; a {fmt} export has no such choice")
+    if getattr(args, "recording", None):
+        for option, value in (("--fps", args.fps), ("--mode", args.mode)):
+            if value is not None:
+                raise ValueError(f"{option}: --recording replays a recorded performance at its own frame rate and "
+                                 f"blend mode; leave {option} out")
+    args.precision = args.precision or "int16"
+    args.interpolation = args.interpolation or "LINEAR"
+    args.fps = 60.0 if args.fps is None else args.fps
+    args.mode = args.mode or "hybrid"
+
+
+def check_export_path(out, fmt):
+    """Refuse an ``--out`` that cannot be written, before anything is played: a file export
+    (glb, usd, a .zip) that names a directory, or a path under a file."""
+    if out.is_dir() and (fmt in ("glb", "usd") or out.suffix.lower() == ".zip"):
+        raise ValueError(f"--out {out} is a directory; a {fmt} export{' to a .zip' if fmt not in ('glb', 'usd') else ''} "
+                         f"is a file")
+    for parent in out.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise ValueError(f"--out {out}: {parent} is a file, not a directory")
+            break
+
+
+def read_json_option(path, option):
+    """The JSON document in the file ``option`` names, or a ValueError naming the option and the file."""
+    try:
+        text = Path(path).read_bytes().decode("utf-8")
+    except FileNotFoundError:
+        raise ValueError(f"{option} {path}: no such file") from None
+    except IsADirectoryError:
+        raise ValueError(f"{option} {path}: is a directory, not a JSON file") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{option} {path}: not a JSON text file (it is not UTF-8 text)") from None
+    except OSError as exc:
+        raise ValueError(f"{option} {path}: cannot read it ({exc.strerror or exc})") from None
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{option} {path}: not JSON ({exc})") from None
+
+
+@contextlib.contextmanager
+def writing(out):
+    """OS errors while the export is written, as one line naming ``--out`` (not the temporary file's name)."""
+    try:
+        yield
+    except OSError as exc:
+        if str(exc).startswith("cannot write "):  # the writers' own (engine.mesh_io.atomic, engine.export.usd)
+            raise ValueError(str(exc)) from None
+        raise ValueError(f"cannot write {out}: {exc.strerror or exc}") from None
 
 
 FRAME_SUFFIXES = (".obj", ".ply", ".png", ".json")  # names of the files a directory export holds
@@ -90,11 +153,7 @@ FRAME_SUFFIXES = (".obj", ".ply", ".png", ".json")  # names of the files a direc
 def clip_from_arguments(args, names):
     params, track = {}, []
     if args.track:
-        try:
-            document = json.loads(args.track.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"--track {args.track}: not JSON ({exc})") from None
-        params, track = parse_track(document, str(args.track))
+        params, track = parse_track(read_json_option(args.track, "--track"), str(args.track))
     params.update(_assignments(args.set, names))
     track.extend(scripted(args.at, names))
     return Clip(params=params, track=tuple(track), duration=10.0 if args.seconds is None else args.seconds,
@@ -146,16 +205,18 @@ def replace_export(out, force):
     other = sorted(p.name for p in out.iterdir() if p.is_file() and p.suffix.lower() in MESH_SUFFIXES
                    and not EXPORT_FILES.fullmatch(p.name))
     if other:
-        raise ValueError(f"{out}: holds {len(other)} mesh files no export wrote (e.g. {other[0]}); nothing was "
-                         f"removed; export into an empty directory")
+        raise ValueError(f"{out}: holds {count_text(len(other), 'mesh file')} no export wrote (e.g. {other[0]}); nothing "
+                         f"was removed; export into an empty directory")
     clear_export(out)
 
 
 def run(args):
     fmt = output_format(args.out, args.format)
+    check_export_options(args, fmt)
     check_clock(args.fps, args.seconds)  # named by their options (the clip's own check said "duration", "rate")
     if args.out.exists() and not args.force:
         raise ValueError(f"--out {args.out} exists; pass --force to replace it")
+    check_export_path(args.out, fmt)
     if args.space.suffix == ".mgraph":
         from server.commands.export_graph import run_graph
 
@@ -176,13 +237,14 @@ def run(args):
     try:
         frames = play_clip(space, clip, progress=bar.stage("play", clip.n_frames))
         played = time.perf_counter()
-        replace_export(args.out, args.force)
-        stats = write_export(args.out, frames, fmt, progress=bar.stage("write", clip.n_frames),
-                             precision=args.precision, interpolation=args.interpolation)
+        with writing(args.out):
+            replace_export(args.out, args.force)
+            stats = write_export(args.out, frames, fmt, progress=bar.stage("write", clip.n_frames),
+                                 precision=args.precision, interpolation=args.interpolation)
     finally:
         bar.close()
     done = time.perf_counter()
-    print(f"{space.name}: {len(frames)} frames ({clip.duration:g} s at {clip.rate:g} frames/s, {clip.mode}) -> "
+    print(f"{space.name}: {count_text(len(frames), 'frame')} ({clip.duration:g} s at {clip.rate:g} frames/s, {clip.mode}) -> "
           f"{args.out} ({fmt}, {stats['bytes'] / 1e6:.2f} MB); played in {played - started:.2f} s, written in "
           f"{done - played:.2f} s")
     if fmt == "glb":

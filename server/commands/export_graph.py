@@ -9,13 +9,13 @@ by the graph player (engine.export.performance) and written as a clip of a space
 
 from __future__ import annotations
 
-import json
 import time
 
 from engine.export import ClipError, check_performance, play_performance, scripted_recording, write_export
 from engine.graph import GraphError, MotionGraph
 from server.commands.play import at_time
 from server.commands.play_graph import node_assignments
+from server.units import count_text
 
 
 def recording_from_arguments(args, graph):
@@ -24,10 +24,9 @@ def recording_from_arguments(args, graph):
         if args.at or args.set or args.start or args.seconds is not None or args.track:
             raise ValueError("--recording replays a recorded performance; --start, --set, --at, --seconds and "
                              "--track script one instead (give one or the other)")
-        try:
-            return json.loads(args.recording.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"--recording {args.recording}: not JSON ({exc})") from None
+        from server.commands.export import read_json_option
+
+        return read_json_option(args.recording, "--recording")
     if args.track:
         raise ValueError("--track is for motion spaces; script a graph with --at T NODE [NAME=VALUE ...]")
     try:
@@ -45,6 +44,7 @@ def recording_from_arguments(args, graph):
             raise ValueError(f"--at {' '.join(entry)}: {exc}") from None
         values, budget = node_assignments(entry[2:], node)
         requests.append({"time": at_time(entry), "node": node.name, "params": values, "budget": budget})
+    requests.sort(key=lambda request: request["time"])  # given in any order, as play takes them; ties keep theirs
     return scripted_recording(graph, start=start.name, params=params, requests=requests, fps=args.fps,
                               seconds=args.seconds, mode=args.mode)
 
@@ -67,15 +67,16 @@ def run_graph(args, fmt, bar):
         except ClipError as exc:
             raise ValueError(f"{source}: {exc}") from None
         played = time.perf_counter()
-        from server.commands.export import replace_export
+        from server.commands.export import replace_export, writing
 
-        replace_export(args.out, args.force)
-        stats = write_export(args.out, frames, fmt, progress=bar.stage("write", len(frames)),
-                             precision=args.precision, interpolation=args.interpolation)
+        with writing(args.out):
+            replace_export(args.out, args.force)
+            stats = write_export(args.out, frames, fmt, progress=bar.stage("write", len(frames)),
+                                 precision=args.precision, interpolation=args.interpolation)
         bar.close()
         done = time.perf_counter()
     seconds = float(frames.times[-1])
-    print(f"{graph.name}: {len(frames)} frames ({seconds:g} s, {document['mode']}, nodes "
+    print(f"{graph.name}: {count_text(len(frames), 'frame')} ({seconds:g} s, {document['mode']}, nodes "
           f"{' -> '.join(_runs(frames.nodes))}) -> {args.out} ({fmt}, {stats['bytes'] / 1e6:.2f} MB); played in "
           f"{played - started:.2f} s, written in {done - played:.2f} s")
     if fmt == "glb":

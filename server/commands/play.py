@@ -90,9 +90,9 @@ def at_time(entry):
 def check_clock(fps, seconds):
     """``--fps`` and ``--seconds`` (None: the default) finite and positive, named by their options."""
     if not (math.isfinite(fps) and fps > 0):
-        raise ValueError(f"--fps must be a positive number of frames per second, got {fps:g}")
+        raise ValueError(f"--fps must be a finite positive number of frames per second, got {fps:g}")
     if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
-        raise ValueError(f"--seconds must be a positive number, got {seconds:g}")
+        raise ValueError(f"--seconds must be a finite positive number of seconds, got {seconds:g}")
 
 
 def check_arguments(args, graph=False):

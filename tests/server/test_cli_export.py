@@ -46,19 +46,46 @@ def test_export_writes_glb_usd_and_sequences(built_spaces, tmp_path):
     (["--out", "x.glb", "--at", "12", "speed=1"], "track: time 12.0 is outside the clip [0, 10] s"),
     (["--out", "x.zip"], "cannot tell the format from the name; give --format"),
     (["--out", "x.glb", "--format", "usd"], "a usd export must be a file ending in .usd, .usdc or .usda"),
-    (["--out", "x.glb", "--seconds", "-1"], "--seconds must be a positive number, got -1"),
-    (["--out", "x.glb", "--seconds", "0"], "--seconds must be a positive number, got 0"),
-    (["--out", "x.glb", "--fps", "nan"], "--fps must be a positive number of frames per second, got nan"),
+    (["--out", "x.glb", "--seconds", "-1"], "--seconds must be a finite positive number of seconds, got -1"),
+    (["--out", "x.glb", "--seconds", "0"], "--seconds must be a finite positive number of seconds, got 0"),
+    (["--out", "x.glb", "--fps", "nan"], "--fps must be a finite positive number of frames per second, got nan"),
     # (it made a directory frame_0000.obj holding the frames; found by a docs-only user)
     (["--out", "seq/frame_0000.obj", "--format", "obj"],
-     "an obj export is a directory or a .zip file, not a file of its (.obj); give the directory"),
+     "an obj export is a directory or a .zip file, not a .obj file; give the directory"),
     (["--out", "v.png", "--format", "vat"], "a vat export is a directory or a .zip file"),
+    # options another format would ignore, and unreadable tracks: said, with the option (a docs-only trial)
+    (["--out", "x.usd", "--precision", "float32"], "--precision is for glb exports; a usd export has no such choice"),
+    (["--out", "seq", "--format", "vat", "--interpolation", "STEP"], "--interpolation is for glb exports; a vat"),
+    (["--out", "x.glb", "--track", "nope.json"], "--track nope.json: no such file"),
+    (["--out", "x.glb", "--seconds", "inf"], "--seconds must be a finite positive number of seconds, got inf"),
 ])
 def test_bad_input_is_a_one_line_error(built_spaces, tmp_path, args, message):
     run = export(built_spaces / "speed.mspace", *args, cwd=tmp_path)
     assert run.returncode == 2 and message in run.stderr, run.stderr
     assert run.stderr.count("\n") == 1 and run.stderr.startswith("morphspace export: error:")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_an_output_that_cannot_be_written_is_refused_before_playing(built_spaces, tmp_path):
+    """A file export naming a directory failed only after the whole clip was played and written, with
+    the temporary file's name; a path under a file gave a raw [Errno 17]; a binary --track a codec error."""
+    space = built_spaces / "speed.mspace"
+    (tmp_path / "dir.glb").mkdir()
+    (tmp_path / "plain").write_text("a file")
+    (tmp_path / "track.json").write_bytes(b"\x89PNG\r\n\x1a\n\x00\xff")
+    for args, message in (
+            (["--out", tmp_path / "dir.glb", "--force"], f"--out {tmp_path / 'dir.glb'} is a directory; a glb export is "
+                                                         "a file"),
+            (["--out", tmp_path / "plain" / "sub.glb"], f"--out {tmp_path / 'plain' / 'sub.glb'}: {tmp_path / 'plain'} "
+                                                        "is a file, not a directory"),
+            (["--out", tmp_path / "plain" / "seq", "--format", "obj"], f"{tmp_path / 'plain'} is a file, not a directory"),
+            (["--out", tmp_path / "x.glb", "--track", tmp_path / "track.json"],
+             f"--track {tmp_path / 'track.json'}: not a JSON text file (it is not UTF-8 text)")):
+        run = export(space, *args, "--seconds", 1, cwd=tmp_path)
+        assert run.returncode == 2 and message in run.stderr, run.stderr
+        assert run.stderr.count("\n") == 1 and "play:" not in run.stderr   # refused before anything was played
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["dir.glb", "plain", "track.json"]
+    assert list((tmp_path / "dir.glb").iterdir()) == []
 
 
 def test_an_existing_output_needs_force(built_spaces, tmp_path):
@@ -116,7 +143,7 @@ def test_force_replaces_an_earlier_sequence_export(built_spaces, tmp_path):
     (out / "other.ply").write_text("ply\n")
     before = sorted(p.name for p in out.iterdir())
     run = export(space, "--out", out, "--format", "obj", "--seconds", 0.5, "--force", "--quiet", cwd=tmp_path)
-    assert run.returncode == 2 and "holds 1 mesh files no export wrote (e.g. other.ply); nothing was removed" in run.stderr, \
+    assert run.returncode == 2 and "holds 1 mesh file no export wrote (e.g. other.ply); nothing was removed" in run.stderr, \
         run.stderr
     # the refused --force keeps the earlier export (it removed it first; a docs-only user)
     assert sorted(p.name for p in out.iterdir()) == before

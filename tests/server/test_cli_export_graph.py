@@ -32,6 +32,10 @@ def test_a_recording_and_its_script_export_the_same_bytes_in_every_format(built_
     run = cli("export", graph, *SCRIPT, "--out", tmp_path / "b.glb", "--quiet", cwd=cwd)
     assert run.returncode == 0 and run.stderr == "", run.stderr
     assert (tmp_path / "a.glb").read_bytes() == (tmp_path / "b.glb").read_bytes()
+    # the requests in another order, as play takes them (export refused: "requests must be in frame order")
+    backwards = SCRIPT[4:8] + SCRIPT[:4] + SCRIPT[8:]
+    assert cli("export", graph, *backwards, "--out", tmp_path / "c.glb", "--quiet", cwd=cwd).returncode == 0
+    assert (tmp_path / "c.glb").read_bytes() == (tmp_path / "b.glb").read_bytes()
     run = cli("export", graph, *SCRIPT, "--out", tmp_path / "perf.usda", "--quiet", cwd=cwd)
     assert run.returncode == 0, run.stderr
     assert b"timeCodesPerSecond = 15" in (tmp_path / "perf.usda").read_bytes()
@@ -79,6 +83,11 @@ def test_bad_recordings_are_one_line_errors(built_graph, tmp_path, change, messa
     (["--set", "speed=1", "--start", "stand"], "node 'stand' has no parameter 'speed'; it has no parameters"),
     (["--smoothing", "0.5"], "--smoothing is for motion spaces"),
     (["--recording", "x.json", "--at", "1", "jump"], "--recording replays a recorded performance"),
+    # a recording has its own clock and mode: both were ignored without a word (a docs-only trial)
+    (["--recording", "x.json", "--fps", "30"], "--fps: --recording replays a recorded performance at its own frame "
+                                               "rate and blend mode; leave --fps out"),
+    (["--recording", "x.json", "--mode", "linear"], "--mode: --recording replays a recorded performance"),
+    (["--recording", "x.json"], "--recording x.json: no such file"),
 ])
 def test_bad_scripts_are_one_line_errors(built_graph, tmp_path, args, message):
     run = cli("export", built_graph / "tiny.mgraph", "--out", tmp_path / "x.glb", *args, cwd=tmp_path)

@@ -238,7 +238,7 @@ def test_eval_graph_measures_the_search_and_the_baselines_on_the_same_requests(g
 @pytest.mark.parametrize("argv,message", [
     (["--seeds", "a,b"], "--seeds: expected integers"),
     (["--requests", "0"], "--requests must be at least 1, got 0"),
-    (["--fps", "0"], "--fps must be a positive number of frames per second, got 0"),
+    (["--fps", "0"], "--fps must be a finite positive number of frames per second, got 0"),
     (["--seeds", "-1"], "--seeds: seeds are integers from 0, got '-1'"),
     (["--seeds", "0,0"], "--seeds: seed 0 is given twice"),
     (["--latency-weight", "-1"], "--latency-weight must be a number from 0 (cost per second of latency), got -1"),

@@ -59,11 +59,11 @@ def renamed_space(tmp_path_factory):
 
 
 @pytest.mark.parametrize("argv,message", [
-    (["--seconds", "inf"], "--seconds must be a positive number, got inf"),
-    (["--seconds", "nan"], "--seconds must be a positive number, got nan"),
+    (["--seconds", "inf"], "--seconds must be a finite positive number of seconds, got inf"),
+    (["--seconds", "nan"], "--seconds must be a finite positive number of seconds, got nan"),
     (["--seconds", "1e9"], "--seconds 1e+09 at --fps 60 is 60000000001 frames; at most 100000 per play"),
     (["--fps", "1e9"], "10 s (the default --seconds) at --fps 1e+09 is 10000000001 frames; at most 100000 per play"),
-    (["--fps", "nan"], "--fps must be a positive number of frames per second, got nan"),
+    (["--fps", "nan"], "--fps must be a finite positive number of frames per second, got nan"),
     (["--fps", "1e308", "--seconds", "1e308"], "is more than 100000 frames; at most 100000 per play"),
     (["--at", "nan", "speed=1.2"], "--at nan: the time must be a finite number of seconds >= 0"),
     (["--at", "-1", "speed=1.2"], "--at -1: the time must be a finite number of seconds >= 0"),
@@ -131,7 +131,7 @@ def test_bad_input_of_a_graph_play_is_refused(graph_recording, tmp_path, capsys,
     refused(capsys, ["play", graph, "--seconds", 0.2, "--trail", "t.png"], "--trail is for motion spaces")
     refused(capsys, ["play", graph, "--at", "nan", "jump"], "--at nan: the time must be a finite number")
     refused(capsys, ["play", graph, "--at", "1e300", "jump"], "at most 100000 per play")
-    refused(capsys, ["play", graph, "--fps", "inf"], "--fps must be a positive number")
+    refused(capsys, ["play", graph, "--fps", "inf"], "--fps must be a finite positive number")
     # found by a docs-only user: each was ignored or reordered without a word
     refused(capsys, ["play", graph, "--replay", "unordered.json"],
             "--replay unordered.json: recording: requests must be in frame order; request 1 (frame 1) comes after")
