@@ -282,6 +282,42 @@ def test_example_graph_demo_jumps_on_space_and_reaches_on_r(built_graph, tmp_pat
     assert summary["root"][2] > 0.5  # it walked before jumping: the root left the origin
 
 
+def test_example_graph_demo_quits_with_an_error_on_bad_options_an_unknown_graph_or_no_server(built_graph, tmp_path):
+    """The graph scene ran until killed, with no --out, on an unknown graph or with no server, and a
+    malformed --press stopped its script with a SCRIPT ERROR and hung (a docs-only trial); an unknown
+    key pressed R. Now each quits with status 1 and says why in --out."""
+    import json
+    import socket
+
+    data = data_dir_with_graph(tmp_path / "server data", built_graph)
+    project = tmp_path / "example"
+    shutil.copytree(ROOT / "engine_clients" / "godot", project)
+    with socket.socket() as probe:   # a port nothing listens on
+        probe.bind(("127.0.0.1", 0))
+        silent = f"ws://127.0.0.1:{probe.getsockname()[1]}/v1/stream"
+
+    def scene(name, url, *options):
+        out = tmp_path / f"{name}.json"
+        run = subprocess.run([str(GODOT), "--path", str(project), "res://example/graph_demo.tscn", "--", f"--url={url}",
+                              *options, f"--out={out}"], cwd=tmp_path, env=_godot_env(tmp_path / "home" / name),
+                             capture_output=True, text=True, timeout=90)
+        output = run.stdout + run.stderr
+        assert run.returncode == 1 and out.exists(), output[-3000:]
+        assert "SCRIPT ERROR" not in output and "Parse Error" not in output, output[-3000:]
+        return json.loads(out.read_text())
+
+    with LiveServer(data) as live:
+        unknown = scene("unknown", live.ws_url, "--graph=nope", "--quit-after=3")
+        for press in ("abc", "1:x", "one:space"):
+            bad = scene(f"press {press}", live.ws_url, "--graph=tiny", f"--press={press}", "--quit-after=3")
+            assert [e["code"] for e in bad["errors"]] == ["bad_option"] and bad["visited"] == [], bad
+            assert f"--press={press}: each press is T:space or T:r" in bad["errors"][0]["message"]
+    assert unknown["frames"] == 0 and unknown["errors"][-1]["code"] == "no_frames", unknown
+    assert any("nope" in e["message"] for e in unknown["errors"][:-1]), unknown   # the server's own error first
+    nobody = scene("nobody", silent, "--graph=tiny", "--quit-after=2")
+    assert [e["code"] for e in nobody["errors"]] == ["no_frames"] and nobody["disconnects"], nobody
+
+
 def test_godot_client_reconnects_with_its_parameters(built_spaces, tmp_path):
     """The add-on retries (with a doubling delay) until the server is up, and after a server
     restart reconnects on its own, sending hello again with the parameters it last requested."""

@@ -5,7 +5,9 @@
 #     godot3 --path engine_clients/godot res://example/graph_demo.tscn
 # Options after `--` (the headless test uses them): --url=ws://HOST:PORT/v1/stream, --graph=NAME,
 # --press=T:KEY,T:KEY (press Space or R at T seconds after the first frame, as a player would),
-# --quit-after=S (seconds after the first frame) and --out=FILE (a JSON summary written at the end).
+# --quit-after=S (seconds after the first frame; with no frame by S seconds after the start, the
+# scene quits with status 1 and a "no_frames" error) and --out=FILE (a JSON summary written at the
+# end). A malformed --press (not T:space or T:r) quits at once with status 1 and a "bad_option" error.
 extends Spatial
 
 onready var character = $Character
@@ -23,6 +25,7 @@ var clock = 0.0
 var visited = []          # the nodes the applied frames showed, in order
 var notices = []
 var errors = []
+var disconnects = []      # the reasons the connection dropped (no server, the server closed it)
 
 
 func _ready():
@@ -36,8 +39,17 @@ func _ready():
 		character.graph = options["graph"]
 	for entry in options.get("press", "").split(",", false):
 		var parts = entry.split(":")
+		if parts.size() != 2 or not parts[0].is_valid_float() or not parts[1] in ["space", "r"]:
+			errors.append({"code": "bad_option", "message": "--press=%s: each press is T:space or T:r (T seconds after the first frame), not '%s'" % [options["press"], entry]})
+			call_deferred("_finish", 1)
+			return
 		presses.append([parts[0].to_float(), KEY_SPACE if parts[1] == "space" else KEY_R])
+	if options.has("quit-after") and not options["quit-after"].is_valid_float():
+		errors.append({"code": "bad_option", "message": "--quit-after=%s: not a number of seconds" % options["quit-after"]})
+		call_deferred("_finish", 1)
+		return
 	character.connect("node_changed", self, "_on_node_changed")
+	character.connect("disconnected", self, "_on_disconnected")
 	character.connect("frame_applied", self, "_on_frame")
 	character.connect("notice_received", self, "_on_notice")
 	character.connect("error_received", self, "_on_error")
@@ -72,6 +84,11 @@ func _process(delta):
 	var target = character.global_transform.origin + Vector3(0, 1.0, 0)
 	camera.look_at_from_position(target + Vector3(0, 0.8, 4.0), target, Vector3.UP)
 	if started < 0.0:
+		if options.has("quit-after") and clock >= options["quit-after"].to_float():
+			errors.append({"code": "no_frames", "message": "no frame in %s s from %s (graph %s): %s" % [
+				options["quit-after"], character.url, character.graph,
+				disconnects.back() if not disconnects.empty() else "connected, nothing streamed"]})
+			_finish(1)
 		return
 	while not presses.empty() and clock - started >= presses[0][0]:
 		var key = InputEventKey.new()
@@ -102,19 +119,23 @@ func _on_notice(notice):
 	notices.append(notice)
 
 
+func _on_disconnected(reason, _retry_in):
+	disconnects.append(reason)
+
+
 func _on_error(error):
 	errors.append(error)
 	status.text = "error %s: %s" % [error["code"], error["message"]]
 
 
-func _finish():
+func _finish(status = 0):
 	set_process(false)
 	character.stop()
 	if options.has("out"):
 		var file = File.new()
 		file.open(options["out"], File.WRITE)
 		file.store_string(to_json({"visited": visited, "notices": notices, "errors": errors,
-				"frames": character.frames_applied, "root": [character.transform.origin.x,
+				"disconnects": disconnects, "frames": character.frames_applied, "root": [character.transform.origin.x,
 				character.transform.origin.y, character.transform.origin.z]}))
 		file.close()
-	get_tree().quit(0)
+	get_tree().quit(status)
