@@ -105,6 +105,18 @@ def check_export_options(args, fmt):
     args.mode = args.mode or "hybrid"
 
 
+def check_export_limits(fps, seconds):
+    """``--fps`` and ``--seconds`` within what the REST export takes (``ExportSpec``'s ``rate`` and
+    ``duration``): the CLI writes what the server would."""
+    from server.jobs.models import ExportSpec
+
+    for option, value, field, unit in (("--fps", fps, "rate", "frames per second"),
+                                       ("--seconds", seconds, "duration", "seconds")):
+        top = next(m.le for m in ExportSpec.model_fields[field].metadata if hasattr(m, "le"))
+        if value is not None and value > top:
+            raise ValueError(f"{option} {value:g}: at most {top:g} {unit} (as the REST export's {field!r} takes it)")
+
+
 def check_export_path(out, fmt):
     """Refuse an ``--out`` that cannot be written, before anything is played: a file export
     (glb, usd, a .zip) that names a directory, or a path under a file."""
@@ -214,6 +226,7 @@ def run(args):
     fmt = output_format(args.out, args.format)
     check_export_options(args, fmt)
     check_clock(args.fps, args.seconds)  # named by their options (the clip's own check said "duration", "rate")
+    check_export_limits(args.fps, args.seconds)
     if args.out.exists() and not args.force:
         raise ValueError(f"--out {args.out} exists; pass --force to replace it")
     check_export_path(args.out, fmt)

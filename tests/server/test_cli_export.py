@@ -58,6 +58,9 @@ def test_export_writes_glb_usd_and_sequences(built_spaces, tmp_path):
     (["--out", "seq", "--format", "vat", "--interpolation", "STEP"], "--interpolation is for glb exports; a vat"),
     (["--out", "x.glb", "--track", "nope.json"], "--track nope.json: no such file"),
     (["--out", "x.glb", "--seconds", "inf"], "--seconds must be a finite positive number of seconds, got inf"),
+    (["--out", "x.glb", "--fps", "1000", "--seconds", "0.1"], "--fps 1000: at most 240 frames per second (as the "
+                                                              "REST export's 'rate' takes it)"),
+    (["--out", "x.glb", "--seconds", "4000", "--fps", "1"], "--seconds 4000: at most 3600 seconds"),
 ])
 def test_bad_input_is_a_one_line_error(built_spaces, tmp_path, args, message):
     run = export(built_spaces / "speed.mspace", *args, cwd=tmp_path)
