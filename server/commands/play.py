@@ -7,7 +7,7 @@ frame along the path, like the paper's figs. 7-8) and the frames as OBJ files. E
     morphspace play data/spaces/locomotion.mspace --set speed=1.3 turn_rate=0 \\
         --at 3 speed=2.6 --at 6 turn_rate=40 --seconds 10 --trail path.png
     morphspace play data/spaces/jumps.mspace --set jump_height=0.45 jump_distance=0.8 --json
-    morphspace play data/spaces/demo.mgraph --set speed=1.3 --at 2 jump jump_height=0.45 \
+    morphspace play data/spaces/demo.mgraph --set speed=1.3 --at 2 jump jump_height=0.45 \\
         --at 6 walk speed=1.5 --at 9 reach reach_height=1.8 --record session.json
 
 With a motion graph (.mgraph) each ``--at`` names a node first (server/commands/play_graph.py).

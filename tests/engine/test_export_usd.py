@@ -38,6 +38,10 @@ def test_the_documented_checker_fails_a_bad_file_and_passes_an_export(turning, t
     assert bad.returncode == 1 and "errors" in bad.stdout and "metersPerUnit" in bad.stdout
     ok = subprocess.run([sys.executable, str(script), str(good)], capture_output=True, text=True, timeout=120)
     assert ok.returncode == 0 and ok.stdout.strip() == f"{good}: no errors"
+    missing = subprocess.run([sys.executable, str(script), str(tmp_path / "none.usd")], capture_output=True, text=True,
+                             timeout=120)
+    assert missing.returncode == 1 and missing.stderr == "", missing.stderr   # not a traceback
+    assert missing.stdout.startswith(f"{tmp_path / 'none.usd'}: cannot open it (")
 
 
 @pytest.fixture(scope="module")

@@ -27,7 +27,7 @@ def validation_errors(stage):
 
 
 def main(argv=None):
-    from pxr import Usd
+    from pxr import Tf, Usd
 
     paths = sys.argv[1:] if argv is None else argv
     if not paths:
@@ -35,7 +35,13 @@ def main(argv=None):
         return 2
     failed = False
     for path in paths:
-        stage = Usd.Stage.Open(path)
+        try:
+            stage = Usd.Stage.Open(path)
+        except Tf.ErrorException as exc:  # a missing or unreadable file: USD's error, on one line
+            stage, reason = None, " ".join(str(exc).split()).rsplit(" : ", 1)[-1].strip("'\" ")
+            print(f"{path}: cannot open it ({reason})")
+            failed = True
+            continue
         if stage is None:
             print(f"{path}: not a USD stage usd-core can open")
             failed = True
