@@ -651,9 +651,10 @@ def run(args):
              f"{result.tree.components} pieces of the pruned graph reconnected), ")
           + (f"root trial {t['trial']:.1f} s, " if "trial" in t else "")
           + (f"root race {t['race']:.1f} s, " if "race" in t else "") + f"tetrahedralise {t['tetrahedralize']:.1f} s, "
-          f"alignment {t['align']:.1f} s = {t['align'] / max(frames - 1, 1):.2f} s/frame wall with "
-          f"{args.workers} worker{'s' if args.workers != 1 else ''} ({aligned.seconds.sum() / max(frames - 1, 1):.2f} s, "
-          f"{aligned.cpu_seconds.sum() / max(frames - 1, 1):.2f} CPU s per frame and aligner), repair {t['repair']:.1f} s")
+          + (f"alignment {t['align']:.1f} s = {t['align'] / (frames - 1):.2f} s/frame wall with "
+             f"{args.workers} worker{'s' if args.workers != 1 else ''} ({aligned.seconds.sum() / (frames - 1):.2f} s, "
+             f"{aligned.cpu_seconds.sum() / (frames - 1):.2f} CPU s per frame and aligner)" if frames > 1 else
+             "no alignment (the root is the only frame)") + f", repair {t['repair']:.1f} s")
     size = model_size(aligned.root_vertices)
     confidence = confidence_summary(aligned, sequences, lengths)
     convention = common_convention(conventions)

@@ -864,3 +864,16 @@ def test_the_summary_says_what_the_root_mesh_left_out_of_its_frame(dataset, tmp_
     assert kept <= captured - 4
     assert (f"root walk:1 = frame 1, {kept} of its frame's {captured} vertices: {captured - kept} left out (floating "
             f"pieces, vertices welded to a twin at the same place, vertices no face uses)") in capsys.readouterr().out
+
+
+def test_a_single_frame_is_its_own_root_and_the_summary_says_nothing_was_aligned(dataset, tmp_path, capsys):
+    """One frame is accepted: it is the root, written as it is; the summary gave a time per frame aligned
+    (0.28 s/frame wall) for no frame aligned (a docs-only trial)."""
+    frames = tmp_path / "single"
+    frames.mkdir()
+    first = sorted((dataset / "sequences" / "walk" / "unstructured").iterdir())[0]
+    shutil.copy(first, frames / first.name)
+    assert main(["align", str(frames), "--out", str(tmp_path / "out"), "--workers", "1", "--levels", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "no alignment (the root is the only frame), repair 0.0 s" in out and "s/frame" not in out, out
+    assert read_sequence(tmp_path / "out" / "sequences" / "single" / "consistent").vertices.shape[0] == 1
