@@ -53,7 +53,7 @@ def load_frames(dataset, only, frames, tiny):
                                       fps=15, seed=1)
         meshes = [Mesh(vertices=V, faces=F, colors=None) for V, F, _ in data["unstructured"][:frames]]
         return meshes, np.array([len(meshes)])
-    from server.commands.align import convert_inputs, read_inputs, resolve_inputs
+    from server.commands.align_inputs import convert_inputs, read_inputs, resolve_inputs
 
     sequences = resolve_inputs([dataset], only)
     for entry in sequences:

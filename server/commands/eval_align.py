@@ -22,31 +22,26 @@ import json
 import os
 import sys
 import time
-import zipfile
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
-from engine.align import AlignmentOptions, align_captures, error_summary, pattern_sheet, score_alignment
-from engine.align.breakdown import error_breakdown
-from engine.align.evaluation import part_errors, part_labels
-from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS, rooted_tree
+from engine.align import AlignmentOptions, align_captures, pattern_sheet
+from engine.align.similarity_tree import DEFAULT_TREE, TREE_KINDS
 from engine.align.captures import ROOT_CHOICES
-from engine.align.repair import TRUSTED
-from engine.mesh_io import read_mesh, read_sequence
-from engine.mesh_io.dataset import load_capture_truth, read_capture_manifest
-from engine.mesh_io.errors import MeshFormatError
-from engine.mesh_io.units import UNITS_PER_METRE, resolve_convention, to_metres_y_up
-from engine.surface import model_size
-from server.commands.align import (COLOUR_MODES, Progress, check_job_ranges, check_root_early, check_root_given_once,
-                                   convert_inputs, parse_root, read_inputs, resolve_inputs)
+from engine.mesh_io.dataset import read_capture_manifest
+from server.commands.align import COLOUR_MODES, Progress, check_job_ranges, check_root_given_once
+from server.commands.align_inputs import check_root_early, convert_inputs, parse_root, read_inputs, resolve_inputs
+from server.commands.eval_align_data import (load_aligned, model_size_in_metres, part_vertex_counts, picked_frames,
+                                             read_truth, recorded_alignment, tree_depth, truth_conventions,
+                                             truth_in_metres)
+from server.commands.eval_align_score import FRAME_COLUMNS, PICTURES, csv_rows, frame_labels, score_method
 from server.units import (
     DISPLAY_PER_METRE,
     add_units_arguments,
     common_convention,
     count_text,
-    declared_convention,
     display_unit,
     figure_text,
     say_conventions,
@@ -136,241 +131,6 @@ def _kept_root(text, sequences, counts, picks):
     return int(np.sum(kept[:k]) + at[0])
 
 
-def _truth(dataset, sequences, picks, counts):
-    """Template positions of each sequence's frames (a list, in the files' units and axes) and
-    the template faces. ``picks``: per sequence, the indices of its frames that were kept
-    (``_picked_frames``); ``counts``: its frames in all, which its ground truth must match (a
-    frame missing in the middle would pair every later frame with the wrong truth)."""
-    template = read_mesh(dataset / "template" / "body.obj")
-    parts = []
-    for s, pick, count in zip(sequences, picks, counts):
-        truth = load_capture_truth(dataset, s["name"])
-        where = f"{dataset}/sequences/{s['name']}/truth.npz"
-        positions = truth.get("template_positions")
-        if positions is None:
-            raise MeshFormatError(f"{where}: no template_positions (the true place of every template vertex in "
-                                  "every frame): not a morphspace synth ground truth")
-        if positions.ndim != 3 or positions.shape[1:] != (len(template.vertices), 3):
-            raise MeshFormatError(f"{where}: template_positions has shape {positions.shape}; the template "
-                                  f"(template/body.obj) has {len(template.vertices)} vertices")
-        if not np.isfinite(positions).all():
-            raise MeshFormatError(f"{where}: template_positions holds NaN or infinite values")
-        if len(positions) != count:
-            raise MeshFormatError(f"{dataset}/sequences/{s['name']}/truth.npz: ground truth for {len(positions)} "
-                                  f"frames, the sequence has {count}: frames and truth must match one to one")
-        parts.append(np.asarray(positions[pick], dtype=np.float64))
-    return parts, template.faces
-
-
-def _picked_frames(lengths, every, max_frames):
-    """Per sequence, the frames kept: every ``every``-th from the first, at most ``max_frames``."""
-    return [np.arange(0, n, every)[:max_frames] for n in lengths]
-
-
-def _truth_in_metres(parts, conventions):
-    """The ground truth of all frames (concatenated) in metres, +Y up."""
-    return np.concatenate([to_metres_y_up(P, c.units, c.up) for P, c in zip(parts, conventions)])
-
-
-def _score(method, aligned_vertices, root, root_vertices, truth, faces, size, lengths, names, *, residual=None,
-           residual_max=None, seconds=None, retried=None, cpu_seconds=None, confidence=None, repaired=None,
-           part_counts=None, depth=None, pulled=None, frame_labels=None):
-    errors, summary = score_alignment(aligned_vertices, root, root_vertices, truth, faces, size)
-    frames = len(aligned_vertices)
-    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-    per_sequence = {}
-    for name, start, n in zip(names, starts, lengths):
-        # all frames but the root, as the summary (a sequence of the root alone: the root)
-        picked = [f for f in range(start, start + n) if f != root] or [root]
-        per_sequence[name] = {k: round(v, 3) for k, v in error_summary(errors[picked], size).items()}
-    record = {"method": method, "frames": int(frames), **{k: round(v, 4) for k, v in summary.items()},
-              "per_sequence": per_sequence}
-    if part_counts:  # a studio body: the body and each garment apart
-        record["per_part"] = part_errors(errors, root, root_vertices, truth, faces, part_counts, size)
-    if residual is not None:
-        record["residual_mean_mm"] = round(1000 * float(np.mean(residual)), 3)
-        record["residual_max_mm"] = round(1000 * float(np.max(residual_max)), 2)
-        record["residual_mean_pct"] = round(100 * float(np.mean(residual)) / size, 4)
-        record["residual_max_pct"] = round(100 * float(np.max(residual_max)) / size, 3)
-    if seconds is not None:
-        record["seconds_per_frame"] = round(float(np.sum(seconds)) / max(frames - 1, 1), 3)
-    if cpu_seconds is not None:
-        record["cpu_seconds_per_frame"] = round(float(np.sum(cpu_seconds)) / max(frames - 1, 1), 3)
-    if retried is not None:
-        record["retried_frames"] = int(np.sum(retried))
-    if pulled is not None:  # frames whose kept alignment pulled a limb onto what nothing covered
-        record["pulled_frames"] = int(np.sum(np.asarray(pulled) > 0))
-    frame_mean = errors.mean(axis=1)
-    if confidence is not None:
-        record["repaired_frames"] = int(np.sum(repaired))
-        record["flagged_frames"] = int(np.sum(confidence < TRUSTED))
-        # does the confidence find the bad frames? frames over 3% mean error, and how many are flagged
-        bad = frame_mean > 0.03 * size
-        record["frames_over_3pct"] = int(bad.sum())
-        record["frames_over_3pct_flagged"] = int(np.sum(bad & (confidence < TRUSTED)))
-    record["worst_frame_mean_mm"] = round(1000 * float(frame_mean.max()), 2)
-    record["worst_frame_mean_pct"] = round(100 * float(frame_mean.max()) / size, 3)
-    if len(errors) > 1:  # where the error lies (engine.align.breakdown)
-        labels = names_of_parts = None
-        if part_counts:
-            labels = part_labels(root_vertices, truth[root], faces, part_counts)
-            names_of_parts = list(part_counts)
-        breakdown = error_breakdown(errors, root, size, labels=labels, names=names_of_parts, depth=depth,
-                                    confidence=confidence, trusted=TRUSTED)
-        breakdown.pop("mean_pct")
-        breakdown.pop("p95_pct")
-        if frame_labels is not None:  # the global index and the capture's own SEQUENCE:FRAME, as frames.csv's
-            for entry in breakdown["worst_frames"]:
-                entry["label"] = frame_labels[entry["frame"]]
-        record["breakdown"] = breakdown
-    return record, errors
-
-
-PICTURES = ("aligned_pattern.png", "aligned_pattern_sequential.png", "similarity.png", "tree.png")  # what a run may write
-FRAME_COLUMNS = ("method", "sequence", "frame", "mean_pct", "p95_pct", "max_pct", "depth", "parent", "confidence",
-                 "flagged", "repaired")
-
-
-def _frame_rows(method, errors, size, names, picks, *, depth=None, parent=None, confidence=None, repaired=None):
-    """One row per aligned frame (``FRAME_COLUMNS``): its sequence and frame number in the capture
-    (``picks``: the frames of each sequence that were aligned), its error's mean, 95th percentile
-    and max in % of the model size, its depth in the tree, the frame it was finally aligned from
-    (``sequence:frame``; empty for the root), its confidence, whether that is flagged (below
-    ``TRUSTED``) and whether the repair aligned it again. Unknown values are empty."""
-    frame_errors = np.asarray(errors) / size * 100.0
-    labels = [(name, int(f)) for name, pick in zip(names, picks) for f in pick]
-
-    def cell(values, k, text):
-        return "" if values is None else text(values[k])
-    rows = []
-    for k, (name, frame) in enumerate(labels):
-        e = frame_errors[k]
-        up = None if parent is None or parent[k] < 0 else labels[int(parent[k])]
-        rows.append([method, name, frame, f"{e.mean():.4f}", f"{np.percentile(e, 95):.4f}", f"{e.max():.4f}",
-                     cell(depth, k, lambda v: str(int(v))), "" if up is None else f"{up[0]}:{up[1]}",
-                     cell(confidence, k, lambda v: f"{float(v):.4f}"),
-                     cell(confidence, k, lambda v: str(int(float(v) < TRUSTED))),
-                     cell(repaired, k, lambda v: str(int(bool(v))))])
-    return rows
-
-
-def _frame_labels(names, picks):
-    """``SEQUENCE:FRAME`` (the capture's own frame numbering, as frames.csv's) of every frame
-    aligned, in the global order."""
-    return [f"{name}:{int(f)}" for name, pick in zip(names, picks) for f in pick]
-
-
-def _read_record(path):
-    """A JSON object from ``path``; {} when the file is missing, unreadable or not an object."""
-    try:
-        record = json.loads(path.read_text()) if path.is_file() else {}
-    except (OSError, ValueError):
-        record = {}
-    return record if isinstance(record, dict) else {}
-
-
-def _recorded_alignment(directory):
-    """The ``alignment`` record of an align output's manifest ({} when it has none)."""
-    alignment = _read_record(directory / "manifest.json").get("alignment")
-    return alignment if isinstance(alignment, dict) else {}
-
-
-def _part_counts(manifest):
-    """The template's parts and their vertex counts (``body.parts``), or None."""
-    parts = manifest.get("body", {}).get("parts")
-    return parts if isinstance(parts, dict) and parts else None
-
-
-def _model_size(manifest, conventions, truth):
-    """Model size in metres: the manifest's (in its body's units, else the sequences' common
-    units), else that of the first frame's ground truth (already in metres)."""
-    body = manifest.get("body", {})
-    size = float(body.get("model_size") or 0.0)
-    common = common_convention(conventions)
-    units = body.get("units") if body.get("units") in UNITS_PER_METRE else (
-        common.units if common.units_from != "mixed" else None)
-    if size > 0 and units is not None:
-        return size / UNITS_PER_METRE[units]
-    return model_size(truth[0])
-
-
-def _truth_conventions(dataset, manifest, aligned, names, parts, units, up):
-    """Units and up axis of each sequence's ground truth, for scoring an earlier alignment: as
-    given, else detected on the truth, else what the sequence's meta.json, the alignment's
-    record of its input and the dataset manifest say."""
-    conventions = []
-    for name, positions in zip(names, parts):
-        recorded = _read_record(aligned / "sequences" / name / "meta.json").get("alignment") or {}
-        _check_given_against_record(name, aligned, recorded, units, up)
-        declared = declared_convention([_read_record(dataset / "sequences" / name / "meta.json"),
-                                        {"units": recorded.get("source_units"), "up": recorded.get("source_up")},
-                                        manifest.get("body")])
-        conventions.append(resolve_convention(positions, units, up, declared_units=declared[0],
-                                              declared_up=declared[1]))
-    return conventions
-
-
-def _check_given_against_record(name, aligned, recorded, units, up):
-    """A --units or --up that contradicts what the alignment recorded of a sequence's input is
-    refused: the aligned frames were converted from that input, so ground truth read otherwise
-    would be scored in other units or axes than the frames (nonsense errors, not a warning)."""
-    plain = lambda value: str(value).strip().lower().lstrip("+")  # noqa: E731  ("+Z" and "z" are one axis)
-    for flag, given, key in (("units", units, "source_units"), ("up", up, "source_up")):
-        said = recorded.get(key)
-        if given != "auto" and said not in (None, "", "mixed") and plain(given) != plain(said):
-            raise ValueError(f"--{flag} {given}: {aligned} aligned {name} from input in {said} ({key} in its "
-                             f"meta.json), so its ground truth is read in {said} too; leave --{flag} out with --aligned")
-
-
-def _depth(extra, root, frames):
-    """Each frame's depth in the similarity tree the frames were aligned along (``alignment.npz``'s
-    ``tree_edges``; repairs change a frame's ``parent``, not its depth), or None without it."""
-    if "tree_edges" not in extra:
-        return None
-    edges = extra["tree_edges"]
-    return rooted_tree(edges, extra.get("tree_weights", np.zeros(len(edges))), root, frames).depth
-
-
-def _load_aligned(directory, dataset_names):
-    """An earlier `morphspace align` output: vertices, faces, root, root vertices, names, lengths."""
-    path = directory / "alignment.npz"
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            names = [str(n) for n in data["sequence_names"]]
-            lengths = data["lengths"].astype(np.int64)
-            root = int(data["root"])
-            extra = {k: data[k] for k in ("residual", "residual_max", "seconds", "retried", "cpu_seconds",
-                                          "confidence", "repaired", "pulled", "tree_edges", "tree_weights", "parent")
-                     if k in data.files}
-    except FileNotFoundError:
-        raise MeshFormatError(f"{path}: not found; is {directory} a `morphspace align` output?") from None
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
-        why = "it holds pickled objects, which are never loaded" if "allow_pickle" in str(exc) else exc
-        raise MeshFormatError(f"{path}: unreadable alignment record: {why}") from None
-    timings = directory / "timings.json"  # per-frame times (older outputs kept them in alignment.npz)
-    if timings.is_file():
-        try:
-            recorded = json.loads(timings.read_text())
-            for key in ("seconds", "cpu_seconds"):
-                if recorded.get(key) is not None:
-                    extra[key] = np.asarray(recorded[key], dtype=np.float64)
-        except (OSError, ValueError, TypeError) as exc:
-            raise MeshFormatError(f"{timings}: unreadable: {exc}") from None
-    missing = [n for n in names if n not in dataset_names]
-    if missing:
-        raise ValueError(f"{directory}: sequence(s) {', '.join(missing)} are not in the dataset")
-    vertices, faces = [], None
-    for name, n in zip(names, lengths):
-        sequence = read_sequence(directory / "sequences" / name / "consistent")
-        if len(sequence.vertices) != n:
-            raise MeshFormatError(f"{directory}/sequences/{name}/consistent: {len(sequence.vertices)} frames, "
-                                  f"alignment.npz says {n}")
-        vertices.append(sequence.vertices)
-        faces = sequence.faces
-    root_mesh = read_mesh(directory / "template" / "body.obj")
-    return np.concatenate(vertices), faces, root, root_mesh.vertices, names, lengths, extra
-
-
 def run(args):
     dataset = args.dataset
     if not dataset.is_dir():
@@ -399,45 +159,45 @@ def run(args):
     try:
         if args.aligned is not None:
             dataset_names = [s["name"] for s in manifest.get("sequences", [])]
-            vertices, faces, root, root_vertices, names, lengths, extra = _load_aligned(args.aligned, dataset_names)
+            vertices, faces, root, root_vertices, names, lengths, extra = load_aligned(args.aligned, dataset_names)
             sequences = [{"name": n} for n in names]
             every_frame = [np.arange(n) for n in lengths]  # an align output keeps every frame
-            labels, depth = _frame_labels(names, every_frame), _depth(extra, root, int(lengths.sum()))
-            parts, template_faces = _truth(dataset, sequences, every_frame, lengths)
+            labels, depth = frame_labels(names, every_frame), tree_depth(extra, root, int(lengths.sum()))
+            parts, template_faces = read_truth(dataset, sequences, every_frame, lengths)
             # the ground truth is in the files' units and axes; the aligned frames in metres, +Y up
-            conventions = _truth_conventions(dataset, manifest, args.aligned, names, parts, args.units, args.up)
+            conventions = truth_conventions(dataset, manifest, args.aligned, names, parts, args.units, args.up)
             say_conventions(conventions, names, _say_line, what="ground truth")
-            truth = _truth_in_metres(parts, conventions)
-            size = _model_size(manifest, conventions, truth)
-            record, errors = _score("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths,
+            truth = truth_in_metres(parts, conventions)
+            size = model_size_in_metres(manifest, conventions, truth)
+            record, errors = score_method("aligned", vertices, root, root_vertices, truth, template_faces, size, lengths,
                                     names, residual=extra.get("residual"), residual_max=extra.get("residual_max"),
                                     seconds=extra.get("seconds"), retried=extra.get("retried"),
                                     cpu_seconds=extra.get("cpu_seconds"), confidence=extra.get("confidence"),
                                     repaired=extra.get("repaired"), pulled=extra.get("pulled"),
-                                    part_counts=_part_counts(manifest), depth=depth, frame_labels=labels)
+                                    part_counts=part_vertex_counts(manifest), depth=depth, frame_labels=labels)
             report.update(model_size_m=size, frames=int(lengths.sum()), sequences=names, root=int(root),
                           root_frame=labels[int(root)], aligned=record, **_units_report(names, conventions))
-            recorded = _recorded_alignment(args.aligned)
+            recorded = recorded_alignment(args.aligned)
             reason = recorded.get("root_reason")
             if reason and isinstance(reason, str):  # why the alignment ran no trial or race, as it recorded
                 report["root_reason"] = reason
             results = {"aligned": (vertices, faces, root_vertices)}
-            frame_rows = _frame_rows("aligned", errors, size, names, every_frame, depth=depth,
+            frame_rows = csv_rows("aligned", errors, size, names, every_frame, depth=depth,
                                      parent=extra.get("parent"),
                                      confidence=extra.get("confidence"), repaired=extra.get("repaired"))
         else:
             sequences = resolve_inputs([dataset], args.only)
             check_root_early(args.root if args.root is not None and ":" in args.root else None, sequences)
             meshes, lengths = read_inputs(sequences, progress, say=_say_line)
-            picks = _picked_frames(lengths, args.every, args.max_frames)
+            picks = picked_frames(lengths, args.every, args.max_frames)
             counts, starts = lengths, np.concatenate([[0], np.cumsum(lengths)[:-1]])
             meshes = [meshes[start + i] for start, pick in zip(starts, picks) for i in pick]
             lengths = np.array([len(pick) for pick in picks], dtype=np.int64)
             names = [s["name"] for s in sequences]
             meshes, conventions = convert_inputs(meshes, sequences, lengths, args.units, args.up, say=_say_line)
-            parts, template_faces = _truth(dataset, sequences, picks, counts)
-            truth = _truth_in_metres(parts, conventions)  # in the same units and axes as the frames
-            size = _model_size(manifest, conventions, truth)
+            parts, template_faces = read_truth(dataset, sequences, picks, counts)
+            truth = truth_in_metres(parts, conventions)  # in the same units and axes as the frames
+            size = model_size_in_metres(manifest, conventions, truth)
             root = _kept_root(args.root, sequences, counts, picks)
             options = AlignmentOptions(patches=args.patches, levels=args.levels, swing_limbs=args.swing_limbs,
                                        reach_limbs=args.reach_limbs, graft_limbs=args.graft_limbs)
@@ -449,7 +209,7 @@ def run(args):
                                       retries=args.retries, repair_budget=args.repair_budget, progress=progress)
             root = tree_run.aligned.root
             report["root"] = int(root)
-            labels = _frame_labels(names, picks)
+            labels = frame_labels(names, picks)
             report["root_frame"] = labels[int(root)]
             report["root_trial"] = tree_run.root_trial
             report["root_reason"] = tree_run.root_reason
@@ -478,15 +238,15 @@ def run(args):
             results, frame_rows = {}, []
             for method, result in runs.items():
                 a = result.aligned
-                record, errors = _score(method, a.vertices, root, a.root_vertices, truth, template_faces, size,
+                record, errors = score_method(method, a.vertices, root, a.root_vertices, truth, template_faces, size,
                                         lengths, names, residual=a.residual, residual_max=a.residual_max,
                                         seconds=a.seconds, retried=a.retried, cpu_seconds=a.cpu_seconds,
                                         confidence=a.confidence, repaired=a.repaired, pulled=a.pulled,
-                                        part_counts=_part_counts(manifest), depth=result.tree.depth,
+                                        part_counts=part_vertex_counts(manifest), depth=result.tree.depth,
                                         frame_labels=labels)
                 report[method] = {**report.get(method, {}), **record}
                 results[method] = (a.vertices, a.faces, a.root_vertices)
-                frame_rows += _frame_rows(method, errors, size, names, picks, depth=result.tree.depth, parent=a.parent,
+                frame_rows += csv_rows(method, errors, size, names, picks, depth=result.tree.depth, parent=a.parent,
                                           confidence=a.confidence, repaired=a.repaired)
             if "sequential" in report:
                 report["sequential_over_tree_mean"] = round(report["sequential"]["mean_mm"]

@@ -202,7 +202,7 @@ class JobService:
         them (of ``only``, when given) and a frame within the frame files listed, or a frame
         index: refused before anything is queued, as ``morphspace align`` refuses them before it
         reads a frame. A listing that fails leaves the problem to the job, which names it."""
-        from server.commands.align import check_root_early, parse_root
+        from server.commands.align_inputs import check_root_early, parse_root
 
         try:
             sequences = align_sequences(self.settings.datasets_dir, params)

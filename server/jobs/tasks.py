@@ -273,7 +273,7 @@ ALIGN_DEFAULTS = {"tree": "mst", "root_choice": "auto", "colors": "auto", "repai
 def align_sequences(datasets, params):
     """The sequences an align job's ``params`` name (``datasets``, ``only``), as ``align`` reads
     them (an uploaded sequence with only consistent-topology frames is aligned from those)."""
-    from server.commands.align import resolve_inputs
+    from server.commands.align_inputs import resolve_inputs
 
     inputs = []
     for name in params["datasets"]:
@@ -286,9 +286,10 @@ def align_sequences(datasets, params):
 def run_align(payload, reporter, runner=None):
     from engine.align import AlignmentOptions, align_captures
     from engine.surface import model_size
-    from server.commands.align import (COLOUR_MODES, DEFAULT_FPS, TRUSTED, confidence_summary, convert_inputs,
-                                       options_record, parse_root, read_inputs, root_trial_text,
-                                       write_alignment)
+    from engine.align.repair import TRUSTED
+    from server.commands.align import COLOUR_MODES
+    from server.commands.align_inputs import DEFAULT_FPS, convert_inputs, parse_root, read_inputs
+    from server.commands.align_output import confidence_summary, options_record, root_trial_text, write_alignment
     from server.units import common_convention, count_text, display_unit
 
     params, staging = {**ALIGN_DEFAULTS, **payload["params"]}, Path(payload["staging"])

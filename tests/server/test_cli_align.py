@@ -202,7 +202,7 @@ def test_a_frame_in_a_format_not_read_is_named_and_left_out(dataset, tmp_path):
             "to frame_0001.ply as frames 0-1, then take_0002.ply as frame 2\n") in err
     assert "take: no meta.json gives the frame rate; written as 30 frames/s (say --fps)" in err
     # frames named each by a word: one short line, not a list of every name (a docs-only trial's ten names)
-    from server.commands.align import mixed_names_text
+    from server.commands.align_inputs import mixed_names_text
 
     words = [f"{word}.obj" for word in ("alpha", "bravo", "charlie", "delta", "echo", "juliet")]
     assert mixed_names_text(words) == ("the frame files have 6 different names, taken in natural order: alpha.obj as "
@@ -293,12 +293,12 @@ def test_eval_align_scores_tree_and_sequential(dataset, tmp_path, capsys):
 
 def test_eval_align_every_kth_frame_scores_those_frames(dataset, tmp_path, capsys):
     """``--every 2``: frames 0 and 2 of each sequence, aligned and scored against their own truth."""
-    from server.commands.eval_align import _picked_frames, _truth
+    from server.commands.eval_align_data import picked_frames, read_truth
 
-    picks = _picked_frames([3, 3], 2, None)
+    picks = picked_frames([3, 3], 2, None)
     assert [p.tolist() for p in picks] == [[0, 2], [0, 2]]
-    assert [p.tolist() for p in _picked_frames([7], 2, 3)] == [[0, 2, 4]]
-    parts, _ = _truth(dataset, [{"name": "walk"}, {"name": "jog"}], picks, [3, 3])
+    assert [p.tolist() for p in picked_frames([7], 2, 3)] == [[0, 2, 4]]
+    parts, _ = read_truth(dataset, [{"name": "walk"}, {"name": "jog"}], picks, [3, 3])
     for part, name in zip(parts, ("walk", "jog")):
         np.testing.assert_array_equal(part, load_capture_truth(dataset, name)["template_positions"][[0, 2]])
     assert main(["eval-align", str(dataset), "--every", "2", "--no-sequential", "--out", str(tmp_path / "eval"),
@@ -630,7 +630,7 @@ def test_eval_align_refuses_frames_that_do_not_match_their_ground_truth(dataset,
 def test_aligned_metadata_drops_what_describes_the_input_frames():
     """The aligned frames are neither the studio's reconstructions nor noisy: their statistics and
     noise stay with the input (docs/file-formats.md, aligned datasets)."""
-    from server.commands.align import aligned_meta
+    from server.commands.align_output import aligned_meta
 
     meta = {"name": "walk", "cyclic": True, "frames_per_cycle": 24, "fps": 25.0, "units": "mm", "up": "+Z",
             "noise_mm": 2.5, "studio": {"holes_per_frame": 6.1}, "unstructured_vertex_counts": [10000]}
@@ -640,7 +640,7 @@ def test_aligned_metadata_drops_what_describes_the_input_frames():
 
 
 def test_the_summary_says_whether_colours_were_cues_and_why(aligned_run):
-    from server.commands.align import colour_cues_text
+    from server.commands.align_output import colour_cues_text
 
     # the 1,000-vertex body is too coarse for its colours to carry a texture
     assert "colour cues off (--colors auto: the root's median edge is not under 1.6% of" in aligned_run[2]
@@ -831,7 +831,7 @@ def test_a_sequence_with_consistent_frames_only_is_read_from_them(tmp_path):
     """An aligned output aligned again (or an upload's sequence): its frames are in consistent/, and
     `align` said "no mesh files among the 2 entries of the directory" (a docs-only user)."""
     from engine.mesh_io import write_obj
-    from server.commands.align import resolve_inputs
+    from server.commands.align_inputs import resolve_inputs
 
     sequence = tmp_path / "walk"
     (sequence / "consistent").mkdir(parents=True)
