@@ -202,7 +202,8 @@ class PairwiseAligner:
         F = self._gradients(X)
         R = rotation_fit(F, R, iterations=4)
         per_tet = np.sum((F - R) ** 2, axis=(1, 2))
-        distortion = float(self._tet_volume @ per_tet / self._tet_volume.sum())
+        # numpy's own pairwise sum, not BLAS's dot, whose partial sums follow its thread count
+        distortion = float(np.sum(self._tet_volume * per_tet) / self._tet_volume.sum())
         return PairAlignment(V=V, X=X, residual=residual, residual_max=residual_max, distortion=distortion,
                              distortion_tail=self._tail(per_tet), pulled=pulled,
                              searched=search_levels > 0)
@@ -248,7 +249,7 @@ class PairwiseAligner:
         volume = self._tet_volume[order]
         take = np.cumsum(volume) <= fraction * volume.sum()
         take[0] = True
-        return float(volume[take] @ per_tet[order][take] / volume[take].sum())
+        return float(np.sum(volume[take] * per_tet[order][take]) / volume[take].sum())  # (not BLAS: see distortion)
 
     def _residual(self, V, target):
         """Mean and max of the two-sided surface distance between aligned V and the target."""
