@@ -36,7 +36,7 @@ from server.commands.align_inputs import check_root_early, convert_inputs, parse
 from server.commands.eval_align_data import (load_aligned, model_size_in_metres, part_vertex_counts, picked_frames,
                                              read_truth, recorded_alignment, tree_depth, truth_conventions,
                                              truth_in_metres)
-from server.commands.eval_align_score import FRAME_COLUMNS, PICTURES, csv_rows, frame_labels, score_method
+from server.commands.eval_align_score import FRAME_COLUMNS, PICTURES, csv_rows, kept_frame_labels, score_method
 from server.units import (
     DISPLAY_PER_METRE,
     add_units_arguments,
@@ -162,7 +162,7 @@ def run(args):
             vertices, faces, root, root_vertices, names, lengths, extra = load_aligned(args.aligned, dataset_names)
             sequences = [{"name": n} for n in names]
             every_frame = [np.arange(n) for n in lengths]  # an align output keeps every frame
-            labels, depth = frame_labels(names, every_frame), tree_depth(extra, root, int(lengths.sum()))
+            labels, depth = kept_frame_labels(names, every_frame), tree_depth(extra, root, int(lengths.sum()))
             parts, template_faces = read_truth(dataset, sequences, every_frame, lengths)
             # the ground truth is in the files' units and axes; the aligned frames in metres, +Y up
             conventions = truth_conventions(dataset, manifest, args.aligned, names, parts, args.units, args.up)
@@ -209,7 +209,7 @@ def run(args):
                                       retries=args.retries, repair_budget=args.repair_budget, progress=progress)
             root = tree_run.aligned.root
             report["root"] = int(root)
-            labels = frame_labels(names, picks)
+            labels = kept_frame_labels(names, picks)
             report["root_frame"] = labels[int(root)]
             report["root_trial"] = tree_run.root_trial
             report["root_reason"] = tree_run.root_reason

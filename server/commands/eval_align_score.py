@@ -12,8 +12,10 @@ from engine.align.evaluation import part_errors, part_labels
 from engine.align.repair import TRUSTED
 
 def score_method(method, aligned_vertices, root, root_vertices, truth, faces, size, lengths, names, *, residual=None,
-           residual_max=None, seconds=None, retried=None, cpu_seconds=None, confidence=None, repaired=None,
-           part_counts=None, depth=None, pulled=None, frame_labels=None):
+                 residual_max=None, seconds=None, retried=None, cpu_seconds=None, confidence=None, repaired=None,
+                 part_counts=None, depth=None, pulled=None, frame_labels=None):
+    """One method's report record (``tree`` or ``sequential``: its errors overall, per sequence and per
+    part, fit, times, confidence against the true error, breakdown) and every frame's per-vertex errors."""
     errors, summary = score_alignment(aligned_vertices, root, root_vertices, truth, faces, size)
     frames = len(aligned_vertices)
     starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
@@ -94,10 +96,10 @@ def csv_rows(method, errors, size, names, picks, *, depth=None, parent=None, con
     return rows
 
 
-def frame_labels(names, picks):
+def kept_frame_labels(names, picks):
     """``SEQUENCE:FRAME`` (the capture's own frame numbering, as frames.csv's) of every frame
     aligned, in the global order."""
     return [f"{name}:{int(f)}" for name, pick in zip(names, picks) for f in pick]
 
 
-__all__ = ["FRAME_COLUMNS", "PICTURES", "csv_rows", "frame_labels", "score_method"]
+__all__ = ["FRAME_COLUMNS", "PICTURES", "csv_rows", "kept_frame_labels", "score_method"]
