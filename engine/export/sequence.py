@@ -9,7 +9,6 @@ writes the same files into one zip archive (deflated) instead of a directory.
 
 from __future__ import annotations
 
-import contextlib
 import json
 import tempfile
 import zipfile
@@ -18,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from engine.mesh_io import write_obj, write_ply
-from engine.mesh_io.atomic import atomic_write
+from engine.mesh_io.atomic import atomic_write, discard_partial
 
 SEQUENCE_FORMATS = ("obj", "ply")
 OBJ_DECIMALS = 6
@@ -74,14 +73,10 @@ def write_mesh_sequence(directory, frames, format="obj", progress=None):
                 progress(k + 1, len(frames))
         with atomic_write(directory / "clip.json") as file:
             file.write(json.dumps(clip_record(frames), indent=1).encode())
-    except BaseException:  # interrupted or failed: no half-written sequence stays behind
-        # (the frame being written too: left half-written, it kept the directory from going; seen once
-        # under load in the SIGTERM test)
-        for path in paths + [directory / name for name in names[len(paths):len(paths) + 1]]:
-            path.unlink(missing_ok=True)
-        if created:
-            with contextlib.suppress(OSError):
-                directory.rmdir()
+    except BaseException:  # interrupted or failed: no half-written sequence stays behind (the frame being
+        # written too, and its hidden temporary: left, they kept the directory from going)
+        started = names[:len(paths) + 1] + (["clip.json"] if len(paths) == len(names) else [])
+        discard_partial(directory, started, created)
         raise
     return paths + [directory / "clip.json"]
 

@@ -32,7 +32,7 @@ import numpy as np
 from engine.export.glb_container import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, FLOAT, UNSIGNED_INT, UNSIGNED_SHORT, \
     GlbBuffer
 from engine.export.sequence import write_member
-from engine.mesh_io.atomic import atomic_write
+from engine.mesh_io.atomic import atomic_write, discard_partial
 
 MAX_WIDTH = 8192  # what Unity and Unreal import on every platform
 LEVELS = 65535
@@ -120,10 +120,16 @@ def write_vat(path, frames, progress=None):
     else:
         if path.exists() and not path.is_dir():
             raise ValueError(f"{path}: exists and is not a directory")
-        path.mkdir(parents=True, exist_ok=True)
-        for name, data in files.items():
-            with atomic_write(path / name) as out:
-                out.write(data)
+        created, written = not path.exists(), 0
+        try:
+            path.mkdir(parents=True, exist_ok=True)
+            for name, data in files.items():
+                with atomic_write(path / name) as out:
+                    out.write(data)
+                written += 1
+        except BaseException:  # interrupted or failed: no half-written export stays behind
+            discard_partial(path, list(files)[:written + 1], created)
+            raise
     if progress is not None:
         progress(len(frames), len(frames))
     return record

@@ -3,22 +3,25 @@
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
 import secrets
 from pathlib import Path
 
+TEMPORARY_SUFFIX = ".tmp"  # of the hidden temporary file, ".{name}.{12 hex digits}.tmp"
+_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
 
-@contextlib.contextmanager
+
 def atomic_write(path):
-    """Open a temporary binary file next to `path`; move it onto `path` when the block succeeds.
+    """A context manager: a temporary binary file next to `path`, moved onto `path` when the block succeeds.
 
     Parameters
     ----------
     path : str or os.PathLike   final file; missing parent directories are created
 
-    Yields
-    ------
-    file : binary file object open for writing
+    Returns
+    -------
+    AtomicFile, whose ``with`` block gets the binary file object open for writing
 
     Notes
     -----
@@ -28,27 +31,77 @@ def atomic_write(path):
     On any error it is removed and `path` is left untouched. No fsync: the rename is atomic
     but not guaranteed durable across a power cut.
     """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = create_temporary(path)
-    try:
-        with os.fdopen(handle, "wb") as file:
-            yield file
-        os.replace(temp_name, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temp_name)
-        raise
+    return AtomicFile(path)
 
 
-def create_temporary(path):
-    """Create a new, empty, hidden file next to `path`; return (file descriptor, name)."""
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
-    while True:
-        name = path.parent / f".{path.name}.{secrets.token_hex(6)}.tmp"
+class AtomicFile:
+    """The context manager behind `atomic_write`.
+
+    A class rather than a generator: a signal's exception (SIGTERM is raised as one, see
+    ``server.cli``) that came just after a generator had created its temporary file but before
+    the ``with`` block was entered skipped the generator's clean-up until the generator was
+    dropped, after the caller's own clean-up (5 exports of 60 signalled while writing frames kept
+    their directory). Here the name is chosen before the file is created, so every step after
+    that removes it on the way out. One window stays: a signal taken as ``__exit__`` starts, before
+    its ``try`` (Python checks for signals on entering a function), a few bytecodes after the
+    block's last call. A ``__del__`` could remove the file then, but a signal taken inside
+    ``__del__``, which would run after every write, is printed and lost; callers that remove a
+    directory they made use `discard_partial`, which finds hidden temporaries too.
+    """
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.temp = None
+        self.file = None
+
+    def __enter__(self):
+        self.path.parent.mkdir(parents=True, exist_ok=True)
         try:
-            return os.open(name, flags, 0o666), name
-        except FileExistsError:
-            continue
-        except OSError as exc:  # name the file asked for, not the hidden temporary one
-            raise type(exc)(f"cannot write {path}: {exc.strerror or exc}") from None
+            while self.file is None:
+                self.temp = self.path.parent / f".{self.path.name}.{secrets.token_hex(6)}{TEMPORARY_SUFFIX}"
+                try:
+                    self.file = os.fdopen(os.open(self.temp, _FLAGS, 0o666), "wb")
+                except FileExistsError:  # another writer's: not ours to remove
+                    self.temp = None
+                except OSError as exc:  # name the file asked for, not the hidden temporary one
+                    self.temp = None
+                    raise type(exc)(f"cannot write {self.path}: {exc.strerror or exc}") from None
+            return self.file
+        except BaseException:
+            self._discard()
+            raise
+
+    def __exit__(self, kind, value, traceback):
+        try:
+            self.file.close()
+            if kind is None:
+                os.replace(self.temp, self.path)
+                self.temp = None
+        except BaseException:
+            self._discard()
+            raise
+        self._discard()
+        return False
+
+    def _discard(self):
+        if self.file is not None:
+            with contextlib.suppress(OSError):
+                self.file.close()
+        if self.temp is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self.temp)
+            self.temp = None
+
+
+def discard_partial(directory, names, created):
+    """Clean-up after an interrupted or failed write of several files into ``directory``: remove
+    ``names`` and their hidden temporaries, then ``directory`` itself if the writer ``created`` it
+    and it is empty."""
+    directory = Path(directory)
+    for name in names:
+        (directory / name).unlink(missing_ok=True)
+        for temporary in directory.glob(f".{glob.escape(name)}.*{TEMPORARY_SUFFIX}"):
+            temporary.unlink(missing_ok=True)
+    if created:
+        with contextlib.suppress(OSError):
+            directory.rmdir()

@@ -6,7 +6,6 @@ The byte layout is `container_format`'s; `container.Container` maps what is writ
 from __future__ import annotations
 
 import collections.abc
-import contextlib
 import json
 import math
 import os
@@ -14,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.mesh_io.atomic import create_temporary
+from engine.mesh_io.atomic import atomic_write
 from engine.motion_space.container_format import (
     CHECKSUM_ALGORITHM,
     CHECKSUM_SIZE,
@@ -79,28 +78,21 @@ def write_container(path, arrays, metadata):
     header = _header_bytes(metadata, entries, file_size)
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = create_temporary(path)
-    try:
-        with os.fdopen(handle, "wb") as file:
-            file.write(_preamble_and_header(header))
-            file.write(bytes(data_start - HEADER_START - len(header)))
-            for (_, array, dtype), entry in zip(prepared, entries.values()):
-                entry["checksum"] = _stream_array(file, array, dtype)
-                file.write(bytes(align(entry["nbytes"]) - entry["nbytes"]))
-            if file.tell() != file_size:
-                raise AssertionError(f"wrote {file.tell()} bytes, laid out {file_size}")
-            final_header = _header_bytes(metadata, entries, file_size)
-            if len(final_header) != len(header):
-                raise AssertionError("the header changed length when its checksums were filled in")
-            file.seek(0)
-            file.write(_preamble_and_header(final_header))
-            file.flush()
-            os.fsync(file.fileno())
-        os.replace(temp_name, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temp_name)
-        raise
+    with atomic_write(path) as file:
+        file.write(_preamble_and_header(header))
+        file.write(bytes(data_start - HEADER_START - len(header)))
+        for (_, array, dtype), entry in zip(prepared, entries.values()):
+            entry["checksum"] = _stream_array(file, array, dtype)
+            file.write(bytes(align(entry["nbytes"]) - entry["nbytes"]))
+        if file.tell() != file_size:
+            raise AssertionError(f"wrote {file.tell()} bytes, laid out {file_size}")
+        final_header = _header_bytes(metadata, entries, file_size)
+        if len(final_header) != len(header):
+            raise AssertionError("the header changed length when its checksums were filled in")
+        file.seek(0)
+        file.write(_preamble_and_header(final_header))
+        file.flush()
+        os.fsync(file.fileno())
     _fsync_directory(path.parent)
     return path
 

@@ -61,3 +61,41 @@ def test_a_directory_with_other_meshes_is_refused(walk, tmp_path):
         write_mesh_sequence(tmp_path, walk, "obj")
     with pytest.raises(ValueError, match="sequence format must be one of obj, ply"):
         write_mesh_sequence(tmp_path / "x", walk, "off")
+
+
+@pytest.mark.parametrize("fmt", ["obj", "vat"])
+def test_an_interrupt_at_any_line_of_a_directory_export_leaves_nothing(export_spaces, tmp_path, fmt):
+    """Ctrl-C or SIGTERM between any two lines of the writers: the directory the export made is gone,
+    or whole when the signal came after the last file (5 SIGTERMs of 60 while frames were written left
+    it, holding a frame's hidden temporary; an interrupted VAT export left its first files)."""
+    import contextlib
+
+    from interrupting import interrupt_at_every_line
+
+    from engine.export import sequence, vat
+    from engine.mesh_io import atomic
+
+    frames = play_clip(export_spaces["speed"], Clip(params={"speed": 1.5}, duration=1 / 12, rate=12))
+    out = tmp_path / "out"
+    whole = (["clip.json", "frame_0000.obj", "frame_0001.obj"] if fmt == "obj"
+             else ["mesh.glb", "positions.png", "vat.json"])
+    outcomes = set()
+
+    def export():
+        if out.is_dir():  # whole from the run before
+            for path in out.iterdir():
+                path.unlink()
+            out.rmdir()
+        write_export(out, frames, fmt)
+
+    def check(at):
+        names = sorted(p.name for p in out.iterdir()) if out.is_dir() else None
+        assert list(tmp_path.iterdir()) == ([] if names is None else [out]), at
+        assert names in (None, whole), (at, names)
+        assert at is not None or names == whole
+        outcomes.add(names is None)
+
+    files = [module.__file__ for module in (sequence, vat, atomic, contextlib)]
+    exit_entry = (atomic.AtomicFile.__exit__.__code__, atomic.AtomicFile.__exit__.__code__.co_firstlineno + 1)
+    lines = interrupt_at_every_line(export, files, check, skip={exit_entry})
+    assert lines > 20 and len(frames) == 2 and outcomes == {True, False}
