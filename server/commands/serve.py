@@ -53,12 +53,26 @@ def run(args):
           f"(browser client at /, API docs at /docs)", flush=True)
     server = uvicorn.Server(uvicorn.Config(app, **uvicorn_options(settings, args.log_level), host=settings.host,
                                           port=settings.port))
+    keep_an_ignored_ctrl_c(server)
     # uvicorn takes Ctrl-C and SIGTERM while it serves, stops gracefully, then restores the
     # handlers it found and raises the signal again: Ctrl-C's KeyboardInterrupt, and the CLI's
     # SIGTERM handler (server.cli), end `serve` as they end every command (130 or 143, a line
     # saying which). uvicorn.run() swallowed the KeyboardInterrupt: Ctrl-C ended with status 0.
     server.run()
     return 0
+
+
+def keep_an_ignored_ctrl_c(server):
+    """A Ctrl-C ignored when ``serve`` started stays ignored, as every other command ignores it
+    (Python keeps an inherited SIG_IGN; a shell starts background jobs so). uvicorn took it anyway,
+    stopped, then raised it again into the restored SIG_IGN: the server ended with status 0 and no
+    word (seen when the test suite ran in the background)."""
+    import signal
+
+    if signal.getsignal(signal.SIGINT) != signal.SIG_IGN:
+        return
+    handle_exit = server.handle_exit  # installed by uvicorn for SIGINT and SIGTERM while it serves
+    server.handle_exit = lambda signum, frame: None if signum == signal.SIGINT else handle_exit(signum, frame)
 
 
 OPTIONS = {"data_dir": "--data-dir", "host": "--host", "port": "--port", "dask_scheduler": "--dask-scheduler",
