@@ -160,13 +160,15 @@ def check_dataset_out(out, force):
 
 
 def staging_directory(out):
-    """A fresh hidden directory next to ``out`` to write into (renamed onto ``out`` when complete);
-    ``out`` was checked first (``check_dataset_out``)."""
-    staging = out.with_name(f".{out.name}.partial-{os.getpid()}")
+    """The hidden directory next to ``out`` to write into (renamed onto ``out`` when complete);
+    ``out`` was checked first (``check_dataset_out``). Named here, made by ``make_staging``."""
+    return out.with_name(f".{out.name}.partial-{os.getpid()}")
+
+
+def make_staging(staging):
     if staging.exists():
         shutil.rmtree(staging)
     staging.mkdir(parents=True)
-    return staging
 
 
 def publish(staging, out):
@@ -184,7 +186,8 @@ def staged(out):
     directories made for it)."""
     made = [p for p in out.absolute().parents if not p.exists()]  # deepest first
     staging = staging_directory(out)
-    try:
+    try:  # made inside the try: a signal taken just after the mkdir removes it too
+        make_staging(staging)
         yield staging
         publish(staging, out)
     except BaseException:

@@ -131,3 +131,30 @@ def test_the_summary_counts_in_the_singular_and_reads_no_negative_zero(tmp_path,
     printed = capsys.readouterr().out
     assert printed.startswith("wrote 1 sequence, ") and "-0.000" not in printed, printed
     assert (_fixed(-1e-9), _fixed(-0.0004), _fixed(-0.0006), _fixed(2.25)) == ("0.000", "0.000", "-0.001", "2.250")
+
+
+def test_an_interrupt_at_any_line_of_the_staging_leaves_nothing(tmp_path):
+    """Ctrl-C or SIGTERM between any two lines of ``staged``: the staging directory and the parents
+    made for it are gone, or the output is complete (the staging directory was made before the
+    clean-up's ``try``: a signal taken just after its mkdir left it)."""
+    import contextlib
+
+    from interrupting import interrupt_at_every_line
+
+    from server.commands import synth
+
+    out = tmp_path / "new" / "x"
+
+    def write():
+        with synth.staged(out) as staging:
+            (staging / "frame.obj").write_text("v 0 0 0\n")
+
+    def check(at):
+        made = sorted(str(p.relative_to(tmp_path)) for p in tmp_path.rglob("*"))
+        assert made in ([], ["new", "new/x", "new/x/frame.obj"]), (at, made)
+        assert at is not None or made
+        if made:
+            for path in (out / "frame.obj", out, out.parent):
+                path.unlink() if path.is_file() else path.rmdir()
+
+    assert interrupt_at_every_line(write, [synth.__file__, contextlib.__file__], check) > 10
