@@ -28,7 +28,6 @@ from __future__ import annotations
 import argparse
 import math
 import os
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -45,6 +44,7 @@ from server.commands.align_inputs import (DEFAULT_FPS, check_root_early, convert
 from server.commands.align_output import (colour_cues_text, confidence_summary, options_record, root_trial_text,
                                           root_vertices_text, write_alignment)
 from server.commands.checks import MAX_FPS
+from server.commands.staging import staged
 from server.units import add_units_arguments, common_convention, count_text, length_text
 
 COLOUR_MODES = {"auto": "auto", "on": True, "off": False}  # --colors -> align_captures(use_colors=...)
@@ -216,23 +216,12 @@ def run(args):
                                 workers=args.workers, retries=args.retries,
                                 use_colors=COLOUR_MODES[args.colors], seed=args.seed, repair_budget=args.repair_budget,
                                 progress=progress)
-        staging = out.with_name(f".{out.name}.partial-{os.getpid()}")
-        if staging.exists():
-            shutil.rmtree(staging)
-        staging.mkdir(parents=True)
-        try:
+        with staged(out) as staging:
             write_alignment(staging, sequences, meshes, lengths, result, fps=args.fps or DEFAULT_FPS,
                             options_record=options_record(vars(args), result.colour_cues),
                             progress=progress, conventions=conventions)
-        except BaseException:
-            shutil.rmtree(staging, ignore_errors=True)
-            raise
     finally:
         progress.close()
-    if out.exists():
-        shutil.rmtree(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    os.replace(staging, out)
     aligned = result.aligned
     t = result.timings
     frames = int(lengths.sum())

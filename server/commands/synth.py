@@ -17,10 +17,8 @@ import math
 import multiprocessing
 import os
 import queue
-import shutil
 import time
 from concurrent.futures import ProcessPoolExecutor
-from contextlib import contextmanager
 from functools import lru_cache
 from pathlib import Path
 
@@ -36,6 +34,7 @@ from engine.synthetic import PRESETS, build_body, generate_sequence_data, get_pr
 from engine.synthetic.body import MAX_VERTICES, MIN_VERTICES
 from engine.synthetic.studio import StudioPreset
 from server.commands.checks import check_output_path
+from server.commands.staging import staged
 from server.units import count_text
 
 MAX_FPS = 240.0  # frames per second of a synthetic capture (a fast studio camera)
@@ -157,47 +156,6 @@ def check_dataset_out(out, force):
     check_output_path(out, "--out", directory=True)
     if out.exists() and not force:
         raise FileExistsError(f"{out} already exists; pass --force to replace it")
-
-
-def staging_directory(out):
-    """The hidden directory next to ``out`` to write into (renamed onto ``out`` when complete);
-    ``out`` was checked first (``check_dataset_out``). Named here, made by ``make_staging``."""
-    return out.with_name(f".{out.name}.partial-{os.getpid()}")
-
-
-def make_staging(staging):
-    if staging.exists():
-        shutil.rmtree(staging)
-    staging.mkdir(parents=True)
-
-
-def publish(staging, out):
-    """Replace ``out`` by the completed staging directory."""
-    if out.exists():
-        shutil.rmtree(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    os.replace(staging, out)
-
-
-@contextmanager
-def staged(out):
-    """``with staged(out) as staging:`` write into ``staging`` (``staging_directory``; ``out`` checked by
-    ``check_options``); published onto ``out`` when the block ends, removed on any error (with the parent
-    directories made for it)."""
-    made = [p for p in out.absolute().parents if not p.exists()]  # deepest first
-    staging = staging_directory(out)
-    try:  # made inside the try: a signal taken just after the mkdir removes it too
-        make_staging(staging)
-        yield staging
-        publish(staging, out)
-    except BaseException:
-        shutil.rmtree(staging, ignore_errors=True)
-        for parent in made:  # only the empty ones made here
-            try:
-                parent.rmdir()
-            except OSError:
-                break
-        raise
 
 
 def check_options(args):

@@ -134,19 +134,19 @@ def test_the_summary_counts_in_the_singular_and_reads_no_negative_zero(tmp_path,
 
 
 def test_an_interrupt_at_any_line_of_the_staging_leaves_nothing(tmp_path):
-    """Ctrl-C or SIGTERM between any two lines of ``staged``: the staging directory and the parents
+    """Ctrl-C or SIGTERM between any two lines of ``staged`` (synth's and align's ``--out``): the staging directory and the parents
     made for it are gone, or the output is complete (the staging directory was made before the
     clean-up's ``try``: a signal taken just after its mkdir left it)."""
     import contextlib
 
     from interrupting import interrupt_at_every_line
 
-    from server.commands import synth
+    from server.commands import staging as module
 
     out = tmp_path / "new" / "x"
 
     def write():
-        with synth.staged(out) as staging:
+        with module.staged(out) as staging:
             (staging / "frame.obj").write_text("v 0 0 0\n")
 
     def check(at):
@@ -157,4 +157,4 @@ def test_an_interrupt_at_any_line_of_the_staging_leaves_nothing(tmp_path):
             for path in (out / "frame.obj", out, out.parent):
                 path.unlink() if path.is_file() else path.rmdir()
 
-    assert interrupt_at_every_line(write, [synth.__file__, contextlib.__file__], check) > 10
+    assert interrupt_at_every_line(write, [module.__file__, contextlib.__file__], check) > 10
