@@ -77,10 +77,8 @@ class AtomicFile:
             if kind is None:
                 os.replace(self.temp, self.path)
                 self.temp = None
-        except BaseException:
+        finally:
             self._discard()
-            raise
-        self._discard()
         return False
 
     def _discard(self):

@@ -77,8 +77,7 @@ def write_container(path, arrays, metadata):
     entries, data_start, file_size = _layout(metadata, prepared)
     header = _header_bytes(metadata, entries, file_size)
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_write(path) as file:
+    with atomic_write(path) as file:  # (makes missing parent directories)
         file.write(_preamble_and_header(header))
         file.write(bytes(data_start - HEADER_START - len(header)))
         for (_, array, dtype), entry in zip(prepared, entries.values()):

@@ -9,6 +9,7 @@ pytest run collects (``conftest`` would resolve to the first directory's).
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import shutil
 import signal
@@ -36,11 +37,20 @@ def _stop_with_parent():
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # 1: PR_SET_PDEATHSIG
 
 
-class LiveServer:
-    """A ``morphspace serve`` subprocess on 127.0.0.1."""
+def _in_the_server(ctrl_c):
+    _stop_with_parent()
+    if ctrl_c is not None:
+        signal.signal(signal.SIGINT, ctrl_c)
 
-    def __init__(self, data_dir, env=None, args=()):
+
+class LiveServer:
+    """A ``morphspace serve`` subprocess on 127.0.0.1. ``ctrl_c``: SIGINT's disposition in it
+    (``signal.SIG_DFL`` a terminal's, ``signal.SIG_IGN`` a shell's background job's; None: this
+    process's, which is ignored when the test suite itself runs in the background)."""
+
+    def __init__(self, data_dir, env=None, args=(), ctrl_c=None):
         self.data_dir = Path(data_dir)
+        self.ctrl_c = ctrl_c
         self.args = list(args)  # more `morphspace serve` options (e.g. --workers 2)
         self.port = free_port()
         self.url = f"http://127.0.0.1:{self.port}"
@@ -56,7 +66,7 @@ class LiveServer:
                 [sys.executable, "-m", "server.cli", "serve", "--data-dir", str(self.data_dir),
                  "--port", str(self.port), "--log-level", "warning", *self.args],
                 stdout=log, stderr=subprocess.STDOUT, env=self.env, start_new_session=True,
-                preexec_fn=_stop_with_parent)
+                preexec_fn=functools.partial(_in_the_server, self.ctrl_c))
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:
             if self.process.poll() is not None:

@@ -3,7 +3,6 @@ schema is complete, and the server refuses an open bind without a token."""
 
 from __future__ import annotations
 
-import contextlib
 import os
 import re
 import signal
@@ -14,7 +13,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from live_server import free_port
+from live_server import LiveServer, free_port
 
 from server.app import create_app
 from server.settings import Settings
@@ -86,63 +85,33 @@ def test_serve_names_the_option_or_variable_of_a_bad_setting_on_one_line(tmp_pat
     assert not (tmp_path / "data").exists()
 
 
-def start_serving(tmp_path, ignore_ctrl_c=False):
-    """``serve`` on a free port, once it answers; Ctrl-C at its default (a terminal's), or ignored as
-    a shell starts a background job (the test suite itself may run so: its children inherit that)."""
-    port = free_port()
-    ctrl_c = signal.SIG_IGN if ignore_ctrl_c else signal.SIG_DFL
-    process = subprocess.Popen([sys.executable, "-m", "server.cli", "serve", "--port", str(port),
-                                "--data-dir", str(tmp_path / "data")],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               preexec_fn=lambda: signal.signal(signal.SIGINT, ctrl_c))
-    assert "morphspace: serving" in process.stdout.readline()   # (blocks until serving or exit)
-    assert answers(port, 30)   # uvicorn has taken the signals
-    return process, port
-
-
-def answers(port, seconds):
-    deadline = time.monotonic() + seconds
-    while time.monotonic() < deadline:
-        with contextlib.suppress(httpx.HTTPError):
-            if httpx.get(f"http://127.0.0.1:{port}/v1/health", timeout=2).status_code == 200:
-                return True
-        time.sleep(0.1)
-    return False
-
-
 @pytest.mark.parametrize("signum, status, word", [(signal.SIGINT, 130, "interrupted"),
                                                   (signal.SIGTERM, 143, "terminated")])
 def test_serve_ends_on_ctrl_c_and_sigterm_as_every_command_does(tmp_path, signum, status, word):
     """docs/cli.md: Ctrl-C ends a command with `interrupted` and status 130, SIGTERM with
     `terminated` and 143, serve included once it has stopped gracefully (it ended with status 0
     on Ctrl-C and was killed by SIGTERM after its stop, both without a word; a docs-only user)."""
-    process, _ = start_serving(tmp_path)
-    try:
-        process.send_signal(signum)
-        _, stderr = process.communicate(timeout=60)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait(10)
-    assert process.returncode == status, (process.returncode, stderr[-2000:])
-    assert stderr.rstrip().splitlines()[-1] == f"morphspace serve: {word}", stderr[-2000:]
+    with LiveServer(tmp_path / "data", ctrl_c=signal.SIG_DFL) as server:   # answering: uvicorn has the signals
+        server.process.send_signal(signum)
+        server.process.wait(60)
+    log = server.log.read_text()
+    assert "morphspace: serving" in log.splitlines()[0], log[:2000]
+    assert server.process.returncode == status, (server.process.returncode, log[-2000:])
+    assert log.rstrip().splitlines()[-1] == f"morphspace serve: {word}", log[-2000:]
 
 
 def test_serve_started_with_ctrl_c_ignored_keeps_ignoring_it(tmp_path):
     """As every other command does (Python keeps an inherited SIG_IGN). uvicorn stopped on it, then
     ended with status 0 and no word: a flaky failure when the suite ran in the background."""
-    process, port = start_serving(tmp_path, ignore_ctrl_c=True)
-    try:
-        process.send_signal(signal.SIGINT)
+    with LiveServer(tmp_path / "data", ctrl_c=signal.SIG_IGN) as server:
+        server.process.send_signal(signal.SIGINT)
         time.sleep(1.0)   # uvicorn's loop looks at its exit flag every 0.1 s
-        assert process.poll() is None and answers(port, 10)
-        process.send_signal(signal.SIGTERM)
-        _, stderr = process.communicate(timeout=60)
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait(10)
-    assert process.returncode == 143 and stderr.rstrip().splitlines()[-1] == "morphspace serve: terminated", stderr
+        assert server.process.poll() is None
+        assert httpx.get(server.url + "/v1/health", timeout=10).status_code == 200
+        server.process.send_signal(signal.SIGTERM)
+        server.process.wait(60)
+    log = server.log.read_text()
+    assert server.process.returncode == 143 and log.rstrip().splitlines()[-1] == "morphspace serve: terminated", log
 
 
 def _documented_keys(text, after):
