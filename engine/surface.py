@@ -154,13 +154,15 @@ def closest_on_triangles(P, A, B, C):
         u = 1.0 - v - w
         # edge and vertex regions override the interior solution, most specific last
         t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
+        # an edge region needs the edge (its squared length, the denominator, > 0): a face that repeats a
+        # corner is the segment between its other two, which the other regions find
+        m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0) & ((d4 - d3) + (d5 - d6) > 0)
         u, v, w = np.where(m, 0.0, u), np.where(m, 1 - t, v), np.where(m, t, w)
         t = d2 / (d2 - d6)
-        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0) & (d2 - d6 > 0)
         u, v, w = np.where(m, 1 - t, u), np.where(m, 0.0, v), np.where(m, t, w)
         t = d1 / (d1 - d3)
-        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0) & (d1 - d3 > 0)
         u, v, w = np.where(m, 1 - t, u), np.where(m, t, v), np.where(m, 0.0, w)
     for m, corner in (((d6 >= 0) & (d5 <= d6), 2), ((d3 >= 0) & (d4 <= d3), 1), ((d1 <= 0) & (d2 <= 0), 0)):
         u, v, w = (np.where(m, float(corner == 0), u), np.where(m, float(corner == 1), v),

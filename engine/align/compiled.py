@@ -56,7 +56,9 @@ def _closest_among(P, V, F, faces):  # pragma: no cover (compiled; tested throug
                     u, v, w = 0.0, 1.0, 0.0
                 else:
                     vc = d1 * d4 - d3 * d2
-                    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0:
+                    # an edge region needs the edge (its squared length > 0): a face that repeats a
+                    # corner is the segment between its other two, found by the regions after
+                    if vc <= 0.0 and d1 >= 0.0 and d3 <= 0.0 and d1 - d3 > 0.0:
                         t = d1 / (d1 - d3)
                         u, v, w = 1.0 - t, t, 0.0
                     else:
@@ -67,12 +69,12 @@ def _closest_among(P, V, F, faces):  # pragma: no cover (compiled; tested throug
                             u, v, w = 0.0, 0.0, 1.0
                         else:
                             vb = d5 * d2 - d1 * d6
-                            if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0:
+                            if vb <= 0.0 and d2 >= 0.0 and d6 <= 0.0 and d2 - d6 > 0.0:
                                 t = d2 / (d2 - d6)
                                 u, v, w = 1.0 - t, 0.0, t
                             else:
                                 va = d3 * d6 - d5 * d4
-                                if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0:
+                                if va <= 0.0 and d4 - d3 >= 0.0 and d5 - d6 >= 0.0 and (d4 - d3) + (d5 - d6) > 0.0:
                                     t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
                                     u, v, w = 0.0, 1.0 - t, t
                                 else:

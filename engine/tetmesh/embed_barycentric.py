@@ -190,13 +190,14 @@ def _point_triangle_distance(P, A, B, C, full=False):
     with np.errstate(divide="ignore", invalid="ignore"):
         denom = va + vb + vc
         closest = A + ab * (vb / denom)[:, None] + ac * (vc / denom)[:, None]  # interior
-        # Overwrite with the vertex / edge regions, lowest priority first.
+        # Overwrite with the vertex / edge regions, lowest priority first (an edge region needs the
+        # edge: a face that repeats a corner is the segment between its other two).
         regions = [
-            ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0),
+            ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0) & ((d4 - d3) + (d5 - d6) > 0),
              lambda: B + (C - B) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)))[:, None]),
-            ((vb <= 0) & (d2 >= 0) & (d6 <= 0), lambda: A + ac * (d2 / (d2 - d6))[:, None]),
+            ((vb <= 0) & (d2 >= 0) & (d6 <= 0) & (d2 - d6 > 0), lambda: A + ac * (d2 / (d2 - d6))[:, None]),
             ((d6 >= 0) & (d5 <= d6), lambda: C),
-            ((vc <= 0) & (d1 >= 0) & (d3 <= 0), lambda: A + ab * (d1 / (d1 - d3))[:, None]),
+            ((vc <= 0) & (d1 >= 0) & (d3 <= 0) & (d1 - d3 > 0), lambda: A + ab * (d1 / (d1 - d3))[:, None]),
             ((d3 >= 0) & (d4 <= d3), lambda: B),
             ((d1 <= 0) & (d2 <= 0), lambda: A),
         ]

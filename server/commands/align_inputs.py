@@ -15,7 +15,10 @@ from engine.mesh_io.errors import MeshFormatError, MeshSequenceError
 from engine.mesh_io.frames import left_out_frames, list_frames
 from engine.mesh_io.natural_sort import stem_runs
 from server.commands.checks import read_meta
+from engine.surface import model_size
 from server.units import declared_convention, meshes_to_metres, say_conventions
+
+MAX_FRAME_SCALE = 10.0  # a frame this many times larger or smaller than its sequence's median is in other units
 
 def resolve_inputs(inputs, only=None):
     """Sequences to align from the command-line DIRs.
@@ -191,6 +194,7 @@ def convert_inputs(meshes, sequences, lengths, units="auto", up="auto", *, say=N
     """
     converted, conventions, start = [], [], 0
     for s, n in zip(sequences, lengths):
+        check_one_scale(meshes[start:start + n], s["name"])
         part, convention = meshes_to_metres(meshes[start:start + n], units, up,
                                             declared=declared_convention(s.get("declared", ())))
         converted.extend(part)
@@ -199,6 +203,27 @@ def convert_inputs(meshes, sequences, lengths, units="auto", up="auto", *, say=N
     if say is not None:
         say_conventions(conventions, [s["name"] for s in sequences], say)
     return converted, conventions
+
+
+def check_one_scale(meshes, name):
+    """A ValueError naming the first frame of sequence ``name`` whose size (of the vertices its faces
+    use: stray points do not count) is more than ``MAX_FRAME_SCALE`` times larger or smaller than
+    the median frame's. One sequence is in one unit: a frame saved in millimetres among frames in
+    metres would otherwise be aligned as a body a thousand times too big, and every frame aligned
+    from it would follow."""
+    sizes = np.array([model_size(m.vertices[np.unique(m.faces)]) for m in meshes])
+    median = float(np.median(sizes))
+    ratio = np.maximum(sizes / median, median / np.maximum(sizes, 1e-300))
+    off = np.flatnonzero(ratio > MAX_FRAME_SCALE)
+    if len(off):
+        k = int(off[0])
+        what = f"{ratio[k]:,.0f} times the size of" if sizes[k] > median else f"1/{ratio[k]:,.0f} the size of"
+        more = f" ({len(off)} such frames)" if len(off) > 1 else ""
+        source = getattr(meshes[k], "source", None)
+        frame = f"{file_name(source)} (frame {k})" if source else f"frame {k}"
+        raise ValueError(f"sequence {name!r}: {frame} is {what} the sequence's "
+                         f"median frame{more}: one sequence's frames must be in the same units (convert the "
+                         "frame, e.g. from millimetres to metres)")
 
 
 def file_name(source):

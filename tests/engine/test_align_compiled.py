@@ -43,6 +43,36 @@ def test_the_nearest_candidate_matches_the_numpy_region_tests(mesh):
     assert (face == candidates[rows, best]).mean() > 0.9
 
 
+def _closest_on_segment(P, A, B):
+    ab = B - A
+    length2 = float(ab @ ab)
+    t = np.clip((P - A) @ ab / length2, 0.0, 1.0) if length2 > 0 else np.zeros(len(P))
+    return A + t[:, None] * ab
+
+
+@pytest.mark.parametrize("corners", [(0, 0, 1), (0, 1, 0), (1, 0, 0), (0, 0, 0)])
+def test_a_face_that_repeats_a_corner_is_the_segment_between_the_others(corners):
+    """Scans carry faces like (a, a, b): the closest point on one is on the segment a-b, in the
+    compiled loop (it divided 0 by 0 there), the numpy region tests and the tet embedding's."""
+    from engine.tetmesh.embed_barycentric import _point_triangle_distance
+
+    rng = np.random.default_rng(7)
+    V = np.array([[0.0, 0.0, 0.0], [1.0, 0.2, -0.1]])
+    F = np.array([corners])
+    P = rng.uniform(-0.6, 1.6, (400, 3))
+    expected = _closest_on_segment(P, V[corners[0]], V[corners[2] if corners[2] != corners[0] else corners[1]])
+    points, distance, face, bary = closest_among_faces(P, V, F, np.zeros((len(P), 1), dtype=np.int64))
+    np.testing.assert_allclose(points, expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(distance, np.linalg.norm(P - expected, axis=1), rtol=0, atol=1e-12)
+    assert np.all(face == 0) and np.allclose(bary.sum(axis=1), 1.0)
+    A, B, C = (np.broadcast_to(V[c], P.shape) for c in corners)
+    ref_points, ref_bary = closest_on_triangles(P, A, B, C)
+    np.testing.assert_allclose(ref_points, expected, rtol=0, atol=1e-12)
+    assert np.allclose(ref_bary.sum(axis=1), 1.0)
+    np.testing.assert_allclose(_point_triangle_distance(P, A, B, C), np.linalg.norm(P - expected, axis=1),
+                               rtol=0, atol=1e-12)
+
+
 def test_a_point_without_candidates_is_infinitely_far(mesh):
     V, F = mesh
     P = np.array([[0.0, 0.0, 1.0], [0.0, 0.9, 0.0]])

@@ -877,3 +877,28 @@ def test_a_single_frame_is_its_own_root_and_the_summary_says_nothing_was_aligned
     out = capsys.readouterr().out
     assert "no alignment (the root is the only frame), repair 0.0 s" in out and "s/frame" not in out, out
     assert read_sequence(tmp_path / "out" / "sequences" / "single" / "consistent").vertices.shape[0] == 1
+
+
+def test_a_frame_in_other_units_than_its_sequence_is_refused_by_name(dataset, tmp_path, capsys):
+    """One frame of the walk saved in millimetres among frames in metres: aligned, it was a body a
+    thousand times too big (residuals of kilometres, exit 0) and dragged the frames aligned from it.
+    Units are decided per sequence, so a frame off its sequence's scale is named and nothing written;
+    stray unreferenced points do not count towards a frame's size."""
+    root = tmp_path / "mixed"
+    shutil.copytree(dataset, root)
+    frames = root / "sequences" / "walk" / "unstructured"
+    mesh = read_frames(frames)[1]
+    path = sorted(frames.iterdir())[1]
+    stray = np.vstack([mesh.vertices, [[40.0, 0.0, 0.0]]])  # a far point no face uses: not the frame's size
+    write_ply(path, stray, mesh.faces, colors=np.vstack([mesh.colors, [[0.5, 0.5, 0.5]]]), dtype=np.float64)
+    out = tmp_path / "out"
+    assert main(["align", str(root), "--out", str(out), "--only", "walk", "--levels", "1", "--retries", "0",
+                 "--workers", "1"]) == 0
+    capsys.readouterr()
+    write_ply(path, mesh.vertices * 1000.0, mesh.faces, colors=mesh.colors, dtype=np.float64)
+    assert main(["align", str(root), "--out", str(tmp_path / "refused"), "--workers", "1"]) == 2
+    err = capsys.readouterr().err
+    said = re.search(rf"sequence 'walk': {path.name} \(frame 1\) is ([\d,]+) times the size of the sequence's "
+                     "median frame: one sequence's frames must be in the same units", err)
+    assert said and 900 < int(said.group(1).replace(",", "")) < 1100, err[-500:]
+    assert not (tmp_path / "refused").exists()
