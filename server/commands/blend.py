@@ -29,7 +29,8 @@ from engine.blend import (
     build_hybrid,
     decompose_frames,
 )
-from engine.mesh_io import read_mesh, write_mesh
+from engine.mesh_io import Mesh, read_mesh, write_mesh, write_ply
+from engine.mesh_io.mesh_file import writable_type
 from engine.mesh_io.units import from_metres_y_up, to_metres_y_up
 from engine.surface import model_size
 from server.commands.build import EPSILON_MM
@@ -38,6 +39,7 @@ from server.units import add_units_arguments, length_text, meshes_to_metres, say
 
 
 MAX_SIZE_RATIO = 10.0  # inputs whose sizes differ more than this are in different units
+FLOAT32_REACH = 16.0   # model sizes from the origin beyond which a PLY output is written in float64
 
 
 def add_arguments(parser):
@@ -52,6 +54,25 @@ def add_arguments(parser):
     parser.add_argument("--compare", action="store_true",
                         help="also report linear and hybrid errors against the non-linear blend")
     add_units_arguments(parser)
+
+
+def _write(path, V, F, colours, size):
+    """``write_mesh``, except that a PLY far from its origin is written in float64: float32 (PLY's
+    convention) holds a coordinate to 1 part in 16.7 million, so beyond ``FLOAT32_REACH`` model
+    sizes from the origin (survey coordinates) it would lose more than a millionth of the size."""
+    if writable_type(path) == "ply" and np.abs(V).max() > FLOAT32_REACH * size:
+        write_ply(path, V, F, colors=colours, dtype=np.float64)
+    else:
+        write_mesh(path, V, F, colours)
+
+
+def surface_vertices(faces, count):
+    """(the vertices some face uses, in order; the faces renumbered over them) of a mesh of
+    ``count`` vertices."""
+    used = np.unique(faces)
+    number = np.full(count, -1, dtype=np.int64)
+    number[used] = np.arange(len(used))
+    return used, number[faces]
 
 
 def _load(paths, progress):
@@ -73,7 +94,8 @@ def _load(paths, progress):
             raise ValueError(f"{path}: face {face} is {tuple(mesh.faces[face].tolist())} but in {paths[0]} it is "
                              f"{tuple(first.faces[face].tolist())}; blending needs meshes with the same topology "
                              "(the connectivity differs)")
-    sizes = [model_size(mesh.vertices) for mesh in meshes]
+    used = np.unique(first.faces)  # stray points no face uses are not the surface's size
+    sizes = [model_size(mesh.vertices[used]) for mesh in meshes]
     for path, size in zip(paths, sizes):
         if not (np.isfinite(size) and size > 0):
             raise ValueError(f"{path}: model size must be positive and finite, got {size} (all its vertices at "
@@ -104,18 +126,16 @@ def run(args):
             raise ValueError(f"--out {args.out} is one of the input meshes; name another file")
         if not args.force:
             raise ValueError(f"--out {args.out} exists; pass --force to replace it")
-    from engine.mesh_io.mesh_file import writable_type
-
     try:   # before the meshes are read and blended
         writable_type(args.out)
     except ValueError as exc:
         raise ValueError(f"--out {exc}") from None
     bars = StageBars()
     try:
-        (meshes, convention), result, elapsed = _blend(args, w, bars)
+        (meshes, convention), result, elapsed, n = _blend(args, w, bars)
     finally:
         bars.close()
-    N, n = len(meshes), len(meshes[0].vertices)
+    N = len(meshes)
     print(f"wrote {args.out}: {args.mode} blend of {N} meshes ({n} vertices) with weights "
           f"{np.round(w / w.sum(), 4).tolist()} in {elapsed:.2f} s, in the inputs' units ({convention.units}, "
           f"up {convention.up_label})")
@@ -133,15 +153,28 @@ def run(args):
 def _blend(args, w, progress):
     """Read, blend and write; ``progress(stage, done, total)`` is told about each stage.
 
-    Returns ((meshes, convention), result, seconds): the input meshes in metres, +Y up and what
-    their files were in, the (n, 3) blends by mode computed on the way (metres, +Y up;
-    ``result[args.mode]`` is the one written, converted back), and the seconds from the meshes
-    read to the blend written."""
-    meshes, convention = meshes_to_metres(_load(args.meshes, progress), args.units, args.up)
-    # tqdm.write: the line goes above the progress bar instead of onto its line
-    say_conventions([convention], ["the meshes"], lambda line: tqdm.write(f"morphspace blend: {line}", file=sys.stderr))
-    faces = meshes[0].faces
-    sources = np.stack([m.vertices for m in meshes])[None].astype(np.float32)  # (P=1, N, n, 3)
+    Returns ((meshes, convention), result, seconds, vertices): the input meshes in metres, +Y up
+    (their surface: the vertices some face uses) and what their files were in, the blends of that
+    surface by mode computed on the way (metres, +Y up; ``result[args.mode]`` is the one written,
+    converted back), the seconds from the meshes read to the blend written, and the vertex count
+    written (the files' own)."""
+    read = _load(args.meshes, progress)
+    used, faces = surface_vertices(read[0].faces, len(read[0].vertices))
+
+    def say(line):  # tqdm.write: the line goes above the progress bar instead of onto its line
+        tqdm.write(f"morphspace blend: {line}", file=sys.stderr)
+
+    if len(used) < len(read[0].vertices):
+        say(f"{len(read[0].vertices) - len(used)} vertices that no face uses are left out of the blend (their "
+            "units, size and solid) and written at the weights' mean of their places")
+    meshes, convention = meshes_to_metres([Mesh(vertices=m.vertices[used], faces=faces, source=m.source,
+                                                colors=None if m.colors is None else m.colors[used])
+                                           for m in read], args.units, args.up)
+    say_conventions([convention], ["the meshes"], say)
+    # blended about the first mesh's centre (float64) in float32: a capture far from its origin
+    # (survey coordinates) keeps its millimetres
+    centre = meshes[0].vertices.mean(axis=0)
+    sources = np.stack([m.vertices - centre for m in meshes])[None].astype(np.float32)  # (P=1, N, n, 3)
     N, n = sources.shape[1:3]
     linear = LinearBlender(sources, cyclic=True)
     started = time.perf_counter()
@@ -151,12 +184,14 @@ def _blend(args, w, progress):
         result["linear"] = linear.blend(w, 0.0)
         progress("solve", 1, 1)
     else:
-        rest = meshes[0].vertices
+        rest = meshes[0].vertices - centre
         if args.rest is not None:
             rest_mesh = read_mesh(args.rest)
-            if rest_mesh.vertices.shape != rest.shape or not np.array_equal(rest_mesh.faces, faces):
+            if rest_mesh.vertices.shape != read[0].vertices.shape or not np.array_equal(rest_mesh.faces,
+                                                                                         read[0].faces):
                 raise ValueError(f"{args.rest}: the rest mesh must have the same topology as the inputs")
-            rest = to_metres_y_up(rest_mesh.vertices, convention.units, convention.up)  # as the inputs
+            # as the inputs
+            rest = to_metres_y_up(rest_mesh.vertices[used], convention.units, convention.up) - centre
         progress("tetrahedralise", 0, 1)
         try:
             embedding = VolumetricEmbedding.from_surface(rest, faces)
@@ -186,9 +221,12 @@ def _blend(args, w, progress):
             progress("hybrid", 1, 1)
     progress("write", 0, 1)
     colours = None  # the inputs' vertex colours mixed by the weights, when every input has them
-    if all(m.colors is not None for m in meshes):
-        colours = np.clip(np.einsum("k,kic->ic", w / w.sum(), np.stack([m.colors for m in meshes])), 0.0, 1.0)
-    write_mesh(args.out, from_metres_y_up(np.asarray(result[args.mode], dtype=np.float64), convention.units,
-                                          convention.up), faces, colours)
+    if all(m.colors is not None for m in read):
+        colours = np.clip(np.einsum("k,kic->ic", w / w.sum(), np.stack([m.colors for m in read])), 0.0, 1.0)
+    result = {mode: np.asarray(blend, dtype=np.float64) + centre for mode, blend in result.items()}
+    # the files' own vertices back: the blended surface, and the stray points at their mean
+    out = np.einsum("k,kic->ic", w / w.sum(), np.stack([m.vertices for m in read]))
+    out[used] = from_metres_y_up(result[args.mode], convention.units, convention.up)
+    _write(args.out, out, read[0].faces, colours, model_size(out[used]))
     progress("write", 1, 1)
-    return (meshes, convention), result, time.perf_counter() - started
+    return (meshes, convention), result, time.perf_counter() - started, len(out)

@@ -250,3 +250,46 @@ def test_blend_refuses_an_existing_output_without_force_and_never_replaces_an_in
     assert "exists; pass --force to replace it" in capsys.readouterr().err and out.read_bytes() == written
     assert main(["blend", *inputs[:4], "3", "--mode", "linear", "--out", str(out), "--force"]) == 0
     assert out.read_bytes() != written
+
+
+def test_stray_points_no_face_uses_change_nothing_of_the_surface(arms, tmp_path, capsys):
+    """Scans keep vertices no face uses. They were the blend's units, size and solid: three of them
+    30-50 m away made it refuse the mesh as "too thin", 500 beside the body bent the surface by up
+    to 0.6 m. Now the surface blends as without them, and they are written where the weights' mean
+    puts them (the files' own vertex numbering kept)."""
+    folder, V0, V1, F = arms
+    rng = np.random.default_rng(5)
+    for name, count, spread in (("far", 3, 40.0), ("near", 200, 0.3)):
+        stray0 = rng.normal(0.0, spread, (count, 3))
+        stray1 = stray0 + rng.normal(0.0, 0.05, (count, 3))
+        # the strays first: every face renumbered past them
+        write_obj(tmp_path / f"a_{name}.obj", np.vstack([stray0, V0]), F + count)
+        write_obj(tmp_path / f"b_{name}.obj", np.vstack([stray1, V1]), F + count)
+        for mode in ("nonlinear", "hybrid"):
+            clean, out = tmp_path / f"clean_{mode}.obj", tmp_path / f"{name}_{mode}.obj"
+            if not clean.exists():
+                assert main(["blend", str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "1", "3",
+                             "--mode", mode, "--out", str(clean)]) == 0
+            assert main(["blend", str(tmp_path / f"a_{name}.obj"), str(tmp_path / f"b_{name}.obj"), "--weights", "1",
+                         "3", "--mode", mode, "--out", str(out)]) == 0
+            assert f"{count} vertices that no face uses are left out of the blend" in capsys.readouterr().err
+            written = read_mesh(out)
+            np.testing.assert_array_equal(written.faces, F + count)
+            np.testing.assert_allclose(written.vertices[count:], read_mesh(clean).vertices, rtol=0, atol=1e-6)
+            np.testing.assert_allclose(written.vertices[:count], 0.25 * stray0 + 0.75 * stray1, rtol=0, atol=1e-5)
+
+
+def test_meshes_far_from_their_origin_keep_their_millimetres(arms, tmp_path):
+    """Survey coordinates: the same arms 1,000 km from the origin blend as at the origin, moved
+    (they were cast to float32 before their centre was taken out: 66 mm off)."""
+    folder, V0, V1, F = arms
+    offset = np.array([1.0e6, 0.0, 2.0e6])
+    write_ply(tmp_path / "a.ply", V0 + offset, F, dtype=np.float64)
+    write_ply(tmp_path / "b.ply", V1 + offset, F, dtype=np.float64)
+    for mode in ("nonlinear", "hybrid"):
+        near, far = tmp_path / f"near_{mode}.ply", tmp_path / f"far_{mode}.ply"
+        assert main(["blend", str(folder / "straight.obj"), str(folder / "bent.ply"), "--weights", "1", "1",
+                     "--mode", mode, "--units", "m", "--out", str(near)]) == 0
+        assert main(["blend", str(tmp_path / "a.ply"), str(tmp_path / "b.ply"), "--weights", "1", "1",
+                     "--mode", mode, "--units", "m", "--out", str(far)]) == 0
+        np.testing.assert_allclose(read_mesh(far).vertices - offset, read_mesh(near).vertices, rtol=0, atol=1e-4)
