@@ -70,7 +70,7 @@ def tetrahedralize(V, F, *, resolution=56, cell=None, max_cells=4000, min_inside
     size = float(np.max(V.max(axis=0) - V.min(axis=0)))
     if not size > 0:
         raise ValueError("V has no extent: every vertex is at the same place")
-    V_capped, F_capped = cap_holes(V, F)
+    V_capped, F_capped = cap_holes(V, _welded(V, F))
     if cell is not None:
         h = float(cell)
     else:
@@ -98,6 +98,26 @@ def tetrahedralize(V, F, *, resolution=56, cell=None, max_cells=4000, min_inside
     flip = volume < 0
     T[flip] = T[flip][:, [0, 1, 3, 2]]
     return _held_components(V, V_tet, T)
+
+
+def _welded(V, F):
+    """The faces that bound the solid: as given, unless vertices repeat a place or faces repeat a
+    triangle. An unwelded triangle soup (STL's way: three vertices of its own for every face)
+    shares no edge, so capping takes every face for a hole; a surface saved twice over counts every
+    crossing twice, so ray parity finds nothing inside. Then each vertex stands for the first at
+    its place (the vertices themselves are kept, and every one is still embedded), and of the
+    faces that result, those that repeat a corner or another face's corners are left out."""
+    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    corners = np.sort(F, axis=1)
+    if len(first) == len(V) and len(np.unique(corners, axis=0)) == len(F):
+        return F  # the usual case, left exactly as it was
+    F = first[inverse.reshape(-1)][F]
+    corners = np.sort(F, axis=1)
+    proper = (corners[:, 0] != corners[:, 1]) & (corners[:, 1] != corners[:, 2])
+    _, once = np.unique(corners, axis=0, return_index=True)
+    keep = np.zeros(len(F), dtype=bool)
+    keep[once] = True
+    return F[keep & proper]
 
 
 def _held_components(P, V_tet, T):

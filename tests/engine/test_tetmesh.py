@@ -287,6 +287,20 @@ def test_tetrahedralize_is_deterministic_and_ignores_orientation():
     check_tet_mesh(capsule.vertices, capsule.faces, *first, rel=0.3)
 
 
+def test_a_triangle_soup_and_a_surface_saved_twice_fill_as_the_surface():
+    """Scans come as STL-like soups (three vertices of its own for every face) or with every face
+    written twice. They were refused: the soup shares no edge (capped face by face), the doubled
+    surface counts every crossing twice (ray parity finds nothing inside). Both now give the
+    surface's own tets, byte for byte."""
+    capsule = trimesh.creation.capsule(height=1.0, radius=0.3, count=[16, 16])
+    V, F = np.asarray(capsule.vertices), np.asarray(capsule.faces)
+    whole = tetrahedralize(V, F, resolution=20)
+    soup = tetrahedralize(V[F].reshape(-1, 3), np.arange(3 * len(F)).reshape(-1, 3), resolution=20)
+    twice = tetrahedralize(V, np.vstack([F, F[::-1, ::-1]]), resolution=20)
+    for other in (soup, twice):
+        assert other[0].tobytes() == whole[0].tobytes() and other[1].tobytes() == whole[1].tobytes()
+
+
 def test_tetrahedralize_follows_the_shape_not_the_vertex_count():
     """Midpoint subdivision keeps the surface, and so the cells, while quadrupling the faces."""
     sphere = trimesh.creation.icosphere(subdivisions=2)
