@@ -14,11 +14,12 @@ from engine.mesh_io.dataset import read_capture_manifest
 from engine.mesh_io.errors import MeshFormatError, MeshSequenceError
 from engine.mesh_io.frames import left_out_frames, list_frames
 from engine.mesh_io.natural_sort import stem_runs
-from server.commands.checks import read_meta
 from engine.surface import model_size
+from server.commands.checks import read_meta
 from server.units import declared_convention, meshes_to_metres, say_conventions
 
 MAX_FRAME_SCALE = 10.0  # a frame this many times larger or smaller than its sequence's median is in other units
+
 
 def resolve_inputs(inputs, only=None):
     """Sequences to align from the command-line DIRs.
@@ -213,6 +214,8 @@ def check_one_scale(meshes, name):
     from it would follow."""
     sizes = np.array([model_size(m.vertices[np.unique(m.faces)]) for m in meshes])
     median = float(np.median(sizes))
+    if not median > 0:  # most frames of no extent: no scale to hold the others to
+        return
     ratio = np.maximum(sizes / median, median / np.maximum(sizes, 1e-300))
     off = np.flatnonzero(ratio > MAX_FRAME_SCALE)
     if len(off):
