@@ -232,6 +232,18 @@ class SurfaceQuery:
         return points[pick], flat_faces[pick], bary[pick], dist[np.arange(q), best]
 
 
+def welded_faces(V, F):
+    """The faces with vertices at exactly the same place taken as one (an unwelded export gives
+    every face its own corners; a UV seam duplicates its vertices): each stands for the first of
+    its twins, and the faces that then repeat a corner are left out. ``F`` itself when no two
+    vertices share a place."""
+    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    if len(first) == len(V):
+        return F
+    F = first[inverse.ravel()][F]
+    return F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
+
+
 def main_components(V, F, *, min_fraction=0.05):
     """Drop the small disconnected pieces of a surface (floating reconstruction fragments).
 
@@ -261,12 +273,7 @@ def main_components(V, F, *, min_fraction=0.05):
     V = np.asarray(V, dtype=np.float64)
     F = np.asarray(F, dtype=np.int64)
     n = len(V)
-    # vertices at exactly the same place are one (an unwelded export gives every face its own
-    # corners; a UV seam duplicates its vertices): each stands for the first of its twins
-    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
-    if len(first) < n:
-        F = first[inverse.ravel()][F]
-        F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 2] != F[:, 0])]
+    F = welded_faces(V, F)
     rows = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
     cols = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
     count, label = connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)),

@@ -7,7 +7,7 @@ import itertools
 import numpy as np
 
 from ..holes import cap_holes
-from ..surface import enclosed_volume
+from ..surface import enclosed_volume, welded_faces
 from ._validate import as_vertices
 from .occupancy import grid_occupancy
 from .tet_components import tet_components
@@ -104,20 +104,18 @@ def _welded(V, F):
     """The faces that bound the solid: as given, unless vertices repeat a place or faces repeat a
     triangle. An unwelded triangle soup (STL's way: three vertices of its own for every face)
     shares no edge, so capping takes every face for a hole; a surface saved twice over counts every
-    crossing twice, so ray parity finds nothing inside. Then each vertex stands for the first at
-    its place (the vertices themselves are kept, and every one is still embedded), and of the
-    faces that result, those that repeat a corner or another face's corners are left out."""
-    _, first, inverse = np.unique(V, axis=0, return_index=True, return_inverse=True)
-    corners = np.sort(F, axis=1)
-    if len(first) == len(V) and len(np.unique(corners, axis=0)) == len(F):
-        return F  # the usual case, left exactly as it was
-    F = first[inverse.reshape(-1)][F]
-    corners = np.sort(F, axis=1)
-    proper = (corners[:, 0] != corners[:, 1]) & (corners[:, 1] != corners[:, 2])
+    crossing twice, so ray parity finds nothing inside. Then the faces are welded
+    (:func:`engine.surface.welded_faces`: the vertices themselves are kept, and every one is still
+    embedded), and of those, the ones that repeat a corner or another face's corners are left out."""
+    welded = welded_faces(V, F)
+    corners = np.sort(welded, axis=1)
     _, once = np.unique(corners, axis=0, return_index=True)
-    keep = np.zeros(len(F), dtype=bool)
+    if welded is F and len(once) == len(F):
+        return F  # the usual case, left exactly as it was
+    proper = (corners[:, 0] != corners[:, 1]) & (corners[:, 1] != corners[:, 2])
+    keep = np.zeros(len(welded), dtype=bool)
     keep[once] = True
-    return F[keep & proper]
+    return welded[keep & proper]
 
 
 def _held_components(P, V_tet, T):

@@ -76,6 +76,8 @@ def surface_vertices(faces, count):
 
 
 def _load(paths, progress):
+    """The meshes read and checked: (meshes, the vertices some face uses, the faces renumbered over
+    them)."""
     meshes = []
     for k, path in enumerate(paths):
         progress("read", k, len(paths))
@@ -94,7 +96,7 @@ def _load(paths, progress):
             raise ValueError(f"{path}: face {face} is {tuple(mesh.faces[face].tolist())} but in {paths[0]} it is "
                              f"{tuple(first.faces[face].tolist())}; blending needs meshes with the same topology "
                              "(the connectivity differs)")
-    used = np.unique(first.faces)  # stray points no face uses are not the surface's size
+    used, faces = surface_vertices(first.faces, len(first.vertices))  # stray points are not the surface's size
     sizes = [model_size(mesh.vertices[used]) for mesh in meshes]
     for path, size in zip(paths, sizes):
         if not (np.isfinite(size) and size > 0):
@@ -104,7 +106,7 @@ def _load(paths, progress):
     if sizes[big] > MAX_SIZE_RATIO * sizes[small]:  # one decision of units for all: the same units, or a mistake
         raise ValueError(f"{paths[big]} is {sizes[big] / sizes[small]:.0f} times the size of {paths[small]}: "
                          "blend meshes in the same units (convert one, e.g. from millimetres to metres)")
-    return meshes
+    return meshes, used, faces
 
 
 def run(args):
@@ -158,8 +160,7 @@ def _blend(args, w, progress):
     surface by mode computed on the way (metres, +Y up; ``result[args.mode]`` is the one written,
     converted back), the seconds from the meshes read to the blend written, and the vertex count
     written (the files' own)."""
-    read = _load(args.meshes, progress)
-    used, faces = surface_vertices(read[0].faces, len(read[0].vertices))
+    read, used, faces = _load(args.meshes, progress)
 
     def say(line):  # tqdm.write: the line goes above the progress bar instead of onto its line
         tqdm.write(f"morphspace blend: {line}", file=sys.stderr)
