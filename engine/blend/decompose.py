@@ -66,6 +66,21 @@ class VolumetricEmbedding:
         return sp.csr_matrix((self.surface_bary.ravel(), (rows, self.T[self.surface_tet].ravel())),
                              shape=(n, len(self.V_tet)))
 
+    @property
+    def surface_share(self):
+        """(n,) float array or None: each surface vertex's share of its place.
+
+        Vertices embedded alike (the same tet and coordinates: copies of one point, as an unwelded
+        triangle soup or a mesh split at its texture seams keeps them) share one place, each
+        counting 1 / copies in the fits and placements, so a surface weighs the same however
+        often its file repeats a point. None when no two vertices share a place (every weight 1).
+        """
+        keys = np.column_stack([self.surface_tet.astype(np.float64), self.surface_bary])
+        _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+        if len(counts) == len(keys):
+            return None
+        return 1.0 / counts[inverse.reshape(-1)]
+
 
 def _stretch_to_vector(S):
     return np.stack([S[..., i, j] for i, j in SYMMETRIC], axis=-1)
@@ -118,8 +133,12 @@ class FrameDecomposer:
         self.B = embedding.B
         L = tet_laplacian(embedding.V_tet, embedding.T)
         self.weight = float(np.sqrt(fit_weight * L.diagonal().mean()))
+        # copies of one point (a triangle soup) count once together: the fit, and so the blend,
+        # is the welded surface's
+        self.share = embedding.surface_share
+        weight = self.weight if self.share is None else self.weight * np.sqrt(self.share)
         self.solver = DeformationSolver(embedding.V_tet, embedding.T, constraints=self.B,
-                                        constraint_weight=self.weight)
+                                        constraint_weight=weight)
         self.iterations = int(iterations)
         self.rest_surface = np.asarray(self.B @ embedding.V_tet)
         # a solid in several parts (a floating piece filled on its own) starts each part from
@@ -134,12 +153,14 @@ class FrameDecomposer:
     def _start_rotations(self, S):
         """Every tet's first target: the best rotation of the surface (of its part's surface)."""
         t = len(self.embedding.T)
+        share = self.share
         if self._tet_part is None:
-            return np.broadcast_to(_best_rotation(self.rest_surface, S), (t, 3, 3))
+            return np.broadcast_to(_best_rotation(self.rest_surface, S, share), (t, 3, 3))
         R = np.empty((self.solver.n_parts, 3, 3))
         for part in range(self.solver.n_parts):
             held = self._surface_part == part
-            R[part] = _best_rotation(self.rest_surface[held], S[held]) if held.sum() >= 3 else np.eye(3)
+            R[part] = (_best_rotation(self.rest_surface[held], S[held], None if share is None else share[held])
+                       if held.sum() >= 3 else np.eye(3))
         return R[self._tet_part]
 
     def fit(self, S):
@@ -165,9 +186,13 @@ class FrameDecomposer:
         return FrameDecomposition(quaternions=q, stretch=_stretch_to_vector(Sy), detail=detail)
 
 
-def _best_rotation(P, Q):
-    """Rotation R minimising sum |R (p - mean p) - (q - mean q)|^2 (Kabsch)."""
-    H = (P - P.mean(axis=0)).T @ (Q - Q.mean(axis=0))
+def _best_rotation(P, Q, weight=None):
+    """Rotation R minimising sum w |R (p - mean p) - (q - mean q)|^2 (Kabsch; weights w, else 1)."""
+    if weight is None:
+        H = (P - P.mean(axis=0)).T @ (Q - Q.mean(axis=0))
+    else:
+        w = weight / weight.sum()
+        H = (w[:, None] * (P - w @ P)).T @ (Q - w @ Q)
     U, _, Vt = np.linalg.svd(H)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
     return Vt.T @ D @ U.T

@@ -142,6 +142,9 @@ class NonlinearBlender:
         if self.solver.n_parts > 1:
             self._surface_part = self.solver.part[np.asarray(embedding.T)[self.surface_tet, 0]]
         self.n_tets, self.n_vertices = t, n
+        # copies of one point (a triangle soup) share their weight in the placement
+        share = embedding.surface_share
+        self._share = None if share is None else share.astype(np.float32)
         f32 = np.float32
         # scratch of the per-tet work
         self._qb = np.empty((4, t), dtype=f32)
@@ -280,6 +283,8 @@ class NonlinearBlender:
         # anchored_offset(surface - linear, dispersion) without forming the difference
         weight += np.float32(1e-3)
         np.reciprocal(weight, out=weight)
+        if self._share is not None:
+            weight *= self._share
         if self._surface_part is not None:
             return self._place_parts(surface, weight, pieces, out)
         offset = weight @ surface

@@ -273,6 +273,30 @@ def test_nonlinear_blend_of_a_rotation_is_the_half_rotation():
     assert error < 0.02 * np.linalg.norm(0.5 * (V0 + V1) - expected, axis=1).max()  # linear cuts the corner
 
 
+def test_a_triangle_soup_blends_as_its_welded_surface():
+    """A soup (every face with three vertices of its own, as STL keeps a mesh) repeats each point
+    once per face round it. The fit of the tets to each frame and the blend's placement counted
+    every copy, so a soup blended up to millimetres from the same surface welded (the well
+    connected points pulled harder). Copies now share one point's weight: the soup blends as the
+    surface, and a surface without copies blends as before."""
+    V0, F = _bent_capsule(0.0)
+    V1, _ = _bent_capsule(np.radians(120))
+    frames = np.stack([V0, V1]).astype(np.float32)
+    soup_F = np.arange(3 * len(F)).reshape(-1, 3)
+    soup_frames = frames[:, F.reshape(-1)]
+
+    def half(frames, F):
+        embedding = VolumetricEmbedding.from_surface(frames[0].astype(np.float64), F)
+        q, s, d = decompose_frames(FrameDecomposer(embedding), frames)
+        return embedding, NonlinearBlender(embedding, q, s, d, frames).blend_frames(np.array([0.3, 0.7]), [0, 1])
+
+    welded, welded_half = half(frames, F)
+    soup, soup_half = half(soup_frames, soup_F)
+    assert welded.surface_share is None
+    np.testing.assert_allclose(soup.surface_share, 1.0 / np.bincount(F.reshape(-1))[F.reshape(-1)])
+    np.testing.assert_allclose(soup_half, welded_half[F.reshape(-1)], atol=1e-6 * model_size(V0))
+
+
 def test_a_floating_piece_blends_as_a_solid_of_its_own():
     """A surface in two closed pieces (a bending limb and a box floating beside it that turns
     90 degrees and moves): the tet mesh has two parts; each blends non-linearly, and the box
