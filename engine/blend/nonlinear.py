@@ -45,7 +45,7 @@ def _component_major(A):
     return np.ascontiguousarray(np.swapaxes(np.asarray(A, dtype=np.float32), 1, 2))
 
 
-def anchored_offset(delta, dispersion, floor=1e-3):
+def anchored_offset(delta, dispersion, floor=1e-3, share=None):
     """Translation placing a non-linear blend relative to the linear blend of the same frames.
 
     Parameters
@@ -54,10 +54,12 @@ def anchored_offset(delta, dispersion, floor=1e-3):
     dispersion : (n,) float array    how much the sources disagree on the rotation at each vertex
                                      (weighted quaternion variance, 0 = all rotate alike)
     floor : float                    dispersion below which vertices count as fully rigid
+    share : (n,) float array or None each vertex's share of its place
+                                     (``VolumetricEmbedding.surface_share``; None: 1 each)
 
     Returns
     -------
-    t : (3,) float array   weighted mean of ``delta``, weights 1 / (floor + dispersion)
+    t : (3,) float array   weighted mean of ``delta``, weights share / (floor + dispersion)
 
     Notes
     -----
@@ -69,6 +71,8 @@ def anchored_offset(delta, dispersion, floor=1e-3):
     ``NonlinearBlender`` computes the same weighted mean without forming ``delta``.
     """
     weight = 1.0 / (floor + dispersion)
+    if share is not None:
+        weight = weight * share
     return (weight @ delta) / weight.sum()
 
 
@@ -280,7 +284,7 @@ class NonlinearBlender:
         X = self.solver.solve_components(F, out=self._X)
         surface = self.B @ X
         surface += detail.T
-        # anchored_offset(surface - linear, dispersion) without forming the difference
+        # anchored_offset(surface - linear, dispersion, share=...) without forming the difference
         weight += np.float32(1e-3)
         np.reciprocal(weight, out=weight)
         if self._share is not None:
