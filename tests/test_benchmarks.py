@@ -303,6 +303,21 @@ def check_stream_socket(result, stdout):
     assert "us of the writer's CPU a frame" in stdout
 
 
+def check_hybrid_sheet(rows, stdout):
+    (row,) = rows
+    assert row["layout"] == "grid" and row["sources"] == 4 and row["vertices"] == 1000 and row["phases"] == 8
+    assert row["per_axis"] == 17 and row["weights"] == 17 * 17
+    build = row["build"]
+    assert build["check_points"] == 9 * 9 - 5 * 5 and non_negative(build["max_check_error_mm"])
+    assert build["max_check_error_mm"] <= row["epsilon_mm"] and build["max_test_error_mm"] <= 0.9 * row["epsilon_mm"] + 1e-3
+    # the sampled weights the build tested and those it checked agree with what it recorded
+    assert abs(row["max_error_test_weights_mm"] - build["max_test_error_mm"]) < 0.05
+    assert 0 < row["max_error_between_mm"] and row["max_error_mm"] == max(row["max_error_test_weights_mm"],
+                                                                        row["max_error_between_mm"])
+    assert row["weights_over_epsilon"] == 0 and positive(row["seconds"]) and positive(row["cpu_seconds"])
+    assert '"max_error_between_mm"' in stdout  # the figures are printed as well as written
+
+
 CHECKS = {
     "align_breakdown.py": check_align_breakdown,
     "align_momentum.py": check_align_momentum,
@@ -314,6 +329,7 @@ CHECKS = {
     "godot_client.py": check_godot_client,
     "graph_load.py": check_graph_load,
     "graph_search.py": check_graph_search,
+    "hybrid_sheet.py": check_hybrid_sheet,
     "open_blends.py": check_open_blends,
     "repair_variants.py": check_repair_variants,
     "root_trial.py": check_root_trial,

@@ -6,7 +6,8 @@
 """
 
 from engine.blend.corrections import Corrections
-from engine.blend.hybrid import HybridBlender, HybridReport, build_hybrid
+from engine.blend.hybrid import HybridBlender
+from engine.blend.hybrid_build import HybridReport, build_hybrid
 from engine.blend.linear import LinearBlender
 from engine.blend.nonlinear import (
     FrameDecomposer,

@@ -126,7 +126,7 @@ class BlendCache:
         pmap = self.space.parameter_map
         if pmap is None or self.space.n_sources <= 2:
             return None
-        from engine.motion_space.build import sheet_weights
+        from engine.parameters.sheet import sheet_weights
 
         return sheet_weights(pmap.layout, SHEET_RESOLUTION[pmap.layout.dims])
 

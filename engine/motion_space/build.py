@@ -33,6 +33,7 @@ from engine.blend import (
 from engine.blend import HybridBlender, phase_of_sample
 from engine.motion_space.container import write_container
 from engine.parameters import ParameterMap, RootTrack, measure_parameters
+from engine.parameters.sheet import between_weights, sheet_weights
 from engine.motion_space.roots import cyclic_root, source_roots
 from engine.root_motion import travel_turn, turned_reference
 from engine.surface import model_size
@@ -210,15 +211,6 @@ def warp_cycle_onto(clip, faces, rest, reference):
     return sample_frames(root.local, start + np.mod(warp * period / P, period))
 
 
-def sheet_weights(layout, resolution=None):
-    """(M, N) blend weights covering a parameter layout's sheet: where the player can go."""
-    resolution = resolution or (33 if layout.dims == 1 else 17)
-    axis = np.linspace(0.0, 1.0, resolution)
-    if layout.dims == 1:
-        return np.array([layout.weights([a]) for a in axis])
-    return np.array([layout.weights([a, b]) for a in axis for b in axis])
-
-
 def effector_vertices(samples, fraction=0.015):
     """Vertices that move most in the sources (a reach's hand): the top ``fraction`` by their
     largest displacement from the first phase sample, over all sources."""
@@ -332,6 +324,7 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
     options = dict(hybrid_options or {})
     if parameters is not None and "test_weights" not in options:
         options["test_weights"] = sheet_weights(parameters["layout"])
+        options.setdefault("check_weights", between_weights(parameters["layout"]))
     tree, corrections, hybrid_report = build_hybrid(
         linear.blend_all_phases, nonlinear.blend_all_phases, N, n_phases, n, epsilon=epsilon,
         progress=hybrid_progress, **options)
@@ -371,6 +364,9 @@ def build_motion_space(path, clips, faces, *, name, n_phases=None, epsilon=0.005
                     for i, c in enumerate(clips)],
         "hybrid": {"references": hybrid_report.references, "leaves": hybrid_report.leaves,
                    "max_depth": hybrid_report.max_depth, "max_test_error": hybrid_report.max_test_error,
+                   "check_points": hybrid_report.check_points,
+                   "max_check_error": hybrid_report.max_check_error if hybrid_report.check_points else None,
+                   "check_added": hybrid_report.check_added,
                    "nonlinear_evaluations": hybrid_report.nonlinear_evaluations,
                    "stored_fraction": hybrid_report.stored_fraction,
                    "correction_bytes": int(corrections.nbytes()), "source_bytes": int(sources32.nbytes)},

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from engine.blend.hybrid import MAX_REFERENCES
+from engine.blend.hybrid_build import MAX_REFERENCES
 from engine.mesh_io import read_mesh, read_sequence, to_metres_y_up
 from engine.motion_space import SourceClip, build_motion_space
 from engine.parameters import MEASURES, Layout
@@ -380,9 +380,14 @@ def run(args):
           f"{hybrid['max_test_error'] * 1000:.2f} mm (epsilon {epsilon_mm:g} mm), corrections "
           f"{hybrid['correction_bytes'] / 1e6:.2f} MB = {100 * hybrid['correction_bytes'] / hybrid['source_bytes']:.1f}% "
           f"of the sources")
-    if hybrid["max_test_error"] * 1000 > epsilon_mm:
+    if hybrid.get("check_points"):
+        print(f"  checked at {hybrid['check_points']} weights between the test points: max "
+              f"{hybrid['max_check_error'] * 1000:.2f} mm ({hybrid['check_added']} over epsilon became test points)")
+    if hybrid["max_test_error"] * 1000 > epsilon_mm or (hybrid.get("check_points")
+                                                        and hybrid["max_check_error"] * 1000 > epsilon_mm):
         print(f"  the hybrid's bound is not met everywhere (its bisection stopped at its depth limit or at "
-              f"{MAX_REFERENCES} references): test error up to {hybrid['max_test_error'] * 1000:.2f} mm; "
+              f"{MAX_REFERENCES} references): error up to "
+              f"{max(hybrid['max_test_error'], hybrid.get('max_check_error') or 0.0) * 1000:.2f} mm; "
               "sources that blend badly over the whole simplex need a parameter layout or fewer sources")
     if report.get("parameters"):
         p = report["parameters"]

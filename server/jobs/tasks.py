@@ -226,6 +226,8 @@ def run_build(payload, reporter, runner=None):
     summary = {"space": params["space"], "n_sources": report["n_sources"], "n_phases": report["n_phases"],
                "n_vertices": report["n_vertices"], "n_tets": report["n_tets"], "epsilon_mm": epsilon_mm,
                "hybrid_references": hybrid["references"], "hybrid_max_test_error_mm": 1000 * hybrid["max_test_error"],
+               "hybrid_max_check_error_mm": (None if hybrid.get("max_check_error") is None
+                                             else 1000 * hybrid["max_check_error"]),
                "source_units": report["source_units"], "source_up": report["source_up"],
                "seconds": round(time.perf_counter() - started, 2), "stage_seconds": report["timings"]}
     if report.get("parameters"):

@@ -355,7 +355,7 @@ def test_a_smaller_cache_of_nonlinear_blends_gives_the_same_hybrid(monkeypatch):
     """The bisection's cache of non-linear blends is bounded (a five-source build of unrelated
     takes held 24 GB of them and was killed): with room for only 64, the same tree and
     corrections, from more evaluations."""
-    import engine.blend.hybrid as hybrid
+    import engine.blend.hybrid_build as hybrid
 
     rng = np.random.default_rng(5)
     sources = rng.normal(size=(2, 3, 30, 3))

@@ -10,6 +10,7 @@ import pytest
 
 from engine.blend import SimplexTree, phase_of_sample
 from engine.motion_space import MotionSpace, SourceClip, build_motion_space
+from engine.parameters.sheet import between_weights, sheet_weights
 from engine.parameters import Layout
 from engine.synthetic import SequenceSpec, build_body, generate_sequence_data
 
@@ -115,3 +116,68 @@ def test_a_chain_layout_places_every_reference_on_the_chain(reach_space):
     references = reach_space.tree.references
     assert len(references) > 4
     assert np.all((references[:, 0] == 0) | (references[:, 2] == 0)), references
+
+
+def _grid_blends(seed=3, n_phases=2, n_vertices=40):
+    """Linear and non-linear blends of four sources whose difference bends quickly across a grid
+    layout's sheet (and vanishes at the sources, as a blend's does): between a coarse grid's test
+    points it rises above what they see."""
+    rng = np.random.default_rng(seed)
+    sources = rng.normal(size=(n_phases, 4, n_vertices, 3))
+    bend = 0.002 * rng.normal(size=(n_phases, n_vertices, 3))
+
+    def linear(w):
+        w = np.asarray(w, float) / np.sum(w)
+        return np.einsum("i,pinc->pnc", w, sources)
+
+    def nonlinear(w):
+        w = np.asarray(w, float) / np.sum(w)
+        shape = (1.0 - w @ w) * (np.sin(3 * w[0] + 4 * w[3]) + np.cos(3 * w[1] * w[2]))  # 0 at a source
+        return linear(w) + shape * bend
+
+    return sources, linear, nonlinear
+
+
+def test_between_weights_lie_halfway_between_the_test_points():
+    grid = Layout("grid", 4, corners=(0, 1, 2, 3))
+    chain = Layout("chain", 3, chain=(0, 1, 2))
+    assert between_weights(grid, 5).shape == (9 * 9 - 5 * 5, 4)
+    assert between_weights(chain, 5).shape == (4, 3)
+    np.testing.assert_allclose(between_weights(chain, 3), [chain.weights([0.25]), chain.weights([0.75])])
+    tests = {tuple(np.round(w, 12)) for w in sheet_weights(grid, 5)}
+    assert not any(tuple(np.round(w, 12)) in tests for w in between_weights(grid, 5))
+
+
+def test_the_bound_is_checked_between_a_sheets_test_points():
+    """On a two-dimensional sheet the bisection saw only its test points, and the hybrid was over
+    epsilon between them (the demo's fan: 5.89 mm at epsilon 5 mm). With the check, every weight
+    halfway between them is within epsilon, measured here by the runtime blender."""
+    from engine.blend import HybridBlender, build_hybrid
+
+    sources, linear, nonlinear = _grid_blends()
+    grid = Layout("grid", 4, corners=(0, 1, 2, 3))
+    tests, between = sheet_weights(grid, 5), between_weights(grid, 5)
+    epsilon = 2e-3
+    args = (linear, nonlinear, 4, sources.shape[0], sources.shape[2])
+    P = sources.shape[0]
+    flat = np.ascontiguousarray(sources, dtype=np.float32)  # (P, N, n, 3), as a space holds them
+
+    def worst(tree, corrections, weights):
+        hybrid = HybridBlender(flat, tree, corrections, False)
+        return np.array([max(np.linalg.norm(hybrid.blend(w, phase_of_sample(p, P, False))
+                                            - nonlinear(w)[p], axis=1).max() for p in range(P)) for w in weights])
+
+    tree, corrections, unchecked = build_hybrid(*args, epsilon=epsilon, test_weights=tests)
+    assert unchecked.check_points == 0 and np.isnan(unchecked.max_check_error)
+    assert worst(tree, corrections, tests).max() <= 0.9 * epsilon + 1e-6
+    assert worst(tree, corrections, between).max() > epsilon           # what the check is for
+
+    tree, corrections, report = build_hybrid(*args, epsilon=epsilon, test_weights=tests, check_weights=between)
+    errors = worst(tree, corrections, between)
+    assert report.check_points == len(between) and report.check_added > 0 and report.check_rounds >= 2
+    assert errors.max() <= epsilon + 1e-6 and abs(errors.max() - report.max_check_error) < 1e-5
+    assert worst(tree, corrections, tests).max() <= 0.9 * epsilon + 1e-6
+    again = build_hybrid(*args, epsilon=epsilon, test_weights=tests, check_weights=between)
+    assert np.array_equal(again[0].references, tree.references)
+    for name in ("pointer", "vertex", "value", "scale"):
+        assert np.array_equal(getattr(again[1], name), getattr(corrections, name)), name
