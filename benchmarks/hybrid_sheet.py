@@ -6,7 +6,11 @@ every phase sample at every weight, and reports the worst distance, where it is 
 weights are over the space's epsilon, beside what the build itself recorded::
 
     .venv/bin/python benchmarks/hybrid_sheet.py data/spaces/locomotion.mspace --per-axis 65
-    .venv/bin/python benchmarks/hybrid_sheet.py --tiny --out /tmp/hybrid_sheet.json   # a few seconds
+    .venv/bin/python benchmarks/hybrid_sheet.py --tiny --out /tmp/hybrid_sheet.json   # about 15 s
+
+``--per-axis`` must hold the build's own test weights, so the figures tell them from the weights
+between: along a chain (33 test weights) 33, 65, 97, ...; on a sheet (17 per axis) 17, 33, 49, ...;
+``--build-per-axis`` names another test grid a space was built with.
 
 ``--tiny`` (the test suite's smoke run) builds a small grid space first: four jumps (low / high,
 short / long) of a 1,000-vertex body at 15 fps, 8 phase samples, its bound tested on a 5 x 5 grid
@@ -77,6 +81,10 @@ def sheet_errors(path, per_axis, build_per_axis=None):
         seconds, cpu = time.perf_counter() - started, time.process_time() - cpu
         # Which of the sampled weights the build tested (on its own grid) and which lie between
         test_axis = (build_per_axis or sheet_resolution(layout)) - 1
+        if (per_axis - 1) % test_axis:
+            raise SystemExit(f"{path}: --per-axis {per_axis} does not hold the build's {test_axis + 1} test "
+                             f"weights per axis: use {test_axis} k + 1 weights (e.g. {2 * test_axis + 1}), or give "
+                             "--build-per-axis for a space built with other test weights")
         on_grid = np.all(np.abs(u * test_axis - np.round(u * test_axis)) < 1e-9, axis=1)
         epsilon = float(space.metadata["epsilon"])
         worst = int(np.argmax(errors))
@@ -104,7 +112,8 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("spaces", nargs="*", type=Path, help="motion-space files with a parameter layout")
     parser.add_argument("--per-axis", type=int, default=65,
-                        help="weights per layout axis (default 65: four times the build's test points on a sheet)")
+                        help="weights per layout axis (default 65: 4 times the build's test spacing on a "
+                             "17 x 17 sheet, twice on a 33-weight chain)")
     parser.add_argument("--build-per-axis", type=int,
                         help="the build's test weights per axis, if not the default (33 on a chain, 17 on a sheet)")
     parser.add_argument("--tiny", action="store_true", help="smoke run: a small grid space, built first; needs --out")
@@ -116,6 +125,8 @@ def main(argv=None):
     with tempfile.TemporaryDirectory() as work:
         spaces = list(args.spaces)
         if args.tiny:
+            if spaces:
+                parser.error("--tiny builds its own space: give no motion-space files with it")
             spaces = [Path(work) / "tiny_jumps.mspace"]
             build_tiny_jump_space(spaces[0], args.build_per_axis)
         if not spaces:

@@ -39,7 +39,7 @@ class HybridReport:
     leaf_errors: list = field(default_factory=list)
     check_points: int = 0            # check weights measured (those moved to the test points included)
     max_check_error: float = float("nan")  # the largest error at the check weights left, after the last round
-    check_rounds: int = 0            # times the check weights were measured
+    check_rounds: int = 0            # times the check weights were measured (refinements + 1 at most)
     check_added: int = 0             # check weights that failed and became test points
 
 
@@ -85,9 +85,11 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
         epsilon become test points, the leaves holding them are tested again (and split where
         they fail), and the corrections are pruned again from the bisection's, keeping the new
         points within the bound. Up to ``check_rounds`` rounds; the report's ``max_check_error``
-        is measured after the last. Only with ``test_weights``.
+        is measured after the last. Only with ``test_weights``; skipped with ``uniform_depth``.
     check_rounds : int
-        refinement rounds at most (each re-measures every check weight)
+        refinement rounds at most; after each, the check weights whose path down the tree or
+        whose corrections changed are measured again (the report's ``check_rounds`` counts the
+        measurements: at most one more)
     prune : bool
         After the bisection, drop stored entries whose removal keeps every test point and every
         reference within margin * epsilon, or no further off than it was
@@ -279,7 +281,8 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
             added = check_weights[failing]
             test_weights = np.concatenate([test_weights, added])
             check_weights = np.delete(check_weights, failing, axis=0)
-            paths = [path for k, path in enumerate(paths) if k not in set(failing.tolist())]
+            gone = set(failing.tolist())
+            paths = [path for k, path in enumerate(paths) if k not in gone]
             errors = np.delete(errors, failing)
             check["added"] += len(failing)
             leaves = sorted({int(tree.locate(w)[0]) for w in added})

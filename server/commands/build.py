@@ -386,9 +386,9 @@ def run(args):
     if hybrid["max_test_error"] * 1000 > epsilon_mm or (hybrid.get("check_points")
                                                         and hybrid["max_check_error"] * 1000 > epsilon_mm):
         print(f"  the hybrid's bound is not met everywhere (its bisection stopped at its depth limit or at "
-              f"{MAX_REFERENCES} references): error up to "
+              f"{MAX_REFERENCES} references, or the check between the test points ran out of rounds): error up to "
               f"{max(hybrid['max_test_error'], hybrid.get('max_check_error') or 0.0) * 1000:.2f} mm; "
-              "sources that blend badly over the whole simplex need a parameter layout or fewer sources")
+              "sources that blend badly need a parameter layout (without one) or fewer sources")
     if report.get("parameters"):
         p = report["parameters"]
         domain = ", ".join(f"{n} {lo:.3g}..{hi:.3g} {u}" for n, (lo, hi), u in zip(p["names"], p["domain"], p["units"]))
