@@ -62,15 +62,14 @@ def sheet_errors(path, per_axis, build_per_axis=None):
     (``build_per_axis``: the build's test weights per axis, default ``sheet_resolution``)."""
     from engine.blend import phase_of_sample
     from engine.motion_space import MotionSpace
-    from engine.parameters.sheet import sheet_resolution, sheet_weights
+    from engine.parameters.sheet import sheet_coordinates, sheet_resolution, sheet_weights
 
     with MotionSpace.open(path) as space:
         pmap = space.parameter_map
         if pmap is None:
             raise SystemExit(f"{path}: the space has no parameter layout, so it has no sheet to sample")
         layout = pmap.layout
-        coordinates = np.linspace(0.0, 1.0, per_axis)
-        u = coordinates[:, None] if layout.dims == 1 else np.array([[a, b] for a in coordinates for b in coordinates])
+        u = sheet_coordinates(layout, per_axis)
         weights = sheet_weights(layout, per_axis)
         hybrid, nonlinear = space.blender("hybrid"), space.blender("nonlinear")
         phases = [phase_of_sample(p, space.n_phases, space.cyclic) for p in range(space.n_phases)]

@@ -304,8 +304,12 @@ def build_hybrid(linear, nonlinear, n_sources, n_phases, n_vertices, *, epsilon,
 
 
 def changed_references(before, after):
-    """References whose stored entries differ between two Corrections of one tree (all of them
-    when ``before`` is None; references ``before`` lacks count as changed)."""
+    """References whose stored entries differ between two Corrections of one build (all of them
+    when ``before`` is None; references ``before`` lacks count as changed).
+
+    Both come from the same CorrectionBuilder, which only appends, pruned from it: a reference's
+    values and scales are those it was stored with, so which of its entries are kept, per phase,
+    is all that can differ."""
     if before is None:
         return set(range(after.n_references))
     P, changed = after.n_phases, set()
@@ -313,13 +317,9 @@ def changed_references(before, after):
         if r >= before.n_references:
             changed.add(r)
             continue
-        rows = slice(r * P, (r + 1) * P + 1)
-        a, b = before.pointer[rows], after.pointer[rows]
-        if not np.array_equal(a - a[0], b - b[0]) or not np.array_equal(
-                before.scale[r * P:(r + 1) * P], after.scale[r * P:(r + 1) * P]):
-            changed.add(r)
-        elif not (np.array_equal(before.vertex[a[0]:a[-1]], after.vertex[b[0]:b[-1]])
-                  and np.array_equal(before.value[a[0]:a[-1]], after.value[b[0]:b[-1]])):
+        a, b = before.pointer[r * P:(r + 1) * P + 1], after.pointer[r * P:(r + 1) * P + 1]
+        if not (np.array_equal(a - a[0], b - b[0])
+                and np.array_equal(before.vertex[a[0]:a[-1]], after.vertex[b[0]:b[-1]])):
             changed.add(r)
     return changed
 

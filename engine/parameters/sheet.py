@@ -10,13 +10,18 @@ def sheet_resolution(layout):
     return 33 if layout.dims == 1 else 17
 
 
+def sheet_coordinates(layout, resolution=None):
+    """(M, dims) layout coordinates u of ``sheet_weights``' rows: ``resolution`` per axis in [0, 1],
+    the last axis fastest."""
+    axis = np.linspace(0.0, 1.0, resolution or sheet_resolution(layout))
+    if layout.dims == 1:
+        return axis[:, None]
+    return np.stack(np.meshgrid(axis, axis, indexing="ij"), axis=-1).reshape(-1, 2)
+
+
 def sheet_weights(layout, resolution=None):
     """(M, N) blend weights covering a parameter layout's sheet: where the player can go."""
-    resolution = resolution or sheet_resolution(layout)
-    axis = np.linspace(0.0, 1.0, resolution)
-    if layout.dims == 1:
-        return np.array([layout.weights([a]) for a in axis])
-    return np.array([layout.weights([a, b]) for a in axis for b in axis])
+    return np.array([layout.weights(list(u)) for u in sheet_coordinates(layout, resolution)])
 
 
 def between_weights(layout, resolution=None):
