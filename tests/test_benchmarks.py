@@ -194,8 +194,11 @@ def check_align_breakdown(record, stdout):
 def check_repair_variants(record, stdout):
     assert record["dataset"] == "tiny" and record["frames"] == 8 and record["workers"] == 1
     rows = {row["variant"]: row for row in record["variants"]}
-    assert list(rows) == ["none", "together@0.5", "root_first@0.25", "root_first@0"]
+    assert list(rows) == ["none", "together@0.5", "root_first@0.25", "root_first@0.25:0", "root_first@0"]
+    assert record["sequences"] == ["run"]
+    assert rows["root_first@0.25:0"]["min_yield"] == 0 and rows["root_first@0.25"]["min_yield"] > 0
     for row in rows.values():
+        assert set(row["stopped"]) <= {"root", "others"}
         assert 0 < row["mean_pct"] <= row["p95_pct"] < 100 and non_negative(row["seconds"])
         assert row["frames_over_3pct_flagged"] <= row["frames_over_3pct"] and row["repaired"] <= row["flagged"] + row["repaired"]
         assert row["alignments"] <= int(row["budget"] * record["frames"])  # the budget holds

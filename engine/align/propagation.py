@@ -51,6 +51,9 @@ class AlignedFrames:
     repaired : (N,) bool array         frames the repair pass aligned again from other sources
     poses : dict                       frame -> aligned tet vertices (k, 3) (not written out)
     repair_spent : int                 pairwise alignments the repair pass spent (not written out)
+    repair_stopped : list of str       the repair's phases ("root", "others", ...) that ended before their
+                                       last frame because a run of alignments had stopped mending frames
+                                       (``min_yield`` of :func:`engine.align.repair.repair_alignment`)
     """
 
     vertices: np.ndarray
@@ -72,6 +75,7 @@ class AlignedFrames:
     poses: dict = None
     pulled: np.ndarray = None
     repair_spent: int = 0
+    repair_stopped: list = None
 
 
 def partition_tree(parent, order, chunk):

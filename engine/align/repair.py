@@ -45,6 +45,10 @@ TURN_COLOUR = 2.5      # a flagged frame is also aligned turned round when its c
                        # times more than the trusted frames' do (median): a body facing the wrong way
 TURN_SAMPLE = 16       # trusted frames whose colours set that median (evenly spaced in the tree's order)
 GRAFT = -2             # a source that stands for the frame's own alignment with limbs grafted (engine.align.limb_graft)
+YIELD_CHUNK = 32       # a phase's frames go out in runs of about this many alignments ...
+MIN_YIELD = 1.0 / 16.0 # ... and a run that mends fewer frames than this share of its alignments ends the phase
+                       # (the whole studio: 1 frame mended in 455 alignments from the root, 29 minutes;
+                       # the dance alone: 45 in 77; docs/evaluation.md, "A repair that stops when it stops paying")
 
 
 def alignment_badness(residual, distortion_tail, model_size, reference=0.0, colour=None, colour_floor=None,
@@ -105,7 +109,7 @@ def tail_reference(distortion_tail, parent, root):
 
 
 def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, candidates=2, budget=None,
-                     progress=None, runner=None, strategy="root_first"):
+                     progress=None, runner=None, strategy="root_first", min_yield=MIN_YIELD):
     """Align low-confidence frames again from the root and from trusted similar frames.
 
     Parameters
@@ -133,6 +137,14 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         similar frames (and turned round), the lowest confidence first; "together" (the repair
         before 2026-11-30): each flagged frame from all its sources at once, the lowest
         confidence first (docs/evaluation.md, "The repair priced")
+    min_yield : float
+        each phase goes through its frames in runs of about ``YIELD_CHUNK`` alignments; a run
+        that mends (replaces the alignment of) fewer frames than ``min_yield`` times the
+        alignments it spent ends the phase: its remaining frames are not tried in it (those the
+        root phase leaves go on to the next phase, as the frames the root did not mend do). The
+        phases ended so are named in ``aligned.repair_stopped``. The root phase goes most like the
+        root first, so a run that fails is followed by frames less likely still to be mended; the
+        others go parents first, each run a sample of the phase's yield. 0: never stop
 
     Returns
     -------
@@ -178,20 +190,22 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
 
     def affordable(frames, cost, planned, near=False):
         """``frames`` (in the tree's order) the budget reaches: the lowest confidence first, or
-        (``near``, with a dissimilarity) the most like the root first."""
-        if budget is None:
-            return frames
-        chosen = set()
+        (``near``, with a dissimilarity) the most like the root first, and then in that order (the
+        root's alignments are independent of each other: their order changes nothing but where
+        the yield stop falls)."""
         if near and dissimilarity is not None:
             row = np.asarray(dissimilarity)[root]
             key = lambda f: (float(row[f]), f)  # noqa: E731
         else:
             key = lambda f: (confidence[f], f)  # noqa: E731
-        for f in sorted(frames, key=key):
-            if planned + cost(f) <= limit:
-                chosen.add(f)
-                planned += cost(f)
-        return [f for f in frames if f in chosen]
+        if budget is not None:
+            chosen = set()
+            for f in sorted(frames, key=key):
+                if planned + cost(f) <= limit:
+                    chosen.add(f)
+                    planned += cost(f)
+            frames = [f for f in frames if f in chosen]
+        return sorted(frames, key=key) if near and dissimilarity is not None else frames
 
     versions = {}  # frame -> how often its pose was replaced: the runner's results name the pose they started from
 
@@ -280,14 +294,31 @@ def repair_alignment(aligner, meshes, aligned, *, dissimilarity=None, yaw=None, 
         from engine.align.pieces import portable_aligner
 
         local, shared = runner, portable_aligner(aligner)  # one object: a ProcessRunner keeps its processes
+    stopped = []
     for phase, frames in steps:
         if frames is None:  # the frames the root (or, for the limbs, any source) did not mend
             still = [f for f in flagged if confidence[f] < TRUSTED]
             frames = affordable(still, lambda f: 1 if phase == "limbs" else similar + (1 if f in turn else 0), spent)
             total += len(frames)
-        spent, done = run_phase(frames, phase, plan, job, apply, local, shared, versions, spent, done, total,
-                                progress)
+        k = 0
+        while k < len(frames):  # in runs, each judged by how many frames it mended
+            run, planned = [], 0
+            while k < len(frames) and (not run or planned < YIELD_CHUNK):
+                planned += len(plan(frames[k], spent + planned, phase))
+                run.append(frames[k])
+                k += 1
+            before, mended_before = spent, {f: versions.get(f, 0) for f in run}
+            spent, done = run_phase(run, phase, plan, job, apply, local, shared, versions, spent, done, total,
+                                    progress)
+            mended = sum(versions.get(f, 0) > mended_before[f] for f in run)
+            if k < len(frames) and spent > before and mended < float(min_yield) * (spent - before):
+                stopped.append(phase)  # the phase stopped paying: its other frames are not tried
+                total -= len(frames) - k
+                if progress is not None:
+                    progress(done, total)
+                break
     aligned.repair_spent = spent
+    aligned.repair_stopped = stopped
     aligned.confidence = confidence
     aligned.repaired = repaired
     return aligned

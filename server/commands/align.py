@@ -42,7 +42,7 @@ from engine.surface import model_size
 from server.commands.align_inputs import (DEFAULT_FPS, check_root_early, convert_inputs, frame_label, parse_root,
                                           read_inputs, resolve_inputs)
 from server.commands.align_output import (colour_cues_text, confidence_summary, options_record, root_trial_text,
-                                          root_vertices_text, write_alignment)
+                                          root_vertices_text, stopped_text, write_alignment)
 from server.commands.checks import MAX_FPS
 from server.commands.staging import staged
 from server.units import add_units_arguments, common_convention, count_text, length_text
@@ -259,7 +259,8 @@ def run(args):
               f"{', '.join(shown[:6])}"
               + (", ..." if len(shown) > 6 else ""))
     print(f"  confidence: {count_text(confidence['repaired_frames'], 'frame')} repaired (aligned again from the root "
-          f"or trusted frames; {count_text(confidence['repair_alignments'], 'alignment')} tried), "
+          f"or trusted frames; {count_text(confidence['repair_alignments'], 'alignment')} tried"
+          f"{stopped_text(confidence)}), "
           f"{confidence['flagged_frames']} of {frames} still below {TRUSTED} (listed per sequence in meta.json)")
     return 0
 

@@ -86,16 +86,33 @@ def confidence_summary(aligned, sequences, lengths):
     """The per-frame confidence in a few numbers (the align job's summary, the CLI's last line):
     ``root_frame`` ("SEQUENCE:FRAME"), ``repaired_frames`` and ``flagged_frames`` (below
     ``TRUSTED``) counted over all sequences, ``repair_alignments`` (the pairwise alignments the
-    repair tried, kept or not), ``confidence_min``, ``pulled_frames`` (frames whose
-    alignment pulled a limb onto what nothing covered, ``reach_limbs``), and ``flagged``: per
-    sequence the frames (its own numbering) still below ``TRUSTED``."""
+    repair tried, kept or not), ``repair_stopped`` (the repair's phases, "root" or "others", that
+    ended early because a run of alignments had stopped mending frames), ``confidence_min``,
+    ``pulled_frames`` (frames whose alignment pulled a limb onto what nothing covered,
+    ``reach_limbs``), and ``flagged``: per sequence the frames (its own numbering) still below
+    ``TRUSTED``."""
     return {"root_frame": frame_label(aligned.root, sequences, lengths),
             "repaired_frames": int(np.sum(aligned.repaired)),
             "repair_alignments": int(aligned.repair_spent),
+            "repair_stopped": list(aligned.repair_stopped or []),
             "flagged_frames": int(np.sum(aligned.confidence < TRUSTED)),
             "confidence_min": float(np.min(aligned.confidence)),
             "pulled_frames": int(np.sum(np.asarray(aligned.pulled) > 0)) if aligned.pulled is not None else 0,
             "flagged": flagged_by_sequence(aligned, sequences, lengths)}
+
+
+def stopped_text(confidence):
+    """"" or "; stopped early from the root (its last N alignments mended almost nothing)" for the
+    repair's phases in ``confidence["repair_stopped"]`` (:func:`confidence_summary`)."""
+    from engine.align.repair import MIN_YIELD, YIELD_CHUNK
+
+    phases = {"root": "from the root", "others": "from trusted frames", "limbs": "with grafted limbs",
+              "all": "from every source"}
+    stopped = [phases.get(p, p) for p in confidence.get("repair_stopped") or []]
+    if not stopped:
+        return ""
+    return (f"; stopped early {' and '.join(stopped)}: a run of about {YIELD_CHUNK} alignments mended fewer "
+            f"frames than 1 in {round(1 / MIN_YIELD)} of them")
 
 
 def flagged_by_sequence(aligned, sequences, lengths):

@@ -245,6 +245,9 @@ def run(args):
                                         part_counts=part_vertex_counts(manifest), depth=result.tree.depth,
                                         frame_labels=labels)
                 report[method] = {**report.get(method, {}), **record}
+                if method == "tree":  # what the repair spent, and which of its phases stopped paying
+                    report[method].update(repair_alignments=int(a.repair_spent),
+                                          repair_stopped=list(a.repair_stopped or []))
                 results[method] = (a.vertices, a.faces, a.root_vertices)
                 frame_rows += csv_rows(method, errors, size, names, picks, depth=result.tree.depth, parent=a.parent,
                                           confidence=a.confidence, repaired=a.repaired)

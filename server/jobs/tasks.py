@@ -291,7 +291,8 @@ def run_align(payload, reporter, runner=None):
     from engine.align.repair import TRUSTED
     from server.commands.align import COLOUR_MODES
     from server.commands.align_inputs import DEFAULT_FPS, convert_inputs, parse_root, read_inputs
-    from server.commands.align_output import confidence_summary, options_record, root_trial_text, write_alignment
+    from server.commands.align_output import (confidence_summary, options_record, root_trial_text, stopped_text,
+                                              write_alignment)
     from server.units import common_convention, count_text, display_unit
 
     params, staging = {**ALIGN_DEFAULTS, **payload["params"]}, Path(payload["staging"])
@@ -325,7 +326,8 @@ def run_align(payload, reporter, runner=None):
         reporter.log(f"root: {result.root_reason}")
     confidence = confidence_summary(aligned, sequences, lengths)
     reporter.log(f"confidence: {count_text(confidence['repaired_frames'], 'frame')} repaired "
-                 f"({count_text(confidence['repair_alignments'], 'alignment')} tried), {confidence['flagged_frames']} of "
+                 f"({count_text(confidence['repair_alignments'], 'alignment')} tried{stopped_text(confidence)}), "
+                 f"{confidence['flagged_frames']} of "
                  f"{int(lengths.sum())} still below {TRUSTED} (the summary's flagged lists them per sequence), "
                  f"{confidence['pulled_frames']} with a limb pulled onto what nothing covered")
     return {"output": {"type": "dataset", "name": params["output"], "path": out.name},

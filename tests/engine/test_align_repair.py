@@ -203,6 +203,44 @@ def test_root_first_tries_the_other_sources_only_where_the_root_left_the_frame_f
     assert aligned.parent[3] == 0
 
 
+@pytest.mark.parametrize("min_yield", [1.0 / 16.0, 0.0], ids=["stops", "never-stops"])
+def test_a_phase_whose_run_mends_nothing_stops_there(walk_aligner, five_frames, monkeypatch, min_yield):
+    """Frames 2 and 3 slipped, and every result from the root is marked torn and its colours far
+    off (as for frames far from the root): in runs of one alignment, the root phase's first run mends
+    nothing, so the phase ends there and the other flagged frame is never tried from the root; it goes on to the trusted
+    similar frames as a frame the root did not mend does. With ``min_yield`` 0 both are tried."""
+    import dataclasses
+
+    from engine.align import repair as repair_module
+
+    monkeypatch.setattr(repair_module, "YIELD_CHUNK", 1)
+    meshes = five_frames
+    aligned = _slipped(walk_aligner, meshes, [2, 3])
+    root_pose = aligned.poses[0].copy()
+    starts = []
+
+    class RootFails(_Counting):
+        def align(self, pose, *args, **kwargs):
+            starts.append(np.asarray(pose).copy())
+            result = super().align(pose, *args, **kwargs)
+            if np.array_equal(pose, root_pose):  # torn, and its colours far off: never better than the frame's own
+                result = dataclasses.replace(result, distortion_tail=100.0, colour_distance=1e3)
+            return result
+
+    D = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)
+    flagged = np.flatnonzero(_ranked_confidence(walk_aligner, aligned) < 0.5)
+    assert {2, 3} <= set(flagged) and 1 not in flagged  # (frame 1 hangs from the root: nothing to try from it)
+    repair_alignment(RootFails(walk_aligner), meshes, aligned, dissimilarity=D, candidates=1, min_yield=min_yield)
+    from_root = [k for k, s in enumerate(starts) if np.array_equal(s, root_pose)]
+    if min_yield > 0:  # frame 2, the most like the root, then nothing more from it
+        assert from_root == [0] and aligned.repair_stopped[:1] == ["root"]
+    else:
+        assert len(from_root) == len(flagged) and "root" not in aligned.repair_stopped
+    others = [s for s in starts if not np.array_equal(s, root_pose)]
+    assert others  # the frames the root did not try still go on to the other sources
+    assert aligned.parent[2] != 0 and aligned.parent[3] != 0
+
+
 def test_only_a_frame_whose_colours_disagree_is_also_tried_turned_round(walk_aligner, five_frames):
     # frame 3 is mirrored (its colours land on the wrong side); frame 2 keeps its alignment but
     # is flagged for a tear it does not have: its colours agree as the trusted frames' do, so it

@@ -23,6 +23,7 @@ from live_server import LiveServer
 
 from engine.mesh_io import read_mesh
 from server.cli import main as cli_main
+from server.commands.align_output import stopped_text
 from server.units import count_text
 
 TOKEN = "test-token-jobs"
@@ -411,8 +412,9 @@ def test_align_job_writes_a_buildable_dataset(client, live, dataset_zip):
     assert result["flagged_frames"] == sum(len(f) for f in result["flagged"].values())
     assert 0 <= result["confidence_min"] <= 1 and 0 <= result["repaired_frames"] <= 6
     assert result["repair_alignments"] >= result["repaired_frames"]  # tried, kept or not
+    assert set(result["repair_stopped"]) <= {"root", "others"}
     repaired = (f"confidence: {count_text(result['repaired_frames'], 'frame')} repaired "
-                f"({count_text(result['repair_alignments'], 'alignment')} tried)")
+                f"({count_text(result['repair_alignments'], 'alignment')} tried{stopped_text(result)})")
     assert any(repaired in line for line in job["log"]), job["log"]  # "1 frame", "1 alignment" in the singular
     pulled = np.load(served / "alignment.npz")["pulled"]
     assert result["pulled_frames"] == int(np.sum(pulled > 0))
