@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import copy
-import json
 import os
 import platform
 import sys
@@ -54,38 +53,32 @@ def parse_variants(text):
             raise SystemExit(f"--variants {label!r}: expected none or STRATEGY@BUDGET[:YIELD], STRATEGY root_first "
                              "or together")
         budget, colon, least = rest.partition(":")
-        numbers = []
-        for name, text_value in (("budget", budget), ("yield", least if colon else None)):
-            if text_value is None:
-                numbers.append(None)
-                continue
-            try:
-                value = float(text_value)
-            except ValueError:
-                raise SystemExit(f"--variants {label!r}: the {name} {text_value!r} is not a number") from None
-            if not value >= 0:
-                raise SystemExit(f"--variants {label!r}: the {name} must be >= 0")
-            numbers.append(value)
-        variants.append((label, strategy, numbers[0], numbers[1]))
+        variants.append((label, strategy, non_negative(label, "budget", budget),
+                         non_negative(label, "yield", least) if colon else None))
     if not variants:
         raise SystemExit("--variants: name at least one")
     return variants
 
 
+def non_negative(label, name, text):
+    """``text`` of variant ``label`` as a number >= 0, else exit naming the variant and the ``name``."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise SystemExit(f"--variants {label!r}: the {name} {text!r} is not a number") from None
+    if not value >= 0:
+        raise SystemExit(f"--variants {label!r}: the {name} must be >= 0")
+    return value
+
+
 def sequence_names(dataset, text):
     """The sequences ``--sequence`` names: one, several (comma-separated) or ``all`` of the dataset's
     (its manifest's order)."""
-    root = Path(dataset)
-    present = sorted(p.name for p in (root / "sequences").iterdir() if (p / "unstructured").is_dir()) \
-        if (root / "sequences").is_dir() else []
-    if text == "all":
-        manifest = root / "manifest.json"
-        listed = json.loads(manifest.read_text()).get("sequences", []) if manifest.is_file() else []
-        listed = [s["name"] if isinstance(s, dict) else s for s in listed]
-        names = [s for s in listed if s in present] or present
-    else:
-        names = [s.strip() for s in text.split(",") if s.strip()]
-    missing = [s for s in names if s not in present]
+    from engine.mesh_io.dataset import read_capture_manifest
+
+    known = [s["name"] for s in read_capture_manifest(dataset)["sequences"]]
+    names = known if text == "all" else [s.strip() for s in text.split(",") if s.strip()]
+    missing = [s for s in names if s not in known]
     if not names or missing:
         raise SystemExit(f"--sequence {text!r}: no such sequence in {dataset}: {', '.join(missing) or '(none named)'}")
     return names
@@ -156,18 +149,19 @@ def main(argv=None):
     with ProcessRunner(args.workers) if args.workers > 1 else contextlib.nullcontext() as runner:
         for label, strategy, budget, least in variants:
             aligned = copy.deepcopy(base)
+            least = None if strategy is None else MIN_YIELD if least is None else least
             started = time.perf_counter()
             if strategy is not None:
                 repair_alignment(aligner, meshes, aligned, dissimilarity=run.similarity.dissimilarity,
                                  yaw=run.similarity.yaw, candidates=args.retries, budget=budget, runner=runner,
-                                 strategy=strategy, min_yield=MIN_YIELD if least is None else least)
+                                 strategy=strategy, min_yield=least)
             else:  # the confidence alone (a zero budget repairs nothing)
                 repair_alignment(aligner, meshes, aligned, budget=0.0)
             seconds = time.perf_counter() - started
             summary, frame = score(aligned)
             flagged = aligned.confidence < TRUSTED
             row = {"variant": label, "strategy": strategy, "budget": budget,
-                   "min_yield": None if strategy is None else MIN_YIELD if least is None else least,
+                   "min_yield": least,
                    "stopped": list(aligned.repair_stopped or []),
                    "mean_pct": round(float(summary["mean_pct"]), 4), "p95_pct": round(float(summary["p95_pct"]), 4),
                    "frames_over_3pct": int(np.sum(frame > 3.0)),

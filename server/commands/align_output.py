@@ -86,8 +86,8 @@ def confidence_summary(aligned, sequences, lengths):
     """The per-frame confidence in a few numbers (the align job's summary, the CLI's last line):
     ``root_frame`` ("SEQUENCE:FRAME"), ``repaired_frames`` and ``flagged_frames`` (below
     ``TRUSTED``) counted over all sequences, ``repair_alignments`` (the pairwise alignments the
-    repair tried, kept or not), ``repair_stopped`` (the repair's phases, "root" or "others", that
-    ended early because a run of alignments had stopped mending frames), ``confidence_min``,
+    repair tried, kept or not), ``repair_stopped`` (the repair's phases, "root", "others" or with
+    ``graft_limbs`` "limbs", that ended early because a run of alignments had stopped mending frames), ``confidence_min``,
     ``pulled_frames`` (frames whose alignment pulled a limb onto what nothing covered,
     ``reach_limbs``), and ``flagged``: per sequence the frames (its own numbering) still below
     ``TRUSTED``."""
@@ -102,8 +102,9 @@ def confidence_summary(aligned, sequences, lengths):
 
 
 def stopped_text(confidence):
-    """"" or "; stopped early from the root (its last N alignments mended almost nothing)" for the
-    repair's phases in ``confidence["repair_stopped"]`` (:func:`confidence_summary`)."""
+    """"" when no phase of the repair stopped early, else "; stopped early from the root and ...: a
+    run of about 32 alignments mended fewer frames than 1 in 16 of them" for the phases in
+    ``confidence["repair_stopped"]`` (:func:`confidence_summary`)."""
     from engine.align.repair import MIN_YIELD, YIELD_CHUNK
 
     phases = {"root": "from the root", "others": "from trusted frames", "limbs": "with grafted limbs",

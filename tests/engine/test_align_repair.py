@@ -70,6 +70,22 @@ class _Counting:
         return self.aligner.align(*args, **kwargs)
 
 
+class _Recording(_Counting):
+    """The real aligner, recording the start pose of every pairwise alignment asked of it in
+    ``starts``; a subclass's ``mark(pose, target, result)`` may change the result it gives back."""
+
+    def __init__(self, aligner):
+        super().__init__(aligner)
+        self.starts = []
+
+    def align(self, pose, target, *args, **kwargs):
+        self.starts.append(np.asarray(pose).copy())
+        return self.mark(pose, target, super().align(pose, target, *args, **kwargs))
+
+    def mark(self, pose, target, result):
+        return result
+
+
 def _searching(aligner):
     """``aligner``'s twin with the articulated search on, which makes the slips here: from a
     mirrored pose it leaves the walk's frame 2 237 mm from its chain alignment (confidence 0.38);
@@ -157,14 +173,9 @@ def test_root_first_spends_the_budget_on_the_root_for_every_flagged_frame_before
     meshes = five_frames
     aligned = _slipped(walk_aligner, meshes, [2, 3])
     root_pose = aligned.poses[0].copy()
-    starts = []
-
-    class Recording(_Counting):
-        def align(self, pose, *args, **kwargs):
-            starts.append(np.asarray(pose).copy())
-            return super().align(pose, *args, **kwargs)
-
-    repair_alignment(Recording(walk_aligner), meshes, aligned, budget=0.4)
+    recording = _Recording(walk_aligner)
+    repair_alignment(recording, meshes, aligned, budget=0.4)
+    starts = recording.starts
     assert len(starts) == 2 and all(np.array_equal(s, root_pose) for s in starts)
     assert aligned.repaired[[2, 3]].all() and (aligned.parent[[2, 3]] == 0).all()
     assert (aligned.confidence[[2, 3]] >= 0.5).all()
@@ -179,19 +190,18 @@ def test_root_first_tries_the_other_sources_only_where_the_root_left_the_frame_f
     meshes = five_frames
     aligned = _slipped(walk_aligner, meshes, [2, 3])
     poses = {f: aligned.poses[f].copy() for f in range(5)}
-    starts = []
 
-    class RootFailsFrame2(_Counting):
-        def align(self, pose, target, *args, **kwargs):
-            starts.append(np.asarray(pose).copy())
-            result = super().align(pose, target, *args, **kwargs)
+    class RootFailsFrame2(_Recording):
+        def mark(self, pose, target, result):
             if np.array_equal(pose, poses[0]) and len(target.V) == len(meshes[2][0]) \
                     and np.array_equal(target.V, meshes[2][0]):
                 result = dataclasses.replace(result, distortion_tail=100.0)
             return result
 
     D = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)
-    repair_alignment(RootFailsFrame2(walk_aligner), meshes, aligned, dissimilarity=D, candidates=1)
+    recording = RootFailsFrame2(walk_aligner)
+    repair_alignment(recording, meshes, aligned, dissimilarity=D, candidates=1)
+    starts = recording.starts
     assert aligned.repaired[3] and aligned.parent[3] == 0 and aligned.confidence[3] >= 0.5
     from_root = [k for k, s in enumerate(starts) if np.array_equal(s, poses[0])]
     others = [k for k, s in enumerate(starts) if not np.array_equal(s, poses[0])]
@@ -207,8 +217,9 @@ def test_root_first_tries_the_other_sources_only_where_the_root_left_the_frame_f
 def test_a_phase_whose_run_mends_nothing_stops_there(walk_aligner, five_frames, monkeypatch, min_yield):
     """Frames 2 and 3 slipped, and every result from the root is marked torn and its colours far
     off (as for frames far from the root): in runs of one alignment, the root phase's first run mends
-    nothing, so the phase ends there and the other flagged frame is never tried from the root; it goes on to the trusted
-    similar frames as a frame the root did not mend does. With ``min_yield`` 0 both are tried."""
+    nothing, so the phase ends there and the other flagged frame is never tried from the root; it
+    goes on to the trusted similar frames as a frame the root did not mend does. With ``min_yield``
+    0 both are tried."""
     import dataclasses
 
     from engine.align import repair as repair_module
@@ -217,12 +228,9 @@ def test_a_phase_whose_run_mends_nothing_stops_there(walk_aligner, five_frames, 
     meshes = five_frames
     aligned = _slipped(walk_aligner, meshes, [2, 3])
     root_pose = aligned.poses[0].copy()
-    starts = []
 
-    class RootFails(_Counting):
-        def align(self, pose, *args, **kwargs):
-            starts.append(np.asarray(pose).copy())
-            result = super().align(pose, *args, **kwargs)
+    class RootFails(_Recording):
+        def mark(self, pose, target, result):
             if np.array_equal(pose, root_pose):  # torn, and its colours far off: never better than the frame's own
                 result = dataclasses.replace(result, distortion_tail=100.0, colour_distance=1e3)
             return result
@@ -230,7 +238,9 @@ def test_a_phase_whose_run_mends_nothing_stops_there(walk_aligner, five_frames, 
     D = np.abs(np.subtract.outer(np.arange(5), np.arange(5))).astype(float)
     flagged = np.flatnonzero(_ranked_confidence(walk_aligner, aligned) < 0.5)
     assert {2, 3} <= set(flagged) and 1 not in flagged  # (frame 1 hangs from the root: nothing to try from it)
-    repair_alignment(RootFails(walk_aligner), meshes, aligned, dissimilarity=D, candidates=1, min_yield=min_yield)
+    recording = RootFails(walk_aligner)
+    repair_alignment(recording, meshes, aligned, dissimilarity=D, candidates=1, min_yield=min_yield)
+    starts = recording.starts
     from_root = [k for k, s in enumerate(starts) if np.array_equal(s, root_pose)]
     if min_yield > 0:  # frame 2, the most like the root, then nothing more from it
         assert from_root == [0] and aligned.repair_stopped[:1] == ["root"]
@@ -258,16 +268,10 @@ def test_only_a_frame_whose_colours_disagree_is_also_tried_turned_round(walk_ali
                                 options=replace(walk_aligner.options, patch_coupling=0.0, search_levels=1))
     aligned = _slipped(uncoupled, meshes, [3])
     aligned.distortion_tail[2] = 100.0
-    starts = []
-
-    class Recording(_Counting):
-        def align(self, pose, *args, **kwargs):
-            starts.append(np.asarray(pose).copy())
-            return super().align(pose, *args, **kwargs)
-
-    counting = Recording(walk_aligner)
+    counting = _Recording(walk_aligner)
     poses = {f: aligned.poses[f].copy() for f in (0, 2, 3)}
     repair_alignment(counting, meshes, aligned, strategy="together")
+    starts = counting.starts
     # from the root for every flagged frame (2, 3, and 4 when its own fit is flagged too, its
     # colours agreeing), and turned round for frame 3 only
     from_root = sum(np.array_equal(s, poses[0]) for s in starts)
